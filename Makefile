@@ -1,0 +1,43 @@
+# topseg: `make demo` and `make test` are all a fresh Debian machine needs.
+VENV   := .venv
+PY     := $(VENV)/bin/python
+TOPSEG := $(VENV)/bin/topseg
+STAMP  := $(VENV)/.installed
+PYTEST := $(PY) -m pytest
+
+.PHONY: install test test-all demo bench lint format clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/install.sh
+	bash scripts/install.sh
+	touch $(STAMP)
+
+## the whole test suite but the slow soaks (< 25 min on 2 cores)
+test: install
+	$(VENV)/bin/ruff check .
+	$(PYTEST) -m "not slow" -q
+
+## everything, slow suites included
+test-all: install
+	$(PYTEST) -q
+
+## install, then run the main job end to end
+demo: install
+	$(TOPSEG) demo
+
+## speed and memory of each stage
+bench: install
+	$(TOPSEG) bench forest
+	$(TOPSEG) bench crf
+
+lint: install
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: install
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

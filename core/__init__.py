@@ -1,0 +1,1 @@
+"""Pure computation: labels, camera, scenes, features, forest, CRF, metrics, wire format."""

@@ -1,0 +1,128 @@
+"""Pinhole depth camera and its top-view mount, as data.
+
+Depth is uint16 millimetres, 0 = no measurement. The camera frame is x right, y down,
+z forward (RDF). The mount places the camera at `height_mm` above the floor, looking
+straight down, so a pixel's depth is its distance from the camera plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics; the defaults are Kinect v1's depth camera."""
+
+    width: int = 640
+    height: int = 480
+    fx: float = 570.3
+    fy: float = 570.3
+    cx: float = 319.5
+    cy: float = 239.5
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) of a frame, numpy order."""
+        return (self.height, self.width)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Intrinsics:
+        return cls(**{k: d[k] for k in ("width", "height", "fx", "fy", "cx", "cy")})
+
+    def scaled_to(self, width: int, height: int) -> Intrinsics:
+        """The same optics resampled to another resolution."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(
+            width,
+            height,
+            self.fx * sx,
+            self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5,
+            (self.cy + 0.5) * sy - 0.5,
+        )
+
+    def field_of_view_deg(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view in degrees."""
+        fov_x = 2 * np.degrees(np.arctan2(self.width / 2, self.fx))
+        fov_y = 2 * np.degrees(np.arctan2(self.height / 2, self.fy))
+        return float(fov_x), float(fov_y)
+
+
+KINECT_V1 = Intrinsics()
+
+
+def backproject(depth_mm: np.ndarray, k: Intrinsics) -> np.ndarray:
+    """(H, W) depth in mm -> (H, W, 3) float32 points in metres in the camera frame.
+
+    Pixels without depth come out as NaN so callers can mask them.
+    """
+    depth_mm = np.asarray(depth_mm)
+    if depth_mm.shape != k.shape:
+        raise ValueError(f"depth shape {depth_mm.shape} does not match camera {k.shape}")
+    z = depth_mm.astype(np.float32) / 1000.0
+    z[depth_mm == 0] = np.nan
+    v, u = np.indices(k.shape, dtype=np.float32)
+    x = (u - k.cx) * z / k.fx
+    y = (v - k.cy) * z / k.fy
+    return np.stack([x, y, z], axis=-1)
+
+
+def project(points_m: np.ndarray, k: Intrinsics) -> np.ndarray:
+    """(..., 3) camera-frame points in metres -> (..., 2) pixel coordinates (u, v)."""
+    p = np.asarray(points_m, np.float64)
+    z = p[..., 2]
+    return np.stack([k.fx * p[..., 0] / z + k.cx, k.fy * p[..., 1] / z + k.cy], axis=-1)
+
+
+@dataclass(frozen=True)
+class TopViewMount:
+    """A camera on the ceiling, `height_mm` above the floor, looking straight down.
+
+    World frame: x, y on the floor, z up, origin on the floor below the camera.
+    Camera x = world x, camera y = -world y, camera z = -world z (looking down).
+    """
+
+    intrinsics: Intrinsics = field(default_factory=Intrinsics)
+    height_mm: float = 3500.0
+
+    def floor_extent_m(self) -> tuple[float, float]:
+        """Width and depth (metres) of the floor area the camera sees."""
+        h = self.height_mm / 1000.0
+        k = self.intrinsics
+        return (k.width * h / k.fx, k.height * h / k.fy)
+
+    def world_to_camera(self, xyz_world_m: np.ndarray) -> np.ndarray:
+        p = np.asarray(xyz_world_m, np.float64)
+        h = self.height_mm / 1000.0
+        return np.stack([p[..., 0], -p[..., 1], h - p[..., 2]], axis=-1)
+
+    def camera_to_world(self, xyz_cam_m: np.ndarray) -> np.ndarray:
+        p = np.asarray(xyz_cam_m, np.float64)
+        h = self.height_mm / 1000.0
+        return np.stack([p[..., 0], -p[..., 1], h - p[..., 2]], axis=-1)
+
+    def depth_of_height(self, z_world_m: float) -> float:
+        """Depth in mm that a horizontal surface at height `z_world_m` reads."""
+        return self.height_mm - 1000.0 * z_world_m
+
+    def to_dict(self) -> dict:
+        return {"intrinsics": self.intrinsics.to_dict(), "height_mm": self.height_mm}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TopViewMount:
+        return cls(Intrinsics.from_dict(d["intrinsics"]), float(d["height_mm"]))
+
+
+TOP_VIEW = TopViewMount()

@@ -1,0 +1,1 @@
+"""Depth sources behind one interface: replay, freenect, openni2, oak, synthetic."""
