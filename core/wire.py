@@ -1,0 +1,416 @@
+"""The Zenoh wire format (DESIGN section 4): msgpack messages and key expressions.
+
+A depth or label message is one msgpack map::
+
+    v         schema version (SCHEMA_VERSION)
+    seq       frame number, 0 <= seq < 2**63
+    stamp_ns  capture time, ns since the Unix epoch, 0 <= stamp_ns < 2**63
+    frame_id  camera name, at most 256 characters
+    width, height   1..MAX_SIDE pixels
+    encoding  "16UC1" (depth, millimetres, 0 = no depth) or "8UC1" (labels)
+    data      raw little-endian pixels, row-major, exactly width*height*bytes-per-pixel bytes
+    fx, fy, cx, cy  pinhole intrinsics in pixels (depth only)
+
+Labels carry the `seq` and `stamp_ns` of the depth frame they were computed from, and only
+valid label ids (`topseg.core.labels`). A stats message (`encode_stats`) is a small
+JSON-able map the worker publishes on `.../stats`.
+
+Decoding trusts nothing from the sender: the buffer, every field's type and range and the
+data length are checked before any array is made, and any failure is one `WireError`
+(services count and drop those). Decoded arrays are read-only views of the message bytes.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from topseg.core import labels as label_table
+from topseg.core.camera import KINECT_V1, Intrinsics
+from topseg.core.errors import TopsegError
+
+SCHEMA_VERSION = 1
+MAX_SIDE = 4096
+MAX_FRAME_ID = 256
+DEPTH_ENCODING = "16UC1"
+LABELS_ENCODING = "8UC1"
+BYTES_PER_PIXEL = {DEPTH_ENCODING: 2, LABELS_ENCODING: 1}
+#: No valid message is larger than the largest depth image plus a small header.
+MAX_MESSAGE_BYTES = MAX_SIDE * MAX_SIDE * 2 + 4096
+_MAX_STAMP = 2**63 - 1
+
+DEFAULT_CELL = "default"
+DEFAULT_CAMERA = "cam0"
+ROOT = "topseg"
+#: The message kinds that live under `topseg/<cell>/<camera>/`.
+KINDS = ("depth", "labels", "truth", "stats", "info")
+_NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+
+_FRAME_FIELDS = ("v", "seq", "stamp_ns", "frame_id", "width", "height", "encoding", "data")
+_DEPTH_FIELDS = frozenset((*_FRAME_FIELDS, "fx", "fy", "cx", "cy"))
+_LABEL_FIELDS = frozenset(_FRAME_FIELDS)
+
+_VALID_LABEL = np.zeros(256, bool)
+_VALID_LABEL[[lab.id for lab in label_table.LABELS]] = True
+_VALID_LABEL[label_table.NO_DEPTH] = True
+
+
+class WireError(TopsegError):
+    """A message (or key) that does not follow the wire format; receivers drop and count it."""
+
+
+# ---------------------------------------------------------------------------- frames
+
+
+@dataclass(frozen=True, eq=False)
+class DepthFrame:
+    """A depth image in millimetres (uint16, 0 = no depth) with its camera and time."""
+
+    depth: np.ndarray
+    intrinsics: Intrinsics = KINECT_V1
+    seq: int = 0
+    stamp_ns: int = 0
+    frame_id: str = ""
+
+    def __post_init__(self) -> None:
+        _check_image(self.depth, np.uint16, "depth")
+        if self.depth.shape != self.intrinsics.shape:
+            raise WireError(
+                f"depth shape {self.depth.shape} does not match the camera's "
+                f"{self.intrinsics.shape} (height, width)"
+            )
+        _check_header(self.seq, self.stamp_ns, self.frame_id)
+
+
+@dataclass(frozen=True, eq=False)
+class LabelFrame:
+    """A label image (uint8 label ids, 255 = no depth) for the depth frame `seq`/`stamp_ns`."""
+
+    labels: np.ndarray
+    seq: int = 0
+    stamp_ns: int = 0
+    frame_id: str = ""
+
+    def __post_init__(self) -> None:
+        _check_image(self.labels, np.uint8, "labels")
+        _check_header(self.seq, self.stamp_ns, self.frame_id)
+
+
+def _check_image(arr: Any, dtype: type, what: str) -> None:
+    if not isinstance(arr, np.ndarray) or arr.dtype != dtype or arr.ndim != 2:
+        got = f"{arr.dtype} {arr.shape}" if isinstance(arr, np.ndarray) else type(arr).__name__
+        raise WireError(f"{what} must be a 2-D {np.dtype(dtype).name} array, got {got}")
+    h, w = arr.shape
+    if not (1 <= h <= MAX_SIDE and 1 <= w <= MAX_SIDE):
+        raise WireError(f"{what} is {w}x{h}; each side must be 1..{MAX_SIDE}")
+
+
+def _check_header(seq: Any, stamp_ns: Any, frame_id: Any) -> None:
+    _int_in("seq", seq, 0, _MAX_STAMP)
+    _int_in("stamp_ns", stamp_ns, 0, _MAX_STAMP)
+    if not isinstance(frame_id, str) or len(frame_id) > MAX_FRAME_ID:
+        raise WireError(f"frame_id must be a string of at most {MAX_FRAME_ID} characters")
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """repr() cut to `limit` characters: error messages never echo a whole payload."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _int_in(name: str, value: Any, lo: int, hi: int) -> int:
+    if type(value) is not int and not isinstance(value, np.integer):
+        raise WireError(f"{name} must be an integer, got {type(value).__name__}")
+    if not lo <= int(value) <= hi:
+        raise WireError(f"{name}={_short(value)} is outside {lo}..{hi}")
+    return int(value)
+
+
+def _float(name: str, value: Any) -> float:
+    if type(value) not in (int, float):
+        raise WireError(f"{name} must be a number, got {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise WireError(f"{name} must be finite, got {value}")
+    return value
+
+
+# ---------------------------------------------------------------------------- encode
+
+
+def _pack(obj: dict) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def _frame_map(seq: int, stamp_ns: int, frame_id: str, img: np.ndarray, encoding: str) -> dict:
+    h, w = img.shape
+    little = img.astype(img.dtype.newbyteorder("<"), copy=False)
+    return {
+        "v": SCHEMA_VERSION,
+        "seq": int(seq),
+        "stamp_ns": int(stamp_ns),
+        "frame_id": frame_id,
+        "width": w,
+        "height": h,
+        "encoding": encoding,
+        "data": np.ascontiguousarray(little).tobytes(),
+    }
+
+
+def encode_depth(frame: DepthFrame) -> bytes:
+    """A depth frame as one msgpack message."""
+    if not isinstance(frame, DepthFrame):
+        raise WireError(f"encode_depth takes a DepthFrame, got {type(frame).__name__}")
+    msg = _frame_map(frame.seq, frame.stamp_ns, frame.frame_id, frame.depth, DEPTH_ENCODING)
+    k = frame.intrinsics
+    msg.update(fx=float(k.fx), fy=float(k.fy), cx=float(k.cx), cy=float(k.cy))
+    return _pack(msg)
+
+
+def encode_labels(frame: LabelFrame) -> bytes:
+    """A label frame as one msgpack message; refuses ids outside the label table."""
+    if not isinstance(frame, LabelFrame):
+        raise WireError(f"encode_labels takes a LabelFrame, got {type(frame).__name__}")
+    _check_label_values(frame.labels)
+    return _pack(
+        _frame_map(frame.seq, frame.stamp_ns, frame.frame_id, frame.labels, LABELS_ENCODING)
+    )
+
+
+def _check_label_values(img: np.ndarray) -> None:
+    counts = np.bincount(img.ravel(), minlength=256)
+    bad = np.flatnonzero((counts > 0) & ~_VALID_LABEL)
+    if bad.size:
+        raise WireError(f"labels hold ids that are not in the label table: {bad[:8].tolist()}")
+
+
+# ---------------------------------------------------------------------------- decode
+
+
+def _unpack(data: Any) -> dict:
+    if not isinstance(data, bytes | bytearray | memoryview):
+        raise WireError(f"a message must be bytes, got {type(data).__name__}")
+    if len(data) > MAX_MESSAGE_BYTES:
+        raise WireError(f"message of {len(data)} bytes exceeds the {MAX_MESSAGE_BYTES}-byte limit")
+    try:
+        obj = msgpack.unpackb(
+            data,
+            raw=False,
+            strict_map_key=True,
+            use_list=False,
+            max_bin_len=MAX_SIDE * MAX_SIDE * 2,
+            max_str_len=4096,
+            max_array_len=64,
+            max_map_len=128,
+            max_ext_len=0,
+        )
+    except Exception as exc:  # msgpack raises a zoo of types for bad input
+        raise WireError(f"not a msgpack message ({type(exc).__name__}: {exc})") from None
+    if not isinstance(obj, dict):
+        raise WireError(f"a message must be a msgpack map, got {type(obj).__name__}")
+    return obj
+
+
+def _check_fields(msg: dict, expected: frozenset[str], what: str) -> None:
+    keys = set(msg)
+    if keys != expected:
+        missing, extra = sorted(expected - keys), sorted(map(_short, keys - expected))
+        parts = [f"missing {missing}" if missing else "", f"unknown {extra}" if extra else ""]
+        raise WireError(f"{what} message fields: " + "; ".join(p for p in parts if p))
+    if msg["v"] != SCHEMA_VERSION or type(msg["v"]) is not int:
+        raise WireError(f"schema version {_short(msg['v'])} is not {SCHEMA_VERSION}")
+
+
+def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, int, int, str]:
+    if msg["encoding"] != encoding:
+        raise WireError(f"encoding {_short(msg['encoding'])}, expected {encoding!r}")
+    width = _int_in("width", msg["width"], 1, MAX_SIDE)
+    height = _int_in("height", msg["height"], 1, MAX_SIDE)
+    data = msg["data"]
+    if not isinstance(data, bytes):
+        raise WireError(f"data must be binary, got {type(data).__name__}")
+    expected = width * height * BYTES_PER_PIXEL[encoding]
+    if len(data) != expected:
+        raise WireError(
+            f"data holds {len(data)} bytes; {width}x{height} {encoding} needs {expected}"
+        )
+    _check_header(msg["seq"], msg["stamp_ns"], msg["frame_id"])
+    img = np.frombuffer(data, np.dtype(dtype).newbyteorder("<")).reshape(height, width)
+    if img.dtype != dtype:  # big-endian host
+        img = img.astype(dtype)
+    return img, msg["seq"], msg["stamp_ns"], msg["frame_id"]
+
+
+def decode_depth(data: bytes) -> DepthFrame:
+    """Bytes -> DepthFrame, or WireError naming what is wrong."""
+    msg = _unpack(data)
+    _check_fields(msg, _DEPTH_FIELDS, "depth")
+    depth, seq, stamp, frame_id = _frame_from_map(msg, DEPTH_ENCODING, np.uint16)
+    h, w = depth.shape
+    fx, fy = _float("fx", msg["fx"]), _float("fy", msg["fy"])
+    cx, cy = _float("cx", msg["cx"]), _float("cy", msg["cy"])
+    if not (0 < fx <= 100 * MAX_SIDE and 0 < fy <= 100 * MAX_SIDE):
+        raise WireError(f"focal lengths fx={fx} fy={fy} must be in (0, {100 * MAX_SIDE}]")
+    if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
+        raise WireError(f"principal point ({cx}, {cy}) is far outside the {w}x{h} image")
+    k = Intrinsics(w, h, fx, fy, cx, cy)
+    return DepthFrame(depth, k, seq, stamp, frame_id)
+
+
+def decode_labels(data: bytes) -> LabelFrame:
+    """Bytes -> LabelFrame, or WireError naming what is wrong."""
+    msg = _unpack(data)
+    _check_fields(msg, _LABEL_FIELDS, "labels")
+    img, seq, stamp, frame_id = _frame_from_map(msg, LABELS_ENCODING, np.uint8)
+    _check_label_values(img)
+    return LabelFrame(img, seq, stamp, frame_id)
+
+
+# ---------------------------------------------------------------------------- stats
+
+_STATS_REQUIRED = frozenset(("v", "stamp_ns", "timings_ms", "counts"))
+_STATS_OPTIONAL = frozenset(("seq", "role", "model_id", "fps", "frame_id"))
+_MAX_ENTRIES = 64
+
+
+def _check_stats(msg: Mapping) -> dict:
+    keys = set(msg)
+    if not _STATS_REQUIRED <= keys or not keys <= _STATS_REQUIRED | _STATS_OPTIONAL:
+        missing = sorted(_STATS_REQUIRED - keys)
+        extra = sorted(map(_short, keys - _STATS_REQUIRED - _STATS_OPTIONAL))
+        raise WireError(f"stats message fields: missing {missing}, unknown {extra}")
+    if msg["v"] != SCHEMA_VERSION or type(msg["v"]) is not int:
+        raise WireError(f"schema version {_short(msg['v'])} is not {SCHEMA_VERSION}")
+    out: dict[str, Any] = {"v": SCHEMA_VERSION}
+    out["stamp_ns"] = _int_in("stamp_ns", msg["stamp_ns"], 0, _MAX_STAMP)
+    if "seq" in msg:
+        out["seq"] = _int_in("seq", msg["seq"], 0, _MAX_STAMP)
+    for name in ("role", "model_id", "frame_id"):
+        if name in msg:
+            if not isinstance(msg[name], str) or len(msg[name]) > MAX_FRAME_ID:
+                raise WireError(f"{name} must be a string of at most {MAX_FRAME_ID} characters")
+            out[name] = msg[name]
+    if "fps" in msg:
+        out["fps"] = _float("fps", msg["fps"])
+        if out["fps"] < 0:
+            raise WireError(f"fps must be >= 0, got {out['fps']}")
+    out["timings_ms"] = _named_numbers(msg["timings_ms"], "timings_ms", _nonneg_float)
+    out["counts"] = _named_numbers(msg["counts"], "counts", _count)
+    return out
+
+
+def _nonneg_float(name: str, value: Any) -> float:
+    value = _float(name, value)
+    if value < 0:
+        raise WireError(f"{name} must be >= 0, got {value}")
+    return value
+
+
+def _count(name: str, value: Any) -> int:
+    return _int_in(name, value, 0, _MAX_STAMP)
+
+
+def _named_numbers(table: Any, what: str, check) -> dict:
+    if not isinstance(table, Mapping) or len(table) > _MAX_ENTRIES:
+        raise WireError(f"{what} must be a map of at most {_MAX_ENTRIES} entries")
+    out = {}
+    for name, value in table.items():
+        if not isinstance(name, str) or not _NAME.fullmatch(name):
+            raise WireError(f"{what} has a bad entry name {_short(name)}")
+        out[name] = check(f"{what}.{name}", value)
+    return out
+
+
+def encode_stats(stats: Mapping[str, Any]) -> bytes:
+    """A stats map -> msgpack bytes.
+
+    Required: `stamp_ns`, `timings_ms` ({stage: ms}), `counts` ({name: int}, e.g. processed,
+    dropped, rejected). Optional: `seq`, `role`, `model_id`, `fps`, `frame_id`. `v` is added.
+    """
+    return _pack(_check_stats({"v": SCHEMA_VERSION, **stats}))
+
+
+def decode_stats(data: bytes) -> dict:
+    """Bytes -> a validated, JSON-able stats dict, or WireError."""
+    return _check_stats(_unpack(data))
+
+
+# ---------------------------------------------------------------------------- keys
+
+
+def _check_name(what: str, name: Any) -> str:
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise WireError(
+            f"{what} name {_short(name)} must be 1-64 characters of letters, digits, '_', '.', '-'"
+        )
+    return name
+
+
+def camera_prefix(cell: str, camera: str) -> str:
+    """`topseg/<cell>/<camera>`, after checking both names are plain key chunks."""
+    return f"{ROOT}/{_check_name('cell', cell)}/{_check_name('camera', camera)}"
+
+
+def depth_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    return f"{camera_prefix(cell, camera)}/depth"
+
+
+def labels_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    return f"{camera_prefix(cell, camera)}/labels"
+
+
+def truth_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    """Ground-truth labels, when the source knows them (synthetic scenes, recordings)."""
+    return f"{camera_prefix(cell, camera)}/truth"
+
+
+def stats_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    return f"{camera_prefix(cell, camera)}/stats"
+
+
+def info_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    return f"{camera_prefix(cell, camera)}/info"
+
+
+def alive_key(cell: str, camera: str, role: str) -> str:
+    """Liveliness token of one service (`driver`, `worker`, ...) for one camera."""
+    return f"{camera_prefix(cell, camera)}/alive/{_check_name('role', role)}"
+
+
+@dataclass(frozen=True)
+class KeyParts:
+    cell: str
+    camera: str
+    kind: str
+    role: str | None = None
+
+
+def parse_key(key: str) -> KeyParts:
+    """Split a concrete topseg key expression; WireError if it is not one."""
+    parts = key.split("/") if isinstance(key, str) else []
+    if len(parts) == 5 and parts[0] == ROOT and parts[3] == "alive":
+        _check_name("cell", parts[1]), _check_name("camera", parts[2])
+        return KeyParts(parts[1], parts[2], "alive", _check_name("role", parts[4]))
+    if len(parts) != 4 or parts[0] != ROOT or parts[3] not in KINDS:
+        raise WireError(
+            f"{_short(key)} is not a topseg key (topseg/<cell>/<camera>/<{'|'.join(KINDS)}>)"
+        )
+    return KeyParts(_check_name("cell", parts[1]), _check_name("camera", parts[2]), parts[3])
+
+
+def decode_for_key(key: str, data: bytes) -> DepthFrame | LabelFrame | dict:
+    """Decode a message by the kind its key names (depth, labels, truth or stats)."""
+    kind = parse_key(key).kind
+    if kind == "depth":
+        return decode_depth(data)
+    if kind in ("labels", "truth"):
+        return decode_labels(data)
+    if kind == "stats":
+        return decode_stats(data)
+    raise WireError(f"{key!r} does not carry a msgpack frame message")

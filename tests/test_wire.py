@@ -1,0 +1,314 @@
+"""The wire format: exact round trips, and every kind of bad message -> WireError, nothing else."""
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from topseg.core import labels, wire
+from topseg.core.camera import KINECT_V1, Intrinsics
+from topseg.core.wire import DepthFrame, LabelFrame, WireError
+
+FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+VALID_IDS = [lab.id for lab in labels.LABELS] + [labels.NO_DEPTH]
+
+
+def small_depth(rng, h=6, w=9):
+    k = KINECT_V1.scaled_to(w, h)
+    return DepthFrame(rng.integers(0, 65536, (h, w), dtype=np.uint16), k, 7, 123456789, "cam0")
+
+
+def small_labels(rng, h=6, w=9):
+    img = rng.choice(np.array(VALID_IDS, np.uint8), size=(h, w))
+    return LabelFrame(img, 7, 123456789, "cam0")
+
+
+def assert_same_depth(a: DepthFrame, b: DepthFrame):
+    np.testing.assert_array_equal(a.depth, b.depth)
+    assert a.depth.dtype == b.depth.dtype == np.uint16
+    assert (a.seq, a.stamp_ns, a.frame_id) == (b.seq, b.stamp_ns, b.frame_id)
+    assert a.intrinsics == b.intrinsics
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+def test_full_size_depth_round_trip_and_layout():
+    rng = np.random.default_rng(1)
+    depth = rng.integers(0, 8000, KINECT_V1.shape, dtype=np.uint16)
+    frame = DepthFrame(
+        depth, KINECT_V1, seq=2**40, stamp_ns=1_700_000_000_123_456_789, frame_id="c"
+    )
+    data = wire.encode_depth(frame)
+    back = wire.decode_depth(data)
+    assert_same_depth(frame, back)
+    # the raw layout is the documented one: little-endian, row-major
+    msg = msgpack.unpackb(data)
+    assert msg["data"] == depth.astype("<u2").tobytes()
+    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 1)
+    assert not back.depth.flags.writeable  # a view of the message, not a copy
+
+
+@given(
+    hnp.arrays(np.uint16, hnp.array_shapes(min_dims=2, max_dims=2, max_side=40)),
+    st.integers(0, 2**63 - 1),
+    st.integers(0, 2**63 - 1),
+    st.text(max_size=20),
+)
+@FUZZ
+def test_depth_round_trip_any_content(depth, seq, stamp, frame_id):
+    h, w = depth.shape
+    frame = DepthFrame(depth, KINECT_V1.scaled_to(w, h), seq, stamp, frame_id)
+    assert_same_depth(frame, wire.decode_depth(wire.encode_depth(frame)))
+
+
+@given(
+    hnp.arrays(
+        np.uint8,
+        st.tuples(st.integers(1, 30), st.integers(1, 30)),
+        elements=st.sampled_from(VALID_IDS),
+    )
+)
+@FUZZ
+def test_labels_round_trip(img):
+    frame = LabelFrame(img, seq=3, stamp_ns=99, frame_id="x")
+    back = wire.decode_labels(wire.encode_labels(frame))
+    np.testing.assert_array_equal(back.labels, img)
+    assert (back.seq, back.stamp_ns, back.frame_id) == (3, 99, "x")
+
+
+def test_encoding_is_deterministic():
+    rng = np.random.default_rng(2)
+    f = small_depth(rng)
+    assert wire.encode_depth(f) == wire.encode_depth(f)
+    assert wire.encode_depth(wire.decode_depth(wire.encode_depth(f))) == wire.encode_depth(f)
+
+
+def test_stats_round_trip():
+    stats = {
+        "stamp_ns": 5,
+        "seq": 9,
+        "role": "worker",
+        "model_id": "forest-abc",
+        "fps": 29.5,
+        "timings_ms": {"forest": 8.25, "crf": 12.0},
+        "counts": {"processed": 100, "dropped": 3, "rejected": 1},
+    }
+    back = wire.decode_stats(wire.encode_stats(stats))
+    assert back == {"v": 1, **stats}
+
+
+# ----------------------------------------------------------------------------- rejections
+
+
+def _depth_map(rng) -> dict:
+    return msgpack.unpackb(wire.encode_depth(small_depth(rng)))
+
+
+def test_unknown_label_ids_are_refused_both_ways():
+    img = np.zeros((4, 4), np.uint8)
+    img[1, 2] = 42
+    with pytest.raises(WireError, match="42"):
+        wire.encode_labels(LabelFrame(img))
+    msg = msgpack.unpackb(wire.encode_labels(LabelFrame(np.zeros((4, 4), np.uint8))))
+    msg["data"] = img.tobytes()
+    with pytest.raises(WireError, match="label table"):
+        wire.decode_labels(msgpack.packb(msg))
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("width", 10**9, "width"),
+        ("height", 0, "height"),
+        ("width", 10, "bytes"),  # size lies: data no longer matches
+        ("data", b"\0" * 7, "bytes"),
+        ("data", "text", "binary"),
+        ("encoding", "8UC1", "encoding"),
+        ("v", 2, "version"),
+        ("v", True, "version"),
+        ("seq", -1, "seq"),
+        ("seq", 1.5, "seq"),
+        ("stamp_ns", 2**64 - 1, "stamp_ns"),
+        ("frame_id", "x" * 300, "frame_id"),
+        ("fx", 0.0, "focal"),
+        ("fy", float("nan"), "finite"),
+        ("cx", 1e9, "principal"),
+        ("cy", "1", "number"),
+    ],
+)
+def test_bad_field_is_named(field, value, match):
+    msg = _depth_map(np.random.default_rng(3))
+    msg[field] = value
+    with pytest.raises(WireError, match=match):
+        wire.decode_depth(msgpack.packb(msg))
+
+
+def test_missing_and_unknown_fields():
+    msg = _depth_map(np.random.default_rng(4))
+    del msg["fx"]
+    with pytest.raises(WireError, match="missing"):
+        wire.decode_depth(msgpack.packb(msg))
+    msg = _depth_map(np.random.default_rng(4))
+    msg["extra"] = 1
+    with pytest.raises(WireError, match="unknown"):
+        wire.decode_depth(msgpack.packb(msg))
+
+
+def test_huge_message_refused_before_parsing():
+    with pytest.raises(WireError, match="limit"):
+        wire.decode_depth(b"\x00" * (wire.MAX_MESSAGE_BYTES + 1))
+
+
+def test_error_messages_never_echo_a_payload():
+    msg = _depth_map(np.random.default_rng(5))
+    msg["encoding"] = "z" * 4000
+    with pytest.raises(WireError) as err:
+        wire.decode_depth(msgpack.packb(msg))
+    assert len(str(err.value)) < 200
+
+
+def _decoders():
+    return [wire.decode_depth, wire.decode_labels, wire.decode_stats]
+
+
+@given(st.binary(max_size=300))
+@FUZZ
+def test_random_bytes_raise_only_wire_error(data):
+    for decode in _decoders():
+        try:
+            decode(data)
+        except WireError:
+            pass
+
+
+@given(st.data())
+@FUZZ
+def test_truncated_messages_raise_wire_error(data):
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    for encoded, decode in (
+        (wire.encode_depth(small_depth(rng)), wire.decode_depth),
+        (wire.encode_labels(small_labels(rng)), wire.decode_labels),
+        (
+            wire.encode_stats({"stamp_ns": 1, "timings_ms": {"a": 1.0}, "counts": {"b": 2}}),
+            wire.decode_stats,
+        ),
+    ):
+        cut = data.draw(st.integers(0, len(encoded) - 1))
+        with pytest.raises(WireError):
+            decode(encoded[:cut])
+
+
+msgpack_values = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-(2**64) + 1, 2**64 - 1)
+    | st.floats()
+    | st.text(max_size=10)
+    | st.binary(max_size=40),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4)
+    ),
+    max_leaves=8,
+)
+
+
+@given(st.sampled_from(sorted(wire._DEPTH_FIELDS)), msgpack_values, st.integers(0, 2**16))
+@FUZZ
+def test_any_value_in_any_depth_field(field, value, seed):
+    msg = _depth_map(np.random.default_rng(seed))
+    msg[field] = value
+    try:
+        frame = wire.decode_depth(msgpack.packb(msg))
+    except WireError:
+        return
+    # accepted: then it is a coherent frame
+    assert frame.depth.shape == frame.intrinsics.shape
+
+
+@given(
+    st.sampled_from(["stamp_ns", "seq", "role", "fps", "timings_ms", "counts", "model_id", "zzz"]),
+    msgpack_values,
+)
+@FUZZ
+def test_any_value_in_any_stats_field(field, value):
+    msg = {"v": 1, "stamp_ns": 1, "timings_ms": {"a": 1.0}, "counts": {"b": 2}, field: value}
+    try:
+        out = wire.decode_stats(msgpack.packb(msg))
+    except WireError:
+        return
+    assert set(out) <= wire._STATS_REQUIRED | wire._STATS_OPTIONAL
+
+
+@given(st.integers(1, 5000), st.integers(1, 5000), st.integers(0, 64))
+@FUZZ
+def test_sizes_that_lie(width, height, nbytes):
+    msg = msgpack.unpackb(wire.encode_labels(LabelFrame(np.zeros((2, 3), np.uint8))))
+    msg.update(width=width, height=height, data=b"\0" * nbytes)
+    try:
+        frame = wire.decode_labels(msgpack.packb(msg))
+    except WireError:
+        return
+    assert frame.labels.size == nbytes == width * height
+
+
+def test_non_bytes_input():
+    with pytest.raises(WireError, match="bytes"):
+        wire.decode_depth("not bytes")  # type: ignore[arg-type]
+    with pytest.raises(WireError, match="map"):
+        wire.decode_depth(msgpack.packb([1, 2, 3]))
+
+
+def test_frame_construction_checks():
+    with pytest.raises(WireError, match="uint16"):
+        DepthFrame(np.zeros((480, 640), np.float32))
+    with pytest.raises(WireError, match="does not match"):
+        DepthFrame(np.zeros((10, 10), np.uint16))
+    with pytest.raises(WireError, match="seq"):
+        DepthFrame(np.zeros((480, 640), np.uint16), seq=-1)
+    with pytest.raises(WireError, match="side"):
+        LabelFrame(np.zeros((1, 5000), np.uint8))
+
+
+# ----------------------------------------------------------------------------- keys
+
+
+def test_keys():
+    assert wire.depth_key() == "topseg/default/cam0/depth"
+    assert wire.labels_key("c1", "top") == "topseg/c1/top/labels"
+    assert wire.alive_key("c1", "top", "driver") == "topseg/c1/top/alive/driver"
+    for fn in (wire.depth_key, wire.labels_key, wire.truth_key, wire.stats_key, wire.info_key):
+        key = fn("cell-2", "cam.1")
+        parts = wire.parse_key(key)
+        assert (parts.cell, parts.camera, parts.kind) == ("cell-2", "cam.1", key.rsplit("/", 1)[1])
+    assert wire.parse_key("topseg/a/b/alive/worker").role == "worker"
+    for bad in (
+        "a/b",
+        "topseg/*/cam0/depth",
+        "topseg/a b/c/depth",
+        "",
+        "topseg/a/b/c",
+        "x/a/b/depth",
+    ):
+        with pytest.raises(WireError):
+            wire.parse_key(bad)
+    for cell, cam in (("**", "cam0"), ("a/b", "c"), ("", "c"), ("ok", "$*"), ("ok", "x" * 65)):
+        with pytest.raises(WireError, match="name"):
+            wire.depth_key(cell, cam)
+
+
+def test_decode_for_key():
+    rng = np.random.default_rng(6)
+    f = small_labels(rng)
+    back = wire.decode_for_key(wire.truth_key(), wire.encode_labels(f))
+    np.testing.assert_array_equal(back.labels, f.labels)
+    with pytest.raises(WireError):
+        wire.decode_for_key(wire.info_key(), b"{}")
+
+
+def test_intrinsics_survive_exactly():
+    k = Intrinsics(33, 20, 31.123456789, 29.5, 16.25, -3.5)
+    f = DepthFrame(np.ones((20, 33), np.uint16), k)
+    assert wire.decode_depth(wire.encode_depth(f)).intrinsics == k
