@@ -204,7 +204,7 @@ def test_truncated_messages_raise_wire_error(data):
 msgpack_values = st.recursive(
     st.none()
     | st.booleans()
-    | st.integers(-(2**64) + 1, 2**64 - 1)
+    | st.integers(-(2**63), 2**64 - 1)
     | st.floats()
     | st.text(max_size=10)
     | st.binary(max_size=40),
