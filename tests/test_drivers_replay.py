@@ -1,0 +1,163 @@
+"""Replay of MCAP recordings, 16-bit PNG folders and fakenect dumps: content, pacing, looping."""
+
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from topseg.core import labels, wire
+from topseg.core.camera import KINECT_V1
+from topseg.core.recording import RecordingWriter
+from topseg.drivers import SourceError, SourceOptions, open_source
+from topseg.drivers.fakenect_dump import quantisation_step_mm, write_dump
+
+FAST = SourceOptions(realtime=False)
+
+
+def scene(rng, h=480, w=640):
+    """A floor 3.5 m down with a table-height box and a few holes, and its labels."""
+    depth = (3500 + rng.normal(0, 10, (h, w))).astype(np.uint16)
+    truth = np.full((h, w), labels.BACKGROUND, np.uint8)
+    y, x = rng.integers(0, h // 2), rng.integers(0, w // 2)
+    depth[y : y + h // 4, x : x + w // 4] = 2700
+    truth[y : y + h // 4, x : x + w // 4] = labels.TABLE
+    holes = rng.random((h, w)) < 0.01
+    depth[holes] = 0
+    truth[holes] = labels.NO_DEPTH
+    return depth, truth
+
+
+def record(path, frames, period_s=0.05, cell="default", camera="cam0", junk_at=None):
+    t0 = 1_700_000_000_000_000_000
+    with RecordingWriter(path) as w:
+        for i, (depth, lab) in enumerate(frames):
+            stamp = t0 + int(i * period_s * 1e9)
+            if junk_at == i:
+                w.write(wire.depth_key(cell, camera), b"\x93garbage", log_time_ns=stamp)
+            f = wire.DepthFrame(
+                depth, KINECT_V1.scaled_to(depth.shape[1], depth.shape[0]), i, stamp
+            )
+            w.write(wire.depth_key(cell, camera), wire.encode_depth(f), log_time_ns=stamp)
+            lf = wire.LabelFrame(lab, i, stamp)
+            w.write(wire.truth_key(cell, camera), wire.encode_labels(lf), log_time_ns=stamp + 1000)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    rng = np.random.default_rng(0)
+    return [scene(rng, 120, 160) for _ in range(5)]
+
+
+def test_mcap_replay_gives_back_depth_and_truth(tmp_path, frames):
+    path = tmp_path / "rec.mcap"
+    record(path, frames, junk_at=2)
+    with open_source(f"replay:{path}", FAST) as src:
+        got = list(src.frames())
+        assert src.finite and src.rejected == 1  # the garbage message was skipped and counted
+    assert len(got) == len(frames)
+    for i, ((depth, truth), f) in enumerate(zip(frames, got, strict=True)):
+        np.testing.assert_array_equal(f.depth.depth, depth)
+        np.testing.assert_array_equal(f.truth.labels, truth)
+        assert f.depth.seq == f.truth.seq == i
+        assert f.depth.stamp_ns == f.truth.stamp_ns  # truth carries its depth frame's stamp
+        assert f.depth.intrinsics == KINECT_V1.scaled_to(160, 120)
+
+
+def test_mcap_without_truth_and_picking_a_camera(tmp_path, frames):
+    path = tmp_path / "two.mcap"
+    with RecordingWriter(path) as w:  # two cameras in one recording, no truth
+        for i, (depth, _) in enumerate(frames):
+            for cam, d in (("a", depth), ("b", depth // 2)):
+                f = wire.DepthFrame(d, KINECT_V1.scaled_to(160, 120), i, 1 + i)
+                w.write(wire.depth_key("c", cam), wire.encode_depth(f))
+    with open_source(f"replay:{path}#{wire.depth_key('c', 'b')}", FAST) as src:
+        got = list(src.frames())
+    assert [f.truth for f in got] == [None] * len(frames)
+    np.testing.assert_array_equal(got[1].depth.depth, frames[1][0] // 2)
+    with pytest.raises(SourceError, match="depth key"):
+        open_source(f"replay:{path}#topseg/c/b/labels", FAST)
+
+
+def test_realtime_pacing_and_as_fast_as_consumed(tmp_path, frames):
+    path = tmp_path / "slow.mcap"
+    record(path, frames, period_s=0.1)  # 10 fps: 0.4 s from first to last frame
+    t0 = time.monotonic()
+    with open_source(f"replay:{path}") as src:
+        n = sum(1 for _ in src.frames())
+    assert n == 5 and time.monotonic() - t0 >= 0.36
+    slow = tmp_path / "veryslow.mcap"
+    record(slow, frames, period_s=5.0)  # 20 s of recording ...
+    t0 = time.monotonic()
+    with open_source(f"replay:{slow}", FAST) as src:
+        assert sum(1 for _ in src.frames()) == 5
+    assert time.monotonic() - t0 < 10.0  # ... handed over without waiting
+
+
+def test_loop_repeats_and_numbers_on(tmp_path, frames):
+    path = tmp_path / "rec.mcap"
+    record(path, frames, period_s=0.02)
+    with open_source(f"replay:{path}", SourceOptions(loop=True)) as src:
+        assert not src.finite
+        it = src.frames()
+        got = [next(it) for _ in range(2 * len(frames) + 1)]
+        assert src.nominal_fps == pytest.approx(50.0)
+    assert [f.depth.seq for f in got] == list(range(len(got)))
+    for i, f in enumerate(got):
+        np.testing.assert_array_equal(f.depth.depth, frames[i % len(frames)][0])
+    stamps = [f.depth.stamp_ns for f in got]
+    assert np.all(np.diff(stamps) > 0)
+    # the seam between passes keeps a frame period
+    assert stamps[len(frames)] - stamps[len(frames) - 1] >= 0.015e9
+
+
+def test_png_folder(tmp_path, frames):
+    folder = tmp_path / "pngs"
+    folder.mkdir()
+    for i, (depth, _) in enumerate(frames):
+        Image.fromarray(depth).save(folder / f"frame_{i:04d}.png")
+    (folder / "notes.txt").write_text("not a frame")
+    t0 = time.monotonic()
+    with open_source(f"replay:{folder}", SourceOptions(fps=25.0)) as src:
+        got = list(src.frames())
+    assert time.monotonic() - t0 >= 0.15  # 4 gaps of 40 ms
+    assert len(got) == 5
+    for (depth, _), f in zip(frames, got, strict=True):
+        np.testing.assert_array_equal(f.depth.depth, depth)
+        assert f.truth is None
+    assert got[0].depth.intrinsics == KINECT_V1.scaled_to(160, 120)
+
+
+def test_png_folder_refuses_8_bit(tmp_path):
+    Image.fromarray(np.zeros((4, 4), np.uint8)).save(tmp_path / "a.png")
+    with open_source(f"replay:{tmp_path}", FAST) as src, pytest.raises(SourceError, match="16-bit"):
+        list(src.frames())
+
+
+def test_fakenect_dump_replay(tmp_path):
+    rng = np.random.default_rng(3)
+    originals = [scene(rng)[0] for _ in range(3)]
+    write_dump(tmp_path / "dump", originals)
+    with open_source(f"replay:{tmp_path / 'dump'}", FAST) as src:
+        got = [f.depth.depth for f in src.frames()]
+    assert len(got) == 3
+    for orig, back in zip(originals, got, strict=True):
+        err = np.abs(back.astype(int) - orig)
+        assert np.all(err <= quantisation_step_mm(orig) // 2 + 1)
+        np.testing.assert_array_equal(back == 0, orig == 0)
+
+
+def test_what_is_not_replayable(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SourceError, match=r"no \.png"):
+        open_source(f"replay:{tmp_path / 'empty'}")
+    (tmp_path / "x.mcap").write_bytes(b"hello world")
+    with pytest.raises(SourceError, match="not an MCAP"):
+        open_source(f"replay:{tmp_path / 'x.mcap'}")
+    with RecordingWriter(tmp_path / "nodepth.mcap") as w:
+        w.write(wire.stats_key(), b"x")
+    with (
+        open_source(f"replay:{tmp_path / 'nodepth.mcap'}") as src,
+        pytest.raises(SourceError, match="no depth"),
+    ):
+        list(src.frames())
