@@ -14,7 +14,9 @@ import resource
 import sys
 
 #: benchmark -> (module, one-line help)
-BENCHES: dict[str, tuple[str, str]] = {}
+BENCHES: dict[str, tuple[str, str]] = {
+    "transport": ("topseg.services.bench_transport", "depth frames over loopback Zenoh"),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -17,6 +17,9 @@ from topseg.core.errors import TopsegError
 #: subcommand -> (module, one-line help). Add a line here to add a command.
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
+    "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
+    "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
+    "devices": ("topseg.services.devices", "list attached depth sensors and how to use them"),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"

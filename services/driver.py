@@ -1,0 +1,204 @@
+"""Publish one camera's depth on Zenoh: `topseg driver --source SPEC`.
+
+Reads frames from a source (`replay:PATH`, `freenect[:index]`, `openni2[:uri]`,
+`oak[:device-id]`, `synthetic`) and publishes them as wire messages on
+`topseg/<cell>/<camera>/depth`, with ground truth on `.../truth` when the source has it.
+It holds the liveliness token `.../alive/driver` while running and answers `.../info`
+queries with JSON (source, camera intrinsics, fps, frames published, reconnects).
+
+When the source fails, drops out or stalls, the driver closes it and opens it again with
+exponential backoff, logging each attempt. A finite source (a replay without `--loop`)
+ends the driver with status 0; so do SIGTERM and SIGINT, at once, even mid-wait.
+
+Depth (and truth) is published with `express=True` (no batching delay). Congestion
+control is DROP for live and real-time sources: measured with `topseg bench transport`
+(640x480 frames, 30 fps, loopback), DROP lost no frame to a healthy subscriber, paced or
+flat out (~2900 frames/s), while under BLOCK one frozen subscriber held every `put` for
+5 s, starving all the others; under DROP the longest `put` was 31 ms. With
+`--as-fast-as-possible` it is BLOCK, so that a replay goes exactly as fast as its
+subscribers take it. `--congestion` overrides either.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import signal
+import threading
+import time
+
+from topseg.core.wire import DEFAULT_CAMERA, DEFAULT_CELL
+from topseg.services import zenoh_session
+
+log = logging.getLogger("topseg.driver")
+
+
+class _Shutdown(BaseException):
+    """Raised by the signal handler to cut a wait on the source short."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--source",
+        required=True,
+        metavar="SPEC",
+        help="replay:PATH | freenect[:index] | openni2[:uri] | oak[:device-id] | synthetic",
+    )
+    parser.add_argument(
+        "--cell", default=DEFAULT_CELL, help="work cell name (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--camera", default=DEFAULT_CAMERA, help="camera name (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--fps", type=float, help="replay pace (default: as recorded) or cap for a live sensor"
+    )
+    parser.add_argument("--loop", action="store_true", help="replay: start again at the end")
+    parser.add_argument(
+        "--as-fast-as-possible",
+        dest="realtime",
+        action="store_false",
+        help="replay: no pacing, publish as fast as the subscribers take it",
+    )
+    parser.add_argument(
+        "--congestion",
+        choices=("auto", "block", "drop"),
+        default="auto",
+        help="Zenoh congestion control for depth: auto = drop, or block with "
+        "--as-fast-as-possible (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--frame-timeout",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="a live sensor silent this long is reopened (default: %(default)s s)",
+    )
+    zenoh_session.add_arguments(parser)
+
+
+class DriverState:
+    """What the `info` queryable reports; updated by the publishing loop."""
+
+    def __init__(self, args: argparse.Namespace, keys: dict[str, str]) -> None:
+        from topseg import __version__
+
+        self.lock = threading.Lock()
+        self.info = {
+            "role": "driver",
+            "cell": args.cell,
+            "camera": args.camera,
+            "source": args.source,
+            "fps": args.fps,
+            "intrinsics": None,
+            "frames": 0,
+            "truth_frames": 0,
+            "reconnects": 0,
+            "last_error": None,
+            "started_ns": time.time_ns(),
+            "keys": keys,
+            "congestion": args.congestion,
+            "version": __version__,
+        }
+
+    def update(self, **fields) -> None:
+        with self.lock:
+            self.info.update(fields)
+
+    def to_json(self) -> bytes:
+        with self.lock:
+            return json.dumps(self.info).encode()
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from topseg.core import wire
+    from topseg.drivers import Reconnecting, SourceOptions, open_source, parse_spec
+
+    spec = parse_spec(args.source)
+    if args.congestion == "auto":
+        args.congestion = "drop" if args.realtime else "block"
+    options = SourceOptions(
+        loop=args.loop, realtime=args.realtime, fps=args.fps, frame_timeout_s=args.frame_timeout
+    )
+    keys = {
+        "depth": wire.depth_key(args.cell, args.camera),
+        "truth": wire.truth_key(args.cell, args.camera),
+        "info": wire.info_key(args.cell, args.camera),
+        "alive": wire.alive_key(args.cell, args.camera, "driver"),
+    }
+    state = DriverState(args, keys)
+    stop = threading.Event()
+    waiting = False
+
+    def on_signal(signum, _frame):
+        log.info("%s: stopping", signal.Signals(signum).name)
+        stop.set()
+        if waiting:
+            raise _Shutdown
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    congestion = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
+    session = zenoh_session.session_from_args(args)
+    frames = None
+    try:
+        publish = dict(congestion_control=congestion[args.congestion], express=True)
+        depth_pub = session.declare_publisher(keys["depth"], **publish)
+        truth_pub = session.declare_publisher(keys["truth"], **publish)
+        token = session.liveliness().declare_token(keys["alive"])
+        queryable = session.declare_queryable(
+            keys["info"], lambda query: query.reply(query.key_expr, state.to_json())
+        )
+
+        def on_open(source) -> None:
+            fields = source.info()
+            fields["fps"] = args.fps or fields["fps"]
+            fields["reconnects"] = max(0, reconnecting.opens - 1)
+            fields["last_error"] = reconnecting.last_error
+            fields.pop("finite", None)
+            state.update(**fields)
+            log.info("publishing %s on %s", source.description, keys["depth"])
+
+        reconnecting = Reconnecting(
+            lambda: open_source(spec, options),
+            name=f"driver {args.cell}/{args.camera} ({spec})",
+            stop=stop,
+            on_open=on_open,
+        )
+        frames = reconnecting.frames()
+        seq = truth_count = 0
+        while not stop.is_set():
+            waiting = True
+            try:
+                frame = next(frames)
+            except StopIteration:
+                log.info("%s ended after %d frames", spec, seq)
+                break
+            finally:
+                waiting = False
+            depth = dataclasses.replace(frame.depth, seq=seq, frame_id=args.camera)
+            depth_pub.put(wire.encode_depth(depth))
+            if frame.truth is not None:
+                truth = dataclasses.replace(frame.truth, seq=seq, frame_id=args.camera)
+                truth_pub.put(wire.encode_labels(truth))
+                truth_count += 1
+            seq += 1
+            if seq == 1 or seq % 30 == 0:
+                k = depth.intrinsics.to_dict()
+                state.update(frames=seq, truth_frames=truth_count, intrinsics=k)
+        state.update(frames=seq, truth_frames=truth_count)
+        token.undeclare()
+        queryable.undeclare()
+    except _Shutdown:
+        pass
+    finally:
+        waiting = False
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        if frames is not None:
+            frames.close()  # closes the source (and its reader process)
+        session.close()
+    return 0

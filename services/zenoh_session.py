@@ -1,0 +1,111 @@
+"""Open the Zenoh session every topseg service uses, from topseg's default or a config file.
+
+Default (no `--zenoh-config`): peer mode on loopback, multicast scouting off, and a
+rendezvous port (`--zenoh-port`, `$TOPSEG_ZENOH_PORT`, else 7447). Every process
+
+- listens on `tcp/127.0.0.1:<port>` if that port is free (the first one to start gets it),
+  and on an ephemeral loopback port in any case;
+- connects to `tcp/127.0.0.1:<port>`, retrying in the background while nobody holds it;
+- learns the other peers' ephemeral endpoints by gossip scouting and connects to them.
+
+So separate processes on one host find each other without multicast, in any start order,
+and keep working when the process holding the port exits: the others stay connected to
+each other, and the next process to start takes the port over (checked with eclipse-zenoh
+1.10: four processes, the port holder killed, a newcomer reaches the rest). A zenohd or a
+topseg process in router mode on that port serves the same purpose. Other hosts, TLS or
+access control: pass a full Zenoh JSON5 config with `--zenoh-config` (see `deploy/`).
+
+Key expressions live in `topseg.core.wire` (`depth_key`, `labels_key`, ... `alive_key`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any
+
+from topseg.core.errors import TopsegError
+
+DEFAULT_PORT = 7447
+PORT_ENV = "TOPSEG_ZENOH_PORT"
+CONFIG_ENV = "TOPSEG_ZENOH_CONFIG"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The Zenoh options every service takes."""
+    group = parser.add_argument_group("zenoh")
+    group.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        default=os.environ.get(CONFIG_ENV),
+        help=f"a Zenoh JSON5 config file used as is (default ${CONFIG_ENV}; "
+        "otherwise peers on loopback, see the rendezvous port)",
+    )
+    group.add_argument(
+        "--zenoh-port",
+        type=int,
+        metavar="PORT",
+        default=None,
+        help=f"loopback rendezvous port of the default config (default ${PORT_ENV} or {DEFAULT_PORT})",
+    )
+
+
+def rendezvous_port(port: int | None = None) -> int:
+    """The port from the argument, else the environment, else 7447."""
+    if port is None:
+        text = os.environ.get(PORT_ENV, "")
+        try:
+            port = int(text) if text else DEFAULT_PORT
+        except ValueError:
+            raise TopsegError(f"${PORT_ENV}={text!r} is not a port number") from None
+    if not 1 <= port <= 65535:
+        raise TopsegError(f"Zenoh port {port} is not in 1..65535")
+    return port
+
+
+def default_config_json(port: int | None = None) -> dict[str, Any]:
+    """topseg's default Zenoh settings as {path: JSON value}, for docs and tests."""
+    endpoint = f"tcp/127.0.0.1:{rendezvous_port(port)}"
+    return {
+        "mode": "peer",
+        "scouting/multicast/enabled": False,
+        "scouting/gossip/enabled": True,
+        "listen/endpoints": [endpoint, "tcp/127.0.0.1:0"],
+        "listen/exit_on_failure": False,
+        "connect/endpoints": [endpoint],
+        "connect/exit_on_failure": False,
+        "connect/timeout_ms": 0,
+    }
+
+
+def make_config(config_file: str | None = None, port: int | None = None) -> Any:
+    """A zenoh.Config: the file as is, or topseg's loopback default."""
+    import zenoh
+
+    if config_file:
+        if not os.path.isfile(config_file):
+            raise TopsegError(f"Zenoh config {config_file} does not exist")
+        try:
+            return zenoh.Config.from_file(config_file)
+        except Exception as exc:  # zenoh reports parse errors as ZError
+            raise TopsegError(f"bad Zenoh config {config_file}: {exc}") from exc
+    conf = zenoh.Config()
+    for path, value in default_config_json(port).items():
+        conf.insert_json5(path, json.dumps(value))
+    return conf
+
+
+def open_session(config_file: str | None = None, port: int | None = None) -> Any:
+    """An open zenoh.Session (close it, or use it as a context manager)."""
+    import zenoh
+
+    conf = make_config(config_file, port)
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        raise TopsegError(f"cannot open a Zenoh session: {exc}") from exc
+
+
+def session_from_args(args: argparse.Namespace) -> Any:
+    return open_session(args.zenoh_config, args.zenoh_port)
