@@ -1,0 +1,129 @@
+"""The real-time CRF's numba kernels against plain numpy / scipy references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from topseg.core import labels as L
+from topseg.core.crf import CRFConfig, edge_weights, potts_energy
+from topseg.core.crf_expansion import energy
+from topseg.core.crf_realtime import (
+    argmax_confidence,
+    band_problem,
+    free_mask,
+    number_components,
+    segment_realtime,
+)
+from topseg.core.crf_synthetic import forest_like_posteriors, synthetic_scene
+
+C = L.NUM_CLASSES
+CROSS = ndimage.generate_binary_structure(2, 1)
+
+
+def random_frame(rng, h=40, w=50):
+    proba = rng.dirichlet(np.full(C, 0.2), size=(h, w)).astype(np.float32)
+    depth = rng.integers(1000, 3500, (h, w)).astype(np.uint16)
+    depth[rng.random((h, w)) < 0.05] = 0
+    return proba, depth
+
+
+def reference_free(amax, pmax, valid, confidence, ring):
+    """Free = not (confident and every 4-neighbour with depth agrees), grown by `ring`."""
+    h, w = amax.shape
+    pad_a = np.pad(amax.astype(np.int64), 1, constant_values=-1)
+    pad_v = np.pad(valid, 1, constant_values=False)
+    agree = np.ones((h, w), bool)
+    for di, dj in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        na = pad_a[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
+        nv = pad_v[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
+        agree &= ~nv | (na == amax)
+    free = valid & ~((pmax >= confidence) & agree)
+    for _ in range(ring):
+        free = ndimage.binary_dilation(free, CROSS) & valid
+    return free
+
+
+def test_argmax_confidence_matches_numpy():
+    rng = np.random.default_rng(0)
+    proba, depth = random_frame(rng)
+    valid = depth > 0
+    amax, pmax = argmax_confidence(proba, valid)
+    assert np.array_equal(amax[valid], proba.argmax(axis=2)[valid])
+    assert (amax[~valid] == L.NO_DEPTH).all()
+    assert np.array_equal(pmax[valid], proba.max(axis=2)[valid])
+
+
+@pytest.mark.parametrize("ring", [0, 1, 3])
+def test_free_mask_matches_numpy(ring):
+    rng = np.random.default_rng(ring)
+    proba, depth = random_frame(rng)
+    proba[10:30, 10:40] = 0.0  # a confident, agreeing block the mask must leave fixed
+    proba[10:30, 10:40, 3] = 1.0
+    valid = depth > 0
+    amax, pmax = argmax_confidence(proba, valid)
+    for confidence in (0.3, 0.6, 0.9):
+        free = free_mask(amax, pmax, valid, np.float32(confidence), ring)
+        assert np.array_equal(free, reference_free(amax, pmax, valid, confidence, ring))
+        assert not free[20, 25]
+
+
+def test_components_are_contiguous_and_match_scipy():
+    rng = np.random.default_rng(1)
+    free = rng.random((60, 70)) < 0.45
+    index, starts = number_components(free)
+    assert np.array_equal(index >= 0, free)
+    assert starts[-1] == free.sum()
+    assert sorted(index[free]) == list(range(int(free.sum())))
+    comp_of_id = np.searchsorted(starts, np.arange(starts[-1]), side="right") - 1
+    ours = np.full(free.shape, -1)
+    ours[free] = comp_of_id[index[free]]
+    theirs, count = ndimage.label(free, CROSS)
+    assert count == len(starts) - 1
+    for c in range(count):  # the same partition, whatever the numbering
+        assert len(np.unique(theirs[ours == c])) == 1
+
+
+def test_band_problem_keeps_the_frame_energy_up_to_a_constant():
+    """Band energy of any band labeling + a constant == the frame's Potts energy."""
+    rng = np.random.default_rng(2)
+    proba, depth = random_frame(rng)
+    cfg = CRFConfig(smoothness=0.8, depth_sigma_mm=500.0, confidence=0.5, ring=1)
+    valid = depth > 0
+    amax, pmax = argmax_confidence(proba, valid)
+    wh, wv = edge_weights(depth, cfg)
+    free = free_mask(amax, pmax, valid, np.float32(cfg.confidence), cfg.ring)
+    index, starts = number_components(free)
+    n = int(starts[-1])
+    pix, unary, nbr, nw, init = band_problem(proba, amax, index, n, wh, wv, np.float32(cfg.eps))
+    assert np.array_equal(init, amax.ravel()[pix])
+    offsets = []
+    for _ in range(6):
+        x = rng.integers(0, C, n)
+        frame = amax.copy()
+        frame.ravel()[pix] = x
+        offsets.append(potts_energy(frame, proba, depth, cfg) - energy(x, unary, nbr, nw))
+    assert np.ptp(offsets) < 1e-2  # float32 unaries: a constant up to rounding
+
+
+def test_fixed_pixels_keep_the_argmax_and_holes_stay_holes():
+    rng = np.random.default_rng(3)
+    depth, truth = synthetic_scene(rng, (120, 160))
+    proba = forest_like_posteriors(truth, rng)
+    cfg = CRFConfig(confidence=0.6, ring=1)
+    valid = depth > 0
+    amax, pmax = argmax_confidence(proba, valid)
+    free = free_mask(amax, pmax, valid, np.float32(cfg.confidence), cfg.ring)
+    out = segment_realtime(proba, depth, cfg)
+    assert np.array_equal(out[~free], amax[~free])
+    assert (out[~valid] == L.NO_DEPTH).all()
+    assert (out[free] != amax[free]).any()  # the band did get smoothed
+    assert potts_energy(out, proba, depth, cfg) < potts_energy(amax, proba, depth, cfg)
+
+
+def test_smoothness_zero_is_the_argmax():
+    rng = np.random.default_rng(4)
+    proba, depth = random_frame(rng)
+    amax, _ = argmax_confidence(proba, depth > 0)
+    assert np.array_equal(segment_realtime(proba, depth, CRFConfig(smoothness=0.0)), amax)
