@@ -1,0 +1,133 @@
+"""Depth-difference features: numba kernels against plain numpy references."""
+
+import numpy as np
+import pytest
+
+from topseg.core import features
+from topseg.core.features import FeatureConfig
+
+
+def probe_reference(depth, r, c, inv_d, dr, dc, background):
+    """Vectorised numpy probe: same float32 arithmetic as the kernel."""
+    pr = r + np.floor(dr * inv_d + np.float32(0.5)).astype(np.int64)
+    pc = c + np.floor(dc * inv_d + np.float32(0.5)).astype(np.int64)
+    h, w = depth.shape
+    inside = (pr >= 0) & (pc >= 0) & (pr < h) & (pc < w)
+    z = np.full(np.broadcast(pr, pc).shape, background, np.int64)
+    z[inside] = depth[pr[inside], pc[inside]]
+    z[(z == 0) | (z > background)] = background
+    return z
+
+
+def extract_reference(depth, rows, cols, offsets, background):
+    inv_d = np.float32(1.0) / depth[rows, cols].astype(np.float32)
+    r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
+    u = probe_reference(depth, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
+    v = probe_reference(depth, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
+    return (u - v).astype(np.int16)
+
+
+def response_reference(depth, offsets, weights, background):
+    rows, cols = np.nonzero(depth)
+    f = extract_reference(depth, rows, cols, offsets, background)
+    acc = np.zeros(rows.size, np.float32)
+    for j in range(weights.size):  # float32, feature by feature, like the kernel
+        acc = acc + weights[j] * f[:, j].astype(np.float32)
+    out = np.full(depth.shape, np.nan, np.float32)
+    out[rows, cols] = acc
+    return out
+
+
+def random_depth(rng, shape=(37, 53), zero_fraction=0.1, hi=12000):
+    depth = rng.integers(400, hi, size=shape).astype(np.uint16)
+    depth[rng.random(shape) < zero_fraction] = 0
+    return depth
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_extract_features_matches_reference(seed):
+    rng = np.random.default_rng(seed)
+    config = FeatureConfig(n_features=40, patch_px=int(rng.integers(4, 80)))
+    depth = random_depth(rng, hi=int(rng.choice([5000, 12000])))
+    offsets = features.sample_offsets(config, rng)
+    rows, cols = np.nonzero(depth)
+    pick = rng.choice(rows.size, 200, replace=False)
+    got = features.extract_features(depth, rows[pick], cols[pick], offsets, config.background_mm)
+    want = extract_reference(depth, rows[pick], cols[pick], offsets, config.background_mm)
+    assert got.dtype == np.int16
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_node_response_matches_reference(k):
+    rng = np.random.default_rng(k)
+    config = FeatureConfig(patch_px=48)
+    depth = random_depth(rng)
+    offsets = features.sample_offsets(FeatureConfig(n_features=k, patch_px=48), rng)
+    weights = features.random_unit_vectors(rng, 1, k)[0]
+    got = features.node_response_image(depth, offsets, weights, config.background_mm)
+    want = response_reference(depth, offsets, weights, config.background_mm)
+    np.testing.assert_array_equal(np.isnan(got), depth == 0)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_probes_off_image_or_on_no_depth_read_background():
+    depth = np.full((10, 10), 2000, np.uint16)
+    depth[5, 7] = 0
+    bg = 10000
+    # u points off the image, v lands on the pixel itself: f = bg - d(s)
+    off = np.array([[-40 * 2000, 0, 0, 0]], np.float32)
+    assert features.extract_features(depth, [5], [5], off, bg)[0, 0] == bg - 2000
+    # u lands on the no-depth pixel two columns right
+    off = np.array([[0, 2 * 2000, 0, 0]], np.float32)
+    assert features.extract_features(depth, [5], [5], off, bg)[0, 0] == bg - 2000
+    # depths beyond the background constant are clamped to it
+    depth[5, 6] = 15000
+    off = np.array([[0, 1 * 2000, 0, 0]], np.float32)
+    assert features.extract_features(depth, [5], [5], off, bg)[0, 0] == bg - 2000
+
+
+def test_offsets_are_depth_invariant():
+    """The same metric step seen at two depths gives the same feature."""
+    bg = 10000
+    off = np.array([[0, 10 * 1000, 0, -10 * 1000]], np.float32)  # 10 px at 1 m, either side
+    near = np.full((1, 60), 1000, np.uint16)
+    near[0, 40:] = 900  # a 100 mm step 10 px right of pixel 30
+    far = np.full((1, 60), 2000, np.uint16)
+    far[0, 35:] = 1900  # the same step, half as many pixels away at twice the depth
+    f_near = features.extract_features(near, [0], [30], off, bg)[0, 0]
+    f_far = features.extract_features(far, [0], [30], off, bg)[0, 0]
+    assert f_near == f_far == -100
+
+
+def test_sample_offsets_stay_in_patch():
+    config = FeatureConfig(n_features=500, patch_px=64, reference_depth_mm=2500)
+    off = features.sample_offsets(config, np.random.default_rng(0))
+    assert off.shape == (500, 4) and off.dtype == np.float32
+    px = off / config.reference_depth_mm
+    assert np.abs(px).max() <= 32
+    assert np.abs(px).max() > 30  # the whole patch is used
+
+
+def test_random_unit_vectors_are_unit():
+    w = features.random_unit_vectors(np.random.default_rng(0), 100, 3)
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, rtol=1e-6)
+
+
+def test_bad_input_is_refused():
+    depth = np.full((5, 5), 1000, np.uint16)
+    off = np.zeros((3, 4), np.float32)
+    with pytest.raises(ValueError, match="uint16"):
+        features.extract_features(depth.astype(np.float32), [0], [0], off, 10000)
+    with pytest.raises(ValueError, match="outside"):
+        features.extract_features(depth, [5], [0], off, 10000)
+    depth[0, 0] = 0
+    with pytest.raises(ValueError, match="depth"):
+        features.extract_features(depth, [0], [0], off, 10000)
+    with pytest.raises(ValueError, match="background_mm"):
+        FeatureConfig(background_mm=40000)
+
+
+def test_config_round_trip():
+    c = FeatureConfig(n_features=75, patch_px=32)
+    assert FeatureConfig.from_dict(c.to_dict()) == c
