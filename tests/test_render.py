@@ -1,0 +1,162 @@
+"""The numba ray caster: against its plain-numpy reference on random primitives, and against
+geometry worked out by hand (a box and a cylinder of known size and place)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from topseg.core import labels, render
+from topseg.core.camera import Intrinsics, TopViewMount
+from topseg.core.geometry import (
+    BOX,
+    CAPSULE,
+    CYLINDER,
+    SPHERE,
+    quat_from_axis_angle,
+    quat_to_matrix,
+)
+
+SMALL = TopViewMount(Intrinsics(160, 120, 142.6, 142.6, 79.5, 59.5), 3500.0)
+
+
+def random_primitives(rng: np.random.Generator, n: int) -> render.Primitives:
+    kind = rng.integers(0, 4, n).astype(np.int32)
+    size = np.zeros((n, 3))
+    size[:, 0] = rng.uniform(0.03, 0.4, n)
+    size[:, 1] = rng.uniform(0.03, 0.5, n)
+    size[:, 2] = rng.uniform(0.03, 0.4, n)
+    rot = np.array(
+        [
+            quat_to_matrix(quat_from_axis_angle(rng.normal(size=3), rng.uniform(0, np.pi)))
+            for _ in range(n)
+        ]
+    )
+    # some upright (a ray along the axis is the hard case for cylinders)
+    rot[: n // 4] = np.eye(3)
+    center = np.stack(
+        [rng.uniform(-1.8, 1.8, n), rng.uniform(-1.3, 1.3, n), rng.uniform(0.0, 2.2, n)], 1
+    )
+    lab = rng.integers(1, 11, n).astype(np.uint8)
+    floor = render.Primitives(
+        np.array([BOX], np.int32),
+        np.array([[10.0, 10.0, 0.05]]),
+        np.array([[0.0, 0.0, -0.05]]),
+        np.eye(3)[None],
+        np.array([0], np.uint8),
+    )
+    return render.Primitives.concat([floor, render.Primitives(kind, size, center, rot, lab)])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_numba_kernel_matches_numpy_reference(seed):
+    prims = random_primitives(np.random.default_rng(seed), 40)
+    depth, lab = render.raycast_m(prims, SMALL)
+    ref_depth, ref_lab = render.raycast_reference(prims, SMALL)
+    assert np.array_equal(lab, ref_lab)
+    hit = np.isfinite(ref_depth)
+    assert np.array_equal(np.isfinite(depth), hit)
+    np.testing.assert_allclose(depth[hit], ref_depth[hit], rtol=0, atol=1e-9)
+    assert len(np.unique(lab)) > 5  # the scene really has many labels in view
+
+
+def test_every_kind_is_hit_where_the_reference_hits_it():
+    rng = np.random.default_rng(9)
+    for kind in (SPHERE, CAPSULE, BOX, CYLINDER):
+        prims = random_primitives(rng, 12)
+        prims.kind[1:] = kind
+        _depth, lab = render.raycast_m(prims, SMALL)
+        _ref_depth, ref_lab = render.raycast_reference(prims, SMALL)
+        assert np.array_equal(lab, ref_lab)
+        assert np.mean(lab != labels.BACKGROUND) > 0.02
+
+
+def _one(kind, size, center, rot=None, label=labels.TABLE) -> render.Primitives:
+    rot = np.eye(3) if rot is None else rot
+    return render.Primitives(
+        np.array([kind], np.int32),
+        np.array([size], float),
+        np.array([center], float),
+        rot[None],
+        np.array([label], np.uint8),
+    )
+
+
+def test_a_box_of_known_size_and_place_gives_its_footprint_and_depth():
+    mount = TopViewMount()
+    k = mount.intrinsics
+    x0, x1, y0, y1, top = 0.40, 1.00, 0.25, 0.65, 0.80  # world metres; the box stands on the floor
+    box = _one(
+        BOX, ((x1 - x0) / 2, (y1 - y0) / 2, top / 2), ((x0 + x1) / 2, (y0 + y1) / 2, top / 2)
+    )
+    depth, lab = render.raycast(box, mount)
+    # by hand: pixel (u, v) sees the box when its ray, at some depth z in [H - top, H], passes
+    # inside [x0, x1] x [y0, y1]; the depth is the smallest such z
+    H = mount.height_mm / 1000.0
+    v, u = np.indices(k.shape, dtype=float)
+    a, b = (u - k.cx) / k.fx, -(v - k.cy) / k.fy  # world x = a z, world y = b z
+    zlo = np.full(k.shape, H - top)
+    zhi = np.full(k.shape, H)
+    for slope, lo, hi in ((a, x0, x1), (b, y0, y1)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z1, z2 = lo / slope, hi / slope
+        zmin = np.where(
+            slope > 0, z1, np.where(slope < 0, z2, np.where((lo <= 0) & (0 <= hi), -np.inf, np.inf))
+        )
+        zmax = np.where(
+            slope > 0, z2, np.where(slope < 0, z1, np.where((lo <= 0) & (0 <= hi), np.inf, -np.inf))
+        )
+        zlo, zhi = np.maximum(zlo, zmin), np.minimum(zhi, zmax)
+    seen = zlo <= zhi
+    assert np.array_equal(lab == labels.TABLE, seen)
+    np.testing.assert_array_equal(depth[seen], np.rint(zlo[seen] * 1000).astype(np.uint16))
+    # its top alone: 2.7 m away, where the pixel grid puts it
+    on_top = depth == 2700
+    us = np.nonzero(on_top.any(0))[0]
+    assert us.min() == int(np.ceil(x0 / (H - top) * k.fx + k.cx)) and us.max() == int(
+        np.floor(x1 / (H - top) * k.fx + k.cx)
+    )
+    assert np.all(lab[~seen] == labels.NO_DEPTH) and np.all(depth[~seen] == 0)  # no floor here
+
+
+def test_an_upright_cylinder_shows_a_disc_at_its_top():
+    mount = TopViewMount()
+    k = mount.intrinsics
+    cx, cy, r, top = -0.5, 0.3, 0.25, 0.74
+    depth, lab = render.raycast(
+        _one(CYLINDER, (r, top / 2, 0), (cx, cy, top / 2), label=labels.PLANT), mount
+    )
+    z = mount.height_mm / 1000.0 - top
+    v, u = np.indices(k.shape, dtype=float)
+    x, y = (u - k.cx) / k.fx * z, -(v - k.cy) / k.fy * z
+    disc = (x - cx) ** 2 + (y - cy) ** 2 < r * r
+    assert np.all(depth[disc] == round(z * 1000))
+    assert np.all(lab[disc] == labels.PLANT)
+    # beyond the rim, away from the image centre, the camera sees the cylinder's wall, deeper
+    wall = (lab == labels.PLANT) & ~disc
+    assert wall.sum() > 0 and np.all(depth[wall] >= round(z * 1000))
+    assert np.mean(depth[wall] > round(z * 1000) + 5) > 0.9
+
+
+def test_screen_boxes_cull_what_is_behind_or_outside_the_camera():
+    mount = TopViewMount()
+    prims = render.Primitives.concat(
+        [
+            _one(SPHERE, (0.1, 0, 0), (0.0, 0.0, 4.0)),  # above the camera
+            _one(SPHERE, (0.1, 0, 0), (30.0, 0.0, 0.5)),  # far outside the view
+            _one(SPHERE, (0.1, 0, 0), (0.0, 0.0, 1.0)),
+        ]
+    )
+    c, rot = render.to_camera(prims, mount)
+    boxes = render.screen_boxes(c, render._half_extents(prims.kind, prims.size, rot), mount)
+    assert boxes[0, 0] > boxes[0, 1] and boxes[1, 0] > boxes[1, 1]
+    assert boxes[2, 0] <= 320 <= boxes[2, 1] and boxes[2, 2] <= 240 <= boxes[2, 3]
+    depth, _lab = render.raycast(prims, mount)
+    assert depth[240, 320] == round((3.5 - 1.1) * 1000) or depth[239, 319] == round(
+        (3.5 - 1.1) * 1000
+    )
+
+
+def test_depth_to_mm_rounds_and_marks_misses():
+    d = np.array([[np.inf, 1.0004, 1.0006], [0.0, 70.0, 2.5]])
+    np.testing.assert_array_equal(render.depth_to_mm(d), [[0, 1000, 1001], [0, 0, 2500]])
