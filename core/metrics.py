@@ -1,0 +1,171 @@
+"""Segmentation scores as in the paper: a confusion matrix, per-class precision, recall and
+F1, and their means over the ten scored labels (mAP, mAR, avg F1), background apart.
+
+Conventions (the same everywhere scores are printed):
+
+- Rows of the confusion matrix are the truth, columns the prediction, ids 0..NUM_CLASSES-1.
+- Pixels whose *truth* is NO_DEPTH are ignored: nobody can say what they are.
+- A *prediction* of NO_DEPTH where the truth has a class (the live sensor lost depth the
+  ground truth has) counts as background: a miss for that class, never a hit.
+- 0/0 is undefined, not zero: precision of a class never predicted, recall of a class
+  that never occurs, F1 of a class in neither, come out NaN (null in JSON, "-" in
+  tables), and the means run over the classes where the value is defined. This is
+  scikit-learn's `zero_division=np.nan`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from topseg.core import labels as L
+from topseg.core.errors import TopsegError
+
+C = L.NUM_CLASSES
+
+
+def _check(name: str, a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a)
+    if not np.issubdtype(a.dtype, np.integer):
+        raise TopsegError(f"{name} labels must be integers, got {a.dtype}")
+    bad = (a != L.NO_DEPTH) & ((a < 0) | (a >= C))
+    if bad.any():
+        raise TopsegError(
+            f"{name} labels hold id {int(a[bad].flat[0])}, not a class (0..{C - 1}) "
+            f"or no-depth ({L.NO_DEPTH})"
+        )
+    return a
+
+
+def confusion_matrix(truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """(NUM_CLASSES, NUM_CLASSES) int64 counts: [truth id, predicted id], as documented above."""
+    truth = _check("truth", truth)
+    pred = _check("predicted", pred)
+    if truth.shape != pred.shape:
+        raise TopsegError(f"truth shape {truth.shape} differs from prediction {pred.shape}")
+    keep = truth != L.NO_DEPTH
+    t = truth[keep].astype(np.int64)
+    p = pred[keep].astype(np.int64)
+    p[p == L.NO_DEPTH] = L.BACKGROUND
+    return np.bincount(t * C + p, minlength=C * C).reshape(C, C)
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    out = np.full(num.shape, np.nan)
+    np.divide(num, den, out=out, where=den > 0)
+    return out
+
+
+def scores(confusion: np.ndarray) -> dict:
+    """Per-class and mean scores of a confusion matrix.
+
+    Returns {"per_class": {name: {precision, recall, f1, support}} for ids 1..10,
+    "background": {...} likewise, "mAP", "mAR", "avg_f1" (means over ids 1..10 where
+    defined), "accuracy" (all pixels), "pixels"}.
+    """
+    cm = np.asarray(confusion, np.int64)
+    if cm.shape != (C, C):
+        raise TopsegError(f"confusion matrix must be {C}x{C}, got {cm.shape}")
+    tp = np.diag(cm).astype(np.float64)
+    predicted = cm.sum(axis=0).astype(np.float64)
+    support = cm.sum(axis=1)
+    precision = _ratio(tp, predicted)
+    recall = _ratio(tp, support.astype(np.float64))
+    f1 = _ratio(2 * tp, predicted + support)
+
+    def row(i: int) -> dict:
+        return {
+            "precision": float(precision[i]),
+            "recall": float(recall[i]),
+            "f1": float(f1[i]),
+            "support": int(support[i]),
+        }
+
+    ids = list(L.SCORED_IDS)
+    total = int(cm.sum())
+
+    def mean(values: np.ndarray) -> float:
+        v = values[ids]
+        return float(np.mean(v[~np.isnan(v)])) if (~np.isnan(v)).any() else math.nan
+
+    return {
+        "per_class": {L.NAMES[i]: row(i) for i in ids},
+        "background": row(L.BACKGROUND),
+        "mAP": mean(precision),
+        "mAR": mean(recall),
+        "avg_f1": mean(f1),
+        "accuracy": float(tp.sum() / total) if total else math.nan,
+        "pixels": total,
+    }
+
+
+def _fmt(x: float) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"
+
+
+def format_table(s: dict, title: str = "") -> str:
+    """A plain-text table laid out like the paper's Table I: one row per class, P / R / F1."""
+    name_w = max(len(n) for n in (*s["per_class"], "background", "mean (1-10)"))
+    head = f"{'class':<{name_w}}  {'P':>6} {'R':>6} {'F1':>6} {'pixels':>10}"
+    rule = "-" * len(head)
+    lines = [title] if title else []
+    lines += [head, rule]
+    for name, r in s["per_class"].items():
+        p, rc, f = (_fmt(r[k]) for k in ("precision", "recall", "f1"))
+        lines.append(f"{name:<{name_w}}  {p:>6} {rc:>6} {f:>6} {r['support']:>10}")
+    lines.append(rule)
+    means = (_fmt(s["mAP"]), _fmt(s["mAR"]), _fmt(s["avg_f1"]))
+    lines.append(f"{'mean (1-10)':<{name_w}}  {means[0]:>6} {means[1]:>6} {means[2]:>6}")
+    b = s["background"]
+    p, rc, f = (_fmt(b[k]) for k in ("precision", "recall", "f1"))
+    lines.append(f"{'background':<{name_w}}  {p:>6} {rc:>6} {f:>6} {b['support']:>10}")
+    lines.append(f"pixel accuracy {_fmt(s['accuracy'])} over {s['pixels']} pixels")
+    return "\n".join(lines)
+
+
+def _nan_to_none(x):
+    if isinstance(x, dict):
+        return {k: _nan_to_none(v) for k, v in x.items()}
+    if isinstance(x, float) and math.isnan(x):
+        return None
+    return x
+
+
+def to_json(s: dict, **extra) -> str:
+    """Scores as strict JSON (NaN -> null); `extra` keys are added at the top level."""
+    return json.dumps(_nan_to_none({**s, **extra}), allow_nan=False)
+
+
+class ConfusionAccumulator:
+    """Confusion counts summed over a stream of frames (evaluation, the live demo)."""
+
+    def __init__(self) -> None:
+        self.confusion = np.zeros((C, C), np.int64)
+        self.frames = 0
+
+    def add(self, truth: np.ndarray, pred: np.ndarray) -> None:
+        self.confusion += confusion_matrix(truth, pred)
+        self.frames += 1
+
+    def merge(self, other: ConfusionAccumulator) -> None:
+        """Fold in counts gathered elsewhere (another worker or shard)."""
+        self.confusion += other.confusion
+        self.frames += other.frames
+
+    def scores(self) -> dict:
+        return {**scores(self.confusion), "frames": self.frames}
+
+    def to_dict(self) -> dict:
+        return {"confusion": self.confusion.tolist(), "frames": self.frames}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ConfusionAccumulator:
+        acc = cls()
+        cm = np.asarray(d["confusion"], np.int64)
+        if cm.shape != (C, C) or (cm < 0).any():
+            raise TopsegError(f"a saved confusion matrix must be {C}x{C} non-negative counts")
+        acc.confusion = cm
+        acc.frames = int(d["frames"])
+        return acc

@@ -1,0 +1,145 @@
+"""Metrics against scikit-learn on random label maps, and the documented conventions."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from sklearn import metrics as skm
+
+from topseg.core import labels as L
+from topseg.core.errors import TopsegError
+from topseg.core.metrics import (
+    ConfusionAccumulator,
+    confusion_matrix,
+    format_table,
+    scores,
+    to_json,
+)
+
+C = L.NUM_CLASSES
+IDS = list(L.SCORED_IDS)
+
+
+def random_maps(rng, shape=(48, 64), absent=(), no_depth=0.05):
+    """Truth and a noisy prediction; `absent` classes never occur in the truth."""
+    present = [i for i in range(C) if i not in absent]
+    truth = rng.choice(present, size=shape).astype(np.uint8)
+    pred = np.where(rng.random(shape) < 0.6, truth, rng.integers(0, C, shape)).astype(np.uint8)
+    truth[rng.random(shape) < no_depth] = L.NO_DEPTH
+    pred[rng.random(shape) < no_depth] = L.NO_DEPTH
+    return truth, pred
+
+
+def sklearn_view(truth, pred):
+    """The convention written out: drop truth no-depth, predicted no-depth -> background."""
+    keep = truth != L.NO_DEPTH
+    t, p = truth[keep].astype(int), pred[keep].astype(int)
+    p[p == L.NO_DEPTH] = L.BACKGROUND
+    return t, p
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_confusion_matrix_matches_sklearn(seed):
+    rng = np.random.default_rng(seed)
+    truth, pred = random_maps(rng, absent=(L.PLANT,))
+    t, p = sklearn_view(truth, pred)
+    expected = skm.confusion_matrix(t, p, labels=list(range(C)))
+    assert np.array_equal(confusion_matrix(truth, pred), expected)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_scores_match_sklearn_including_absent_classes(seed):
+    rng = np.random.default_rng(seed)
+    # one class never in the truth; another never predicted; a third in neither
+    truth, pred = random_maps(rng, absent=(L.HAND, L.STORAGE))
+    pred[pred == L.CHAIR] = L.TABLE
+    pred[pred == L.STORAGE] = L.TABLE
+    t, p = sklearn_view(truth, pred)
+    s = scores(confusion_matrix(truth, pred))
+
+    prec, rec, f1, sup = skm.precision_recall_fscore_support(t, p, labels=IDS, zero_division=np.nan)
+    for k, i in enumerate(IDS):
+        r = s["per_class"][L.NAMES[i]]
+        np.testing.assert_allclose(
+            [r["precision"], r["recall"], r["f1"]], [prec[k], rec[k], f1[k]], equal_nan=True
+        )
+        assert r["support"] == sup[k]
+    assert np.isnan(s["per_class"]["chair"]["precision"])  # never predicted: 0/0
+    assert np.isnan(s["per_class"]["hand"]["recall"])  # never in the truth: 0/0
+    assert np.isnan(s["per_class"]["storage"]["f1"])  # in neither
+    assert s["per_class"]["hand"]["precision"] == 0.0  # predicted, always wrong
+
+    for key, fn in (
+        ("mAP", skm.precision_score),
+        ("mAR", skm.recall_score),
+        ("avg_f1", skm.f1_score),
+    ):
+        expected = fn(t, p, labels=IDS, average="macro", zero_division=np.nan)
+        assert s[key] == pytest.approx(expected)
+    bg = skm.precision_recall_fscore_support(t, p, labels=[0], zero_division=np.nan)
+    assert s["background"]["precision"] == pytest.approx(bg[0][0])
+    assert s["background"]["recall"] == pytest.approx(bg[1][0])
+    assert s["accuracy"] == pytest.approx(skm.accuracy_score(t, p))
+
+
+def test_no_depth_conventions():
+    truth = np.array([[L.NO_DEPTH, L.HEAD, L.BACKGROUND, L.HEAD]], np.uint8)
+    pred = np.array([[L.HEAD, L.NO_DEPTH, L.NO_DEPTH, L.HEAD]], np.uint8)
+    cm = confusion_matrix(truth, pred)
+    assert cm.sum() == 3  # the truth's no-depth pixel is ignored
+    assert cm[L.HEAD, L.BACKGROUND] == 1  # a lost head pixel is a miss
+    assert cm[L.BACKGROUND, L.BACKGROUND] == 1
+    assert cm[L.HEAD, L.HEAD] == 1
+    s = scores(cm)
+    assert s["per_class"]["head"]["recall"] == 0.5
+    assert s["per_class"]["head"]["precision"] == 1.0
+
+
+def test_bad_input_is_refused():
+    good = np.zeros((2, 2), np.uint8)
+    with pytest.raises(TopsegError, match="id 11"):
+        confusion_matrix(good, np.full((2, 2), 11, np.uint8))
+    with pytest.raises(TopsegError, match="shape"):
+        confusion_matrix(good, np.zeros((2, 3), np.uint8))
+    with pytest.raises(TopsegError, match="integers"):
+        confusion_matrix(good.astype(float), good)
+    with pytest.raises(TopsegError, match="11x11"):
+        scores(np.zeros((3, 3)))
+
+
+def test_accumulator_sums_frames_and_round_trips():
+    rng = np.random.default_rng(7)
+    frames = [random_maps(rng) for _ in range(4)]
+    a, b = ConfusionAccumulator(), ConfusionAccumulator()
+    for truth, pred in frames[:2]:
+        a.add(truth, pred)
+    for truth, pred in frames[2:]:
+        b.add(truth, pred)
+    a.merge(b)
+    whole = sum(confusion_matrix(t, p) for t, p in frames)
+    assert np.array_equal(a.confusion, whole)
+    assert a.frames == 4 and a.scores()["frames"] == 4
+    again = ConfusionAccumulator.from_dict(json.loads(json.dumps(a.to_dict())))
+    assert np.array_equal(again.confusion, whole) and again.frames == 4
+    with pytest.raises(TopsegError):
+        ConfusionAccumulator.from_dict({"confusion": [[1, 2]], "frames": 1})
+
+
+def test_table_and_json():
+    rng = np.random.default_rng(8)
+    truth, pred = random_maps(rng, absent=(L.PLANT,))
+    s = scores(confusion_matrix(truth, pred))
+    table = format_table(s, title="Table I")
+    lines = table.splitlines()
+    assert lines[0] == "Table I"
+    for name in L.NAMES:
+        assert any(line.startswith(name) for line in lines)
+    plant = next(line for line in lines if line.startswith("plant"))
+    assert plant.split()[2] == "-"  # recall of an absent class: undefined, not 0
+    assert f"{s['mAP']:.3f}" in table and f"{s['avg_f1']:.3f}" in table
+    data = json.loads(to_json(s, mode="realtime"))
+    assert data["mode"] == "realtime"
+    assert data["per_class"]["plant"]["recall"] is None
+    assert data["mAR"] == pytest.approx(s["mAR"])
