@@ -16,6 +16,7 @@ from topseg.core.errors import TopsegError
 
 #: subcommand -> (module, one-line help). Add a line here to add a command.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("topseg.services.demo", "run the main job end to end and print what it measured"),
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
