@@ -182,6 +182,17 @@ def maxflow_csr(first, adj, head, rcap, tr):
     inq = np.zeros(n, np.bool_)
     orphans = np.empty(n + 1, np.int64)
     qh = qt = oh = ot = 0
+    flow = 0
+    for a in range(head.shape[0]):  # paths s -> u -> v -> t first: cheap, and most of the flow
+        u = head[a ^ 1]
+        v = head[a]
+        if tr[u] > 0 and tr[v] < 0 and rcap[a] > 0:
+            b = min(tr[u], -tr[v], rcap[a])
+            tr[u] -= b
+            tr[v] += b
+            rcap[a] -= b
+            rcap[a ^ 1] += b
+            flow += b
     for i in range(n):
         if tr[i] != 0:
             is_sink[i] = tr[i] < 0
@@ -189,7 +200,6 @@ def maxflow_csr(first, adj, head, rcap, tr):
             dist[i] = 1
             inq[i] = True
             qt = _push_back(queue, qt, i)
-    flow = 0
     time = 0
     current = -1
     nbuf = n + 1

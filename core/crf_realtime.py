@@ -27,7 +27,7 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.crf import ENERGY_SCALE, CRFConfig, edge_weights
-from topseg.core.crf_expansion import alpha_expansion, energy
+from topseg.core.crf_expansion import alpha_expansion
 
 
 @numba.njit(cache=True)
@@ -90,48 +90,35 @@ def free_mask(amax, pmax, valid, confidence, ring):
 
 
 @numba.njit(cache=True)
-def number_components(free):
-    """Number free pixels component by component (4-connected, breadth first).
-
-    Returns (index (H, W), -1 off the band; starts: component c owns ids
-    starts[c]:starts[c + 1]), so each component is a contiguous, independent problem.
-    """
+def number_band(free):
+    """Row-major ids of the free pixels: (index (H, W) int32, -1 off the band; count)."""
     h, w = free.shape
-    index = np.full((h, w), -1, np.int64)
-    queue = np.empty(h * w, np.int64)
-    starts = [0]
+    index = np.full((h, w), -1, np.int32)
     n = 0
-    for i0 in range(h):
-        for j0 in range(w):
-            if not free[i0, j0] or index[i0, j0] >= 0:
-                continue
-            index[i0, j0] = n
-            queue[n] = i0 * w + j0
-            head = n
-            n += 1
-            while head < n:
-                i, j = divmod(queue[head], w)
-                head += 1
-                for ii, jj in ((i, j - 1), (i, j + 1), (i - 1, j), (i + 1, j)):
-                    if 0 <= ii < h and 0 <= jj < w and free[ii, jj] and index[ii, jj] < 0:
-                        index[ii, jj] = n
-                        queue[n] = ii * w + jj
-                        n += 1
-            starts.append(n)
-    return index, np.array(starts, np.int64)
+    for i in range(h):
+        for j in range(w):
+            if free[i, j]:
+                index[i, j] = n
+                n += 1
+    return index, n
 
 
 @numba.njit(cache=True)
-def band_problem(proba, amax, index, n, wh, wv, eps):
-    """The band's own CRF: its pixel ids, (N, C) float unaries with the edges to fixed
-    neighbours folded in, a local neighbour table (N, 4) with weights, and the argmax."""
+def band_problem(proba, amax, index, n, wh, wv, eps, scale):
+    """The band's own CRF in gco-style integers (x `scale`, rounded).
+
+    Returns the band pixels' flat ids, (N, C) unaries with the edges to fixed neighbours
+    folded in (w [l != their argmax] is a constant per label), a neighbour table (N, 4)
+    (left, right, up, down; -1 = none) with its weights, and each pixel's argmax.
+    """
     h, w = amax.shape
     c = proba.shape[2]
+    cap = np.int32(np.rint(-np.log(eps) * scale))
     pix = np.empty(n, np.int64)
-    init = np.empty(n, np.int64)
-    unary = np.empty((n, c), np.float32)
-    nbr = np.full((n, 4), -1, np.int64)
-    nw = np.zeros((n, 4), np.float32)
+    init = np.empty(n, np.int32)
+    unary = np.empty((n, c), np.int32)
+    nbr = np.full((n, 4), -1, np.int32)
+    nw = np.zeros((n, 4), np.int32)
     for i in range(h):
         for j in range(w):
             r = index[i, j]
@@ -140,8 +127,9 @@ def band_problem(proba, amax, index, n, wh, wv, eps):
             pix[r] = i * w + j
             init[r] = amax[i, j]
             for k in range(c):
-                unary[r, k] = -np.log(max(proba[i, j, k], eps))
-            for s in range(4):  # left, right, up, down
+                pk = proba[i, j, k]
+                unary[r, k] = cap if pk <= eps else np.int32(np.rint(-np.log(pk) * scale))
+            for s in range(4):
                 if s == 0:
                     ii, jj, wt = i, j - 1, wh[i, j - 1] if j > 0 else 0.0
                 elif s == 1:
@@ -150,43 +138,50 @@ def band_problem(proba, amax, index, n, wh, wv, eps):
                     ii, jj, wt = i - 1, j, wv[i - 1, j] if i > 0 else 0.0
                 else:
                     ii, jj, wt = i + 1, j, wv[i, j] if i + 1 < h else 0.0
-                if wt <= 0:
+                iw = np.int32(np.rint(wt * scale))
+                if iw <= 0:
                     continue
                 q = index[ii, jj]
                 if q >= 0:
                     nbr[r, s] = q
-                    nw[r, s] = wt
-                else:  # fixed neighbour: w [l != its argmax] is a constant per label
+                    nw[r, s] = iw
+                else:
                     fixed = amax[ii, jj]
                     for k in range(c):
                         if k != fixed:
-                            unary[r, k] += wt
+                            unary[r, k] += iw
     return pix, unary, nbr, nw, init
 
 
 @numba.njit(cache=True)
-def expand_components(unary, nbr, nw, init, starts, cycles):
-    """Alpha-expansion on each band component on its own; float (N, C) unaries and (N, 4)
-    weights. A component keeps its argmax unless the result has a lower float energy."""
-    iu = np.empty(unary.shape, np.int64)
-    iw = np.empty(nw.shape, np.int64)
-    for r in range(unary.shape[0]):
-        for k in range(unary.shape[1]):
-            iu[r, k] = round(unary[r, k] * ENERGY_SCALE)
-        for s in range(nw.shape[1]):
-            iw[r, s] = round(nw[r, s] * ENERGY_SCALE)
-    x = init.copy()
-    for c in range(starts.shape[0] - 1):
-        a, b = starts[c], starts[c + 1]
-        local = nbr[a:b].copy()
-        for r in range(b - a):
-            for s in range(local.shape[1]):
-                if local[r, s] >= 0:
-                    local[r, s] -= a
-        sol = alpha_expansion(iu[a:b], local, iw[a:b], init[a:b], cycles)
-        if energy(sol, unary[a:b], local, nw[a:b]) < energy(init[a:b], unary[a:b], local, nw[a:b]):
-            x[a:b] = sol
-    return x
+def float_gain(proba, before, after, pix, wh, wv, eps):
+    """E(before) - E(after) in float, for labelings that differ only at band pixels `pix`."""
+    h, w = before.shape
+    gain = 0.0
+    for r in range(pix.shape[0]):
+        p = pix[r]
+        i, j = p // w, p % w
+        old, new = before[i, j], after[i, j]
+        if old == new:
+            continue
+        gain += np.log(max(np.float64(proba[i, j, new]), eps))
+        gain -= np.log(max(np.float64(proba[i, j, old]), eps))
+        for s in range(4):
+            if s == 0:
+                ii, jj, wt = i, j - 1, wh[i, j - 1] if j > 0 else 0.0
+            elif s == 1:
+                ii, jj, wt = i, j + 1, wh[i, j] if j + 1 < w else 0.0
+            elif s == 2:
+                ii, jj, wt = i - 1, j, wv[i - 1, j] if i > 0 else 0.0
+            else:
+                ii, jj, wt = i + 1, j, wv[i, j] if i + 1 < h else 0.0
+            if wt <= 0:
+                continue
+            q_old, q_new = before[ii, jj], after[ii, jj]
+            if q_old != q_new and ii * w + jj < p:
+                continue  # both ends changed: counted from the other end
+            gain += wt * (np.float64(old != q_old) - np.float64(new != q_new))
+    return gain
 
 
 def segment_realtime(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.ndarray:
@@ -198,13 +193,15 @@ def segment_realtime(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) ->
         return amax
     wh, wv = edge_weights(depth, config)
     free = free_mask(amax, pmax, valid, np.float32(config.confidence), config.ring)
-    index, starts = number_components(free)
-    n = int(starts[-1])
+    index, n = number_band(free)
     if n == 0:
         return amax
-    pix, unary, nbr, nw, init = band_problem(proba, amax, index, n, wh, wv, np.float32(config.eps))
+    eps = np.float32(config.eps)
+    pix, unary, nbr, nw, init = band_problem(proba, amax, index, n, wh, wv, eps, ENERGY_SCALE)
     cycles = config.cycles if config.cycles > 0 else 1_000_000
-    sol = expand_components(unary, nbr, nw, init, starts, cycles)
+    sol = alpha_expansion(unary, nbr, nw, init, cycles)
     out = amax.copy()
     out.ravel()[pix] = sol
-    return out
+    if float_gain(proba, amax, out, pix, wh, wv, float(config.eps)) > 0:
+        return out
+    return amax  # keep the promise: never above the argmax's energy

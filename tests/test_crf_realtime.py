@@ -12,8 +12,9 @@ from topseg.core.crf_expansion import energy
 from topseg.core.crf_realtime import (
     argmax_confidence,
     band_problem,
+    float_gain,
     free_mask,
-    number_components,
+    number_band,
     segment_realtime,
 )
 from topseg.core.crf_synthetic import forest_like_posteriors, synthetic_scene
@@ -69,42 +70,58 @@ def test_free_mask_matches_numpy(ring):
         assert not free[20, 25]
 
 
-def test_components_are_contiguous_and_match_scipy():
+def test_band_ids_are_row_major():
     rng = np.random.default_rng(1)
     free = rng.random((60, 70)) < 0.45
-    index, starts = number_components(free)
-    assert np.array_equal(index >= 0, free)
-    assert starts[-1] == free.sum()
-    assert sorted(index[free]) == list(range(int(free.sum())))
-    comp_of_id = np.searchsorted(starts, np.arange(starts[-1]), side="right") - 1
-    ours = np.full(free.shape, -1)
-    ours[free] = comp_of_id[index[free]]
-    theirs, count = ndimage.label(free, CROSS)
-    assert count == len(starts) - 1
-    for c in range(count):  # the same partition, whatever the numbering
-        assert len(np.unique(theirs[ours == c])) == 1
+    index, n = number_band(free)
+    assert n == free.sum()
+    assert np.array_equal(index[free], np.arange(n))
+    assert (index[~free] == -1).all()
+
+
+def band_of(rng, cfg, shape=(40, 50)):
+    proba, depth = random_frame(rng, *shape)
+    valid = depth > 0
+    amax, pmax = argmax_confidence(proba, valid)
+    wh, wv = edge_weights(depth, cfg)
+    free = free_mask(amax, pmax, valid, np.float32(cfg.confidence), cfg.ring)
+    index, n = number_band(free)
+    return proba, depth, amax, wh, wv, index, n
 
 
 def test_band_problem_keeps_the_frame_energy_up_to_a_constant():
     """Band energy of any band labeling + a constant == the frame's Potts energy."""
     rng = np.random.default_rng(2)
-    proba, depth = random_frame(rng)
     cfg = CRFConfig(smoothness=0.8, depth_sigma_mm=500.0, confidence=0.5, ring=1)
-    valid = depth > 0
-    amax, pmax = argmax_confidence(proba, valid)
-    wh, wv = edge_weights(depth, cfg)
-    free = free_mask(amax, pmax, valid, np.float32(cfg.confidence), cfg.ring)
-    index, starts = number_components(free)
-    n = int(starts[-1])
-    pix, unary, nbr, nw, init = band_problem(proba, amax, index, n, wh, wv, np.float32(cfg.eps))
+    proba, depth, amax, wh, wv, index, n = band_of(rng, cfg)
+    scale = 1e5  # fine rounding, so the constant shows
+    pix, unary, nbr, nw, init = band_problem(
+        proba, amax, index, n, wh, wv, np.float32(cfg.eps), scale
+    )
     assert np.array_equal(init, amax.ravel()[pix])
+    assert np.array_equal(pix, np.flatnonzero(index.ravel() >= 0))
     offsets = []
     for _ in range(6):
         x = rng.integers(0, C, n)
         frame = amax.copy()
         frame.ravel()[pix] = x
-        offsets.append(potts_energy(frame, proba, depth, cfg) - energy(x, unary, nbr, nw))
-    assert np.ptp(offsets) < 1e-2  # float32 unaries: a constant up to rounding
+        band = energy(x, unary.astype(np.int64), nbr.astype(np.int64), nw.astype(np.int64))
+        offsets.append(potts_energy(frame, proba, depth, cfg) - band / scale)
+    assert np.ptp(offsets) < 1e-2
+
+
+def test_float_gain_is_the_energy_difference():
+    rng = np.random.default_rng(5)
+    cfg = CRFConfig(smoothness=1.3, confidence=0.6, ring=1)
+    proba, depth, amax, wh, wv, index, _ = band_of(rng, cfg)
+    pix = np.flatnonzero(index.ravel() >= 0)
+    before = potts_energy(amax, proba, depth, cfg)
+    for fraction in (0.0, 0.1, 0.5, 1.0):
+        after = amax.copy()
+        change = pix[rng.random(pix.size) < fraction]
+        after.ravel()[change] = rng.integers(0, C, change.size)
+        gain = float_gain(proba, amax, after, pix, wh, wv, cfg.eps)
+        assert gain == pytest.approx(before - potts_energy(after, proba, depth, cfg), abs=1e-3)
 
 
 def test_fixed_pixels_keep_the_argmax_and_holes_stay_holes():
