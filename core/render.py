@@ -151,25 +151,24 @@ def _sphere_t(ox, oy, oz, dx, dy, dz, r):
 
 
 @numba.njit(cache=True, inline="always")
+def _slab(o, d, h, tn, tf):
+    # one pair of parallel faces: narrow [tn, tf] to where the ray is between them
+    if abs(d) < 1e-12:
+        if o < -h or o > h:
+            return 1.0, 0.0  # empty
+        return tn, tf
+    t1 = (-h - o) / d
+    t2 = (h - o) / d
+    if t1 > t2:
+        t1, t2 = t2, t1
+    return max(tn, t1), min(tf, t2)
+
+
+@numba.njit(cache=True, inline="always")
 def _box_t(ox, oy, oz, dx, dy, dz, hx, hy, hz):
-    tn = -np.inf
-    tf = np.inf
-    for a in range(3):
-        o = ox if a == 0 else (oy if a == 1 else oz)
-        d = dx if a == 0 else (dy if a == 1 else dz)
-        h = hx if a == 0 else (hy if a == 1 else hz)
-        if abs(d) < 1e-12:
-            if o < -h or o > h:
-                return np.inf
-        else:
-            t1 = (-h - o) / d
-            t2 = (h - o) / d
-            if t1 > t2:
-                t1, t2 = t2, t1
-            if t1 > tn:
-                tn = t1
-            if t2 < tf:
-                tf = t2
+    tn, tf = _slab(ox, dx, hx, -np.inf, np.inf)
+    tn, tf = _slab(oy, dy, hy, tn, tf)
+    tn, tf = _slab(oz, dz, hz, tn, tf)
     if tn > tf or tn <= 0.0:
         return np.inf
     return tn
@@ -235,19 +234,41 @@ def _hit(kind, sx, sy, sz, ox, oy, oz, dx, dy, dz):
 
 @numba.njit(parallel=True, cache=True)
 def _raycast_kernel(
-    kind, size, origin_local, rot_c, lab, boxes, fx, fy, cx, cy, depth_m, out_lab, no_hit
+    kind,
+    size,
+    origin_local,
+    rot_c,
+    lab,
+    boxes,
+    zmin,
+    fx,
+    fy,
+    cx,
+    cy,
+    depth_m,
+    depth_mm,
+    out_lab,
+    no_hit,
 ):
     """Rows in parallel; per row, each primitive whose screen box covers it, per pixel the hit.
 
-    origin_local[i] = R_i^T (camera origin - centre_i); rot_c[i] = R_i (camera from local).
+    origin_local[i] = R_i^T (camera origin - centre_i); rot_c[i] = R_i (camera from local);
+    zmin[i] the nearest depth primitive i can have: pixels already nearer skip it.
+    Writes depth in metres (inf = no hit), in rounded millimetres (0 = none) and labels.
     """
     height, width = depth_m.shape
     n = kind.shape[0]
     for v in numba.prange(height):
+        ry = (v - cy) / fy
+        wx = np.empty(width)
+        wz = np.empty(width)
         for u in range(width):
             depth_m[v, u] = np.inf
             out_lab[v, u] = no_hit
-        ry = (v - cy) / fy
+            rx = (u - cx) / fx
+            inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
+            wx[u] = rx * inv
+            wz[u] = inv
         for i in range(n):
             if v < boxes[i, 2] or v > boxes[i, 3] or boxes[i, 0] > boxes[i, 1]:
                 continue
@@ -257,20 +278,44 @@ def _raycast_kernel(
             ox, oy, oz = origin_local[i, 0], origin_local[i, 1], origin_local[i, 2]
             k = kind[i]
             sx, sy, sz = size[i, 0], size[i, 1], size[i, 2]
+            near = zmin[i]
             for u in range(boxes[i, 0], boxes[i, 1] + 1):
-                rx = (u - cx) / fx
-                inv = 1.0 / np.sqrt(rx * rx + ry * ry + 1.0)
-                wx, wy, wz = rx * inv, ry * inv, inv
+                if depth_m[v, u] <= near:
+                    continue  # something nearer already covers this pixel
+                inv = wz[u]
+                wy = ry * inv
                 # direction in the primitive's frame: R^T w
-                dx = r00 * wx + r10 * wy + r20 * wz
-                dy = r01 * wx + r11 * wy + r21 * wz
-                dz = r02 * wx + r12 * wy + r22 * wz
+                dx = r00 * wx[u] + r10 * wy + r20 * inv
+                dy = r01 * wx[u] + r11 * wy + r21 * inv
+                dz = r02 * wx[u] + r12 * wy + r22 * inv
                 t = _hit(k, sx, sy, sz, ox, oy, oz, dx, dy, dz)
                 if t < np.inf:
                     z = t * inv  # distance along the ray -> depth along the optical axis
                     if z < depth_m[v, u]:
                         depth_m[v, u] = z
                         out_lab[v, u] = lab[i]
+        for u in range(width):  # millimetres, 0 (and no label) where nothing is in range
+            mm = np.floor(depth_m[v, u] * 1000.0 + 0.5)
+            if mm > 0.0 and mm <= 65535.0:
+                depth_mm[v, u] = np.uint16(mm)
+            else:
+                depth_mm[v, u] = 0
+                out_lab[v, u] = no_hit
+
+
+def front_to_back(prims: Primitives, mount: TopViewMount) -> Primitives:
+    """The primitives sorted by their nearest possible depth (stable), so far ones get skipped
+    where near ones already cover a pixel. Equal depths go to the earlier primitive."""
+    center_c, rot_c = to_camera(prims, mount)
+    zmin = center_c[:, 2] - _half_extents(prims.kind, prims.size, rot_c)[:, 2]
+    order = np.argsort(zmin, kind="stable")
+    return Primitives(
+        prims.kind[order],
+        prims.size[order],
+        prims.center[order],
+        prims.rot[order],
+        prims.label[order],
+    )
 
 
 def _prepare(prims: Primitives, mount: TopViewMount):
@@ -278,37 +323,44 @@ def _prepare(prims: Primitives, mount: TopViewMount):
     origin_local = np.einsum("nji,nj->ni", rot_c, -center_c)
     ext = _half_extents(prims.kind, prims.size, rot_c)
     boxes = screen_boxes(center_c, ext, mount)
-    return origin_local, np.ascontiguousarray(rot_c), boxes
+    zmin = np.ascontiguousarray(center_c[:, 2] - ext[:, 2])
+    return origin_local, np.ascontiguousarray(rot_c), boxes, zmin
 
 
 def depth_to_mm(depth_m: np.ndarray) -> np.ndarray:
-    """Metres (inf = no hit) -> uint16 millimetres, 0 where nothing was hit or out of range."""
-    mm = np.rint(depth_m * 1000.0)
+    """Metres (inf = no hit) -> uint16 millimetres rounded half up, 0 where nothing was hit or
+    out of range (what the kernel does per pixel)."""
+    mm = np.floor(depth_m * 1000.0 + 0.5)
     ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
     out = np.zeros(depth_m.shape, np.uint16)
     out[ok] = mm[ok].astype(np.uint16)
     return out
 
 
-def raycast_m(prims: Primitives, mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
-    """Depth in metres (float64, inf where nothing is hit) and labels (NO_DEPTH there)."""
+def _run(prims: Primitives, mount: TopViewMount):
     k = mount.intrinsics
     depth = np.empty(k.shape, np.float64)
+    depth_mm = np.empty(k.shape, np.uint16)
     lab = np.empty(k.shape, np.uint8)
-    origin_local, rot_c, boxes = _prepare(prims, mount)
+    prims = front_to_back(prims, mount)
+    origin_local, rot_c, boxes, zmin = _prepare(prims, mount)
     _raycast_kernel(
         prims.kind.astype(np.int32), np.ascontiguousarray(prims.size, np.float64), origin_local, rot_c,
-        prims.label.astype(np.uint8), boxes, k.fx, k.fy, k.cx, k.cy, depth, lab, labels.NO_DEPTH,
+        prims.label.astype(np.uint8), boxes, zmin, k.fx, k.fy, k.cx, k.cy, depth, depth_mm, lab, labels.NO_DEPTH,
     )  # fmt: skip
+    return depth, depth_mm, lab
+
+
+def raycast_m(prims: Primitives, mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
+    """Depth in metres (float64, inf where nothing is hit) and the label of each pixel's hit."""
+    depth, _, lab = _run(prims, mount)
     return depth, lab
 
 
 def raycast(prims: Primitives, mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
     """(depth uint16 mm, labels uint8) of the primitives seen by `mount`; 0 / NO_DEPTH = no hit."""
-    depth_m, lab = raycast_m(prims, mount)
-    depth = depth_to_mm(depth_m)
-    lab[depth == 0] = labels.NO_DEPTH
-    return depth, lab
+    _, depth_mm, lab = _run(prims, mount)
+    return depth_mm, lab
 
 
 # --- plain numpy reference of the ray caster (for tests) ------------------------------------
@@ -368,6 +420,7 @@ def raycast_reference(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ray caster in plain numpy, every primitive against every pixel (no culling)."""
     k = mount.intrinsics
+    prims = front_to_back(prims, mount)  # the same order, so equal depths resolve the same way
     v, u = np.indices(k.shape, dtype=np.float64)
     ray = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
     norm = np.linalg.norm(ray, axis=-1)

@@ -1,0 +1,206 @@
+"""Noise models: specs, the Gaussian's statistics, and the Kinect v1 model's kernels against
+their numpy reference and each effect against its parameters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from topseg.core import labels, noise, render
+from topseg.core.camera import Intrinsics, TopViewMount
+from topseg.core.errors import TopsegError
+from topseg.core.geometry import BOX
+
+SMALL = TopViewMount(Intrinsics(160, 120, 142.6, 142.6, 79.5, 59.5), 3500.0)
+
+
+def _boxes(rng, mount=SMALL, n=6) -> np.ndarray:
+    """A floor with `n` random boxes, ray-cast to uint16 mm, with a hole of no depth."""
+    kind = np.full(n + 1, BOX, np.int32)
+    size = np.vstack(
+        [
+            [10.0, 10.0, 0.05],
+            np.column_stack([rng.uniform(0.1, 0.5, (n, 2)), rng.uniform(0.2, 0.8, n)]),
+        ]
+    )
+    center = np.vstack(
+        [
+            [0, 0, -0.05],
+            np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.0, 1.0, n), size[1:, 2]]),
+        ]
+    )
+    rot = np.repeat(np.eye(3)[None], n + 1, axis=0)
+    depth, _ = render.raycast(
+        render.Primitives(kind, size, center, rot, np.arange(n + 1, dtype=np.uint8)), mount
+    )
+    depth[:5, :7] = 0
+    return depth
+
+
+def test_specs_parse_and_print_back():
+    assert isinstance(noise.parse_noise("none"), noise.NoNoise)
+    g = noise.parse_noise("gaussian:15")
+    assert isinstance(g, noise.GaussianNoise) and g.sigma_mm == 15 and g.spec == "gaussian:15"
+    k = noise.parse_noise("kinect")
+    assert k == noise.KinectNoise() and k.spec == "kinect"
+    k2 = noise.parse_noise("kinect:edge_dropout=0.5,subpixel=4")
+    assert k2.edge_dropout == 0.5 and k2.subpixel == 4
+    for m in (g, k, k2, noise.NoNoise()):
+        assert noise.parse_noise(m.spec) == m
+    for bad, msg in (
+        ("gaussian", "gaussian:<sigma_mm>"),
+        ("gaussian:-3", ">= 0"),
+        ("salt", "unknown noise"),
+        ("kinect:wobble=1", "unknown kinect parameter"),
+        ("kinect:flying=2", "probability"),
+        ("kinect:flying=x", "needs a number"),
+    ):
+        with pytest.raises(TopsegError, match=msg):
+            noise.parse_noise(bad)
+    with pytest.raises(ValueError, match="uint16"):
+        g.apply(np.zeros((4, 4), np.float32), np.random.default_rng(0))
+
+
+def test_gaussian_noise_has_its_sigma_and_keeps_zeros():
+    depth = np.full((300, 300), 3000, np.uint16)
+    depth[:, :20] = 0
+    for sigma in (5.0, 15.0, 100.0):
+        out = noise.GaussianNoise(sigma).apply(depth, np.random.default_rng(1))
+        assert np.all(out[:, :20] == 0) and np.all(out[:, 20:] > 0)
+        err = out[:, 20:].astype(float) - 3000
+        n = err.size
+        assert abs(err.mean()) < 4 * sigma / np.sqrt(n) + 0.5
+        assert err.std() == pytest.approx(np.sqrt(sigma**2 + 1 / 12), rel=0.02)  # + rounding to mm
+    assert np.array_equal(noise.GaussianNoise(0).apply(depth, np.random.default_rng(2)), depth)
+    a = noise.GaussianNoise(15).apply(depth, np.random.default_rng(3))
+    b = noise.GaussianNoise(15).apply(depth, np.random.default_rng(3))
+    assert np.array_equal(a, b)
+    near = np.full((50, 50), 2, np.uint16)  # a measured pixel never turns into "no depth"
+    assert noise.GaussianNoise(100).apply(near, np.random.default_rng(4)).min() >= 1
+
+
+def test_hash_generator_matches_its_numpy_twin_and_is_uniform():
+    seed = 123456789
+    idx = np.arange(200_000)
+    ref = noise.hash_uniform_np(seed, idx)
+    assert ref.min() >= 0 and ref.max() < 1
+    assert ref.mean() == pytest.approx(0.5, abs=0.005) and ref.var() == pytest.approx(
+        1 / 12, rel=0.02
+    )
+    assert abs(np.corrcoef(ref[:-1], ref[1:])[0, 1]) < 0.01
+    for i in (0, 1, 17, 199_999):
+        assert noise._hash_uniform(np.uint64(seed), i) == ref[i]
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {},
+        {"flying": 1.0, "edge_dropout": 0.0, "speckle": 0.0},
+        {"edge_dropout": 1.0, "edge_band_px": 3, "noise_cell_px": 1},
+        {"speckle": 0.2, "disparity_sigma_px": 0.3, "subpixel": 4},
+    ],
+)
+def test_kinect_kernels_match_the_numpy_reference(params):
+    model = noise.KinectNoise(**params)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        depth = _boxes(rng)
+        field, seed = model.draws(depth.shape, np.random.default_rng(int(rng.integers(1 << 30))))
+        ref = noise.kinect_reference(model, depth, field, seed)
+        out = np.empty_like(depth)
+        noise._kinect_kernel(
+            depth, *model.flags(depth), field, float(model.noise_cell_px), np.uint64(seed), model.fb, float(model.subpixel),
+            model.disparity_sigma_px, model.edge_band_px, model.edge_dropout, model.flying, model.speckle,
+            model.min_range_m, model.max_range_m, out,
+        )  # fmt: skip
+        assert np.array_equal(out, ref)
+        assert np.all(out[depth == 0] == 0)
+
+
+def test_kinect_on_a_plane_has_its_steps_and_its_sigma():
+    model = noise.KinectNoise(speckle=0.0)
+    for z in (2.0, 3.0, 3.5):
+        depth = np.full((480, 640), int(z * 1000), np.uint16)
+        out = model.apply(depth, np.random.default_rng(int(z * 10)))
+        assert np.all(out > 0)  # no edges, no shadows, no speckle: nothing drops
+        # every value is a disparity level fb / (k / subpixel), in mm
+        levels = np.unique(out)
+        k = np.rint(model.fb * model.subpixel / (levels / 1000.0))
+        assert np.all(np.abs(np.floor(model.fb / (k / model.subpixel) * 1000 + 0.5) - levels) == 0)
+        steps = np.diff(levels)
+        assert np.median(steps) == pytest.approx(model.depth_step_mm(z), rel=0.1)
+        err = out.astype(float) - depth
+        assert err.std() == pytest.approx(model.sigma_mm(z), rel=0.15)
+        assert abs(err.mean()) < 0.25 * model.depth_step_mm(z)
+    # past the range limit nothing is measured
+    far = np.full((20, 20), 9000, np.uint16)
+    assert np.all(model.apply(far, np.random.default_rng(0)) == 0)
+
+
+def test_speckle_drops_its_fraction():
+    model = noise.KinectNoise(speckle=0.02)
+    out = model.apply(np.full((400, 400), 3000, np.uint16), np.random.default_rng(9))
+    p = (out == 0).mean()
+    assert p == pytest.approx(0.02, abs=4 * np.sqrt(0.02 * 0.98 / out.size))
+
+
+def _table_scene():
+    mount = TopViewMount()
+    top = 0.8
+    box = render.Primitives(
+        np.array([BOX, BOX], np.int32), np.array([[10, 10, 0.05], [0.4, 0.3, top / 2]]),
+        np.array([[0, 0, -0.05], [0.3, 0.1, top / 2]]), np.repeat(np.eye(3)[None], 2, 0), np.array([0, labels.TABLE], np.uint8),
+    )  # fmt: skip
+    depth, lab = render.raycast(box, mount)
+    return depth, lab, top
+
+
+def test_shadows_fall_left_of_near_objects_as_wide_as_the_disparity_jump():
+    depth, lab, top = _table_scene()
+    model = noise.KinectNoise()
+    flags, _ = model.flags(depth)
+    shadow = (flags & noise.SHADOW) != 0
+    rows = np.nonzero((lab == labels.TABLE).any(1))[0]
+    rows = rows[5:-5]
+    expected = model.fb * (1 / (3.5 - top) - 1 / 3.5)  # pixels between the two projector columns
+    for v in rows[::10]:
+        cols = np.nonzero(lab[v] == labels.TABLE)[0]
+        left = cols.min()
+        width = 0
+        while shadow[v, left - 1 - width]:
+            width += 1
+        assert abs(width - expected) <= 1.5
+        assert not shadow[v, cols.max() + 1 : cols.max() + 20].any()  # nothing on the right
+    out = noise.KinectNoise(edge_dropout=0.0, flying=0.0, speckle=0.0).apply(
+        depth, np.random.default_rng(0)
+    )
+    assert np.array_equal(out == 0, shadow)
+
+
+def test_edge_band_drops_its_fraction_and_flying_pixels_lie_between():
+    depth, lab, _ = _table_scene()
+    p = 0.4
+    model = noise.KinectNoise(edge_dropout=p, flying=0.0, speckle=0.0)
+    flags, near_h = model.flags(depth)
+    band = np.zeros(depth.shape, bool)
+    b = model.edge_band_px
+    for dv in range(-b, b + 1):
+        band |= np.roll(near_h, dv, axis=0).astype(bool)
+    band &= (flags & noise.SHADOW) == 0
+    out = model.apply(depth, np.random.default_rng(1))
+    dropped = (out == 0)[band].mean()
+    assert dropped == pytest.approx(p, abs=4 * np.sqrt(p * (1 - p) / band.sum()))
+    assert not (out == 0)[~band & (depth > 0) & ((flags & noise.SHADOW) == 0)].any()
+
+    model = noise.KinectNoise(edge_dropout=0.0, flying=1.0, speckle=0.0, disparity_sigma_px=0.0)
+    out = model.apply(depth, np.random.default_rng(2)).astype(float)
+    jump = ((flags & noise.JUMP) != 0) & ((flags & noise.SHADOW) == 0)
+    top, floor = depth[lab == labels.TABLE].min(), depth.max()
+    inner = out[jump]
+    step = model.depth_step_mm(floor / 1000)
+    assert np.all(
+        (inner > top + 0.1 * (floor - top) - step) & (inner < floor - 0.1 * (floor - top) + step)
+    )
+    calm = ~jump & (depth > 0) & ((flags & noise.SHADOW) == 0)
+    assert np.all(np.abs(out[calm] - depth[calm]) <= model.depth_step_mm(floor / 1000))

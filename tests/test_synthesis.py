@@ -1,0 +1,129 @@
+"""The synthesis entry point: reproducible frames by seed, in this process and another, labels
+that follow the noise, and configs that survive JSON."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from topseg.core import labels
+from topseg.core.camera import TOP_VIEW
+from topseg.core.density import DensityFunction
+from topseg.core.errors import TopsegError
+from topseg.core.scene import PlacedObject, Scene
+from topseg.core.synthesis import POSES, ROOMS, SynthesisConfig, Synthesizer
+
+
+def _digest(frame) -> str:
+    h = hashlib.sha256()
+    h.update(frame.depth.tobytes())
+    h.update(frame.labels.tobytes())
+    h.update(json.dumps(frame.scene, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def synth():
+    with Synthesizer(SynthesisConfig(noise="kinect", seed=3)) as s:
+        yield s
+
+
+def test_frames_have_the_contracted_shapes_and_labels_follow_the_noise(synth):
+    f = synth.render(0)
+    assert f.depth.shape == (480, 640) and f.depth.dtype == np.uint16
+    assert f.labels.shape == (480, 640) and f.labels.dtype == np.uint8
+    assert np.array_equal(f.labels == labels.NO_DEPTH, f.depth == 0)
+    assert (f.depth == 0).any()  # the kinect model leaves shadows
+    present = set(np.unique(f.labels).tolist())
+    assert present <= {*range(labels.NUM_CLASSES), labels.NO_DEPTH}
+    assert present & set(labels.HUMAN_IDS)
+    scene = Scene.from_dict(json.loads(json.dumps(f.scene)))
+    assert math.isfinite(DensityFunction().log_density(scene))
+    assert f.seed == 0 and set(f.timings_ms) == {"sample", "build", "raycast", "noise"}
+
+
+def test_the_same_seed_gives_the_same_frame_and_others_differ(synth):
+    a, b = synth.render(11), synth.render(12)
+    assert _digest(synth.render(11)) == _digest(a)
+    assert _digest(a) != _digest(b)
+    with Synthesizer(SynthesisConfig(noise="kinect", seed=4)) as other:
+        assert _digest(other.render(11)) != _digest(a)  # the config's seed matters too
+    for bad in (-1, 1.5, "3", True):
+        with pytest.raises(TopsegError, match="frame_seed"):
+            synth.render(bad)
+
+
+def test_the_same_seed_gives_the_same_frame_in_another_process(synth):
+    code = (
+        "import hashlib, json, sys;"
+        "from topseg.core.synthesis import SynthesisConfig, Synthesizer;"
+        "s = Synthesizer(SynthesisConfig(noise='kinect', seed=3));"
+        "f = s.render(7);"
+        "h = hashlib.sha256(); h.update(f.depth.tobytes()); h.update(f.labels.tobytes());"
+        "h.update(json.dumps(f.scene, sort_keys=True).encode()); print(h.hexdigest())"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert out.stdout.strip().splitlines()[-1] == _digest(synth.render(7))
+
+
+def test_a_known_table_appears_where_and_as_deep_as_it_should():
+    table = PlacedObject(0, "table_rect", 0, 0.75, 0.5, -0.4, 0.0, 0.0)
+    scene = Scene("modeled", "industrial_workspace", (-2.3, -1.8), (2.3, 1.8), 0.3, 0.3, [table])
+    with Synthesizer(SynthesisConfig(noise="none")) as s:
+        f = s.render_scene(scene)
+    k = TOP_VIEW.intrinsics
+    z = 3.5 - 0.75
+    u = round(0.5 / z * k.fx + k.cx)
+    v = round(0.4 / z * k.fy + k.cy)  # world y = -0.4 is below the image centre
+    assert f.labels[v, u] == labels.TABLE and f.depth[v, u] == 2750
+    m = f.labels == labels.TABLE
+    top = m & (f.depth == 2750)
+    # its top is 1.2 m x 0.7 m at 2.75 m: (1.2 * fx / z) x (0.7 * fy / z) pixels
+    assert top.sum() == pytest.approx((1.2 * k.fx / z) * (0.7 * k.fy / z), rel=0.03)
+    assert np.all(f.depth[~m] == 3500) and np.all(f.labels[~m] == labels.BACKGROUND)
+
+
+def test_non_modeled_frames_hold_one_item():
+    with Synthesizer(SynthesisConfig(mode="non-modeled", noise="gaussian:15", room="office")) as s:
+        for i in range(4):
+            sc = s.render(i).scene
+            assert len(sc["objects"]) + (sc["human"] is not None) == 1 and not sc["relations"]
+            assert sc["room"] == "office"
+
+
+def test_config_round_trips_and_validates():
+    c = SynthesisConfig(
+        mode="non-modeled", noise="gaussian:30", room="lab_corridor", theta_max=0.1, seed=9
+    )
+    assert c.density.theta_max_ho == c.density.theta_max_oo == 0.1
+    back = SynthesisConfig.from_dict(json.loads(json.dumps(c.to_dict())))
+    assert back.to_dict() == c.to_dict()
+    assert SynthesisConfig(noise=" Kinect ").noise == "kinect"
+    for kw, msg in (
+        ({"mode": "half"}, "mode"),
+        ({"noise": "pink"}, "unknown noise"),
+        ({"room": "attic"}, "room"),
+        ({"theta_max": 2.0}, "theta_max"),
+        ({"seed": -1}, "seed"),
+    ):
+        with pytest.raises(TopsegError, match=msg):
+            SynthesisConfig(**kw)
+    with pytest.raises(TopsegError, match="unknown keys"):
+        SynthesisConfig.from_dict({"modes": "modeled"})
+    assert len(ROOMS) >= 4 and "sitting" in POSES and "walking" in POSES
+
+
+def test_a_closed_synthesizer_refuses_to_render():
+    s = Synthesizer(SynthesisConfig(noise="none"))
+    s.close()
+    s.close()  # twice is fine
+    with pytest.raises(TopsegError, match="closed"):
+        s.render(0)
