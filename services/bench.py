@@ -16,6 +16,7 @@ import sys
 #: benchmark -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
     "transport": ("topseg.services.bench_transport", "depth frames over loopback Zenoh"),
+    "synthesis": ("topseg.services.bench_synthesis", "synthetic frames, stage by stage"),
 }
 
 
