@@ -9,7 +9,8 @@
   effect from how the sensor works (docs/noise.md compares it with real frames):
   * projector shadows: the IR projector sits `baseline_m` to the right of the camera, so
     surfaces it cannot light (left of anything nearer) read no depth;
-  * edge dropouts: block matching fails in a band beside shadows and depth jumps;
+  * edge dropouts: block matching fails in a band beside shadows (often, widening them as
+    in real frames) and beside other depth jumps (seldom);
   * flying pixels: on a jump, some pixels take a depth between the two sides;
   * depth-dependent error: noise in disparity (spatially correlated, like the matcher's
     window) becomes error growing with z^2 in depth (Khoshelham and Elberink 2012:
@@ -97,6 +98,8 @@ _MIX2 = np.uint64(0x94D049BB133111EB)
 # flags from the first pass
 SHADOW = 1
 JUMP = 2
+NEAR_SHADOW = 1
+NEAR_JUMP = 2
 
 
 @numba.njit(cache=True, inline="always")
@@ -154,18 +157,29 @@ def _flags_kernel(depth, fb, jump_m, band, flags, near_h):
                 elif v < h - 1 and _is_jump(depth, v + 1, u, z, jump_m):
                     f |= JUMP
             flags[v, u] = f
-        # horizontal pass of the band: distance to the last marked pixel on each side
-        last = -(1 << 30)
+        # horizontal pass of the bands: NEAR_SHADOW within `band` columns of a shadow or a
+        # pixel without depth, NEAR_JUMP within `band` columns of a jump
+        last_s = -(1 << 30)
+        last_j = -(1 << 30)
         for u in range(w):
-            if flags[v, u] != 0 or depth[v, u] == 0:
-                last = u
-            near_h[v, u] = 1 if u - last <= band else 0
-        last = 1 << 30
+            if (flags[v, u] & SHADOW) != 0 or depth[v, u] == 0:
+                last_s = u
+            if (flags[v, u] & JUMP) != 0:
+                last_j = u
+            near_h[v, u] = (NEAR_SHADOW if u - last_s <= band else 0) | (
+                NEAR_JUMP if u - last_j <= band else 0
+            )
+        last_s = 1 << 30
+        last_j = 1 << 30
         for u in range(w - 1, -1, -1):
-            if flags[v, u] != 0 or depth[v, u] == 0:
-                last = u
-            if last - u <= band:
-                near_h[v, u] = 1
+            if (flags[v, u] & SHADOW) != 0 or depth[v, u] == 0:
+                last_s = u
+            if (flags[v, u] & JUMP) != 0:
+                last_j = u
+            if last_s - u <= band:
+                near_h[v, u] |= NEAR_SHADOW
+            if last_j - u <= band:
+                near_h[v, u] |= NEAR_JUMP
 
 
 @numba.njit(parallel=True, cache=True)
@@ -180,6 +194,7 @@ def _kinect_kernel(
     subpixel,
     sigma_px,
     band,
+    p_shadow,
     p_edge,
     p_fly,
     p_speckle,
@@ -200,13 +215,12 @@ def _kinect_kernel(
             d0 = depth[v, u]
             if d0 == 0 or (flags[v, u] & SHADOW) != 0:
                 continue
-            # a band beside shadows and jumps where block matching may fail
-            near = False
+            # bands beside shadows and jumps where block matching may fail
+            near = 0
             for vv in range(v0, v1):
-                if near_h[vv, u] != 0:
-                    near = True
-                    break
-            if near and _hash_uniform(seed, idx) < p_edge:
+                near |= near_h[vv, u]
+            p_drop = p_shadow if (near & NEAR_SHADOW) != 0 else (p_edge if near != 0 else 0.0)
+            if p_drop > 0 and _hash_uniform(seed, idx) < p_drop:
                 continue
             if p_speckle > 0 and _hash_uniform(seed, idx + 1) < p_speckle:
                 continue
@@ -255,18 +269,19 @@ class KinectNoise:
     focal_px: float = 580.0  # IR camera focal length (disparity is measured there)
     baseline_m: float = 0.075  # projector to the right of the IR camera
     subpixel: int = 8  # disparity resolution: 1/8 pixel
-    disparity_sigma_px: float = 0.05  # matching noise; with the 1/8 px steps ~1.4e-3 z^2 m
+    disparity_sigma_px: float = 0.04  # matching noise; with the 1/8 px steps ~1.25e-3 z^2 m
     noise_cell_px: int = 4  # correlation length of the matching noise
     jump_m: float = 0.10  # a depth step larger than this is an edge
-    edge_band_px: int = 2  # band beside shadows and edges where matching may fail
-    edge_dropout: float = 0.35  # chance a pixel in that band reads nothing
-    flying: float = 0.25  # chance an edge pixel mixes the depths of both sides
+    edge_band_px: int = 2  # band beside shadows and jumps where matching may fail
+    shadow_dropout: float = 0.8  # chance a pixel in the band beside a shadow reads nothing
+    edge_dropout: float = 0.05  # chance a pixel in the band beside a jump reads nothing
+    flying: float = 0.2  # chance a pixel on a jump mixes the depths of both sides
     speckle: float = 0.001  # isolated dropouts anywhere
     min_range_m: float = 0.5
     max_range_m: float = 8.0
 
     def __post_init__(self) -> None:
-        for name in ("edge_dropout", "flying", "speckle"):
+        for name in ("shadow_dropout", "edge_dropout", "flying", "speckle"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopsegError(f"kinect noise: {name} is a probability in [0, 1], got {v}")
@@ -325,7 +340,7 @@ class KinectNoise:
         out = np.empty_like(depth)
         _kinect_kernel(
             depth, *self.flags(depth), field, float(self.noise_cell_px), np.uint64(seed), self.fb, float(self.subpixel),
-            self.disparity_sigma_px, self.edge_band_px, self.edge_dropout, self.flying, self.speckle,
+            self.disparity_sigma_px, self.edge_band_px, self.shadow_dropout, self.edge_dropout, self.flying, self.speckle,
             self.min_range_m, self.max_range_m, out,
         )  # fmt: skip
         return out
@@ -358,16 +373,29 @@ def kinect_reference(
         j[:-1] |= step
         jump |= np.moveaxis(j, 0, axis)
     jump &= valid
-    flagged = shadow | jump | ~valid
     b = model.edge_band_px
-    pad = np.pad(flagged, b)
-    near = np.zeros((h, w), bool)
-    for dv in range(2 * b + 1):
-        for du in range(2 * b + 1):
-            near |= pad[dv : dv + h, du : du + w]
+
+    def near(mask):
+        pad = np.pad(mask, b)
+        out = np.zeros((h, w), bool)
+        for dv in range(2 * b + 1):
+            for du in range(2 * b + 1):
+                out |= pad[dv : dv + h, du : du + w]
+        return out
+
+    near_shadow = near(shadow | ~valid)
+    near_jump = near(jump)
+    p_drop = np.where(
+        near_shadow, model.shadow_dropout, np.where(near_jump, model.edge_dropout, 0.0)
+    )
     idx = (np.arange(h * w, dtype=np.uint64).reshape(h, w)) * np.uint64(4)
     r0, r1, r2, r3 = (hash_uniform_np(seed, idx + np.uint64(k)) for k in range(4))
-    keep = valid & ~shadow & ~(near & (r0 < model.edge_dropout)) & ~(r1 < model.speckle)
+    keep = (
+        valid
+        & ~shadow
+        & ~((p_drop > 0) & (r0 < p_drop))
+        & ~((model.speckle > 0) & (r1 < model.speckle))
+    )
     with np.errstate(divide="ignore"):
         disp = fb / z
     # flying pixels mix with the neighbour that differs most

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from topseg.core import labels, noise, render
+from topseg.core import depth_stats, labels, noise, render
 from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.geometry import BOX
@@ -96,8 +96,8 @@ def test_hash_generator_matches_its_numpy_twin_and_is_uniform():
     "params",
     [
         {},
-        {"flying": 1.0, "edge_dropout": 0.0, "speckle": 0.0},
-        {"edge_dropout": 1.0, "edge_band_px": 3, "noise_cell_px": 1},
+        {"flying": 1.0, "edge_dropout": 0.0, "shadow_dropout": 0.0, "speckle": 0.0},
+        {"edge_dropout": 1.0, "shadow_dropout": 0.3, "edge_band_px": 3, "noise_cell_px": 1},
         {"speckle": 0.2, "disparity_sigma_px": 0.3, "subpixel": 4},
     ],
 )
@@ -111,7 +111,8 @@ def test_kinect_kernels_match_the_numpy_reference(params):
         out = np.empty_like(depth)
         noise._kinect_kernel(
             depth, *model.flags(depth), field, float(model.noise_cell_px), np.uint64(seed), model.fb, float(model.subpixel),
-            model.disparity_sigma_px, model.edge_band_px, model.edge_dropout, model.flying, model.speckle,
+            model.disparity_sigma_px, model.edge_band_px, model.shadow_dropout, model.edge_dropout, model.flying,
+            model.speckle,
             model.min_range_m, model.max_range_m, out,
         )  # fmt: skip
         assert np.array_equal(out, ref)
@@ -121,7 +122,9 @@ def test_kinect_kernels_match_the_numpy_reference(params):
 def test_kinect_on_a_plane_has_its_steps_and_its_sigma():
     model = noise.KinectNoise(speckle=0.0)
     for z in (2.0, 3.0, 3.5):
-        depth = np.full((480, 640), int(z * 1000), np.uint16)
+        # a gentle ramp (0.3 mm a pixel, no jumps) so the true depth samples every phase
+        # between two levels, as real surfaces do
+        depth = (z * 1000 + 0.3 * (np.arange(640) - 320))[None, :].repeat(480, 0).astype(np.uint16)
         out = model.apply(depth, np.random.default_rng(int(z * 10)))
         assert np.all(out > 0)  # no edges, no shadows, no speckle: nothing drops
         # every value is a disparity level fb / (k / subpixel), in mm
@@ -172,28 +175,44 @@ def test_shadows_fall_left_of_near_objects_as_wide_as_the_disparity_jump():
             width += 1
         assert abs(width - expected) <= 1.5
         assert not shadow[v, cols.max() + 1 : cols.max() + 20].any()  # nothing on the right
-    out = noise.KinectNoise(edge_dropout=0.0, flying=0.0, speckle=0.0).apply(
-        depth, np.random.default_rng(0)
-    )
+    quiet = noise.KinectNoise(edge_dropout=0.0, shadow_dropout=0.0, flying=0.0, speckle=0.0)
+    out = quiet.apply(depth, np.random.default_rng(0))
     assert np.array_equal(out == 0, shadow)
 
 
-def test_edge_band_drops_its_fraction_and_flying_pixels_lie_between():
-    depth, lab, _ = _table_scene()
-    p = 0.4
-    model = noise.KinectNoise(edge_dropout=p, flying=0.0, speckle=0.0)
+def test_bands_beside_shadows_and_jumps_drop_their_fractions():
+    depth, _, _ = _table_scene()
+    p_shadow, p_edge = 0.7, 0.2
+    model = noise.KinectNoise(shadow_dropout=p_shadow, edge_dropout=p_edge, flying=0.0, speckle=0.0)
     flags, near_h = model.flags(depth)
-    band = np.zeros(depth.shape, bool)
+    bits = np.zeros(depth.shape, np.uint8)
     b = model.edge_band_px
     for dv in range(-b, b + 1):
-        band |= np.roll(near_h, dv, axis=0).astype(bool)
-    band &= (flags & noise.SHADOW) == 0
+        bits |= np.roll(near_h, dv, axis=0)
+    lit = (flags & noise.SHADOW) == 0
+    by_shadow = lit & ((bits & noise.NEAR_SHADOW) != 0)
+    by_jump = lit & ~by_shadow & ((bits & noise.NEAR_JUMP) != 0)
+    assert by_shadow.sum() > 100 and by_jump.sum() > 100
     out = model.apply(depth, np.random.default_rng(1))
-    dropped = (out == 0)[band].mean()
-    assert dropped == pytest.approx(p, abs=4 * np.sqrt(p * (1 - p) / band.sum()))
-    assert not (out == 0)[~band & (depth > 0) & ((flags & noise.SHADOW) == 0)].any()
+    for band, p in ((by_shadow, p_shadow), (by_jump, p_edge)):
+        dropped = (out == 0)[band].mean()
+        assert dropped == pytest.approx(p, abs=4 * np.sqrt(p * (1 - p) / band.sum()))
+    assert not (out == 0)[lit & (bits == 0)].any()
+    # real frames' no-depth bands are a few pixels wider than the projector's shadow (docs/noise.md)
+    model = noise.KinectNoise()
+    runs = depth_stats.gap_runs(model.apply(depth, np.random.default_rng(2)))
+    far_left = runs[:, 3] == 1
+    assert far_left.mean() > 0.8  # shadows: the far side is on the left
+    shadow = model.fb * (1000 / runs[far_left, 1] - 1000 / runs[far_left, 2])
+    assert np.median(runs[far_left, 0] - shadow) > 1.0
 
-    model = noise.KinectNoise(edge_dropout=0.0, flying=1.0, speckle=0.0, disparity_sigma_px=0.0)
+
+def test_flying_pixels_lie_between_the_two_sides():
+    depth, lab, _ = _table_scene()
+    model = noise.KinectNoise(
+        edge_dropout=0.0, shadow_dropout=0.0, flying=1.0, speckle=0.0, disparity_sigma_px=0.0
+    )
+    flags, _ = model.flags(depth)
     out = model.apply(depth, np.random.default_rng(2)).astype(float)
     jump = ((flags & noise.JUMP) != 0) & ((flags & noise.SHADOW) == 0)
     top, floor = depth[lab == labels.TABLE].min(), depth.max()
@@ -204,3 +223,29 @@ def test_edge_band_drops_its_fraction_and_flying_pixels_lie_between():
     )
     calm = ~jump & (depth > 0) & ((flags & noise.SHADOW) == 0)
     assert np.all(np.abs(out[calm] - depth[calm]) <= model.depth_step_mm(floor / 1000))
+
+
+def test_depth_statistics_measure_what_they_say():
+    edges = np.array([1000, 2000, 3000])
+    img = np.zeros((64, 64), np.uint16)
+    img[:32] = (1000 + 10 * (np.arange(64) % 50))[None, :]  # levels 10 mm apart in 1..2 m
+    img[32:] = (2000 + 25 * (np.arange(64) % 30))[None, :]  # 25 mm apart in 2..3 m
+    np.testing.assert_allclose(depth_stats.level_spacing(img, edges), [10, 25])
+
+    rng = np.random.default_rng(0)
+    plane = 2500 + 0.5 * np.arange(256)[None, :] + rng.normal(0, 6.0, (256, 256))
+    rough = depth_stats.roughness(np.rint(plane).astype(np.uint16), edges)
+    assert np.isnan(rough[0]) and rough[1] == pytest.approx(6.0, rel=0.1)
+
+    row = np.array([[3000, 3000, 0, 0, 0, 2000, 2000, 0, 2010, 2000]], np.uint16)
+    runs = depth_stats.gap_runs(row)
+    np.testing.assert_array_equal(runs, [[3, 2000, 3000, 1]])  # the small 10 mm gap is no jump
+    fb = 43.5
+    s = depth_stats.shadow_summary(np.repeat(row, 10, 0), fb)
+    assert s["runs"] == 10 and s["far_on_left"] == 1.0
+    assert s["left_extra_px"] == pytest.approx(3 - fb * (1 / 2.0 - 1 / 3.0))
+
+    step = np.array([[2000, 2000, 2500, 3000, 3000, 2000, 2000, 0, 3000, 3000]], np.uint16)
+    e = depth_stats.edge_summary(step)
+    # three 5-px windows span a jump: middles 2500 (flying), 3000 (outside 2000..2500), 0 (missing)
+    assert e["jumps"] == 3 and e["missing"] == pytest.approx(1 / 3) and e["flying"] == 0.5
