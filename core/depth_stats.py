@@ -91,9 +91,9 @@ def shadow_summary(depth: np.ndarray, fb_px_m: float, jump_mm: float = 150.0) ->
     for name, m in (("left", left), ("right", ~left)):
         if m.sum() >= 5:
             out[f"{name}_extra_px"] = float(np.median(runs[m, 0] - predicted[m]))
-            out[f"{name}_corr"] = (
-                float(np.corrcoef(runs[m, 0], predicted[m])[0, 1]) if m.sum() > 2 else float("nan")
-            )
+            varied = np.ptp(runs[m, 0]) > 0 and np.ptp(predicted[m]) > 0
+            corr = np.corrcoef(runs[m, 0], predicted[m])[0, 1] if varied else np.nan
+            out[f"{name}_corr"] = float(corr)
     return out
 
 
