@@ -150,6 +150,7 @@ class ReplaySource(Source):
 
     def frames(self) -> Iterator[SourceFrame]:
         pacer = Pacer(self.options.realtime)
+        estimate_fps = self.nominal_fps is None  # recorded timing: measure it on the first pass
         seq = 0
         offset = 0.0  # media time where this pass starts
         while True:
@@ -161,6 +162,8 @@ class ReplaySource(Source):
                 else:
                     first = item.media_s if first is None else first
                     t = item.media_s - first
+                    if estimate_fps and t > 0:
+                        self.nominal_fps = count / t
                 last = t
                 pacer.wait(offset + t)
                 stamp = time.time_ns()
@@ -174,10 +177,8 @@ class ReplaySource(Source):
                 raise SourceError(f"{self.description} holds no depth frames")
             if not self.options.loop:
                 return
-            period = 1.0 / (self.options.fps or self.nominal_fps or DEFAULT_FPS)
-            if count > 1 and first is not None:
-                period = last / (count - 1)
-                self.nominal_fps = self.nominal_fps or (1.0 / period if period > 0 else None)
+            estimate_fps = False
+            period = 1.0 / (self.nominal_fps or DEFAULT_FPS)
             offset += last + period
 
 

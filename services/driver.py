@@ -15,8 +15,8 @@ control is DROP for live and real-time sources: measured with `topseg bench tran
 (640x480 frames, 30 fps, loopback), DROP lost no frame to a healthy subscriber, paced or
 flat out (~2900 frames/s), while under BLOCK one frozen subscriber held every `put` for
 5 s, starving all the others; under DROP the longest `put` was 31 ms. With
-`--as-fast-as-possible` it is BLOCK, so that a replay goes exactly as fast as its
-subscribers take it. `--congestion` overrides either.
+`--as-fast-as-possible` it is BLOCK, and the driver waits for a first subscriber, so that
+a replay goes exactly as fast as its subscribers take it. `--congestion` overrides either.
 """
 
 from __future__ import annotations
@@ -112,6 +112,15 @@ class DriverState:
             return json.dumps(self.info).encode()
 
 
+def _wait_for_subscriber(publisher, key: str, stop: threading.Event) -> None:
+    next_note = 0.0
+    while not publisher.matching_status.matching and not stop.is_set():
+        if time.monotonic() >= next_note:
+            log.info("waiting for a subscriber on %s", key)
+            next_note = time.monotonic() + 5.0
+        stop.wait(0.05)
+
+
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
@@ -168,6 +177,8 @@ def run(args: argparse.Namespace) -> int:
             stop=stop,
             on_open=on_open,
         )
+        if not args.realtime:  # as fast as consumed: there has to be a consumer
+            _wait_for_subscriber(depth_pub, keys["depth"], stop)
         frames = reconnecting.frames()
         seq = truth_count = 0
         while not stop.is_set():
@@ -186,10 +197,12 @@ def run(args: argparse.Namespace) -> int:
                 truth_pub.put(wire.encode_labels(truth))
                 truth_count += 1
             seq += 1
-            if seq == 1 or seq % 30 == 0:
-                k = depth.intrinsics.to_dict()
-                state.update(frames=seq, truth_frames=truth_count, intrinsics=k)
-        state.update(frames=seq, truth_frames=truth_count)
+            state.update(
+                frames=seq,
+                truth_frames=truth_count,
+                intrinsics=depth.intrinsics.to_dict(),
+                fps=args.fps or getattr(reconnecting.source, "nominal_fps", None),
+            )
         token.undeclare()
         queryable.undeclare()
     except _Shutdown:

@@ -1,0 +1,218 @@
+"""`topseg driver` as a real process publishing on loopback Zenoh to a subscriber in the test."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from topseg.core import labels, wire
+from topseg.core.camera import KINECT_V1
+from topseg.core.recording import RecordingWriter
+from topseg.drivers import fakenect_dump
+from topseg.drivers.freenect import FAKENECT_LIBRARY_DIR
+from topseg.services.zenoh_session import open_session
+
+N = 6
+K = KINECT_V1.scaled_to(160, 120)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(predicate, timeout=20.0, what="condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def frames_and_truth(n=N):
+    rng = np.random.default_rng(0)
+    out = []
+    for _ in range(n):
+        depth = rng.integers(500, 3600, K.shape, dtype=np.uint16)
+        truth = rng.integers(0, labels.NUM_CLASSES, K.shape, dtype=np.uint8)
+        out.append((depth, truth))
+    return out
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rec") / "scene.mcap"
+    with RecordingWriter(path) as w:
+        for i, (depth, truth) in enumerate(frames_and_truth()):
+            t = 1_000_000_000 + i * 20_000_000  # 50 fps
+            w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t)), t)
+            w.write(wire.truth_key(), wire.encode_labels(wire.LabelFrame(truth, i, t)), t + 1)
+    return path
+
+
+class Listener:
+    """A Zenoh session in the test collecting depth, truth and liveliness of one camera."""
+
+    def __init__(self, port, cell, camera="cam0"):
+        self.cell, self.camera = cell, camera
+        self.session = open_session(port=port)
+        self.depth, self.truth, self.alive = [], [], []
+        self.session.declare_subscriber(
+            wire.depth_key(cell, camera), lambda s: self.depth.append(s.payload.to_bytes())
+        )
+        self.session.declare_subscriber(
+            wire.truth_key(cell, camera), lambda s: self.truth.append(s.payload.to_bytes())
+        )
+        self.session.liveliness().declare_subscriber(
+            f"topseg/{cell}/{camera}/alive/**",
+            lambda s: self.alive.append((str(s.key_expr), str(s.kind).rsplit(".", 1)[-1])),
+            history=True,
+        )
+
+    def info(self):
+        replies = list(self.session.get(wire.info_key(self.cell, self.camera), timeout=5.0))
+        return [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+
+    def close(self):
+        self.session.close()
+
+
+@pytest.fixture
+def listen():
+    """Make Listeners; all are closed after the test, pass or fail."""
+    made = []
+
+    def make(*args, **kwargs):
+        made.append(Listener(*args, **kwargs))
+        return made[-1]
+
+    yield make
+    for listener in made:
+        listener.close()
+
+
+def start_driver(port, cell, *extra, env=None):
+    cmd = [sys.executable, "-m", "topseg.services.cli", "-v", "driver", "--cell", cell]
+    cmd += ["--zenoh-port", str(port), *extra]
+    return subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env or os.environ
+    )
+
+
+def stop(proc, sig=signal.SIGTERM, timeout=15):
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        raise AssertionError(f"driver did not stop on {sig}:\n{err}") from None
+    return proc.returncode, err
+
+
+def test_driver_publishes_answers_info_and_stops_on_sigterm(listen, recording):
+    port, cell = free_port(), "svc1"
+    listener = listen(port, cell)
+    proc = start_driver(port, cell, "--source", f"replay:{recording}", "--loop")
+    try:
+        wait_for(lambda: listener.alive, what="the driver's liveliness token")
+        assert listener.alive[0] == (wire.alive_key(cell, "cam0", "driver"), "PUT")
+        wait_for(lambda: len(listener.depth) >= 2 * N, what=f"{2 * N} depth frames")
+        info = listener.info()
+        assert len(info) == 1 and info[0]["role"] == "driver"
+        assert info[0]["source"] == f"replay:{recording}"
+        assert info[0]["intrinsics"] == K.to_dict()
+        assert info[0]["fps"] == pytest.approx(50.0)
+        assert info[0]["keys"]["depth"] == wire.depth_key(cell, "cam0")
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    wait_for(lambda: listener.alive[-1][1] == "DELETE", what="the token to go")
+    originals = frames_and_truth()
+    depth = [wire.decode_depth(b) for b in listener.depth]
+    truth = {t.seq: t for t in map(wire.decode_labels, listener.truth)}
+    seqs = [d.seq for d in depth]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    for d in depth:
+        np.testing.assert_array_equal(d.depth, originals[d.seq % N][0])
+        assert d.frame_id == "cam0" and d.intrinsics == K
+        if d.seq in truth:  # truth rides on its own key with the depth frame's seq and stamp
+            np.testing.assert_array_equal(truth[d.seq].labels, originals[d.seq % N][1])
+            assert truth[d.seq].stamp_ns == d.stamp_ns
+    assert len(truth) >= N
+
+
+def test_finite_replay_as_fast_as_possible_delivers_everything_and_exits(listen, recording):
+    port, cell = free_port(), "svc2"
+    listener = listen(port, cell)
+    proc = start_driver(port, cell, "--source", f"replay:{recording}", "--as-fast-as-possible")
+    rc = proc.wait(timeout=30)
+    assert rc == 0, proc.stderr.read()
+    wait_for(lambda: len(listener.depth) == N and len(listener.truth) == N, 5, "all frames")
+    assert [wire.decode_depth(b).seq for b in listener.depth] == list(range(N))
+
+
+def test_driver_reconnects_a_stalled_kinect_and_stops_mid_wait(listen, tmp_path):
+    rng = np.random.default_rng(1)
+    originals = [(3500 + rng.normal(0, 20, (480, 640))).astype(np.uint16) for _ in range(3)]
+    fakenect_dump.write_dump(tmp_path / "dump", originals)
+    env = {
+        **os.environ,
+        "LD_LIBRARY_PATH": FAKENECT_LIBRARY_DIR,
+        "FAKENECT_PATH": str(tmp_path / "dump"),
+    }
+    port, cell = free_port(), "svc3"
+    listener = listen(port, cell)
+    proc = start_driver(port, cell, "--source", "freenect", "--frame-timeout", "0.7", env=env)
+    try:
+        # the dump plays, fakenect stalls or dies, the driver reopens it: it plays again
+        wait_for(lambda: len(listener.depth) >= 2 * len(originals) - 1, 30, "a second pass")
+        info = listener.info()[0]
+        assert info["reconnects"] >= 1 and info["last_error"]
+        wait_for(lambda: len(listener.depth) >= 2 * len(originals), 30, "the second pass")
+        time.sleep(0.2)  # now the driver waits on a stalled reader
+        t0 = time.monotonic()
+        rc, err = stop(proc)
+        assert time.monotonic() - t0 < 5.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    assert "trying again in" in err  # the reconnect is logged
+    for b in listener.depth:
+        d = wire.decode_depth(b)
+        orig = originals[d.seq % len(originals)]
+        step = fakenect_dump.quantisation_step_mm(orig)
+        assert np.all(np.abs(d.depth.astype(int) - orig) <= step // 2 + 1)
+
+
+def test_bad_source_exits_2_with_one_line(tmp_path):
+    proc = start_driver(free_port(), "svc4", "--source", f"replay:{tmp_path}/missing.mcap")
+    rc, err = proc.wait(timeout=30), proc.stderr.read()
+    assert rc == 2
+    assert "topseg driver: error: replay:" in err and "does not exist" in err
+    assert "Traceback" not in err
+
+
+def test_sigint_stops_too(listen, recording):
+    port, cell = free_port(), "svc5"
+    listener = listen(port, cell)
+    proc = start_driver(port, cell, "--source", f"replay:{recording}", "--loop")
+    try:
+        wait_for(lambda: listener.depth, what="a frame")
+        rc, err = stop(proc, signal.SIGINT)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
