@@ -257,8 +257,11 @@ class DensityFunction:
             or self.rooms.prob(scene.room) == 0
         ):
             return bad
-        lo, hi = rooms.get(scene.room).floor(self.mount)
-        if np.max(np.abs(np.subtract((*lo, *hi), (*scene.floor_lo, *scene.floor_hi)))) > 1e-6:
+        tmpl = rooms.get(scene.room)
+        (lo, hi), (blo, bhi) = tmpl.floor(self.mount), tmpl.bounds(self.mount)
+        expect = np.array((*lo, *hi, *blo, *bhi))
+        got = np.array((*scene.floor_lo, *scene.floor_hi, *scene.bounds[0], *scene.bounds[1]))
+        if np.max(np.abs(expect - got)) > 1e-6:
             return bad
         ids = [o.id for o in scene.objects]
         if len(set(ids)) != len(ids):
@@ -300,13 +303,16 @@ class DensityFunction:
         """log Phi(scene): the sum of the factors' logs; -inf outside the support."""
         return float(sum(self.log_factors(scene).values()))
 
-    def _in_floor(self, scene: Scene, poly: np.ndarray) -> bool:
-        return inside_rect(poly, scene.floor_lo, scene.floor_hi)
+    def _in_bounds(self, scene: Scene, poly: np.ndarray) -> bool:
+        """A footprint within the walls (or the margin past the camera's view)."""
+        return inside_rect(poly, *scene.bounds)
+
+    def _on_floor(self, scene: Scene, x: float, y: float) -> bool:
+        """A position (an item's centre) on the floor the camera sees."""
+        return inside_rect(np.array([[x, y]]), scene.floor_lo, scene.floor_hi)
 
     def _human_position(self, scene: Scene, h: PlacedHuman) -> float:
-        if not inside_rect(np.array([[h.x, h.y]]), scene.floor_lo, scene.floor_hi):
-            return -math.inf
-        if not self._in_floor(scene, h.footprint()):
+        if not self._on_floor(scene, h.x, h.y) or not self._in_bounds(scene, h.footprint()):
             return -math.inf
         lo, _ = humanoid.prims_z_range(h.primitives())
         seated = any(r.kind == "sitting_on_chair" for r in scene.relations)
@@ -318,7 +324,7 @@ class DensityFunction:
         return self.position_log_pdf(scene)
 
     def _object_position(self, scene: Scene, o: PlacedObject, objects: dict) -> float:
-        if not self._in_floor(scene, o.footprint()):
+        if not self._on_floor(scene, o.x, o.y) or not self._in_bounds(scene, o.footprint()):
             return -math.inf
         if o.support is None:
             if o.z != 0.0:
@@ -410,14 +416,18 @@ class DensityFunction:
 
     def _new_scene(self, rng) -> Scene:
         room = self.rooms.sample(rng)
-        lo, hi = rooms.get(room).floor(self.mount)
+        tmpl = rooms.get(room)
+        (lo, hi), (blo, bhi) = tmpl.floor(self.mount), tmpl.bounds(self.mount)
+        theta_ho, theta_oo = self.theta_ho.sample(rng), self.theta_oo.sample(rng)
         return Scene(
             self.mode,
             room,
             tuple(lo),
             tuple(hi),
-            self.theta_ho.sample(rng),
-            self.theta_oo.sample(rng),
+            theta_ho,
+            theta_oo,
+            bounds_lo=tuple(blo),
+            bounds_hi=tuple(bhi),
         )
 
     def _sample_once(self, rng) -> Scene | None:
@@ -447,7 +457,7 @@ class DensityFunction:
 
     def _fits_object(self, scene: Scene, obj: PlacedObject, rel: Relation | None) -> bool:
         fp = obj.footprint()
-        if not self._in_floor(scene, fp):
+        if not self._on_floor(scene, obj.x, obj.y) or not self._in_bounds(scene, fp):
             return False
         for o in scene.objects:
             if rel is not None and rel.object == o.id and rel.kind in relations.STACKING:
@@ -522,9 +532,7 @@ class DensityFunction:
 
     def _fits_human(self, scene: Scene, human: PlacedHuman, related: set) -> bool:
         fp = human.footprint()
-        if not self._in_floor(scene, fp) or not inside_rect(
-            np.array([[human.x, human.y]]), scene.floor_lo, scene.floor_hi
-        ):
+        if not self._on_floor(scene, human.x, human.y) or not self._in_bounds(scene, fp):
             return False
         exempt = related | {o.id for o in scene.objects if o.support in related}
         return all(
@@ -600,7 +608,6 @@ class DensityFunction:
                     0,
                     scene.objects,
                     human,
-                    [],
                 )
                 rels.append(
                     relations.place_sitting_at_table(rng, probe, scene.object(under[0].object))

@@ -2,9 +2,10 @@
 
 The paper generated its scenes in four rooms of an industrial workspace and an office. Each
 template here is a floor rectangle matched to what the ceiling camera sees (about
-3.9 m x 2.9 m at 3.5 m for Kinect v1, plus a margin so items can be cut by the frame edge),
-walls on the sides the room has them, and the template's taste in furniture: how often each
-class and each object-object relation appears.
+3.9 m x 2.9 m at 3.5 m for Kinect v1): items stand with their centre on it and may reach a
+margin beyond it, so the frame edge can cut them. Walls stand on the sides the room has them,
+and the template has its taste in furniture: how often each class and each object-object
+relation appears.
 
 World frame (camera.TopViewMount): x, y on the floor, z up, origin below the camera.
 """
@@ -26,7 +27,8 @@ class RoomTemplate:
     """A room: `walls` names the sides that have one ("north" is +y, "east" is +x).
 
     `inset` is how far inside the camera's view each wall stands (metres), so the camera sees
-    it; sides without walls extend `MARGIN_M` beyond the view.
+    it. `floor()` is where items' centres go (the view, up to the walls); `bounds()` is what
+    their footprints must stay in (up to the walls, `MARGIN_M` beyond the view elsewhere).
     """
 
     name: str
@@ -37,23 +39,34 @@ class RoomTemplate:
     oo_relation_weights: dict = field(default_factory=dict)
     n_objects: tuple[int, int] = (2, 6)
 
-    def floor(
-        self, mount: TopViewMount = TOP_VIEW
+    def _edges(
+        self, mount: TopViewMount, margin: float
     ) -> tuple[tuple[float, float], tuple[float, float]]:
-        """(lo, hi) corners of the free floor, inside the walls."""
         w, d = mount.floor_extent_m()
         half = {"east": w / 2, "west": w / 2, "north": d / 2, "south": d / 2}
         edge = {}
         for side, h in half.items():
-            if side in self.walls:
+            if side in self.walls:  # the wall's inner face
                 edge[side] = h - self.inset.get(side, 0.4) - WALL_THICKNESS_M / 2
             else:
-                edge[side] = h + MARGIN_M
+                edge[side] = h + margin
         return (-edge["west"], -edge["south"]), (edge["east"], edge["north"])
+
+    def floor(
+        self, mount: TopViewMount = TOP_VIEW
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(lo, hi) corners of where items' centres go: the camera's view, inside the walls."""
+        return self._edges(mount, 0.0)
+
+    def bounds(
+        self, mount: TopViewMount = TOP_VIEW
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(lo, hi) corners footprints stay within: the walls, or MARGIN_M beyond the view."""
+        return self._edges(mount, MARGIN_M)
 
     def wall_boxes(self, mount: TopViewMount = TOP_VIEW) -> list[tuple[tuple, tuple]]:
         """Each wall as (centre xyz, half extents xyz), long enough to fill the view."""
-        (x0, y0), (x1, y1) = self.floor(mount)
+        (x0, y0), (x1, y1) = self.bounds(mount)
         w, d = mount.floor_extent_m()
         t = WALL_THICKNESS_M / 2
         hz = WALL_HEIGHT_M / 2
@@ -73,11 +86,14 @@ class RoomTemplate:
 
     def to_dict(self, mount: TopViewMount = TOP_VIEW) -> dict:
         lo, hi = self.floor(mount)
+        blo, bhi = self.bounds(mount)
         return {
             "name": self.name,
             "walls": list(self.walls),
             "floor_lo": list(lo),
             "floor_hi": list(hi),
+            "bounds_lo": list(blo),
+            "bounds_hi": list(bhi),
         }
 
 

@@ -176,10 +176,19 @@ class Scene:
     objects: list[PlacedObject] = field(default_factory=list)
     human: PlacedHuman | None = None
     relations: list[Relation] = field(default_factory=list)
+    #: what footprints must stay within (walls, or a margin past the view); None = the floor
+    bounds_lo: tuple[float, float] | None = None
+    bounds_hi: tuple[float, float] | None = None
 
     @property
     def floor_area(self) -> float:
         return (self.floor_hi[0] - self.floor_lo[0]) * (self.floor_hi[1] - self.floor_lo[1])
+
+    @property
+    def bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        lo = self.floor_lo if self.bounds_lo is None else self.bounds_lo
+        hi = self.floor_hi if self.bounds_hi is None else self.bounds_hi
+        return tuple(lo), tuple(hi)
 
     def object(self, oid: int) -> PlacedObject:
         for o in self.objects:
@@ -196,6 +205,8 @@ class Scene:
             "room": self.room,
             "floor_lo": list(self.floor_lo),
             "floor_hi": list(self.floor_hi),
+            "bounds_lo": list(self.bounds[0]),
+            "bounds_hi": list(self.bounds[1]),
             "theta_ho": self.theta_ho,
             "theta_oo": self.theta_oo,
             "objects": [o.to_dict() for o in self.objects],
@@ -215,4 +226,6 @@ class Scene:
             [PlacedObject.from_dict(o) for o in d["objects"]],
             None if d.get("human") is None else PlacedHuman.from_dict(d["human"]),
             [Relation.from_dict(r) for r in d["relations"]],
+            tuple(d["bounds_lo"]) if d.get("bounds_lo") is not None else None,
+            tuple(d["bounds_hi"]) if d.get("bounds_hi") is not None else None,
         )

@@ -76,9 +76,13 @@ def test_samples_respect_the_ranges(modeled_scenes):
             lo, hi = d.config.object_height_m[o.cls]
             assert lo <= o.height <= hi
             assert 0.0 <= o.yaw < 2 * math.pi
-        # the room's floor is what the camera sees, plus a margin where there is no wall
+        # items stand with their centre on the floor the camera sees; footprints may reach
+        # a margin past it where there is no wall
         lo, hi = rooms.get(s.room).floor()
         assert (tuple(lo), tuple(hi)) == (s.floor_lo, s.floor_hi)
+        assert s.bounds == tuple(tuple(c) for c in rooms.get(s.room).bounds())
+        for x, y in [(o.x, o.y) for o in s.objects] + [(s.human.x, s.human.y)]:
+            assert lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]
 
 
 def test_unrelated_overlaps_stay_within_theta(modeled_scenes):
@@ -257,6 +261,18 @@ def test_room_templates_have_walls_inside_the_view():
     from topseg.core.camera import TOP_VIEW
 
     w, d = TOP_VIEW.floor_extent_m()
+    lo, hi = rooms.get("industrial_workspace").floor()  # no walls: the floor is the view
+    assert np.allclose((*lo, *hi), (-w / 2, -d / 2, w / 2, d / 2))
+    blo, bhi = rooms.get("industrial_workspace").bounds()
+    assert np.allclose(
+        (*blo, *bhi),
+        (
+            -w / 2 - rooms.MARGIN_M,
+            -d / 2 - rooms.MARGIN_M,
+            w / 2 + rooms.MARGIN_M,
+            d / 2 + rooms.MARGIN_M,
+        ),
+    )
     for name in rooms.ROOMS:
         t = rooms.get(name)
         lo, hi = t.floor()
