@@ -55,7 +55,7 @@ class CRFConfig:
     smoothness: float = 1.0
     depth_sigma_mm: float = 0.0
     eps: float = 1e-6
-    confidence: float = 0.7
+    confidence: float = 0.4
     ring: int = 1
     cycles: int = 1
 

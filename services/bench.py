@@ -17,6 +17,7 @@ import sys
 BENCHES: dict[str, tuple[str, str]] = {
     "transport": ("topseg.services.bench_transport", "depth frames over loopback Zenoh"),
     "synthesis": ("topseg.services.bench_synthesis", "synthetic frames, stage by stage"),
+    "crf": ("topseg.services.bench_crf", "Potts CRF: realtime vs exact, time and energy"),
 }
 
 
