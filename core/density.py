@@ -312,7 +312,9 @@ class DensityFunction:
         return inside_rect(np.array([[x, y]]), scene.floor_lo, scene.floor_hi)
 
     def _human_position(self, scene: Scene, h: PlacedHuman) -> float:
-        if not self._on_floor(scene, h.x, h.y) or not self._in_bounds(scene, h.footprint()):
+        if not self._on_floor(scene, h.x, h.y) or not self._in_bounds(
+            scene, h.footprint(arms=True)
+        ):
             return -math.inf
         lo, _ = humanoid.prims_z_range(h.primitives())
         seated = any(r.kind == "sitting_on_chair" for r in scene.relations)
@@ -532,7 +534,9 @@ class DensityFunction:
 
     def _fits_human(self, scene: Scene, human: PlacedHuman, related: set) -> bool:
         fp = human.footprint()
-        if not self._on_floor(scene, human.x, human.y) or not self._in_bounds(scene, fp):
+        if not self._on_floor(scene, human.x, human.y) or not self._in_bounds(
+            scene, human.footprint(arms=True)
+        ):
             return False
         exempt = related | {o.id for o in scene.objects if o.support in related}
         return all(

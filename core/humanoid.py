@@ -318,13 +318,21 @@ def prims_z_range(p: Primitives) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def prims_xy_bounds(p: Primitives, yaw: float, origin) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds (lo, hi) of the body on the floor, in the frame of `origin` turned by `yaw`."""
+def prims_xy_bounds(
+    p: Primitives, yaw: float, origin, arms: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (lo, hi) of the body on the floor, in the frame of `origin` turned by `yaw`;
+    `arms=False` leaves out upper arms, forearms and hands."""
     from topseg.core.geometry import aabb, rot2
 
     r2 = rot2(-yaw)
     lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
-    for k, s, c, r in zip(p.kind, p.size, p.center, p.rot, strict=True):
+    keep = (
+        np.ones(len(p.kind), bool)
+        if arms
+        else ~np.isin(p.label, (labels.UPPER_ARM, labels.LOWER_ARM, labels.HAND))
+    )
+    for k, s, c, r in zip(p.kind[keep], p.size[keep], p.center[keep], p.rot[keep], strict=True):
         # bound each shape by its world AABB corners, then turn into the human frame
         a, b = aabb(int(k), s, c, r)
         corners = (

@@ -323,12 +323,18 @@ def body_front(pose: humanoid.Pose, scale: float, base_z: float, below_z: float 
 LEANS_DEG = (0, 8, 16, 24, 32, 40, 48, 56)
 
 
-def _lean_to_reach(pose, scale, top_z, hands, target_of):
-    """Lean the trunk forward in steps until every hand in `hands` reaches its target.
+#: the most a relation leans the trunk (degrees from upright, the pose's own bend included)
+MAX_TRUNK_TILT_DEG = 75.0
+#: how much of the drawn gap to the furniture is kept, tried in turn at each lean
+GAP_SCALES = (1.0, 0.4, 0.0)
 
-    `target_of(front, shoulder, side)` gives a hand's target in the human's frame from the
-    body's front (see body_front) and the shoulder's position. Returns (pose, base_z, front)
-    or None when even the deepest lean falls short.
+
+def _lean_to_reach(pose, scale, top_z, hands, target_of):
+    """Step closer, then lean the trunk forward, until every hand in `hands` reaches its target.
+
+    `target_of(front, shoulder, side, k)` gives a hand's target in the human's frame from the
+    body's front (see body_front), the shoulder's position and the share k of the drawn gap
+    kept. Returns (pose, base_z, front, k) or None when no allowed lean reaches.
     """
     index = humanoid.load_model().index
     chest0 = pose.joints["chest"]
@@ -336,13 +342,18 @@ def _lean_to_reach(pose, scale, top_z, hands, target_of):
         p = pose.copy()
         p.joints["chest"] = list(quat_mul(humanoid.trunk_quat(bend), chest0))
         z0 = stand_z(p, scale)
+        pos, rot = humanoid.link_frames(p, scale, (0.0, 0.0, z0), humanoid.base_quat(p.tilt, 0.0))
+        up = rot[index["chest"]] @ np.array([0.0, 1.0, 0.0])
+        if np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))) > MAX_TRUNK_TILT_DEG:
+            return None
         front = body_front(p, scale, z0, below_z=top_z + 0.02)
-        frames = humanoid.link_frames(p, scale, (0.0, 0.0, z0), humanoid.base_quat(p.tilt, 0.0))[0]
-        if all(
-            _reach_local(p, scale, z0, s, target_of(front, frames[index[f"{s}_shoulder"]], s))
-            for s in hands
-        ):
-            return p, z0, front
+        for k in GAP_SCALES:
+            q = p.copy()
+            if all(
+                _reach_local(q, scale, z0, s, target_of(front, pos[index[f"{s}_shoulder"]], s, k))
+                for s in hands
+            ):
+                return q, z0, front, k
     return None
 
 
@@ -405,18 +416,18 @@ def place_hand_on_table(
     inset = {s: rng.uniform(0.05, 0.25) for s in hands}
     side_off = {s: rng.uniform(-0.08, 0.04) for s in hands}
 
-    def target_of(front, shoulder, side):
+    def target_of(front, shoulder, side, k):
         return np.array(
-            [front + gap + inset[side], shoulder[1] * (1 - side_off[side]), table.height + hr]
+            [front + k * gap + inset[side], shoulder[1] * (1 - side_off[side]), table.height + hr]
         )
 
     res = _lean_to_reach(pose, scale, table.height, hands, target_of)
     if res is None:
         return None
-    p, z0, front = res
+    p, z0, front, k = res
     # human frame -> table frame: the human faces -n from `front + gap` metres outside the edge
     lat = rng.uniform(-max(0.0, half_len - 0.25), max(0.0, half_len - 0.25))
-    origin_t = n * (dist + front + gap) + tangent * lat
+    origin_t = n * (dist + front + k * gap) + tangent * lat
     human = _human(
         height, pose_name, p, source, origin_t, z0, table, float(np.arctan2(-n[1], -n[0]))
     )
@@ -447,14 +458,14 @@ def place_holding_chair_back(
         s: (-1.0 if s == "right" else 1.0) * rng.uniform(0.04, c.size_y / 2 - 0.04) for s in hands
     }
 
-    def target_of(front, shoulder, side):
-        return np.array([front + gap + back_t / 2, ys[side], chair.height + hr])
+    def target_of(front, shoulder, side, k):
+        return np.array([front + k * gap + back_t / 2, ys[side], chair.height + hr])
 
     res = _lean_to_reach(pose, scale, chair.height, hands, target_of)
     if res is None:
         return None
-    p, z0, front = res
-    origin_c = np.array([c.features["back_x"] - back_t / 2 - gap - front, 0.0])
+    p, z0, front, k = res
+    origin_c = np.array([c.features["back_x"] - back_t / 2 - k * gap - front, 0.0])
     human = _human(height, pose_name, p, source, origin_c, z0, chair, 0.0)
     rel = Relation("holding_chair_back", HUMAN, chair.id, {"hands": list(hands)})
     probe = Scene("modeled", "", (0, 0), (0, 0), 0, 0, [chair], human, [])
@@ -489,23 +500,23 @@ def place_standing_by_storage(
     gap = rng.uniform(0.03, 0.15) if hands else rng.uniform(0.05, 0.45)
     inset = rng.uniform(0.05, max(0.06, min(0.2, s.size_x - 0.05)))
 
-    def target_of(front, shoulder, side):
-        return np.array([front + gap + inset, shoulder[1] * 0.8, storage.height + hr])
+    def target_of(front, shoulder, side, k):
+        return np.array([front + k * gap + inset, shoulder[1] * 0.8, storage.height + hr])
 
     if hands:
         res = _lean_to_reach(pose, scale, storage.height, hands, target_of)
         if res is None:
             return None
-        p, z0, front = res
+        p, z0, front, k = res
     else:
-        p = pose.copy()
+        p, k = pose.copy(), 1.0
         z0 = stand_z(p, scale)
         front = body_front(p, scale, z0)
     lat = rng.uniform(-max(0.0, s.size_y / 2 - 0.2), max(0.0, s.size_y / 2 - 0.2))
-    origin_s = np.array([s.size_x / 2 + gap + front, lat])
+    origin_s = np.array([s.size_x / 2 + k * gap + front, lat])
     human = _human(height, pose_name, p, source, origin_s, z0, storage, np.pi)
     rel = Relation(
-        "standing_by_storage", HUMAN, storage.id, {"hands": list(hands), "gap": float(gap)}
+        "standing_by_storage", HUMAN, storage.id, {"hands": list(hands), "gap": float(k * gap)}
     )
     probe = Scene("modeled", "", (0, 0), (0, 0), 0, 0, [storage], human, [])
     return (human, rel) if check_standing_by_storage(probe, rel) else None

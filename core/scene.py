@@ -113,9 +113,13 @@ class PlacedHuman:
     def primitives(self) -> humanoid.Primitives:
         return humanoid.posed_primitives(self.pose, self.scale, self.base_pos, self.base_quat)
 
-    def footprint(self) -> np.ndarray:
-        """The body's bounding rectangle on the floor, aligned with the way it faces."""
-        lo, hi = humanoid.prims_xy_bounds(self.primitives(), self.yaw, self.base_pos)
+    def footprint(self, arms: bool = False) -> np.ndarray:
+        """The body's bounding rectangle on the floor, aligned with the way it faces.
+
+        Without `arms` (the default, what theta limits) it covers trunk, head and legs: a hand
+        reaching over a table is an interaction, not an overlap.
+        """
+        lo, hi = humanoid.prims_xy_bounds(self.primitives(), self.yaw, self.base_pos, arms)
         c = (lo + hi) / 2
         cx = self.x + np.cos(self.yaw) * c[0] - np.sin(self.yaw) * c[1]
         cy = self.y + np.sin(self.yaw) * c[0] + np.cos(self.yaw) * c[1]
