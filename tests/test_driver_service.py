@@ -11,12 +11,13 @@ import time
 import numpy as np
 import pytest
 
-from topseg.core import labels, wire
-from topseg.core.camera import KINECT_V1
+from topseg.core import wire
+from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.procedural import procedural_frame
 from topseg.core.recording import RecordingWriter
 from topseg.drivers import fakenect_dump
 from topseg.drivers.freenect import FAKENECT_LIBRARY_DIR
-from topseg.services.zenoh_session import open_session
+from topseg.services.zenoh_session import default_config_json, open_session
 
 N = 6
 K = KINECT_V1.scaled_to(160, 120)
@@ -38,13 +39,9 @@ def wait_for(predicate, timeout=20.0, what="condition"):
 
 
 def frames_and_truth(n=N):
+    """n labelled procedural top-view frames, the same every call."""
     rng = np.random.default_rng(0)
-    out = []
-    for _ in range(n):
-        depth = rng.integers(500, 3600, K.shape, dtype=np.uint16)
-        truth = rng.integers(0, labels.NUM_CLASSES, K.shape, dtype=np.uint8)
-        out.append((depth, truth))
-    return out
+    return [procedural_frame(rng, TopViewMount(K)) for _ in range(n)]
 
 
 @pytest.fixture(scope="module")
@@ -205,10 +202,29 @@ def test_bad_source_exits_2_with_one_line(tmp_path):
     assert "Traceback" not in err
 
 
-def test_sigint_stops_too(listen, recording):
+def test_sigint_stops_too_with_a_zenoh_config_file(listen, recording, tmp_path):
     port, cell = free_port(), "svc5"
-    listener = listen(port, cell)
-    proc = start_driver(port, cell, "--source", f"replay:{recording}", "--loop")
+    listener = listen(port, cell)  # holds the rendezvous port
+    config = tmp_path / "zenoh.json5"
+    config.write_text(
+        json.dumps(
+            {
+                "mode": "peer",
+                "scouting": {"multicast": {"enabled": False}},
+                "listen": {"endpoints": ["tcp/127.0.0.1:0"]},
+                "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
+            }
+        )
+    )
+    proc = start_driver(
+        free_port(),
+        cell,
+        "--source",
+        f"replay:{recording}",
+        "--loop",
+        "--zenoh-config",
+        str(config),
+    )
     try:
         wait_for(lambda: listener.depth, what="a frame")
         rc, err = stop(proc, signal.SIGINT)
@@ -216,3 +232,30 @@ def test_sigint_stops_too(listen, recording):
         if proc.poll() is None:
             proc.kill()
     assert rc == 0, err
+
+
+def test_default_config_rendezvous_outlives_the_port_holder():
+    """Peers find each other through the loopback port; when its holder leaves, the next
+    process to start takes it over and reaches the peers still running."""
+    port, key = free_port(), "topseg/zx/cam0/stats"
+    settings = default_config_json(port)
+    assert settings["scouting/multicast/enabled"] is False and settings["mode"] == "peer"
+    a, b = open_session(port=port), open_session(port=port)
+    c = None
+    try:
+        got = []
+        b.declare_subscriber(key, lambda s: got.append(s.payload.to_bytes()))
+        pub = a.declare_publisher(key)
+        wait_for(lambda: pub.matching_status.matching, what="a and b to meet")
+        pub.put(b"from a")
+        wait_for(lambda: b"from a" in got, what="a's message")
+        a.close()
+        c = open_session(port=port)
+        pub = c.declare_publisher(key)
+        wait_for(lambda: pub.matching_status.matching, 20, "c and b to meet")
+        pub.put(b"from c")
+        wait_for(lambda: b"from c" in got, what="c's message")
+    finally:
+        for s in (a, b, c):
+            if s is not None and not s.is_closed():
+                s.close()

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from topseg.core import labels, wire
-from topseg.core.camera import KINECT_V1
+from topseg.core import wire
+from topseg.core.camera import KINECT_V1, TOP_VIEW, TopViewMount
+from topseg.core.procedural import procedural_frame
 from topseg.core.recording import RecordingWriter
 from topseg.drivers import SourceError, SourceOptions, open_source
 from topseg.drivers.fakenect_dump import quantisation_step_mm, write_dump
@@ -15,17 +16,12 @@ from topseg.drivers.fakenect_dump import quantisation_step_mm, write_dump
 FAST = SourceOptions(realtime=False)
 
 
-def scene(rng, h=480, w=640):
-    """A floor 3.5 m down with a table-height box and a few holes, and its labels."""
-    depth = (3500 + rng.normal(0, 10, (h, w))).astype(np.uint16)
-    truth = np.full((h, w), labels.BACKGROUND, np.uint8)
-    y, x = rng.integers(0, h // 2), rng.integers(0, w // 2)
-    depth[y : y + h // 4, x : x + w // 4] = 2700
-    truth[y : y + h // 4, x : x + w // 4] = labels.TABLE
-    holes = rng.random((h, w)) < 0.01
-    depth[holes] = 0
-    truth[holes] = labels.NO_DEPTH
-    return depth, truth
+SMALL = TopViewMount(KINECT_V1.scaled_to(160, 120))
+
+
+def scene(rng, mount=SMALL):
+    """A labelled procedural top-view frame (depth mm, labels) with some missing depth."""
+    return procedural_frame(rng, mount, missing_fraction=0.01)
 
 
 def record(path, frames, period_s=0.05, cell="default", camera="cam0", junk_at=None):
@@ -46,7 +42,7 @@ def record(path, frames, period_s=0.05, cell="default", camera="cam0", junk_at=N
 @pytest.fixture(scope="module")
 def frames():
     rng = np.random.default_rng(0)
-    return [scene(rng, 120, 160) for _ in range(5)]
+    return [scene(rng) for _ in range(5)]
 
 
 def test_mcap_replay_gives_back_depth_and_truth(tmp_path, frames):
@@ -136,7 +132,7 @@ def test_png_folder_refuses_8_bit(tmp_path):
 
 def test_fakenect_dump_replay(tmp_path):
     rng = np.random.default_rng(3)
-    originals = [scene(rng)[0] for _ in range(3)]
+    originals = [scene(rng, TOP_VIEW)[0] for _ in range(3)]
     write_dump(tmp_path / "dump", originals)
     with open_source(f"replay:{tmp_path / 'dump'}", FAST) as src:
         got = [f.depth.depth for f in src.frames()]
