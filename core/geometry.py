@@ -70,7 +70,45 @@ def aabb(kind: int, size, center: np.ndarray, rot: np.ndarray) -> tuple[np.ndarr
     return c - e, c + e
 
 
+def half_extents(kind: np.ndarray, size: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """(n, 3) half extents of the axis-aligned boxes around n primitives rotated by `rot`."""
+    ext = np.empty((len(kind), 3))
+    r = size[:, 0:1]
+    h = size[:, 1:2]
+    axis = rot[:, :, 2]
+    box = kind == BOX
+    ext[box] = np.einsum("nij,nj->ni", np.abs(rot[box]), size[box])
+    sph = kind == SPHERE
+    ext[sph] = r[sph]
+    cap = kind == CAPSULE
+    ext[cap] = np.abs(axis[cap]) * h[cap] + r[cap]
+    cyl = kind == CYLINDER
+    ext[cyl] = np.abs(axis[cyl]) * h[cyl] + r[cyl] * np.sqrt(
+        np.clip(1.0 - axis[cyl] ** 2, 0.0, 1.0)
+    )
+    return ext
+
+
 # --- rotations ------------------------------------------------------------------------------
+
+
+def quats_to_matrices(q: np.ndarray) -> np.ndarray:
+    """(n, 4) quaternions (x, y, z, w), not necessarily unit -> (n, 3, 3) rotation matrices."""
+    q = np.asarray(q, np.float64)
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    n = x * x + y * y + z * z + w * w
+    s = np.where(n > 0, 2.0 / np.where(n > 0, n, 1.0), 0.0)
+    m = np.empty((len(q), 3, 3))
+    m[:, 0, 0] = 1 - s * (y * y + z * z)
+    m[:, 0, 1] = s * (x * y - z * w)
+    m[:, 0, 2] = s * (x * z + y * w)
+    m[:, 1, 0] = s * (x * y + z * w)
+    m[:, 1, 1] = 1 - s * (x * x + z * z)
+    m[:, 1, 2] = s * (y * z - x * w)
+    m[:, 2, 0] = s * (x * z - y * w)
+    m[:, 2, 1] = s * (y * z + x * w)
+    m[:, 2, 2] = 1 - s * (x * x + y * y)
+    return m
 
 
 def quat_mul(a, b) -> np.ndarray:

@@ -29,10 +29,12 @@ from topseg.core.geometry import (
     CAPSULE,
     CYLINDER,
     SPHERE,
+    half_extents,
     quat_from_axis_angle,
     quat_mul,
     quat_normalize,
     quat_to_matrix,
+    quats_to_matrices,
     rotation_between,
     yaw_quat,
 )
@@ -257,24 +259,53 @@ def base_quat(tilt, yaw: float) -> np.ndarray:
 # --- forward kinematics ---------------------------------------------------------------------
 
 
+@lru_cache(maxsize=1)
+def _model_arrays() -> dict:
+    """The model's constants as arrays, for vectorised kinematics."""
+    m = load_model()
+    return {
+        "parent": [lk.parent for lk in m.links],
+        "joint_xyz": np.array([lk.joint_xyz for lk in m.links], np.float64),
+        "spherical": [i for i, lk in enumerate(m.links) if lk.joint_type == "spherical"],
+        "revolute": [i for i, lk in enumerate(m.links) if lk.joint_type == "revolute"],
+        "axis": np.array([lk.axis for lk in m.links], np.float64),
+        "kind": np.array([lk.shape_kind for lk in m.links], np.int32),
+        "size": np.array([lk.shape_size for lk in m.links], np.float64),
+        "shape_xyz": np.array([lk.shape_xyz for lk in m.links], np.float64),
+        "shape_rot": quats_to_matrices(np.array([lk.shape_quat for lk in m.links])),
+        "label": np.array([lk.label for lk in m.links], np.uint8),
+    }
+
+
+def _joint_rotations(pose: Pose) -> np.ndarray:
+    """(15, 3, 3) rotation of each joint (identity for fixed joints)."""
+    a = _model_arrays()
+    names = [lk.name for lk in load_model().links]
+    rot = np.broadcast_to(np.eye(3), (len(names), 3, 3)).copy()
+    sph = a["spherical"]
+    rot[sph] = quats_to_matrices(np.array([pose.joints[names[i]] for i in sph]))
+    rev = a["revolute"]
+    half = np.array([pose.joints[names[i]][0] for i in rev]) / 2
+    axes = a["axis"][rev] / np.linalg.norm(a["axis"][rev], axis=1, keepdims=True)
+    q = np.column_stack([axes * np.sin(half)[:, None], np.cos(half)])
+    rot[rev] = quats_to_matrices(q)
+    return rot
+
+
 def link_frames(pose: Pose, scale: float, base_pos, base_q) -> tuple[np.ndarray, np.ndarray]:
     """World (positions (15, 3), rotations (15, 3, 3)) of each link frame (= its joint)."""
-    model = load_model()
-    n = len(model.links)
+    a = _model_arrays()
+    jr = _joint_rotations(pose)
+    offsets = a["joint_xyz"] * scale
+    n = len(offsets)
     pos = np.zeros((n, 3))
     rot = np.zeros((n, 3, 3))
     bp = np.asarray(base_pos, np.float64)
     br = quat_to_matrix(base_q)
-    for i, link in enumerate(model.links):
-        ppos, prot = (bp, br) if link.parent < 0 else (pos[link.parent], rot[link.parent])
-        if link.joint_type == "spherical":
-            jr = quat_to_matrix(pose.joints[link.name])
-        elif link.joint_type == "revolute":
-            jr = quat_to_matrix(quat_from_axis_angle(link.axis, pose.joints[link.name][0]))
-        else:
-            jr = np.eye(3)
-        pos[i] = ppos + prot @ (np.asarray(link.joint_xyz) * scale)
-        rot[i] = prot @ jr
+    for i, parent in enumerate(a["parent"]):
+        ppos, prot = (bp, br) if parent < 0 else (pos[parent], rot[parent])
+        pos[i] = ppos + prot @ offsets[i]
+        rot[i] = prot @ jr[i]
     return pos, rot
 
 
@@ -291,31 +322,18 @@ class Primitives:
 
 
 def posed_primitives(pose: Pose, scale: float, base_pos, base_q) -> Primitives:
-    model = load_model()
+    a = _model_arrays()
     pos, rot = link_frames(pose, scale, base_pos, base_q)
-    n = len(model.links)
-    out = Primitives(
-        np.array([lk.shape_kind for lk in model.links], np.int32),
-        np.array([lk.shape_size for lk in model.links]) * scale,
-        np.zeros((n, 3)),
-        np.zeros((n, 3, 3)),
-        np.array([lk.label for lk in model.links], np.uint8),
-        np.arange(n),
+    center = pos + np.einsum("nij,nj->ni", rot, a["shape_xyz"] * scale)
+    return Primitives(
+        a["kind"], a["size"] * scale, center, rot @ a["shape_rot"], a["label"], np.arange(len(pos))
     )
-    for i, lk in enumerate(model.links):
-        out.center[i] = pos[i] + rot[i] @ (np.asarray(lk.shape_xyz) * scale)
-        out.rot[i] = rot[i] @ quat_to_matrix(lk.shape_quat)
-    return out
 
 
 def prims_z_range(p: Primitives) -> tuple[float, float]:
-    from topseg.core.geometry import aabb
-
-    lo, hi = np.inf, -np.inf
-    for k, s, c, r in zip(p.kind, p.size, p.center, p.rot, strict=True):
-        a, b = aabb(int(k), s, c, r)
-        lo, hi = min(lo, a[2]), max(hi, b[2])
-    return float(lo), float(hi)
+    """Lowest and highest point of the posed body (m)."""
+    ext = half_extents(p.kind, p.size, p.rot)[:, 2]
+    return float((p.center[:, 2] - ext).min()), float((p.center[:, 2] + ext).max())
 
 
 def prims_xy_bounds(
@@ -323,25 +341,21 @@ def prims_xy_bounds(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bounds (lo, hi) of the body on the floor, in the frame of `origin` turned by `yaw`;
     `arms=False` leaves out upper arms, forearms and hands."""
-    from topseg.core.geometry import aabb, rot2
+    from topseg.core.geometry import rot2
 
-    r2 = rot2(-yaw)
-    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
     keep = (
         np.ones(len(p.kind), bool)
         if arms
         else ~np.isin(p.label, (labels.UPPER_ARM, labels.LOWER_ARM, labels.HAND))
     )
-    for k, s, c, r in zip(p.kind[keep], p.size[keep], p.center[keep], p.rot[keep], strict=True):
-        # bound each shape by its world AABB corners, then turn into the human frame
-        a, b = aabb(int(k), s, c, r)
-        corners = (
-            np.array([[a[0], a[1]], [b[0], a[1]], [b[0], b[1]], [a[0], b[1]]])
-            - np.asarray(origin)[:2]
-        )
-        loc = corners @ r2.T
-        lo, hi = np.minimum(lo, loc.min(0)), np.maximum(hi, loc.max(0))
-    return lo, hi
+    ext = half_extents(p.kind[keep], p.size[keep], p.rot[keep])[:, :2]
+    c = p.center[keep, :2] - np.asarray(origin, np.float64)[:2]
+    # each shape's world box corners, turned into the human's frame
+    corners = np.concatenate(
+        [c + ext * np.array(sx_sy) for sx_sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    )
+    loc = corners @ rot2(-yaw).T
+    return loc.min(0), loc.max(0)
 
 
 # --- motion capture -------------------------------------------------------------------------

@@ -23,7 +23,7 @@ import numpy as np
 
 from topseg.core import labels
 from topseg.core.camera import TOP_VIEW, TopViewMount
-from topseg.core.geometry import BOX, CAPSULE, CYLINDER, SPHERE
+from topseg.core.geometry import BOX, CAPSULE, SPHERE, half_extents
 
 #: world -> camera rotation of the top-view mount (x stays, y and z flip)
 _FLIP = np.diag([1.0, -1.0, -1.0])
@@ -81,22 +81,7 @@ def to_camera(prims: Primitives, mount: TopViewMount) -> tuple[np.ndarray, np.nd
 
 
 def _half_extents(kind: np.ndarray, size: np.ndarray, rot: np.ndarray) -> np.ndarray:
-    """Half extents of each primitive's axis-aligned box (in the frame `rot` maps into)."""
-    ext = np.empty((len(kind), 3))
-    r = size[:, 0:1]
-    h = size[:, 1:2]
-    axis = rot[:, :, 2]
-    box = kind == BOX
-    ext[box] = np.einsum("nij,nj->ni", np.abs(rot[box]), size[box])
-    sph = kind == SPHERE
-    ext[sph] = r[sph]
-    cap = kind == CAPSULE
-    ext[cap] = np.abs(axis[cap]) * h[cap] + r[cap]
-    cyl = kind == CYLINDER
-    ext[cyl] = np.abs(axis[cyl]) * h[cyl] + r[cyl] * np.sqrt(
-        np.clip(1.0 - axis[cyl] ** 2, 0.0, 1.0)
-    )
-    return ext
+    return half_extents(kind, size, rot)
 
 
 def screen_boxes(center_c: np.ndarray, ext: np.ndarray, mount: TopViewMount) -> np.ndarray:
