@@ -91,7 +91,9 @@ def dataset_os_error(exc: OSError, path: Path, doing: str) -> TopsegError:
             f"no space left on the device while {doing} {where}; free some space and rerun "
             "the same command (complete frames are kept)"
         )
-    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+    if exc.errno == errno.EROFS:
+        return DatasetError(f"{where} is on a read-only file system; choose a writable --out")
+    if exc.errno in (errno.EACCES, errno.EPERM):
         return DatasetError(
             f"no permission to write {where} while {doing}; choose a writable --out"
         )
@@ -103,8 +105,9 @@ def _identity(attrs: dict) -> dict:
 
 
 def _canonical(value: Any) -> Any:
-    """JSON round trip, so that tuples/lists and int/float spellings compare as stored."""
-    return json.loads(json.dumps(value, sort_keys=True))
+    """JSON round trip, so that tuples/lists compare as stored. Key order is kept: a
+    generator may draw from a config dict in its order (the synthesis pose weights do)."""
+    return json.loads(json.dumps(value))
 
 
 def make_attrs(
@@ -382,13 +385,23 @@ def _remove_partials(path: Path) -> None:
 class FrameWriter:
     """Writes whole frames into an existing store; one per worker process, no flags.
 
-    A frame is visible to readers only once the client marks it complete.
+    A frame is visible to readers only once the client marks it complete. Chunks are encoded
+    here and written straight to their files (`topseg.core.zarr_chunks`: the bytes Zarr
+    would write, at a fifth of the CPU); an array whose layout that module does not know is
+    written through Zarr instead. Every chunk is written, even one equal to the fill value,
+    so the reader can tell a complete frame from a damaged one.
     """
 
     def __init__(self, path: str | os.PathLike):
+        from topseg.core.zarr_chunks import ChunkWriter
+
         self.path = Path(path)
         group, attrs = _open_group(self.path, "r+")
-        self._arrays = _open_arrays(group, self.path, attrs)
+        arrays = _open_arrays(group, self.path, attrs)
+        self._arrays = {k: a.with_config({"write_empty_chunks": True}) for k, a in arrays.items()}
+        self._direct = {
+            k: ChunkWriter.for_array(self.path / k) for k in ("depth", "labels", "scene")
+        }
         self.shape = (attrs["height"], attrs["width"])
         self.frames = attrs["frames"]
 
@@ -398,13 +411,21 @@ class FrameWriter:
             raise DatasetError(f"frame index {index} outside 0..{self.frames - 1}")
         depth, labels = check_frame(depth, labels, self.shape, index)
         try:
-            text = json.dumps(scene, separators=(",", ":"), allow_nan=False, sort_keys=True)
+            text = json.dumps(scene, separators=(",", ":"), allow_nan=False)
         except (TypeError, ValueError) as exc:
             raise DatasetError(f"frame {index}: scene is not plain JSON ({exc})") from exc
+        parts = (
+            ("depth", depth, (index, 0, 0)),
+            ("labels", labels, (index, 0, 0)),
+            ("scene", np.array([text], dtype=object), (index,)),
+        )
         try:
-            self._arrays["depth"][index] = depth
-            self._arrays["labels"][index] = labels
-            self._arrays["scene"][index] = text
+            for name, value, coords in parts:
+                direct = self._direct[name]
+                if direct is not None:
+                    direct.write(coords, value)
+                else:
+                    self._arrays[name][index] = value[0] if name == "scene" else value
         except OSError as exc:
             raise dataset_os_error(exc, self.path, "writing") from exc
 

@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
     "devices": ("topseg.services.devices", "list attached depth sensors and how to use them"),
+    "datagen": ("topseg.services.datagen", "render a synthetic dataset (Zarr) on Dask; preview it"),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"

@@ -245,3 +245,59 @@ def test_a_creation_cut_short_is_finished_on_resume(tmp_path):
     with D.DatasetWriter.open(path, attrs(3)) as w:
         assert w.todo().tolist() == [0, 1, 2]
     assert len(D.open_dataset(path)) == 0
+
+
+def test_direct_chunk_writes_are_the_bytes_zarr_writes(tmp_path):
+    from topseg.core.zarr_chunks import ChunkWriter
+
+    path = tmp_path / "ds.zarr"
+    D.DatasetWriter.open(path, attrs(4)).close()
+    import zarr
+
+    group = zarr.open_group(str(path), mode="r+")
+    rng = np.random.default_rng(0)
+    depth, lab, _ = toy_frame(7, 0, "none")
+    frames = {
+        "depth": [depth, rng.integers(0, 65536, (480, 640)).astype(np.uint16), np.zeros((480, 640), np.uint16)],
+        "labels": [lab, rng.integers(0, 11, (480, 640)).astype(np.uint8), np.zeros((480, 640), np.uint8)],
+        "scene": [np.array(['{"pose":"sitzend","ü":[1,2.5]}'], object), np.array(["{}"], object),
+                  np.array([json.dumps({"x": list(range(500))})], object)],
+    }  # fmt: skip
+    for name, values in frames.items():
+        arr = group[name].with_config({"write_empty_chunks": True})
+        direct = ChunkWriter.for_array(path / name)
+        assert direct is not None
+        for i, value in enumerate(values):
+            coords = (i, 0, 0) if name != "scene" else (i,)
+            arr[i] = value if name != "scene" else value[0]
+            by_zarr = direct.chunk_path(coords).read_bytes()
+            assert direct.encode(value) == by_zarr
+            direct.write(coords, value)
+            assert direct.chunk_path(coords).read_bytes() == by_zarr
+            got = arr[i]
+            assert got == value[0] if name == "scene" else np.array_equal(got, value)
+
+
+def test_arrays_of_another_layout_are_written_through_zarr(tmp_path):
+    import zarr
+    from zarr.codecs import GzipCodec
+
+    from topseg.core.zarr_chunks import ChunkWriter
+
+    path = tmp_path / "ds.zarr"
+    D.DatasetWriter.open(path, attrs(2)).close()
+    group = zarr.open_group(str(path), mode="r+")
+    group.create_array(
+        "depth", shape=(2, 480, 640), chunks=(1, 480, 640), dtype="uint16",
+        compressors=GzipCodec(), fill_value=0, overwrite=True,
+    )  # fmt: skip
+    assert ChunkWriter.for_array(path / "depth") is None
+    assert ChunkWriter.for_array(path / "labels") is not None
+    fw = D.FrameWriter(path)
+    for i in range(2):
+        fw.write(i, *toy_frame(7, i, "none"))
+    with D.DatasetWriter.open(path, attrs(2)) as w:
+        w.mark_complete([0, 1])
+    ds = D.open_dataset(path)
+    np.testing.assert_array_equal(ds.depth[1], toy_frame(7, 1, "none")[0])
+    np.testing.assert_array_equal(ds.labels[1], toy_frame(7, 1, "none")[1])
