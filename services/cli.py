@@ -17,6 +17,7 @@ from topseg.core.errors import TopsegError
 #: subcommand -> (module, one-line help). Add a line here to add a command.
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("topseg.services.demo", "run the main job end to end and print what it measured"),
+    "train": ("topseg.services.train", "train a forest on a dataset (Dask), write a model file"),
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
@@ -30,7 +31,9 @@ LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 def setup_logging(verbose: int = 0) -> None:
     """One log format for every service, on stderr."""
     level = logging.DEBUG if verbose > 1 else logging.INFO if verbose == 1 else logging.WARNING
-    logging.basicConfig(level=level, format=LOG_FORMAT, stream=sys.stderr, force=True)
+    # Libraries (dask, numba, zenoh) log warnings only; topseg's own loggers at `level`.
+    logging.basicConfig(level=logging.WARNING, format=LOG_FORMAT, stream=sys.stderr, force=True)
+    logging.getLogger("topseg").setLevel(level)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,314 @@
+"""Train a forest on a datagen dataset: trees in parallel on Dask, one model file out.
+
+Each tree is a Dask task that opens the dataset itself, trains with its own seed
+(`tree_seed(seed, t)`, so any number of workers gives the same trees as a serial run) and
+writes its tree atomically to `<out>.parts/tree-<t>.npz`. A rerun after an interruption
+keeps the finished trees whose recipe matches and trains only the rest. The last step
+scores the forest on a held-out validation split and writes the model with that in its
+header.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import logging
+import os
+import time
+import uuid
+from pathlib import Path
+
+log = logging.getLogger("topseg.train")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--data", required=True, type=Path, help="dataset written by `topseg datagen`"
+    )
+    parser.add_argument("--out", required=True, type=Path, help="model file to write")
+    g = parser.add_argument_group("forest (defaults: the paper's)")
+    g.add_argument("--trees", type=int, default=5)
+    g.add_argument("--depth", type=int, default=19, help="maximum tree depth")
+    g.add_argument("--features", type=int, default=300, help="feature pool per tree (PC)")
+    g.add_argument("--responses", type=int, default=100, help="candidate responses per node (R)")
+    g.add_argument("--thresholds", type=int, default=100, help="thresholds per candidate (K)")
+    g.add_argument("--frames-per-tree", type=int, default=1600, help="bagged frames per tree (F)")
+    g.add_argument("--pixels-per-frame", type=int, default=2000)
+    g.add_argument("--split", choices=("linear", "axis"), default="linear")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument(
+        "--validation",
+        type=float,
+        default=0.1,
+        help="fraction of frames held out for the header's metrics",
+    )
+    g.add_argument("--max-validation-frames", type=int, default=64)
+    d = parser.add_argument_group("cluster")
+    d.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:port)")
+    d.add_argument(
+        "--workers", type=int, default=None, help="local workers (default: min(trees, cores))"
+    )
+    d.add_argument("--serial", action="store_true", help="train in this process, no Dask")
+
+
+def split_frames(n: int, fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """A seeded split of frame positions into (training, validation)."""
+    import numpy as np
+
+    if not 0.0 <= fraction < 1.0:
+        raise ValueError(f"--validation must be in [0, 1), got {fraction}")
+    order = np.random.default_rng([seed, 0x5EED]).permutation(n)
+    n_val = round(n * fraction) if n > 1 else 0
+    return sorted(order[n_val:].tolist()), sorted(order[:n_val].tolist())
+
+
+class FrameSubset:
+    """Frames `indices` of an (N, H, W) array-like, indexable like an array of them."""
+
+    def __init__(self, frames, indices: list[int]):
+        self.frames, self.indices = frames, list(indices)
+        self.shape = (len(self.indices), *frames.shape[1:])
+        self.dtype = frames.dtype
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, i: int):
+        return self.frames[self.indices[int(i)]]
+
+
+def recipe(args: argparse.Namespace, fingerprint: str) -> dict:
+    """What decides every tree: a part file is reused only when its recipe is the same."""
+    return {
+        "dataset": fingerprint,
+        "seed": args.seed,
+        "validation": args.validation,
+        "config": _train_config(args).to_dict(),
+    }
+
+
+def _train_config(args: argparse.Namespace):
+    from topseg.core.features import FeatureConfig
+    from topseg.core.forest_train import TrainConfig
+
+    return TrainConfig(
+        n_trees=args.trees,
+        max_depth=args.depth,
+        frames_per_tree=args.frames_per_tree,
+        pixels_per_frame=args.pixels_per_frame,
+        n_candidates=args.responses,
+        n_thresholds=args.thresholds,
+        split=args.split,
+        features=FeatureConfig(n_features=args.features),
+    )
+
+
+def dataset_fingerprint(dataset) -> str:
+    """A short hash of the dataset's identity: its attributes and frame count."""
+    blob = json.dumps({"attrs": dataset.attrs, "n": len(dataset)}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def train_one_tree(
+    data: str, train_idx: list[int], recipe_: dict, tree: int, part: str, queue=None
+) -> str:
+    """Dask task: train tree `tree` and write it to `part`; returns the part's path."""
+    from topseg.core.dataset import open_dataset
+    from topseg.core.forest_train import TrainConfig, train_tree, tree_seed
+    from topseg.core.model_file import save_model
+    from topseg.core.tree import Forest
+
+    ds = open_dataset(data)
+    config = TrainConfig.from_dict(recipe_["config"])
+
+    def progress(level: int, nodes: int) -> None:
+        if queue is not None:
+            queue.put([tree, level, nodes])
+
+    t0 = time.perf_counter()
+    result = train_tree(
+        FrameSubset(ds.depth, train_idx),
+        FrameSubset(ds.labels, train_idx),
+        config,
+        tree_seed(recipe_["seed"], tree),
+        progress,
+    )
+    header = {"recipe": recipe_, "tree": tree, "seconds": time.perf_counter() - t0}
+    save_model(part, Forest.from_trees([result]), header)
+    return part
+
+
+def _finished_part(part: Path, recipe_: dict):
+    """The tree in `part` if it exists, loads whole and was made by the same recipe."""
+    from topseg.core.errors import TopsegError
+    from topseg.core.model_file import load_model
+
+    if not part.exists():
+        return None
+    try:
+        forest, header = load_model(part)
+    except TopsegError as exc:
+        log.warning("discarding damaged part %s: %s", part, exc)
+        return None
+    if header.get("recipe") != recipe_:
+        log.info("discarding part %s: made by another recipe", part)
+        return None
+    return forest.tree(0)
+
+
+def run(args: argparse.Namespace) -> int:
+    from topseg.core.dataset import open_dataset
+    from topseg.core.errors import TopsegError
+
+    if args.trees < 1:
+        raise TopsegError("--trees must be at least 1")
+    ds = open_dataset(args.data)
+    train_idx, val_idx = split_frames(len(ds), args.validation, args.seed)
+    if not train_idx:
+        raise TopsegError(f"{args.data} has no frames to train on")
+    recipe_ = recipe(args, dataset_fingerprint(ds))
+    parts_dir = args.out.with_name(args.out.name + ".parts")
+    try:
+        parts_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TopsegError(f"cannot create {parts_dir}: {exc.strerror}") from exc
+    parts = [parts_dir / f"tree-{t}.npz" for t in range(args.trees)]
+    trees = {
+        t: tree for t, p in enumerate(parts) if (tree := _finished_part(p, recipe_)) is not None
+    }
+    if trees:
+        log.info("resuming: %d of %d trees already trained", len(trees), args.trees)
+    todo = [t for t in range(args.trees) if t not in trees]
+
+    t0 = time.perf_counter()
+    if todo:
+        _train_trees(args, train_idx, recipe_, todo, parts)
+        for t in todo:
+            trees[t] = _finished_part(parts[t], recipe_)
+            if trees[t] is None:
+                raise TopsegError(f"tree {t} did not come back whole from {parts[t]}")
+    seconds = time.perf_counter() - t0
+    _write_model(args, ds, val_idx, recipe_, [trees[t] for t in range(args.trees)], seconds)
+    for p in parts:
+        p.unlink(missing_ok=True)
+    parts_dir.rmdir()
+    return 0
+
+
+def _train_trees(args, train_idx, recipe_, todo, parts) -> None:
+    """Train the trees in `todo`, serially or on Dask, with a progress bar per tree."""
+    from tqdm import tqdm
+
+    levels = recipe_["config"]["max_depth"] + 1  # levels 0..max_depth
+    bars = {
+        t: tqdm(total=levels, desc=f"tree {t}", unit="level", position=i, leave=True)
+        for i, t in enumerate(todo)
+    }
+
+    def advance(tree: int, level: int, nodes: int) -> None:
+        bar = bars[tree]
+        bar.set_postfix(nodes=nodes)
+        bar.update(max(0, level + 1 - bar.n))
+
+    try:
+        if args.serial:
+            for t in todo:
+                _serial_tree(args, train_idx, recipe_, t, str(parts[t]), advance)
+        else:
+            _dask_trees(args, train_idx, recipe_, todo, parts, advance)
+    finally:
+        for bar in bars.values():
+            bar.close()
+
+
+class _CallbackQueue:
+    def __init__(self, fn):
+        self.fn = fn
+
+    def put(self, item):
+        self.fn(*item)
+
+
+def _serial_tree(args, train_idx, recipe_, t, part, advance) -> None:
+    train_one_tree(str(args.data), train_idx, recipe_, t, part, _CallbackQueue(advance))
+
+
+def _dask_trees(args, train_idx, recipe_, todo, parts, advance) -> None:
+    from distributed import Client, LocalCluster, Queue
+
+    if args.scheduler:
+        cluster, client = None, Client(args.scheduler)
+    else:
+        n_workers = args.workers or max(1, min(len(todo), os.cpu_count() or 1))
+        threads = max(1, (os.cpu_count() or 1) // n_workers)
+        os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
+        cluster = LocalCluster(
+            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None
+        )
+        client = Client(cluster)
+    try:
+        queue = Queue(f"topseg-train-{uuid.uuid4().hex}", client=client)
+        futures = [
+            client.submit(
+                train_one_tree,
+                str(args.data.resolve()),
+                train_idx,
+                recipe_,
+                t,
+                str(parts[t].resolve()),
+                queue,
+                key=f"tree-{t}-{uuid.uuid4().hex[:8]}",
+                pure=False,
+            )
+            for t in todo
+        ]
+        while not all(f.done() for f in futures):
+            for item in queue.get(batch=True):
+                advance(*item)
+            time.sleep(0.5)
+        for item in queue.get(batch=True):
+            advance(*item)
+        for f in futures:
+            f.result()  # re-raise a worker's error here
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _write_model(args, ds, val_idx, recipe_, trees, seconds) -> None:
+    from topseg import __version__
+    from topseg.core.forest_predict import predict_labels
+    from topseg.core.metrics import ConfusionAccumulator, to_json
+    from topseg.core.model_file import save_model
+    from topseg.core.tree import Forest
+
+    forest = Forest.from_trees(trees)
+    acc = ConfusionAccumulator()
+    for i in val_idx[: args.max_validation_frames]:
+        acc.add(ds.labels[i], predict_labels(forest, ds.depth[i]))
+    validation = json.loads(to_json(acc.scores())) if val_idx else None  # NaN -> null
+    header = {
+        "made_by": f"topseg {__version__} train",
+        "recipe": recipe_,
+        "dataset": {"path": str(args.data), "frames": len(ds), "attrs": ds.attrs},
+        "train_seconds": round(seconds, 1),
+        "validation": {
+            "frames": min(len(val_idx), args.max_validation_frames),
+            "scores": validation,
+        },
+    }
+    save_model(args.out, forest, header)
+    if validation:
+        print(
+            f"wrote {args.out}: {len(trees)} trees; validation on {header['validation']['frames']} frames: "
+            f"mAP {_fmt(validation['mAP'])}  mAR {_fmt(validation['mAR'])}  "
+            f"avg F1 {_fmt(validation['avg_f1'])}"
+        )
+    else:
+        print(f"wrote {args.out}: {len(trees)} trees (no validation frames)")
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.3f}"
