@@ -183,7 +183,9 @@ def maxflow_csr(first, adj, head, rcap, tr):
     orphans = np.empty(n + 1, np.int64)
     qh = qt = oh = ot = 0
     flow = 0
-    for a in range(head.shape[0]):  # paths s -> u -> v -> t first: cheap, and most of the flow
+    # Greedy pushes along the shortest paths first (s -> u -> v -> t, then one hop
+    # longer): cheap, and they carry most of an expansion move's flow.
+    for a in range(head.shape[0]):
         u = head[a ^ 1]
         v = head[a]
         if tr[u] > 0 and tr[v] < 0 and rcap[a] > 0:
@@ -193,6 +195,27 @@ def maxflow_csr(first, adj, head, rcap, tr):
             rcap[a] -= b
             rcap[a ^ 1] += b
             flow += b
+    for a in range(head.shape[0]):  # then s -> u -> v -> w -> t through a spent v
+        u = head[a ^ 1]
+        if tr[u] <= 0 or rcap[a] <= 0:
+            continue
+        v = head[a]
+        if tr[v] != 0:
+            continue
+        for k in range(first[v], first[v + 1]):
+            a2 = adj[k]
+            w = head[a2]
+            if tr[w] < 0 and rcap[a2] > 0:
+                b = min(tr[u], -tr[w], rcap[a], rcap[a2])
+                tr[u] -= b
+                tr[w] += b
+                rcap[a] -= b
+                rcap[a ^ 1] += b
+                rcap[a2] -= b
+                rcap[a2 ^ 1] += b
+                flow += b
+                if tr[u] == 0 or rcap[a] == 0:
+                    break
     for i in range(n):
         if tr[i] != 0:
             is_sink[i] = tr[i] < 0

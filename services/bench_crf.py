@@ -13,8 +13,10 @@ realtime's energy comes to exact's:
 Unaries come from a forest on procedural top-view frames: the model given with --model,
 or else a small forest trained here on the spot (seeded, ~20 s). `--unaries synthetic`
 uses the stand-in forest-like posteriors of `topseg.core.crf_synthetic` instead. Timings
-are per-frame medians of --repeat runs; the machine's load average is reported beside
-them, since other processes on a 2-core machine inflate them.
+are per-frame medians of --repeat runs, wall clock (*_ms_*) and this process's CPU time
+(*_cpu_ms_*: both solvers are single-threaded, so on an idle machine the two agree); the
+load average is reported beside them, since other processes on a 2-core machine inflate
+the wall-clock figures.
 """
 
 from __future__ import annotations
@@ -104,14 +106,15 @@ def measure(args: argparse.Namespace) -> dict:
     segment_crf(*frames[0], realtime)  # compile / load the numba kernels
     rows = []
     for proba, depth in frames:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         lab_exact = segment_crf(proba, depth, exact)
-        t_exact = time.perf_counter() - t0
-        times = []
+        t_exact, c_exact = time.perf_counter() - t0, time.process_time() - c0
+        times, cpu = [], []
         for _ in range(args.repeat):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             lab_rt = segment_crf(proba, depth, realtime)
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
         lab_none = segment_crf(proba, depth, none)
         e_exact, e_rt, e_none = (
             potts_energy(lab, proba, depth, realtime) for lab in (lab_exact, lab_rt, lab_none)
@@ -122,7 +125,9 @@ def measure(args: argparse.Namespace) -> dict:
         rows.append(
             {
                 "exact_ms": 1e3 * t_exact,
+                "exact_cpu_ms": 1e3 * c_exact,
                 "rt_ms": 1e3 * float(np.median(times)),
+                "rt_cpu_ms": 1e3 * float(np.median(cpu)),
                 "rt_min_ms": 1e3 * min(times),
                 "ratio": e_rt / e_exact,
                 "gain": (e_none - e_rt) / (e_none - e_exact) if e_none > e_exact else 1.0,
@@ -137,6 +142,8 @@ def measure(args: argparse.Namespace) -> dict:
     return {
         "crf_exact_ms_per_frame": round(float(np.median(col("exact_ms"))), 1),
         "crf_realtime_ms_per_frame": round(float(np.median(col("rt_ms"))), 2),
+        "crf_exact_cpu_ms_per_frame": round(float(np.median(col("exact_cpu_ms"))), 1),
+        "crf_realtime_cpu_ms_per_frame": round(float(np.median(col("rt_cpu_ms"))), 2),
         "crf_realtime_ms_best": round(float(col("rt_min_ms").min()), 2),
         "crf_realtime_ms_worst_frame": round(float(col("rt_ms").max()), 2),
         "crf_energy_ratio": round(float(col("ratio").mean()), 5),
