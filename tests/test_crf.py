@@ -247,3 +247,16 @@ def test_realtime_within_2_percent_of_exact_on_a_full_frame():
     assert e_rt <= 1.02 * e_exact
     valid = depth > 0
     assert (exact == realtime)[valid].mean() > 0.98
+
+
+def test_degenerate_frames():
+    rng = np.random.default_rng(6)
+    proba = random_posteriors(rng, 3, 4)
+    holes = np.zeros((3, 4), np.uint16)
+    one = holes.copy()
+    one[1, 2] = 2000
+    for cfg in (NONE, EXACT, REALTIME, CONVERGED):
+        assert (segment_crf(proba, holes, cfg) == L.NO_DEPTH).all()
+        labels = segment_crf(proba, one, cfg)
+        assert labels[1, 2] == proba[1, 2].argmax()  # alone: nothing to agree with
+        assert (labels[one == 0] == L.NO_DEPTH).all()
