@@ -9,10 +9,11 @@ E(x) = sum_p U_p(x_p) + sum_{p~q} w_pq [x_p != x_q]
   across depth discontinuities when `depth_sigma_mm` > 0 (0 = the paper's plain Potts).
 
 Modes: `none` (argmax), `exact` (alpha-expansion with gco over the full grid, the paper's
-method) and `realtime` (`topseg.core.crf_realtime`: the same solver on the uncertain band
-only). gco works on int32 energies: unaries and weights are multiplied by ENERGY_SCALE
-and rounded (0.001-nat resolution); reported energies are always recomputed in float
-from the labeling by `potts_energy`, the one definition every mode and test uses.
+method) and `realtime` (`topseg.core.crf_realtime`: the same energy, minimised by a numba
+alpha-expansion on the uncertain band only). Both solvers work on integers: unaries and
+weights are multiplied by ENERGY_SCALE and rounded (0.001-nat resolution); reported
+energies are always recomputed in float from the labeling by `potts_energy`, the one
+definition every mode and test uses. See docs/crf.md.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from topseg.core import labels as L
 from topseg.core.errors import TopsegError
 
-#: Factor from float energies (nats) to gco's int32 energy terms.
+#: Factor from float energies (nats) to the solvers' integer energy terms.
 ENERGY_SCALE = 1000.0
 #: Largest smoothness accepted: keeps every scaled term far inside int32.
 MAX_SMOOTHNESS = 1000.0
