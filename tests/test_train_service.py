@@ -4,10 +4,9 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from topseg.core import dataset as D
-from topseg.core import forest, procedural
+from topseg.core import forest
 from topseg.core.features import FeatureConfig
 from topseg.core.forest_train import TrainConfig
 
@@ -29,28 +28,6 @@ SMALL = [
     "--seed",
     "3",
 ]
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    path = tmp_path_factory.mktemp("train") / "ds.zarr"
-    n = 12
-    attrs = D.make_attrs(
-        seed=5,
-        mode="procedural",
-        noise="gaussian:10",
-        room=None,
-        generator={"name": "procedural"},
-        frames=n,
-    )
-    rng = np.random.default_rng(5)
-    with D.DatasetWriter.open(path, attrs) as w:
-        fw = D.FrameWriter(path)
-        for i in range(n):
-            depth, labels = procedural.procedural_frame(rng)
-            fw.write(i, depth, labels, {"index": i})
-        w.mark_complete(range(n))
-    return path
 
 
 def topseg(*args, check=True):

@@ -1,0 +1,84 @@
+"""`topseg evaluate` against a confusion matrix computed by hand with numpy."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from topseg.core import dataset as D
+from topseg.core import forest
+from topseg.core.forest_train import TrainConfig
+from topseg.core.labels import LABELS, NO_DEPTH, NUM_CLASSES
+
+
+def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
+    ds = D.open_dataset(data)
+    model = forest.train_forest(
+        ds.depth,
+        ds.labels,
+        TrainConfig(
+            n_trees=1,
+            max_depth=6,
+            frames_per_tree=6,
+            pixels_per_frame=300,
+            n_candidates=10,
+            n_thresholds=10,
+        ),
+        seed=1,
+    )
+    forest.save_model(tmp_path / "m.npz", model, {})
+    out = tmp_path / "ev"
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "topseg.services.cli",
+            "evaluate",
+            "--model",
+            str(tmp_path / "m.npz"),
+            "--data",
+            str(data),
+            "--crf",
+            "none",
+            "--frames",
+            "5",
+            "--json",
+            str(out / "s.json"),
+            "--plots",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    doc = json.loads((out / "s.json").read_text())
+
+    cm = np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64)
+    for i in range(5):
+        truth = np.asarray(ds.labels[i]).ravel()
+        pred = forest.predict_labels(model, np.asarray(ds.depth[i])).ravel()
+        keep = truth != NO_DEPTH
+        pred = np.where(pred[keep] == NO_DEPTH, 0, pred[keep])
+        cm += np.bincount(truth[keep] * NUM_CLASSES + pred, minlength=NUM_CLASSES**2).reshape(
+            cm.shape
+        )
+    np.testing.assert_array_equal(np.array(doc["confusion"]), cm)
+
+    # the scores of that matrix, by hand: 0/0 is undefined and left out of the means
+    tp = np.diag(cm).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        precision, recall = tp / cm.sum(0), tp / cm.sum(1)
+    assert doc["mAP"] == pytest.approx(np.nanmean(precision[1:]), abs=1e-12)
+    assert doc["mAR"] == pytest.approx(np.nanmean(recall[1:]), abs=1e-12)
+    for c in range(1, NUM_CLASSES):
+        got = doc["per_class"][LABELS[c].name]
+        if np.isnan(precision[c]):
+            assert got["precision"] is None
+        else:
+            assert got["precision"] == pytest.approx(precision[c], abs=1e-12)
+    assert "mean (1-10)" in r.stdout
+    assert (out / "confusion.png").stat().st_size > 10_000
+    assert (out / "frames.png").stat().st_size > 10_000
