@@ -32,10 +32,11 @@ from topseg.core.crf_expansion import alpha_expansion, energy
 
 @numba.njit(cache=True)
 def argmax_confidence(proba, valid):
-    """Per-pixel argmax (uint8, NO_DEPTH where invalid) and top posterior (float32)."""
+    """Per-pixel argmax (uint8, NO_DEPTH where invalid), top and second posteriors (float32)."""
     h, w, c = proba.shape
     amax = np.empty((h, w), np.uint8)
     pmax = np.zeros((h, w), np.float32)
+    psecond = np.zeros((h, w), np.float32)
     for i in range(h):
         for j in range(w):
             if not valid[i, j]:
@@ -43,18 +44,52 @@ def argmax_confidence(proba, valid):
                 continue
             best = 0
             bp = proba[i, j, 0]
+            sp = np.float32(-1.0)
             for k in range(1, c):
-                if proba[i, j, k] > bp:
-                    bp = proba[i, j, k]
+                pk = proba[i, j, k]
+                if pk > bp:
+                    sp = bp
+                    bp = pk
                     best = k
+                elif pk > sp:
+                    sp = pk
             amax[i, j] = best
             pmax[i, j] = bp
-    return amax, pmax
+            psecond[i, j] = sp
+    return amax, pmax, psecond
+
+
+#: Extra nats a settled pixel's argmax must win by: covers the solver's integer rounding.
+SETTLED_MARGIN = 0.01
 
 
 @numba.njit(cache=True)
-def free_mask(amax, pmax, valid, confidence, ring):
-    """Pixels left to the solver: not (confident and agreeing with all 4 neighbours), + ring."""
+def settled(i, j, pmax, psecond, wh, wv, eps):
+    """True if no expansion move from the argmax can change pixel (i, j).
+
+    Its argmax beats every other label by at least the weight of all its edges (plus
+    SETTLED_MARGIN), so every move prunes it whatever its neighbours do (see
+    `topseg.core.crf_expansion`): leaving it out of the band changes nothing.
+    """
+    h, w = pmax.shape
+    wsum = 0.0
+    if j > 0:
+        wsum += wh[i, j - 1]
+    if j + 1 < w:
+        wsum += wh[i, j]
+    if i > 0:
+        wsum += wv[i - 1, j]
+    if i + 1 < h:
+        wsum += wv[i, j]
+    p1 = max(np.float64(pmax[i, j]), eps)
+    p2 = max(np.float64(psecond[i, j]), eps)
+    return p2 <= p1 * np.exp(-(wsum + SETTLED_MARGIN))
+
+
+@numba.njit(cache=True)
+def free_mask(amax, pmax, psecond, valid, wh, wv, confidence, ring, eps):
+    """The band: pixels with depth that are neither sure (top posterior >= `confidence`
+    and all 4 neighbours agree) nor settled, grown by `ring` steps into unsettled pixels."""
     h, w = amax.shape
     free = np.zeros((h, w), np.bool_)
     for i in range(h):
@@ -62,16 +97,16 @@ def free_mask(amax, pmax, valid, confidence, ring):
             if not valid[i, j]:
                 continue
             a = amax[i, j]
-            ok = pmax[i, j] >= confidence
-            if ok and i > 0 and valid[i - 1, j] and amax[i - 1, j] != a:
-                ok = False
-            if ok and i + 1 < h and valid[i + 1, j] and amax[i + 1, j] != a:
-                ok = False
-            if ok and j > 0 and valid[i, j - 1] and amax[i, j - 1] != a:
-                ok = False
-            if ok and j + 1 < w and valid[i, j + 1] and amax[i, j + 1] != a:
-                ok = False
-            free[i, j] = not ok
+            sure = pmax[i, j] >= confidence
+            if sure and i > 0 and valid[i - 1, j] and amax[i - 1, j] != a:
+                sure = False
+            if sure and i + 1 < h and valid[i + 1, j] and amax[i + 1, j] != a:
+                sure = False
+            if sure and j > 0 and valid[i, j - 1] and amax[i, j - 1] != a:
+                sure = False
+            if sure and j + 1 < w and valid[i, j + 1] and amax[i, j + 1] != a:
+                sure = False
+            free[i, j] = not sure and not settled(i, j, pmax, psecond, wh, wv, eps)
     for _ in range(ring):
         grown = free.copy()
         for i in range(h):
@@ -83,7 +118,7 @@ def free_mask(amax, pmax, valid, confidence, ring):
                     or (i + 1 < h and free[i + 1, j])
                     or (j > 0 and free[i, j - 1])
                     or (j + 1 < w and free[i, j + 1])
-                ):
+                ) and not settled(i, j, pmax, psecond, wh, wv, eps):
                     grown[i, j] = True
         free = grown
     return free
@@ -184,15 +219,28 @@ def float_gain(proba, before, after, pix, wh, wv, eps):
     return gain
 
 
+def band_mask(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.ndarray:
+    """(H, W) bool: the pixels `segment_realtime` hands to the solver (for benches, viewers)."""
+    proba = np.ascontiguousarray(proba, dtype=np.float32)
+    valid = np.asarray(depth) > 0
+    amax, pmax, psecond = argmax_confidence(proba, valid)
+    wh, wv = edge_weights(depth, config)
+    return free_mask(
+        amax, pmax, psecond, valid, wh, wv, np.float32(config.confidence), config.ring, config.eps
+    )
+
+
 def segment_realtime(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.ndarray:
     """(H, W) uint8 labels: argmax where fixed, alpha-expansion on the band (see module doc)."""
     proba = np.ascontiguousarray(proba, dtype=np.float32)
     valid = np.asarray(depth) > 0
-    amax, pmax = argmax_confidence(proba, valid)
+    amax, pmax, psecond = argmax_confidence(proba, valid)
     if config.smoothness == 0:
         return amax
     wh, wv = edge_weights(depth, config)
-    free = free_mask(amax, pmax, valid, np.float32(config.confidence), config.ring)
+    free = free_mask(
+        amax, pmax, psecond, valid, wh, wv, np.float32(config.confidence), config.ring, config.eps
+    )
     index, n = number_band(free)
     if n == 0:
         return amax

@@ -92,7 +92,7 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray
 
 def measure(args: argparse.Namespace) -> dict:
     from topseg.core.crf import CRFConfig, potts_energy, segment_crf
-    from topseg.core.crf_realtime import argmax_confidence, free_mask
+    from topseg.core.crf_realtime import band_mask
 
     overrides = {
         k: getattr(args, k)
@@ -120,8 +120,7 @@ def measure(args: argparse.Namespace) -> dict:
             potts_energy(lab, proba, depth, realtime) for lab in (lab_exact, lab_rt, lab_none)
         )
         valid = depth > 0
-        amax, pmax = argmax_confidence(np.ascontiguousarray(proba, np.float32), valid)
-        band = free_mask(amax, pmax, valid, np.float32(realtime.confidence), realtime.ring)
+        band = band_mask(proba, depth, realtime)
         rows.append(
             {
                 "exact_ms": 1e3 * t_exact,

@@ -8,9 +8,11 @@ from scipy import ndimage
 
 from topseg.core import labels as L
 from topseg.core.crf import CRFConfig, edge_weights, potts_energy
-from topseg.core.crf_expansion import energy
+from topseg.core.crf_expansion import alpha_expansion, energy
 from topseg.core.crf_realtime import (
+    SETTLED_MARGIN,
     argmax_confidence,
+    band_mask,
     band_problem,
     float_gain,
     free_mask,
@@ -30,8 +32,19 @@ def random_frame(rng, h=40, w=50):
     return proba, depth
 
 
-def reference_free(amax, pmax, valid, confidence, ring):
-    """Free = not (confident and every 4-neighbour with depth agrees), grown by `ring`."""
+def reference_settled(proba, valid, wh, wv, eps, margin=SETTLED_MARGIN):
+    """Argmax ahead of every other label by the pixel's total edge weight (+ margin)."""
+    top2 = np.sort(np.maximum(proba.astype(np.float64), eps), axis=2)[..., -2:]
+    wsum = np.zeros(valid.shape)
+    wsum[:, 1:] += wh
+    wsum[:, :-1] += wh
+    wsum[1:, :] += wv
+    wsum[:-1, :] += wv
+    return valid & (np.log(top2[..., 1]) - np.log(top2[..., 0]) >= wsum + margin)
+
+
+def reference_free(amax, pmax, valid, confidence, ring, settled):
+    """Neither sure (confident, every 4-neighbour with depth agrees) nor settled; + ring."""
     h, w = amax.shape
     pad_a = np.pad(amax.astype(np.int64), 1, constant_values=-1)
     pad_v = np.pad(valid, 1, constant_values=False)
@@ -40,9 +53,9 @@ def reference_free(amax, pmax, valid, confidence, ring):
         na = pad_a[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
         nv = pad_v[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
         agree &= ~nv | (na == amax)
-    free = valid & ~((pmax >= confidence) & agree)
+    free = valid & ~((pmax >= confidence) & agree) & ~settled
     for _ in range(ring):
-        free = ndimage.binary_dilation(free, CROSS) & valid
+        free = ndimage.binary_dilation(free, CROSS) & valid & ~settled
     return free
 
 
@@ -50,10 +63,12 @@ def test_argmax_confidence_matches_numpy():
     rng = np.random.default_rng(0)
     proba, depth = random_frame(rng)
     valid = depth > 0
-    amax, pmax = argmax_confidence(proba, valid)
+    amax, pmax, psecond = argmax_confidence(proba, valid)
     assert np.array_equal(amax[valid], proba.argmax(axis=2)[valid])
     assert (amax[~valid] == L.NO_DEPTH).all()
-    assert np.array_equal(pmax[valid], proba.max(axis=2)[valid])
+    ordered = np.sort(proba, axis=2)
+    assert np.array_equal(pmax[valid], ordered[..., -1][valid])
+    assert np.array_equal(psecond[valid], ordered[..., -2][valid])
 
 
 @pytest.mark.parametrize("ring", [0, 1, 3])
@@ -62,12 +77,43 @@ def test_free_mask_matches_numpy(ring):
     proba, depth = random_frame(rng)
     proba[10:30, 10:40] = 0.0  # a confident, agreeing block the mask must leave fixed
     proba[10:30, 10:40, 3] = 1.0
+    proba[5:8, 5:45] = 0.001  # a strip so sure of label 6 that it is settled
+    proba[5:8, 5:45, 6] = 0.99
+    depth[4:9, 4:46] = 2000  # flat: full edge weights, 4 x smoothness around each pixel
     valid = depth > 0
-    amax, pmax = argmax_confidence(proba, valid)
-    for confidence in (0.3, 0.6, 0.9):
-        free = free_mask(amax, pmax, valid, np.float32(confidence), ring)
-        assert np.array_equal(free, reference_free(amax, pmax, valid, confidence, ring))
-        assert not free[20, 25]
+    amax, pmax, psecond = argmax_confidence(proba, valid)
+    for smoothness in (0.5, 2.0):
+        cfg = CRFConfig(smoothness=smoothness, depth_sigma_mm=800.0)
+        wh, wv = edge_weights(depth, cfg)
+        settled = reference_settled(proba, valid, wh, wv, cfg.eps)
+        assert settled[6, 20:30].all() == (smoothness == 0.5)
+        for confidence in (0.3, 0.6, 0.9):
+            free = free_mask(
+                amax, pmax, psecond, valid, wh, wv, np.float32(confidence), ring, cfg.eps
+            )
+            expected = reference_free(amax, pmax, valid, confidence, ring, settled)
+            assert np.array_equal(free, expected)
+            assert not free[20, 25]
+
+
+def test_settled_pixels_never_move_in_a_full_expansion():
+    """Leaving settled pixels out is exact: expansion over every pixel never moves them."""
+    rng = np.random.default_rng(9)
+    proba = rng.dirichlet(np.full(C, 0.05), size=(30, 40)).astype(np.float32)
+    depth = np.full((30, 40), 2000, np.uint16)
+    cfg = CRFConfig(smoothness=0.6)
+    valid = depth > 0
+    amax, _, _ = argmax_confidence(proba, valid)
+    wh, wv = edge_weights(depth, cfg)
+    settled = reference_settled(proba, valid, wh, wv, cfg.eps)
+    assert 0.1 < settled.mean() < 0.9
+    index, n = number_band(valid)  # every pixel in the problem
+    pix, unary, nbr, nw, init = band_problem(
+        proba, amax, index, n, wh, wv, np.float32(cfg.eps), 1000.0
+    )
+    x = alpha_expansion(unary, nbr, nw, init)
+    assert (x != init).any()
+    assert np.array_equal(x[settled.ravel()[pix]], init[settled.ravel()[pix]])
 
 
 def test_band_ids_are_row_major():
@@ -82,9 +128,11 @@ def test_band_ids_are_row_major():
 def band_of(rng, cfg, shape=(40, 50)):
     proba, depth = random_frame(rng, *shape)
     valid = depth > 0
-    amax, pmax = argmax_confidence(proba, valid)
+    amax, pmax, psecond = argmax_confidence(proba, valid)
     wh, wv = edge_weights(depth, cfg)
-    free = free_mask(amax, pmax, valid, np.float32(cfg.confidence), cfg.ring)
+    free = free_mask(
+        amax, pmax, psecond, valid, wh, wv, np.float32(cfg.confidence), cfg.ring, cfg.eps
+    )
     index, n = number_band(free)
     return proba, depth, amax, wh, wv, index, n
 
@@ -130,8 +178,8 @@ def test_fixed_pixels_keep_the_argmax_and_holes_stay_holes():
     proba = forest_like_posteriors(truth, rng)
     cfg = CRFConfig(confidence=0.6, ring=1)
     valid = depth > 0
-    amax, pmax = argmax_confidence(proba, valid)
-    free = free_mask(amax, pmax, valid, np.float32(cfg.confidence), cfg.ring)
+    amax, _, _ = argmax_confidence(proba, valid)
+    free = band_mask(proba, depth, cfg)
     out = segment_realtime(proba, depth, cfg)
     assert np.array_equal(out[~free], amax[~free])
     assert (out[~valid] == L.NO_DEPTH).all()
@@ -142,5 +190,5 @@ def test_fixed_pixels_keep_the_argmax_and_holes_stay_holes():
 def test_smoothness_zero_is_the_argmax():
     rng = np.random.default_rng(4)
     proba, depth = random_frame(rng)
-    amax, _ = argmax_confidence(proba, depth > 0)
+    amax, _, _ = argmax_confidence(proba, depth > 0)
     assert np.array_equal(segment_realtime(proba, depth, CRFConfig(smoothness=0.0)), amax)
