@@ -260,3 +260,20 @@ def test_degenerate_frames():
         labels = segment_crf(proba, one, cfg)
         assert labels[1, 2] == proba[1, 2].argmax()  # alone: nothing to agree with
         assert (labels[one == 0] == L.NO_DEPTH).all()
+
+
+def test_stand_in_posteriors_err_like_a_forest():
+    """The bench's and tests' stand-in: normalised, mostly right, wrong near boundaries."""
+    from topseg.core.crf_synthetic import boundary_distance
+
+    rng = np.random.default_rng(12)
+    depth, truth = synthetic_scene(rng)
+    assert ((depth == 0) == (truth == L.NO_DEPTH)).all()
+    assert set(np.unique(truth)) >= {L.BACKGROUND, L.HEAD, L.BODY, L.HAND}
+    proba = forest_like_posteriors(truth, rng)
+    assert np.allclose(proba.sum(axis=2), 1.0, atol=1e-5)
+    fg = (truth != L.BACKGROUND) & (truth != L.NO_DEPTH)
+    wrong = (proba.argmax(axis=2) != truth) & fg
+    assert 0.75 < 1 - wrong[fg].mean() < 0.97
+    dist = boundary_distance(truth)
+    assert dist[wrong].mean() < 0.5 * dist[fg].mean()
