@@ -36,6 +36,8 @@ MODES = ("modeled", "non-modeled")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from topseg.core.rooms import ROOMS  # a light module: the names only
+
     parser.add_argument(
         "--mode", choices=MODES, default="modeled", help="scene model (default: modeled)"
     )
@@ -48,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="none | gaussian:<sigma_mm> | kinect (default gaussian:15)",
     )
     parser.add_argument(
-        "--room", default=None, help="room template (default: a random one per frame)"
+        "--room", default=None, help=f"{' | '.join(ROOMS)} (default: a random one per frame)"
     )
     parser.add_argument(
         "--generator",
@@ -130,7 +132,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     """A Dask client: on the scheduler at `scheduler`, or on a local cluster of `workers`."""
     import distributed
 
-    quiet = logging.getLogger().getEffectiveLevel() > logging.DEBUG
+    quiet = logging.getLogger("topseg").getEffectiveLevel() > logging.DEBUG
     if quiet:
         # the client reports what went wrong itself; -vv shows Dask's own chatter
         logging.getLogger("distributed").setLevel(logging.ERROR)
@@ -236,7 +238,7 @@ def generate(
             pids.add(result["pid"])
             rate = done / max(time.perf_counter() - t0, 1e-9)
             bar.update(n)
-            bar.set_postfix_str(f"{rate:.1f} frames/s", refresh=False)
+            bar.set_postfix_str(f"mean {rate:.1f} frames/s", refresh=False)
             if log_every and done / len(todo) >= next_log - 1e-9:
                 log.info(
                     "%3.0f%% (%d/%d frames, %.1f frames/s)",

@@ -95,3 +95,55 @@ def test_a_bad_frame_from_a_worker_stops_the_run_and_keeps_what_was_done(tmp_pat
     assert 5 not in ds.indices
     for k, i in enumerate(ds.indices):
         np.testing.assert_array_equal(ds.labels[k], toy_frame(5, int(i), "none")[1])
+
+
+def test_the_cli_runs_on_an_existing_scheduler(tmp_path, two_workers):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "ds.zarr"
+    topseg = str(Path(sys.executable).with_name("topseg"))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).parent))
+    args = [topseg, "-q", "datagen", "--generator", "datagen_toy:toy_source", "--frames", "6",
+            "--out", str(out), "--seed", "5", "--noise", "none", "--chunk", "2"]  # fmt: skip
+    address = two_workers.scheduler.address
+    result = subprocess.run(
+        [*args, "--scheduler", address], env=env, capture_output=True, text=True
+    )
+    assert result.returncode == 0, result.stderr
+    assert "on 2 workers" in result.stdout
+    ds = D.open_dataset(out)
+    for i in range(6):
+        np.testing.assert_array_equal(ds.depth[i], toy_frame(5, i, "none")[0])
+    bad = subprocess.run(
+        [*args, "--out", str(tmp_path / "b.zarr"), "--scheduler", "tcp://127.0.0.1:9"],
+        env=env, capture_output=True, text=True,
+    )  # fmt: skip
+    assert bad.returncode == 2
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in bad.stderr
+
+
+@pytest.mark.skipif(not HAVE_SYNTHESIS, reason="topseg.core.synthesis not in the tree yet")
+def test_the_default_generator_records_its_full_config(tmp_path, two_workers):
+    from topseg import __version__
+    from topseg.core.synthesis import SynthesisConfig
+
+    path = tmp_path / "ds.zarr"
+    with writer_for(path, "synthesis", 4, seed=3, mode="non-modeled", noise="kinect") as w:
+        datagen.generate(w, two_workers, chunk=2, progress=False)
+    ds = D.open_dataset(path)
+    a = ds.attrs
+    assert (a["seed"], a["mode"], a["noise"], a["topseg_version"]) == (
+        3,
+        "non-modeled",
+        "kinect",
+        __version__,
+    )
+    config = SynthesisConfig.from_dict(a["generator"]["config"])
+    assert config.to_dict() == SynthesisConfig(mode="non-modeled", noise="kinect").to_dict()
+    for k in range(4):
+        scene = ds.scene(k)
+        assert scene["mode"] == "non-modeled"
+        assert (ds.labels[k] != 0).any()  # something of the scene is in view
