@@ -231,3 +231,17 @@ def procedural_frame(
         depth_u16[missing] = 0
         label[missing] = labels.NO_DEPTH
     return depth_u16, label
+
+
+def procedural_frames(
+    rng: np.random.Generator, n: int, mount: TopViewMount = TOP_VIEW, **kwargs
+) -> tuple[np.ndarray, np.ndarray]:
+    """`n` frames stacked: (N, H, W) uint16 depth and (N, H, W) uint8 labels, a training set.
+
+    `kwargs` go to `procedural_frame` (noise_sigma_mm, n_objects, missing_fraction).
+    """
+    frames = [procedural_frame(rng, mount, **kwargs) for _ in range(n)]
+    shape = (n, *mount.intrinsics.shape)
+    depth = np.stack([d for d, _ in frames]) if frames else np.zeros(shape, np.uint16)
+    label = np.stack([lab for _, lab in frames]) if frames else np.zeros(shape, np.uint8)
+    return depth, label

@@ -1,0 +1,141 @@
+"""Forest inference: the numba kernels against a plain numpy traversal on random forests."""
+
+import numpy as np
+import pytest
+from test_features import probe_reference
+
+from topseg.core import labels
+from topseg.core.forest import Forest, labels_from_proba, predict_labels, predict_proba, random_tree
+from topseg.core.forest_predict import apply
+from topseg.core.tree import node_depths
+
+
+def apply_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
+    """(T, n) leaf reached by each pixel with depth (row-major order) in each tree."""
+    bg = forest.background_mm
+    rows, cols = np.nonzero(depth)
+    inv = np.float32(1.0) / depth[rows, cols].astype(np.float32)
+    leaves = []
+    for root in forest.roots:
+        node = np.full(rows.size, root, np.int64)
+        while True:
+            idx = np.flatnonzero(forest.left[node] >= 0)
+            if idx.size == 0:
+                break
+            nd = node[idx]
+            resp = np.zeros(idx.size, np.float32)
+            r, c, s = rows[idx], cols[idx], inv[idx]
+            for j in range(forest.features_per_node):
+                off = forest.offsets[nd, j]
+                u = probe_reference(depth, r, c, s, off[:, 0], off[:, 1], bg)
+                v = probe_reference(depth, r, c, s, off[:, 2], off[:, 3], bg)
+                resp = resp + forest.weights[nd, j] * (u - v).astype(np.float32)
+            node[idx] = forest.left[nd] + np.where(resp < forest.threshold[nd], 0, 1)
+        leaves.append(node)
+    return np.array(leaves)
+
+
+def predict_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
+    """Walk every pixel through every tree with numpy, then average (float32, tree order)."""
+    rows, cols = np.nonzero(depth)
+    acc = np.zeros((rows.size, forest.posteriors.shape[1]), np.float32)
+    for node in apply_reference(forest, depth):
+        acc += forest.posteriors[forest.leaf[node]]
+    out = np.zeros((*depth.shape, forest.posteriors.shape[1]), np.float32)
+    out[rows, cols] = acc * (np.float32(1.0) / np.float32(forest.n_trees))
+    return out
+
+
+def random_forest(seed, k, depths=(3, 6, 5), scale=300.0):
+    rng = np.random.default_rng(seed)
+    return Forest.from_trees([random_tree(rng, d, k, 40 * 2500.0, scale) for d in depths])
+
+
+def random_depth(seed, shape=(29, 41)):
+    rng = np.random.default_rng(seed)
+    depth = rng.integers(1500, 4000, size=shape).astype(np.uint16)
+    depth[rng.random(shape) < 0.1] = 0
+    depth[rng.random(shape) < 0.02] = 12000  # beyond the background constant
+    return depth
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+@pytest.mark.parametrize("seed", range(3))
+def test_predict_matches_reference(k, seed):
+    forest = random_forest(seed, k)
+    depth = random_depth(seed + 10)
+    got = predict_proba(forest, depth)
+    np.testing.assert_array_equal(got, predict_reference(forest, depth))
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_apply_matches_reference(k):
+    forest = random_forest(20 + k, k)
+    depth = random_depth(30 + k)
+    leaves = apply(forest, depth)
+    assert leaves.shape == (forest.n_trees, *depth.shape)
+    np.testing.assert_array_equal(leaves[:, depth > 0], apply_reference(forest, depth))
+    assert np.all(leaves[:, depth == 0] == -1)
+    assert np.all(forest.left[leaves[:, depth > 0]] == -1)
+
+
+def test_trees_of_unequal_depth_and_a_lone_leaf():
+    rng = np.random.default_rng(4)
+    trees = [random_tree(rng, 0, 2, 1e5), random_tree(rng, 7, 2, 1e5), random_tree(rng, 1, 2, 1e5)]
+    forest = Forest.from_trees(trees)
+    assert forest.depth == 7 and node_depths(forest.left, forest.roots)[forest.roots].max() == 0
+    depth = random_depth(5, (17, 64))
+    np.testing.assert_array_equal(predict_proba(forest, depth), predict_reference(forest, depth))
+
+
+def test_posterior_is_the_mean_of_leaf_distributions():
+    forest = random_forest(7, 2)
+    depth = random_depth(8)
+    proba = predict_proba(forest, depth)
+    has = depth > 0
+    np.testing.assert_allclose(proba[has].sum(axis=1), 1.0, rtol=1e-5)
+    assert np.all(proba[~has] == 0)
+    # one tree alone gives exactly its leaves' rows
+    single = Forest.from_trees([forest.tree(1)])
+    p1 = predict_proba(single, depth)[has]
+    assert (p1[:, None, :] == single.posteriors[None]).all(axis=2).any(axis=1).all()
+
+
+def test_stride_evaluates_a_grid_and_fills_blocks():
+    forest = random_forest(9, 2)
+    depth = random_depth(10, (31, 45))
+    full = predict_proba(forest, depth)
+    for s in (2, 3):
+        fast = predict_proba(forest, depth, stride=s)
+        np.testing.assert_array_equal(fast[::s, ::s], full[::s, ::s])
+        r, c = np.indices(depth.shape)
+        src = fast[r - r % s, c - c % s]
+        has = depth > 0
+        np.testing.assert_array_equal(fast[has], src[has])
+        assert np.all(fast[~has] == 0)
+
+
+def test_labels_and_no_depth():
+    forest = random_forest(11, 2)
+    depth = random_depth(12)
+    proba = predict_proba(forest, depth)
+    lab = predict_labels(forest, depth)
+    assert lab.dtype == np.uint8
+    np.testing.assert_array_equal(lab, labels_from_proba(proba, depth))
+    assert np.all(lab[depth == 0] == labels.NO_DEPTH)
+    has = depth > 0
+    np.testing.assert_array_equal(lab[has], proba[has].argmax(axis=1))
+
+
+def test_reused_output_and_bad_input():
+    forest = random_forest(13, 2)
+    depth = random_depth(14)
+    out = np.full((*depth.shape, labels.NUM_CLASSES), 7.0, np.float32)
+    assert predict_proba(forest, depth, out=out) is out
+    np.testing.assert_array_equal(out, predict_reference(forest, depth))
+    with pytest.raises(ValueError, match="uint16"):
+        predict_proba(forest, depth.astype(np.float32))
+    with pytest.raises(ValueError, match="out must be"):
+        predict_proba(forest, depth, out=np.empty((3, 3, 11), np.float32))
+    with pytest.raises(ValueError, match="stride"):
+        predict_proba(forest, depth, stride=0)
