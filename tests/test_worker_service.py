@@ -1,0 +1,245 @@
+"""`topseg worker` as a real process on loopback Zenoh, fed and read by the test."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+from topseg.core import crf, forest, metrics, wire
+from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.procedural import procedural_frame
+from topseg.services.zenoh_session import open_session
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(predicate, timeout=20.0, what="condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+K = KINECT_V1.scaled_to(160, 120)
+MOUNT = TopViewMount(K)
+
+
+def frames(seed, n):
+    rng = np.random.default_rng(seed)
+    return [procedural_frame(rng, MOUNT) for _ in range(n)]
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """A tiny forest trained on procedural frames, saved as a model file."""
+    train = frames(0, 20)
+    depth = np.stack([d for d, _ in train])
+    truth = np.stack([t for _, t in train])
+    config = forest.TrainConfig(
+        n_trees=2, max_depth=10, frames_per_tree=20, pixels_per_frame=500,
+        n_candidates=30, n_thresholds=20,
+    )  # fmt: skip
+    path = tmp_path_factory.mktemp("model") / "tiny.npz"
+    forest.save_model(path, forest.train_forest(depth, truth, config, seed=0))
+    return path
+
+
+class Peer:
+    """The test's Zenoh session: publishes depth (BLOCK) and collects labels, stats, tokens."""
+
+    def __init__(self, port, cell, camera="cam0"):
+        self.session = open_session(port=port)
+        self.labels, self.stats, self.alive = [], [], []
+        self.pub = self.session.declare_publisher(
+            wire.depth_key(cell, camera), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        self.session.declare_subscriber(
+            wire.labels_key(cell, camera), lambda s: self.labels.append(s.payload.to_bytes())
+        )
+        self.session.declare_subscriber(
+            wire.stats_key(cell, camera),
+            lambda s: self.stats.append(wire.decode_stats(s.payload.to_bytes())),
+        )
+        self.session.liveliness().declare_subscriber(
+            f"topseg/{cell}/{camera}/alive/**",
+            lambda s: self.alive.append((str(s.key_expr), str(s.kind).rsplit(".", 1)[-1])),
+            history=True,
+        )
+
+    def put_depth(self, depth, seq):
+        self.pub.put(wire.encode_depth(wire.DepthFrame(depth, K, seq, 1000 + seq, "cam0")))
+
+
+@pytest.fixture
+def peers():
+    made = []
+
+    def make(*args):
+        made.append(Peer(*args))
+        return made[-1]
+
+    yield make
+    for p in made:
+        p.session.close()
+
+
+def start_worker(port, model, *extra):
+    cmd = [sys.executable, "-m", "topseg.services.cli", "-v", "worker", "--model", str(model)]
+    cmd += ["--zenoh-port", str(port), *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def stop(proc, timeout=15):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        raise AssertionError(f"worker did not stop on SIGTERM:\n{err}") from None
+    return proc.returncode, err
+
+
+def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_path):
+    port, cell = free_port(), "wk1"
+    peer = peers(port, cell)
+    proc = start_worker(port, model_path, "--lossless", "--cameras", f"{cell}/cam0")
+    try:
+        wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
+        test = frames(1, 6)
+        seqs = [0, 1, 2, 3, 4, 7]  # 5 and 6 never sent: counted as dropped
+        for (depth, _), seq in zip(test, seqs, strict=True):
+            peer.put_depth(depth, seq)
+        wait_for(lambda: len(peer.labels) == len(test), 60, "labels for every frame")
+        wait_for(lambda: len(peer.stats) >= len(test), 10, "stats for every frame")
+        assert peer.alive[0] == (wire.alive_key(cell, "cam0", "worker"), "PUT")
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    wait_for(lambda: peer.alive[-1][1] == "DELETE", 10, "the token to go")
+
+    model, _ = forest.load_model(model_path)
+    got = [wire.decode_labels(b) for b in peer.labels]
+    assert [g.seq for g in got] == seqs
+    scores = metrics.ConfusionAccumulator()
+    for g, (depth, truth), seq in zip(got, test, seqs, strict=True):
+        expected = crf.segment_crf(
+            forest.predict_proba(model, depth), depth, crf.CRFConfig(mode="realtime")
+        )
+        np.testing.assert_array_equal(g.labels, expected)
+        assert (g.stamp_ns, g.frame_id) == (1000 + seq, "cam0")
+        scores.add(truth, g.labels)
+    s = scores.scores()
+    assert s["avg_f1"] > 0.15 and s["accuracy"] > 0.5, s
+
+    last = peer.stats[-1]
+    assert last["counts"] == {"processed": 6, "dropped": 2, "rejected": 0}
+    assert last["role"] == "worker" and last["model_id"] == model_path.name
+    assert set(last["timings_ms"]) == {"receive", "forest", "crf", "publish", "total"}
+    assert last["timings_ms"]["total"] >= last["timings_ms"]["forest"] > 0
+    assert last["seq"] == 7 and last["fps"] > 0
+
+
+def garbage(rng):
+    """Messages a buggy or hostile publisher might send on a depth key."""
+    good = msgpack.unpackb(
+        wire.encode_depth(wire.DepthFrame(np.zeros(K.shape, np.uint16), K)), raw=False
+    )
+    yield rng.bytes(100)
+    yield b""
+    yield msgpack.packb([1, 2, 3])
+    yield msgpack.packb({**good, "width": "640"})  # wrong type
+    yield msgpack.packb({**good, "width": 4096, "height": 4096})  # sizes that lie
+    yield msgpack.packb({**good, "data": good["data"][:-2]})  # short data
+    yield msgpack.packb({**good, "fx": float("nan")})
+    yield msgpack.packb({**good, "seq": -1})
+    yield msgpack.packb({k: v for k, v in good.items() if k != "encoding"})
+    yield msgpack.packb({**good, "v": 2})
+    yield msgpack.packb({**good, "data": "text"})
+
+
+def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
+    port, cell = free_port(), "wk2"
+    peer = peers(port, cell)
+    proc = start_worker(port, model_path, "--lossless", "--crf", "none")
+    try:
+        wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
+        (depth, _), (depth2, _) = frames(2, 2)
+        peer.put_depth(depth, 0)
+        wait_for(lambda: len(peer.labels) == 1, 60, "the first labels")
+        bad = list(garbage(np.random.default_rng(3)))
+        for payload in bad:
+            peer.pub.put(payload)
+        peer.put_depth(depth2, 1)
+        wait_for(lambda: len(peer.labels) == 2, 30, "labels after the garbage")
+        assert proc.poll() is None
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    model, _ = forest.load_model(model_path)
+    expected = forest.labels_from_proba(forest.predict_proba(model, depth2), depth2)
+    np.testing.assert_array_equal(wire.decode_labels(peer.labels[1]).labels, expected)
+    wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == 2, 10, "stats")
+    assert peer.stats[-1]["counts"] == {"processed": 2, "dropped": 0, "rejected": len(bad)}
+    assert "rejected" in err
+
+
+def test_ring_worker_serves_cameras_it_discovers_and_stops_on_sigterm(peers, model_path):
+    port, cell = free_port(), "wk3"
+    peer = peers(port, cell)
+    proc = start_worker(port, model_path)
+    try:
+        ((depth, _),) = frames(4, 1)
+        seq = 0
+        deadline = time.monotonic() + 60
+        while len(peer.labels) < 3 and time.monotonic() < deadline:
+            peer.put_depth(depth, seq)
+            seq += 1
+            time.sleep(0.05)
+        assert len(peer.labels) >= 3, "no labels from a worker started without --cameras"
+        assert (wire.alive_key(cell, "cam0", "worker"), "PUT") in peer.alive
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    wait_for(lambda: peer.alive[-1][1] == "DELETE", 10, "the token to go")
+    seqs = [wire.decode_labels(b).seq for b in peer.labels]
+    assert seqs == sorted(seqs)
+    counts = peer.stats[-1]["counts"]
+    assert counts["processed"] == len(seqs)
+    assert counts["dropped"] == seqs[-1] - seqs[0] + 1 - len(seqs)
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated", "not-a-model"])
+def test_damaged_or_missing_model_refuses_to_start_with_one_line(tmp_path, model_path, damage):
+    path = tmp_path / "model.npz"
+    if damage == "truncated":
+        path.write_bytes(model_path.read_bytes()[:300])
+    elif damage == "not-a-model":
+        path.write_bytes(os.urandom(1000))
+    proc = start_worker(free_port(), path)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    lines = err.strip().splitlines()
+    assert (
+        len(lines) == 1 and lines[0].startswith("topseg worker: error:") and str(path) in lines[0]
+    )
