@@ -109,6 +109,21 @@ def test_sample_offsets_stay_in_patch():
     assert np.abs(px).max() > 30  # the whole patch is used
 
 
+def test_absolute_features_compare_with_the_background():
+    config = FeatureConfig(n_features=400, absolute_fraction=0.25)
+    off = features.sample_offsets(config, np.random.default_rng(1))
+    absolute = off[:, 2] == features.OFF_IMAGE
+    assert 0.18 < absolute.mean() < 0.32 and np.all(off[absolute, 3] == features.OFF_IMAGE)
+    depth = np.random.default_rng(2).integers(500, 4000, (30, 40)).astype(np.uint16)
+    rows, cols = np.nonzero(depth > 0)
+    f = features.extract_features(depth, rows, cols, off[absolute], config.background_mm)
+    u = extract_reference(depth, rows, cols, off[absolute] * [1, 1, 0, 0], config.background_mm)
+    # f = p(s + u/d) - background = (p(s + u/d) - d(s)) - (background - d(s))
+    np.testing.assert_array_equal(
+        f.astype(int), u.astype(int) + depth[rows, cols][:, None].astype(int) - config.background_mm
+    )
+
+
 def test_random_unit_vectors_are_unit():
     w = features.random_unit_vectors(np.random.default_rng(0), 100, 3)
     np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, rtol=1e-6)
