@@ -19,11 +19,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("topseg.services.demo", "run the main job end to end and print what it measured"),
     "train": ("topseg.services.train", "train a forest on a dataset (Dask), write a model file"),
     "evaluate": ("topseg.services.evaluate", "score a model on a dataset: per-class table, JSON, plots"),
+    "segment": ("topseg.services.segment", "segment depth PNGs or recordings offline into label PNGs"),
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
     "devices": ("topseg.services.devices", "list attached depth sensors and how to use them"),
     "datagen": ("topseg.services.datagen", "render a synthetic dataset (Zarr) on Dask; preview it"),
+    "worker": ("topseg.services.worker", "label depth frames from Zenoh (forest + CRF), publish labels and stats"),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
