@@ -25,7 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
     "devices": ("topseg.services.devices", "list attached depth sensors and how to use them"),
     "datagen": ("topseg.services.datagen", "render a synthetic dataset (Zarr) on Dask; preview it"),
-    "worker": ("topseg.services.worker", "label depth frames from Zenoh (forest + CRF), publish labels and stats"),
+    "worker": ("topseg.services.worker", "label depth on Zenoh: forest + CRF, labels, stats"),
+    "viewer": ("topseg.services.viewer", "show depth, labels, points and stats in Rerun"),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"

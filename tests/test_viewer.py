@@ -1,0 +1,145 @@
+"""`topseg viewer --save` as a real process on loopback Zenoh; the .rrd is read back."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from topseg.core import labels, wire
+from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.procedural import procedural_frame
+from topseg.services.viewer import point_cloud
+from topseg.services.zenoh_session import open_session
+
+K = KINECT_V1.scaled_to(160, 120)
+RERUN = Path(sys.executable).with_name("rerun")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(predicate, timeout=20.0, what="condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def rrd_print(path) -> str:
+    out = subprocess.run(
+        [str(RERUN), "rrd", "print", "--verbose", str(path)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    return out.stdout
+
+
+def test_point_cloud_matches_backprojection_of_kept_pixels():
+    rng = np.random.default_rng(0)
+    depth, truth = procedural_frame(rng, TopViewMount(K), missing_fraction=0.1)
+    frame = wire.DepthFrame(depth, K)
+    xyz, ids = point_cloud(frame, truth, 4)
+    sub = depth[::4, ::4]
+    assert len(xyz) == len(ids) == int((sub > 0).sum())
+    np.testing.assert_array_equal(ids, truth[::4, ::4][sub > 0])
+    v, u = np.nonzero(sub > 0)
+    z = sub[sub > 0] / 1000.0
+    np.testing.assert_allclose(xyz[:, 2], z, rtol=1e-6)
+    np.testing.assert_allclose(xyz[:, 0], (4 * u - K.cx) * z / K.fx, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(xyz[:, 1], (4 * v - K.cy) * z / K.fy, rtol=1e-5, atol=1e-6)
+    assert labels.NO_DEPTH not in ids
+
+
+@pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not installed")
+def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
+    port, rrd = free_port(), tmp_path / "view.rrd"
+    session = open_session(port=port)
+    cmd = [sys.executable, "-m", "topseg.services.cli", "-v", "viewer", "--save", str(rrd)]
+    proc = subprocess.Popen(
+        [*cmd, "--zenoh-port", str(port)], stderr=subprocess.PIPE, text=True, env=os.environ
+    )
+    try:
+        block = dict(congestion_control=zenoh.CongestionControl.BLOCK)
+        rng = np.random.default_rng(1)
+        cams = [("vw1", "cam0"), ("vw1", "cam1")]
+        pubs = {
+            (cell, cam, kind): session.declare_publisher(
+                f"{wire.camera_prefix(cell, cam)}/{kind}", **block
+            )
+            for cell, cam in cams
+            for kind in ("depth", "labels", "stats")
+        }
+        for pub in pubs.values():
+            wait_for(lambda p=pub: p.matching_status.matching, 60, "the viewer's subscribers")
+        for seq in range(3):
+            for cell, cam in cams:
+                depth, truth = procedural_frame(rng, TopViewMount(K))
+                stamp = 10**18 + seq * 10**8
+                pubs[cell, cam, "depth"].put(
+                    wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp))
+                )
+                pubs[cell, cam, "labels"].put(
+                    wire.encode_labels(wire.LabelFrame(truth, seq, stamp))
+                )
+                pubs[cell, cam, "stats"].put(
+                    wire.encode_stats({
+                        "stamp_ns": stamp, "seq": seq, "fps": 30.0,
+                        "timings_ms": {"forest": 5.0, "crf": 2.0},
+                        "counts": {"processed": seq + 1, "dropped": 0, "rejected": 0},
+                    })
+                )  # fmt: skip
+        pubs[cams[0][0], cams[0][1], "depth"].put(b"garbage")
+        time.sleep(1.0)  # let the viewer take them in
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        session.close()
+    assert proc.returncode == 0, err
+    assert "1 rejected" in err
+    text = rrd_print(rrd)
+    assert "AnnotationContext" in text
+    for cell, cam in cams:
+        base = f"/{cell}/{cam}"
+        for entity, archetype in [
+            ("/image", "Pinhole"),
+            ("/image/depth", "DepthImage"),
+            ("/image/labels", "SegmentationImage"),
+            ("/points", "Points3D"),
+            ("/stats/ms/forest", "Scalars"),
+            ("/stats/fps", "Scalars"),
+            ("/stats/count/processed", "Scalars"),
+        ]:
+            assert base + entity in text, f"{base + entity} missing from the recording"
+            assert archetype in text, f"no {archetype} in the recording"
+
+
+def test_viewer_stops_after_duration_and_writes_a_valid_rrd(tmp_path):
+    rrd = tmp_path / "empty.rrd"
+    cmd = [sys.executable, "-m", "topseg.services.cli", "viewer", "--save", str(rrd)]
+    proc = subprocess.run(
+        [*cmd, "--duration", "0.5", "--zenoh-port", str(free_port())],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "AnnotationContext" in rrd_print(rrd)
+
+
+def test_viewer_refuses_bad_options_with_one_line(tmp_path):
+    cmd = [sys.executable, "-m", "topseg.services.cli", "viewer", "--save", str(tmp_path / "x.rrd")]
+    proc = subprocess.run([*cmd, "--stride", "0"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "topseg viewer: error: --stride must be >= 1, got 0"
