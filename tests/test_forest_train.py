@@ -258,6 +258,22 @@ def test_tree_is_deterministic_and_seed_dependent():
     assert a.n_nodes != c.n_nodes or not np.array_equal(a.threshold, c.threshold)
 
 
+def test_zarr_frames_train_the_same_tree(tmp_path):
+    zarr = pytest.importorskip("zarr")
+    depth, lab = small_frames()
+    store = zarr.open_group(tmp_path / "ds.zarr", mode="w")
+    zd = store.create_array(
+        "depth", shape=depth.shape, chunks=(1, *depth.shape[1:]), dtype=np.uint16
+    )
+    zl = store.create_array("labels", shape=lab.shape, chunks=(1, *lab.shape[1:]), dtype=np.uint8)
+    zd[:] = depth
+    zl[:] = lab
+    a = ft.train_tree(zd, zl, SMALL, seed=8)
+    b = ft.train_tree(depth, lab, SMALL, seed=8)
+    for name, arr in a.arrays().items():
+        np.testing.assert_array_equal(arr, b.arrays()[name])
+
+
 def test_forest_trees_use_derived_seeds():
     depth, lab = small_frames()
     forest = ft.train_forest(depth, lab, SMALL, seed=11)
