@@ -199,18 +199,24 @@ def _open_arrays(group, path: Path, attrs: dict) -> dict:
     return arrays
 
 
-def _chunk_present(path: Path, name: str, ndim: int) -> np.ndarray:
-    """Frame indices whose chunk file of array `name` exists (default chunk key encoding)."""
-    base = path / name / "c"
-    present = []
-    if base.is_dir():
-        for entry in os.scandir(base):
-            if entry.name.isdigit():
-                present.append(int(entry.name))
-    if ndim == 1:
+def _chunk_present(path: Path, name: str, array) -> np.ndarray:
+    """Frame indices whose chunk file of `array` (one frame per chunk) exists."""
+    sep = array.metadata.chunk_key_encoding.separator
+    rest = sep.join(["0"] * (array.ndim - 1))
+    if sep == ".":  # the dataset's layout: every chunk a file `c.<i>.0.0` in the array's folder
+        tail = f".{rest}" if rest else ""
+        present = []
+        for entry in os.scandir(path / name):
+            parts = entry.name.split(".", 2)
+            if len(parts) >= 2 and parts[0] == "c" and parts[1].isdigit():
+                if entry.name == f"c.{parts[1]}{tail}":
+                    present.append(int(parts[1]))
         return np.asarray(sorted(present), np.int64)
-    # (N, H, W) with one frame per chunk: c/<i>/0/0
-    return np.asarray(sorted(i for i in present if (base / str(i) / "0" / "0").is_file()), np.int64)
+    base = path / name / "c"  # Zarr's default `c/<i>/0/0`
+    if not base.is_dir():
+        return np.zeros(0, np.int64)
+    found = (int(e.name) for e in os.scandir(base) if e.name.isdigit())
+    return np.asarray(sorted(i for i in found if (base / str(i) / rest).is_file()), np.int64)
 
 
 class DatasetWriter:
@@ -324,11 +330,12 @@ def _ensure_arrays(group, path: Path, attrs: dict) -> dict:
     """Create the arrays a creation did not get to (`complete` comes last, so its absence
     means no frame was ever flagged), then open and check all four."""
     n, h, w = attrs["frames"], attrs["height"], attrs["width"]
-    images = dict(chunks=(1, h, w), compressors=_codecs(), fill_value=0)
+    flat = {"name": "default", "separator": "."}  # c.<i>.0.0: no folder per frame to create
+    images = dict(chunks=(1, h, w), compressors=_codecs(), fill_value=0, chunk_key_encoding=flat)
     specs = {
         "depth": dict(shape=(n, h, w), dtype="uint16", **images),
         "labels": dict(shape=(n, h, w), dtype="uint8", **images),
-        "scene": dict(shape=(n,), chunks=(1,), dtype=str, fill_value=""),
+        "scene": dict(shape=(n,), chunks=(1,), dtype=str, fill_value="", chunk_key_encoding=flat),
         "complete": dict(shape=(n,), chunks=(min(n, COMPLETE_CHUNK),), dtype="uint8", fill_value=0),
     }
     if "complete" not in group:
@@ -514,7 +521,7 @@ class Dataset:
             raise DatasetError(f"{self.path}: the 'complete' flags are damaged ({exc})") from exc
         self.indices = np.flatnonzero(self.complete)
         for name in ("depth", "labels", "scene"):
-            have = _chunk_present(self.path, name, self._arrays[name].ndim)
+            have = _chunk_present(self.path, name, self._arrays[name])
             missing = np.setdiff1d(self.indices, have)
             if missing.size:
                 shown = ", ".join(map(str, missing[:5])) + (" ..." if missing.size > 5 else "")

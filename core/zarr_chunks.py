@@ -73,6 +73,7 @@ class ChunkWriter:
         self._encode = encode
         self._sep = separator
         self._ndim = ndim
+        self._folders: set[Path] = set()  # made already: mkdir is slow on some filesystems
 
     @classmethod
     def for_array(cls, array_dir: str | os.PathLike) -> ChunkWriter | None:
@@ -106,13 +107,16 @@ class ChunkWriter:
     def write(self, coords: tuple[int, ...], chunk) -> int:
         """Encode `chunk` and put it at `coords` atomically; returns the bytes written."""
         data = self.encode(chunk)
-        put_atomic(self.chunk_path(coords), data)
+        path = self.chunk_path(coords)
+        if path.parent not in self._folders:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._folders.add(path.parent)
+        put_atomic(path, data)
         return len(data)
 
 
 def put_atomic(path: Path, data: bytes) -> None:
     """Write a temp file beside `path` (Zarr's `.partial` naming), then rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f"{path.name}.{uuid.uuid4().hex}.partial")
     try:
         with open(tmp, "wb") as f:

@@ -6,7 +6,8 @@ frames into a fresh Zarr store exactly as `topseg datagen` writes them: `frames_
 first task submitted to last frame flagged complete. The workers' own clocks split that into
 rendering and writing (compression + chunk files); `ideal_frames_per_s` is what the workers
 would reach if the pipeline cost nothing beyond rendering, and `pipeline_overhead_pct` how
-far below it the run fell. A second timed run replays a few pre-rendered frames instead of
+far below it the run fell. The `*_cpu_ms_per_frame` figures are the worker threads' CPU
+time, which unlike wall time does not grow when other jobs share the cores. A second timed run replays a few pre-rendered frames instead of
 rendering (`replay_frames_per_s`): that is the ceiling the pipeline itself allows
 (compression, writing, scheduling, flags).
 """
@@ -110,6 +111,8 @@ def measure(args: argparse.Namespace) -> dict:
         "frames_per_s": round(main["frames_per_s"], 1),
         "render_ms_per_frame": round(render_ms, 2),
         "write_ms_per_frame": round(write_ms, 2),
+        "render_cpu_ms_per_frame": round(1e3 * main["render_cpu_s"] / n, 2),
+        "write_cpu_ms_per_frame": round(1e3 * main["write_cpu_s"] / n, 2),
         "ideal_frames_per_s": round(ideal, 1),
         "pipeline_overhead_pct": round(100.0 * (1.0 - main["frames_per_s"] / ideal), 1),
         "replay_frames_per_s": round(rep["frames_per_s"], 1),

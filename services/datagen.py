@@ -113,15 +113,18 @@ def render_chunk(path: str, store_key: str, generator: dict, seed: int, indices:
         "source", source_key, lambda: load_factory(generator["factory"])(generator["config"], seed)
     )
     writer = _cached("writer", store_key, lambda: FrameWriter(path))
-    render_s = write_s = 0.0
+    # wall and CPU seconds (CPU of this thread: what the work costs, whatever else runs)
+    clock = {"render_s": 0.0, "write_s": 0.0, "render_cpu_s": 0.0, "write_cpu_s": 0.0}
     for i in indices:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         depth, labels, scene = source(int(i))
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.thread_time()
         writer.write(int(i), depth, labels, scene)
-        render_s += t1 - t0
-        write_s += time.perf_counter() - t1
-    return {"indices": list(indices), "render_s": render_s, "write_s": write_s, "pid": os.getpid()}
+        clock["render_s"] += t1 - t0
+        clock["render_cpu_s"] += c1 - c0
+        clock["write_s"] += time.perf_counter() - t1
+        clock["write_cpu_s"] += time.thread_time() - c1
+    return {"indices": list(indices), **clock, "pid": os.getpid()}
 
 
 # ---------------------------------------------------------------- client side
@@ -190,8 +193,9 @@ def generate(
     The workers get the generator and seed as stored in the dataset's attributes, so what
     is recorded is exactly what rendered the frames.
 
-    Returns figures of the run: frames, seconds, frames_per_s, workers, and the workers'
-    summed render and write seconds.
+    Returns figures of the run: frames, seconds, frames_per_s, workers, workers_used, and
+    the workers' summed render and write seconds, wall (`render_s`, `write_s`) and CPU
+    (`render_cpu_s`, `write_cpu_s`).
     """
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
@@ -202,8 +206,9 @@ def generate(
     generator, seed = writer.attrs["generator"], writer.attrs["seed"]
     workers = len(client.scheduler_info(n_workers=-1)["workers"])
     store_key = f"{writer.path}|{writer.frames}|{writer.attrs['created']}"
-    futures = [
-        client.submit(
+    frames_of = {}
+    for idx in _chunks(todo, chunk):
+        fut = client.submit(
             render_chunk,
             str(writer.path),
             store_key,
@@ -213,9 +218,10 @@ def generate(
             pure=False,
             key=f"datagen-{idx[0]}-{time.monotonic_ns()}",
         )
-        for idx in _chunks(todo, chunk)
-    ]
-    done = render_s = write_s = 0.0
+        frames_of[fut] = idx
+    futures = list(frames_of)
+    done = 0
+    clock = dict.fromkeys(("render_s", "write_s", "render_cpu_s", "write_cpu_s"), 0.0)
     pids: set[int] = set()
     next_log = log_every
     t0 = time.perf_counter()
@@ -228,13 +234,15 @@ def generate(
                 raise dataset_os_error(exc, writer.path, "writing") from exc
             except KilledWorker as exc:
                 raise TopsegError(
-                    f"a worker died (crash or out of memory) rendering frames {exc}; rerun to resume"
+                    f"a worker process died (a crash or out of memory) while rendering frames "
+                    f"{frames_of[fut][0]}.. or others it held; complete frames are kept, rerun "
+                    "the same command to resume"
                 ) from exc
             writer.mark_complete(result["indices"])
             n = len(result["indices"])
             done += n
-            render_s += result["render_s"]
-            write_s += result["write_s"]
+            for k in clock:
+                clock[k] += result[k]
             pids.add(result["pid"])
             rate = done / max(time.perf_counter() - t0, 1e-9)
             bar.update(n)
@@ -258,8 +266,7 @@ def generate(
         "frames_per_s": done / seconds if seconds > 0 else 0.0,
         "workers": workers,
         "workers_used": len(pids),
-        "render_s": render_s,
-        "write_s": write_s,
+        **clock,
     }
 
 

@@ -63,3 +63,15 @@ def failing_source(config: dict, seed: int):
         return (depth, label.astype(np.int32), scene) if index == 5 else (depth, label, scene)
 
     return source
+
+
+def crashing_source(config: dict, seed: int):
+    """Kills its own worker process at frame 3, as a segfault in a renderer would."""
+    import signal
+
+    def source(index: int):
+        if index == 3:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return toy_frame(seed, index, config["noise"])
+
+    return source

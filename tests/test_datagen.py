@@ -147,3 +147,23 @@ def test_the_default_generator_records_its_full_config(tmp_path, two_workers):
         scene = ds.scene(k)
         assert scene["mode"] == "non-modeled"
         assert (ds.labels[k] != 0).any()  # something of the scene is in view
+
+
+def test_a_crashing_worker_is_a_clear_error_and_keeps_what_was_done(tmp_path):
+    import dask
+
+    from topseg.core.errors import TopsegError
+
+    path = tmp_path / "ds.zarr"
+    writer = writer_for(path, "datagen_toy:crashing_source", 8, noise="none")
+    with (
+        dask.config.set({"distributed.scheduler.allowed-failures": 0}),
+        datagen.dask_client(workers=1) as client,
+        writer,
+        pytest.raises(TopsegError, match=r"worker process died .* rerun the same command"),
+    ):
+        datagen.generate(writer, client, chunk=2, progress=False)
+    ds = D.open_dataset(path)
+    assert 3 not in ds.indices and 2 not in ds.indices
+    for k, i in enumerate(ds.indices):
+        np.testing.assert_array_equal(ds.depth[k], toy_frame(5, int(i), "none")[0])

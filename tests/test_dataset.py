@@ -82,14 +82,14 @@ def test_chunks_are_one_frame_each_and_compressed(tmp_path):
     meta = json.loads((path / "depth" / "zarr.json").read_text())
     assert meta["chunk_grid"]["configuration"]["chunk_shape"] == [1, 480, 640]
     assert [c["name"] for c in meta["codecs"]] == ["bytes", "blosc", "crc32c"]
-    size = (path / "depth" / "c" / "0" / "0" / "0").stat().st_size
+    size = (path / "depth" / "c.0.0.0").stat().st_size
     assert size < 480 * 640 * 2 / 2
 
 
 def test_resume_lists_unflagged_frames_and_keeps_the_rest(tmp_path):
     path = tmp_path / "ds.zarr"
     fill(path, frames=6, complete=[0, 1, 4])
-    partial = path / "depth" / "c" / "2" / "0" / "0.deadbeef.partial"
+    partial = path / "depth" / "c.2.0.0.deadbeef.partial"
     partial.write_bytes(b"half a chunk")  # what a SIGKILL mid-write leaves
     with D.DatasetWriter.open(path, attrs(6)) as w:
         assert w.todo().tolist() == [2, 3, 5]
@@ -206,7 +206,7 @@ def test_reader_reports_what_is_not_a_dataset(tmp_path):
 def test_reader_reports_a_damaged_chunk(tmp_path):
     path = tmp_path / "ds.zarr"
     fill(path, frames=3)
-    chunk = path / "labels" / "c" / "1" / "0" / "0"
+    chunk = path / "labels" / "c.1.0.0"
     data = bytearray(chunk.read_bytes())
     data[len(data) // 2] ^= 0xFF
     chunk.write_bytes(bytes(data))
@@ -221,7 +221,7 @@ def test_reader_reports_a_damaged_chunk(tmp_path):
 def test_reader_reports_a_missing_chunk_and_a_missing_array(tmp_path):
     path = tmp_path / "ds.zarr"
     fill(path, frames=3)
-    os.unlink(path / "depth" / "c" / "2" / "0" / "0")
+    os.unlink(path / "depth" / "c.2.0.0")
     with pytest.raises(
         D.DatasetError, match=r"1 complete frame\(s\) lack their 'depth' chunk \(frames 2\)"
     ):
