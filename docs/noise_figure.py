@@ -53,7 +53,11 @@ def colour_depth(d: np.ndarray, lo: float, hi: float) -> np.ndarray:
 
 
 def main() -> None:
+    import warnings
+
     import matplotlib
+
+    warnings.filterwarnings("ignore", message="All-NaN slice")  # depth bins a source lacks
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
