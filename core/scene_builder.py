@@ -156,6 +156,13 @@ def _create_compound(client: int, parts, label: int) -> Body:
     return read_shapes(client, uid, lambda _link: label)
 
 
+def _grid(lo: float, hi: float, step: float) -> list[float]:
+    """The heights of the grid step that lie in [lo, hi]."""
+    return [
+        k * step for k in range(int(np.ceil(lo / step - 1e-9)), int(np.floor(hi / step + 1e-9)) + 1)
+    ]
+
+
 class SceneBuilder:
     """Owns the pooled bodies of one pybullet client and poses them for each scene."""
 
@@ -248,6 +255,18 @@ class SceneBuilder:
                 )
             )
         return self._humans[key]
+
+    def warm(self, object_heights: dict, human_heights: tuple[float, float]) -> None:
+        """Create one body per furniture (kind, variant, height) and one humanoid per height in
+        these ranges (metres, per class), so frames never wait for pybullet to create shapes
+        (~1.5 s for the paper's ranges)."""
+        for kind, cls in furniture.CLASS_OF_KIND.items():
+            lo, hi = object_heights[cls]
+            for variant in range(furniture.N_VARIANTS):
+                for h in _grid(lo, hi, furniture.HEIGHT_STEP_M):
+                    self._furniture_body(kind, variant, h, 0)
+        for h in _grid(*human_heights, humanoid.HEIGHT_STEP_M):
+            self._human_body(h)
 
     @property
     def n_bodies(self) -> int:

@@ -100,7 +100,9 @@ class SyntheticFrame:
 class Synthesizer:
     """Owns one pybullet DIRECT client with its pooled bodies; renders frames by seed."""
 
-    def __init__(self, config: SynthesisConfig | None = None) -> None:
+    def __init__(self, config: SynthesisConfig | None = None, warm: bool = True) -> None:
+        """`warm` creates every pooled pybullet body the config can draw up front (~1.5 s), so
+        no frame waits for one; without it bodies are created when first needed."""
         import pybullet as p
 
         from topseg.core.scene_builder import SceneBuilder
@@ -113,6 +115,9 @@ class Synthesizer:
         self._p = p
         self.client = p.connect(p.DIRECT)
         self.builder = SceneBuilder(self.client, self.config.camera)
+        if warm:
+            d = self.config.density
+            self.builder.warm(d.object_height_m, d.human_height_m)
 
     def rngs(self, frame_seed: int) -> tuple[np.random.Generator, np.random.Generator]:
         """The scene's and the noise's generators for `frame_seed`."""

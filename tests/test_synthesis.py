@@ -52,18 +52,28 @@ def test_the_same_seed_gives_the_same_frame_and_others_differ(synth):
     a, b = synth.render(11), synth.render(12)
     assert _digest(synth.render(11)) == _digest(a)
     assert _digest(a) != _digest(b)
-    with Synthesizer(SynthesisConfig(noise="kinect", seed=4)) as other:
+    with Synthesizer(SynthesisConfig(noise="kinect", seed=4), warm=False) as other:
         assert _digest(other.render(11)) != _digest(a)  # the config's seed matters too
     for bad in (-1, 1.5, "3", True):
         with pytest.raises(TopsegError, match="frame_seed"):
             synth.render(bad)
 
 
+def test_a_warm_synthesizer_never_creates_bodies_while_rendering(synth):
+    b = synth.builder
+    furniture_keys, humans = set(b._furniture), set(b._humans)
+    assert len(furniture_keys) == 8 * 4 * 21 and len(humans) == 31  # kinds x variants x heights
+    for i in range(30):
+        synth.render(1000 + i)
+    assert set(b._furniture) == furniture_keys and set(b._humans) == humans  # copies aside
+
+
 def test_the_same_seed_gives_the_same_frame_in_another_process(synth):
+    """The other process does not warm its pools: frames cannot depend on what is pooled."""
     code = (
         "import hashlib, json, sys;"
         "from topseg.core.synthesis import SynthesisConfig, Synthesizer;"
-        "s = Synthesizer(SynthesisConfig(noise='kinect', seed=3));"
+        "s = Synthesizer(SynthesisConfig(noise='kinect', seed=3), warm=False);"
         "f = s.render(7);"
         "h = hashlib.sha256(); h.update(f.depth.tobytes()); h.update(f.labels.tobytes());"
         "h.update(json.dumps(f.scene, sort_keys=True).encode()); print(h.hexdigest())"
@@ -77,7 +87,7 @@ def test_the_same_seed_gives_the_same_frame_in_another_process(synth):
 def test_a_known_table_appears_where_and_as_deep_as_it_should():
     table = PlacedObject(0, "table_rect", 0, 0.75, 0.5, -0.4, 0.0, 0.0)
     scene = Scene("modeled", "industrial_workspace", (-2.3, -1.8), (2.3, 1.8), 0.3, 0.3, [table])
-    with Synthesizer(SynthesisConfig(noise="none")) as s:
+    with Synthesizer(SynthesisConfig(noise="none"), warm=False) as s:
         f = s.render_scene(scene)
     k = TOP_VIEW.intrinsics
     z = 3.5 - 0.75
@@ -92,7 +102,9 @@ def test_a_known_table_appears_where_and_as_deep_as_it_should():
 
 
 def test_non_modeled_frames_hold_one_item():
-    with Synthesizer(SynthesisConfig(mode="non-modeled", noise="gaussian:15", room="office")) as s:
+    with Synthesizer(
+        SynthesisConfig(mode="non-modeled", noise="gaussian:15", room="office"), warm=False
+    ) as s:
         for i in range(4):
             sc = s.render(i).scene
             assert len(sc["objects"]) + (sc["human"] is not None) == 1 and not sc["relations"]
@@ -122,7 +134,7 @@ def test_config_round_trips_and_validates():
 
 
 def test_a_closed_synthesizer_refuses_to_render():
-    s = Synthesizer(SynthesisConfig(noise="none"))
+    s = Synthesizer(SynthesisConfig(noise="none"), warm=False)
     s.close()
     s.close()  # twice is fine
     with pytest.raises(TopsegError, match="closed"):
@@ -134,13 +146,17 @@ def test_bench_reports_each_stage():
 
     from topseg.services import bench_synthesis
 
-    args = argparse.Namespace(frames=3, warmup=1, mode="non-modeled", noise="gaussian:15", threads=0)
+    args = argparse.Namespace(
+        frames=3, warmup=1, mode="non-modeled", noise="gaussian:15", threads=0
+    )
     out = bench_synthesis.measure(args)
     for stage in ("sample", "build", "raycast", "noise"):
         assert out[f"{stage}_ms_p50"] > 0
     assert out["frames"] == 3 and out["frames_per_s"] > 0 and out["noise"] == "gaussian:15"
     with pytest.raises(TopsegError, match="frames"):
-        bench_synthesis.measure(argparse.Namespace(frames=0, warmup=0, mode="modeled", noise="none", threads=0))
+        bench_synthesis.measure(
+            argparse.Namespace(frames=0, warmup=0, mode="modeled", noise="none", threads=0)
+        )
 
 
 @pytest.mark.slow
