@@ -55,7 +55,7 @@ def assert_frames_whole(path: Path, expect_all: int | None = None) -> int:
 
 
 def test_a_killed_run_resumes_to_the_same_frames(tmp_path):
-    out, frames = tmp_path / "ds.zarr", 60
+    out, frames = tmp_path / "ds.zarr", 40
     proc = subprocess.Popen(
         datagen_args(out, frames), env=env(TOY_FRAME_S="0.1"), start_new_session=True,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
