@@ -9,7 +9,7 @@ One tree:
    few pixels gives all it has and the rest goes to the others). Leaf posteriors are
    therefore class distributions under a uniform class prior, as in Shotton et al.
 3. **Features once.** The tree draws its own pool of PC offset pairs and extracts the
-   (n_samples, PC) int16 feature matrix once (2 bytes per value: the paper's F = 1600,
+   (PC, n_samples) int16 feature matrix once (feature-major, so a candidate streams rows) (2 bytes per value: the paper's F = 1600,
    2000 pixels per frame and PC = 300 take 1.9 GB per tree, so two trees train side by
    side in 8 GB).
 4. **Randomized node optimisation**, level by level, all nodes of a level in parallel.
@@ -156,41 +156,47 @@ def _node_state(key, node_id):
 
 @numba.njit(cache=True)
 def _responses(fm, ids, feats, weights, out):
-    """out[i] = sum_j weights[j] * fm[ids[i], feats[j]] in float32 (same order as inference)."""
-    for i in range(ids.shape[0]):
-        acc = np.float32(0.0)
-        for j in range(feats.shape[0]):
-            acc += weights[j] * np.float32(fm[ids[i], feats[j]])
-        out[i] = acc
+    """out[i] = sum_j weights[j] * fm[feats[j], ids[i]] in float32 (same order as inference).
+
+    `fm` is feature-major (PC, n_samples): a node's ids are ascending, so each feature is
+    read as one forward pass over its row.
+    """
+    out[:] = 0.0
+    for j in range(feats.shape[0]):
+        row = fm[feats[j]]
+        wj = weights[j]
+        for i in range(ids.shape[0]):
+            out[i] += wj * np.float32(row[ids[i]])
 
 
 @numba.njit(cache=True)
-def _bin_histogram(resp, y, thresholds, n_classes):
-    """(K + 1, C) counts: row b holds samples with exactly b sorted thresholds <= response.
+def _bin_histogram(resp, y, thresholds, hist):
+    """Fill hist (K + 1, C): row b counts samples with exactly b sorted thresholds <= response.
 
     A sample goes left of threshold k (response < t_k) iff its bin is <= k.
     """
     k = thresholds.shape[0]
-    hist = np.zeros((k + 1, n_classes), np.int64)
+    hist[:] = 0
     for i in range(resp.shape[0]):
-        lo, hi = 0, k  # bisect right
         v = resp[i]
+        lo, hi = 0, k  # bisect right
         while lo < hi:
             mid = (lo + hi) >> 1
             if v < thresholds[mid]:
                 hi = mid
             else:
                 lo = mid + 1
-        hist[lo, y[i]] += 1
-    return hist
+        b = lo
+        hist[b, y[i]] += 1
 
 
 @numba.njit(cache=True)
-def _gains_from_histogram(hist, xlogx):
-    """Information gain (bits) of each of the K thresholds from the (K + 1, C) bin counts.
+def _gains_from_histogram(hist, xlogx, gains):
+    """Fill gains (K,) with the information gain (bits) of each threshold from hist (K + 1, C).
 
     With S(counts) = n log2 n - sum_c n_c log2 n_c (= n H), the gain of a split is
-    (S(parent) - S(left) - S(right)) / n; `xlogx[i]` = i log2 i.
+    (S(parent) - S(left) - S(right)) / n; `xlogx[i]` = i log2 i. Only classes present in
+    the node are visited.
     """
     k = hist.shape[0] - 1
     n_classes = hist.shape[1]
@@ -198,20 +204,24 @@ def _gains_from_histogram(hist, xlogx):
     for b in range(k + 1):
         for c in range(n_classes):
             total[c] += hist[b, c]
-    present = np.nonzero(total)[0]
+    present = np.empty(n_classes, np.int64)
+    n_present = 0
     n = 0
     s_parent = 0.0
-    for c in present:
-        n += total[c]
-        s_parent -= xlogx[total[c]]
+    for c in range(n_classes):
+        if total[c] > 0:
+            present[n_present] = c
+            n_present += 1
+            n += total[c]
+            s_parent -= xlogx[total[c]]
     s_parent += xlogx[n]
-    gains = np.zeros(k, np.float64)
     left = np.zeros(n_classes, np.int64)
     n_left = 0
     for t in range(k):
         s_left = 0.0
         s_right = 0.0
-        for c in present:
+        for q in range(n_present):
+            c = present[q]
             left[c] += hist[t, c]
             n_left += hist[t, c]
             s_left -= xlogx[left[c]]
@@ -219,7 +229,6 @@ def _gains_from_histogram(hist, xlogx):
         s_left += xlogx[n_left]
         s_right += xlogx[n - n_left]
         gains[t] = (s_parent - s_left - s_right) / n
-    return gains
 
 
 @numba.njit(cache=True)
@@ -267,7 +276,9 @@ def _best_split(fm, y, ids, state, n_classes, n_candidates, n_thresholds, k, lin
     best_feats = np.zeros(k, np.int64)
     best_weights = np.zeros(k, np.float32)
     best_thr = np.float32(0.0)
-    n_features = fm.shape[1]
+    hist = np.empty((n_thr + 1, n_classes), np.int64)
+    gains = np.empty(n_thr, np.float64)
+    n_features = fm.shape[0]
     for _ in range(n_candidates):
         for j in range(k):
             feats[j] = _randint(state, n_features)
@@ -281,7 +292,8 @@ def _best_split(fm, y, ids, state, n_classes, n_candidates, n_thresholds, k, lin
         for t in range(n_thr):
             thr[t] = resp[_randint(state, m)]
         thr.sort()
-        gains = _gains_from_histogram(_bin_histogram(resp, ys, thr, n_classes), xlogx)
+        _bin_histogram(resp, ys, thr, hist)
+        _gains_from_histogram(hist, xlogx, gains)
         for t in range(n_thr):
             if gains[t] > best_gain:
                 best_gain = gains[t]
@@ -438,14 +450,14 @@ def gather_samples(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bag frames, sample pixels, extract features.
 
-    Returns (features (n, PC) int16, labels (n,) uint8, where (n, 3) int64 rows of
-    (frame, row, col)); `where` lets tests and tools replay a tree on its own samples.
+    Returns (features (PC, n) int16, feature-major; labels (n,) uint8; where (n, 3) int64
+    rows of (frame, row, col)); `where` lets tests and tools replay a tree on its own samples.
     """
     n_frames = _check_frames(depth_frames, label_frames)
     draws = np.sort(rng.integers(0, n_frames, size=min(config.frames_per_tree, n_frames)))
     frames, repeats = np.unique(draws, return_counts=True)
     cap = len(draws) * config.pixels_per_frame
-    fm = np.empty((cap, offsets.shape[0]), np.int16)
+    fm = np.empty((offsets.shape[0], cap), np.int16)
     y = np.empty(cap, np.uint8)
     where = np.empty((cap, 3), np.int64)
     n = 0
@@ -455,15 +467,15 @@ def gather_samples(
         for _ in range(times):
             rows, cols, ys = sample_pixels(depth, label, config.pixels_per_frame, rng)
             end = n + rows.size
-            extract_features(
-                depth, rows, cols, offsets, config.features.background_mm, out=fm[n:end]
-            )
+            fm[:, n:end] = extract_features(
+                depth, rows, cols, offsets, config.features.background_mm
+            ).T
             y[n:end] = ys
             where[n:end] = np.stack([np.full(rows.size, frame), rows, cols], axis=1)
             n = end
     if n == 0:
         raise TopsegError("the bagged frames hold no labelled pixels with depth")
-    return fm[:n], y[:n], where[:n]
+    return fm[:, :n], y[:n], where[:n]  # a view: copying would double the peak memory
 
 
 # --- trees and forests ---------------------------------------------------------------------
@@ -575,7 +587,7 @@ def train_tree(
     t0 = time.perf_counter()
     fm, y, _ = gather_samples(depth_frames, label_frames, config, rng, offsets)
     log.debug(
-        "tree seed %d: %d samples x %d features in %.1f s",
+        "tree seed %d: %d features x %d samples in %.1f s",
         seed,
         *fm.shape,
         time.perf_counter() - t0,

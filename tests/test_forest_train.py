@@ -46,7 +46,7 @@ class SplitMix:
 def responses_reference(fm, ids, feats, weights):
     acc = np.zeros(len(ids), np.float32)
     for j in range(len(feats)):
-        acc = acc + weights[j] * fm[ids, feats[j]].astype(np.float32)
+        acc = acc + weights[j] * fm[feats[j], ids].astype(np.float32)
     return acc
 
 
@@ -80,7 +80,7 @@ def best_split_reference(fm, y, ids, key, node_id, n_cand, n_thr, k, linear, cap
     ys = y[sub]
     best = (-1.0, None, None, None)
     for _ in range(n_cand):
-        feats = np.array([rng.randint(fm.shape[1]) for _ in range(k)])
+        feats = np.array([rng.randint(fm.shape[0]) for _ in range(k)])
         weights = rng.unit_vector(k).astype(np.float32) if linear else np.ones(k, np.float32)
         resp = responses_reference(fm, sub, feats, weights)
         thr = np.sort(np.array([resp[rng.randint(m)] for _ in range(min(n_thr, m))]))
@@ -117,7 +117,7 @@ def test_unit_vector_is_uniform_direction():
 @pytest.mark.parametrize("seed", range(3))
 def test_responses_match_reference(seed):
     rng = np.random.default_rng(seed)
-    fm = rng.integers(-9000, 9000, size=(300, 50)).astype(np.int16)
+    fm = rng.integers(-9000, 9000, size=(50, 300)).astype(np.int16)
     ids = rng.choice(300, 120, replace=False)
     feats = rng.integers(0, 50, size=3)
     weights = rng.normal(size=3).astype(np.float32)
@@ -134,20 +134,36 @@ def test_histogram_gains_match_brute_force(seed):
     y = rng.integers(0, rng.integers(2, n_cls + 1), size=n)
     resp = np.round(rng.normal(size=n) * 50).astype(np.float32)  # ties on purpose
     thr = np.sort(resp[rng.integers(0, n, size=min(40, n))])
-    hist = ft._bin_histogram(resp, y, thr, n_cls)
+    hist = np.full((thr.size + 1, n_cls), -1, np.int64)
+    ft._bin_histogram(resp, y, thr, hist)
     assert hist.sum() == n
     # bin b = number of thresholds <= response
     bins = np.searchsorted(thr, resp, side="right")
     np.testing.assert_array_equal(hist.sum(axis=1), np.bincount(bins, minlength=thr.size + 1))
-    gains = ft._gains_from_histogram(hist, ft._xlogx(n + 1))
+    gains = np.empty(thr.size)
+    ft._gains_from_histogram(hist, ft._xlogx(n + 1), gains)
     np.testing.assert_allclose(gains, gains_reference(resp, y, thr, n_cls), atol=1e-12)
+
+
+def test_bins_at_the_edges():
+    thr = np.array([5, 5, 7], np.float32)
+    resp = np.array([4, 5, 6, 7, 8], np.float32)
+    hist = np.empty((4, 11), np.int64)
+    ft._bin_histogram(resp, np.zeros(5, np.int64), thr, hist)
+    assert hist[:, 0].tolist() == [1, 0, 2, 2]  # searchsorted right: 0, 2, 2, 3, 3
+    one = np.empty((2, 11), np.int64)
+    ft._bin_histogram(resp, np.zeros(5, np.int64), np.array([6], np.float32), one)
+    assert one[:, 0].tolist() == [2, 3]
 
 
 def test_gain_is_parent_entropy_for_a_perfect_split():
     resp = np.array([1, 2, 3, 10, 11, 12], np.float32)
     y = np.array([0, 0, 0, 5, 5, 5])
     thr = np.array([10], np.float32)
-    gains = ft._gains_from_histogram(ft._bin_histogram(resp, y, thr, 11), ft._xlogx(7))
+    hist = np.empty((2, 11), np.int64)
+    ft._bin_histogram(resp, y, thr, hist)
+    gains = np.empty(1)
+    ft._gains_from_histogram(hist, ft._xlogx(7), gains)
     assert gains[0] == pytest.approx(1.0)
 
 
@@ -156,10 +172,10 @@ def test_gain_is_parent_entropy_for_a_perfect_split():
 )
 def test_best_split_matches_reference(linear, k, n, cap):
     rng = np.random.default_rng(n + k)
-    fm = rng.integers(-3000, 3000, size=(500, 8)).astype(np.int16)
+    fm = rng.integers(-3000, 3000, size=(8, 500)).astype(np.int16)
     y = rng.integers(0, 4, size=500)
     # make feature 7 informative so the best split is not a coin flip
-    fm[:, 7] = (y * 1000 + rng.integers(-400, 400, size=500)).astype(np.int16)
+    fm[7] = (y * 1000 + rng.integers(-400, 400, size=500)).astype(np.int16)
     ids = np.sort(rng.choice(500, n, replace=False))
     key, node_id = 1234567, 9
     state = ft._node_state(key, node_id)
@@ -179,7 +195,7 @@ def test_best_split_matches_reference(linear, k, n, cap):
 
 def test_partition_is_stable_and_matches_reference():
     rng = np.random.default_rng(0)
-    fm = rng.integers(-100, 100, size=(200, 10)).astype(np.int16)
+    fm = rng.integers(-100, 100, size=(10, 200)).astype(np.int16)
     ids = rng.permutation(200)[:150].astype(np.int64)
     feats = np.array([2, 5])
     w = np.array([0.6, -0.8], np.float32)
