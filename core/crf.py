@@ -278,10 +278,13 @@ def segment_exact(
 
 
 def segment_argmax(proba: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Per-pixel argmax of the posteriors; NO_DEPTH where there is no depth."""
-    out = np.argmax(proba, axis=2).astype(np.uint8)
-    out[~valid] = L.NO_DEPTH
-    return out
+    """Per-pixel argmax of the posteriors; NO_DEPTH where there is no depth.
+
+    A numba pass (~1 ms a frame; numpy's argmax over the class axis takes ~13 ms).
+    """
+    from topseg.core.crf_realtime import argmax_confidence
+
+    return argmax_confidence(np.ascontiguousarray(proba, np.float32), np.asarray(valid))[0]
 
 
 def segment_crf(proba: np.ndarray, depth_u16: np.ndarray, config: CRFConfig) -> np.ndarray:
