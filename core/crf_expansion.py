@@ -40,7 +40,8 @@ def energy(x, unary, nbr, nw):
 
 @numba.njit(cache=True)
 def expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
-    """Apply the best alpha-expansion move to `x` in place; True if it lowered the energy.
+    """Apply the best alpha-expansion move to `x` in place; returns how much it lowered
+    the energy (0: no move helps, `x` unchanged).
 
     `ux[p]` is p's unary under `x` (kept up to date), `unary_t` the unaries as (K, N).
     `loc`, `nodes` and `slack` (N,) are scratch buffers. y_p = 0 keeps x_p (source side
@@ -68,7 +69,7 @@ def expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
         else:
             loc[p] = -1
     if m == 0:
-        return False
+        return 0
     stack = np.empty(m, np.int64)
     top = 0
     for i in range(m):  # edges to sites left out in the first pass
@@ -105,7 +106,7 @@ def expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
             k += 1
     m = k
     if m == 0:
-        return False
+        return 0
     # 2. the move as a min cut
     ne = 0
     for i in range(m):
@@ -154,19 +155,19 @@ def expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
         keep_all += c0[i]
     cut, in_source = mincut(m, eu, ev, cuv, cvu, c1, c0)
     if cut >= keep_all:
-        return False
+        return 0
     for i in range(m):
         if not in_source[i]:
             p = nodes[i]
             x[p] = alpha
             ux[p] = ua[p]
-    return True
+    return keep_all - cut
 
 
 @numba.njit(cache=True)
-def alpha_expansion(unary, nbr, nw, x0, max_cycles=100):
-    """Labels (int64) from `x0` by expansion moves, label after label, until a whole
-    round of labels brings no change (or `max_cycles` rounds)."""
+def expansion_run(unary, nbr, nw, x0, max_cycles=100):
+    """(labels (int64), energy decrease) from `x0` by expansion moves, label after label,
+    until a whole round of labels brings no change (or `max_cycles` rounds)."""
     n, k = unary.shape
     x = x0.astype(np.int64).copy()
     wsum = np.zeros(n, np.int64)
@@ -181,16 +182,25 @@ def alpha_expansion(unary, nbr, nw, x0, max_cycles=100):
     loc = np.empty(n, np.int64)
     nodes = np.empty(n, np.int64)
     slack = np.empty(n, np.int64)
+    gain = 0
     last_change = -1  # move number of the last move that changed x
     move = 0
     for _ in range(max_cycles):
         for alpha in range(k):
             if move >= k and move - last_change >= k:  # all failed since the last change
-                return x
-            if expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
+                return x, gain
+            g = expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack)
+            if g > 0:
+                gain += g
                 last_change = move
             move += 1
-    return x
+    return x, gain
+
+
+@numba.njit(cache=True)
+def alpha_expansion(unary, nbr, nw, x0, max_cycles=100):
+    """Labels (int64) from `x0` by expansion moves (`expansion_run` without the gain)."""
+    return expansion_run(unary, nbr, nw, x0, max_cycles)[0]
 
 
 def grid_neighbours(h: int, w: int, wh: np.ndarray, wv: np.ndarray, index: np.ndarray):

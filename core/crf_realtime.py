@@ -27,7 +27,7 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.crf import ENERGY_SCALE, CRFConfig, edge_weights
-from topseg.core.crf_expansion import alpha_expansion, energy
+from topseg.core.crf_expansion import expansion_run
 
 
 @numba.njit(cache=True)
@@ -212,6 +212,18 @@ def float_gain(proba, before, after, pix, wh, wv, eps):
     return gain
 
 
+@numba.njit(cache=True)
+def _solve_band(unary, nbr, nw, init, cycles):
+    """Expansion on the band: (labels as uint8, integer energy decrease, pixels changed)."""
+    x, gain = expansion_run(unary, nbr, nw, init, cycles)
+    out = np.empty(x.shape[0], np.uint8)
+    changed = 0
+    for r in range(x.shape[0]):
+        out[r] = x[r]
+        changed += x[r] != init[r]
+    return out, gain, changed
+
+
 def band_mask(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.ndarray:
     """(H, W) bool: the pixels `segment_realtime` hands to the solver (for benches, viewers)."""
     proba = np.ascontiguousarray(proba, dtype=np.float32)
@@ -239,8 +251,7 @@ def segment_realtime(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) ->
     eps = np.float32(config.eps)
     pix, unary, nbr, nw, init = band_problem(proba, amax, index, n, wh, wv, eps, ENERGY_SCALE)
     cycles = config.cycles if config.cycles > 0 else 1_000_000
-    sol = alpha_expansion(unary, nbr, nw, init, cycles)
-    changed = int(np.count_nonzero(sol != init))
+    sol, gain, changed = _solve_band(unary, nbr, nw, init, cycles)
     if changed == 0:
         return amax
     out = amax.copy()
@@ -249,7 +260,7 @@ def segment_realtime(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) ->
     # exact for the rounded problem; it can differ from the float gain by less than
     # 10 rounding units per changed pixel (its two unaries of <= 5 rounded parts each,
     # and its 4 edges), so only a small integer gain needs the float check.
-    if energy(init, unary, nbr, nw) - energy(sol, unary, nbr, nw) > 10 * changed:
+    if gain > 10 * changed:
         return out
     if float_gain(proba, amax, out, pix, wh, wv, float(config.eps)) > 0:
         return out

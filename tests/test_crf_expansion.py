@@ -8,7 +8,13 @@ import itertools
 import numpy as np
 import pytest
 
-from topseg.core.crf_expansion import alpha_expansion, energy, expansion_move, grid_neighbours
+from topseg.core.crf_expansion import (
+    alpha_expansion,
+    energy,
+    expansion_move,
+    expansion_run,
+    grid_neighbours,
+)
 
 
 def grid_problem(rng, h, w, k, unary_max=2000, weight_max=1500):
@@ -43,9 +49,9 @@ def apply_move(alpha, x, unary, nbr, nw):
     ux = unary[np.arange(n), x].copy()
     wsum = np.where(nbr >= 0, nw, 0).sum(axis=1)
     scratch = [np.empty(n, np.int64) for _ in range(3)]
-    changed = expansion_move(alpha, x, ux, np.ascontiguousarray(unary.T), nbr, nw, wsum, *scratch)
+    gain = expansion_move(alpha, x, ux, np.ascontiguousarray(unary.T), nbr, nw, wsum, *scratch)
     assert np.array_equal(ux, unary[np.arange(n), x])  # kept in step with x
-    return changed
+    return gain
 
 
 def test_energy_matches_numpy():
@@ -94,10 +100,10 @@ def test_each_move_is_the_best_expansion_move(seed):
             candidates[row, free[np.array(take, bool)]] = alpha
         best = energies(candidates, unary, nbr, nw).min()
         before = energy(x, unary, nbr, nw)
-        changed = apply_move(alpha, x, unary, nbr, nw)
+        gain = apply_move(alpha, x, unary, nbr, nw)
         after = energy(x, unary, nbr, nw)
         assert after == min(best, before), (seed, trial)
-        assert changed == (after < before)
+        assert gain == before - after  # the reported gain is the energy's decrease
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -119,8 +125,17 @@ def test_alpha_expansion_against_the_optimum(seed):
         assert e_all.min() <= e <= e_data_opt + 2 * (e_all.min() - e_data_opt)
         hits += e == e_all.min()
         for alpha in range(k):  # converged: no move helps
-            assert not apply_move(alpha, x.copy(), unary, nbr, nw)
+            assert apply_move(alpha, x.copy(), unary, nbr, nw) == 0
     assert hits >= 20  # on these easy problems expansion nearly always finds the optimum
+
+
+def test_run_reports_its_energy_decrease():
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        unary, nbr, nw = grid_problem(rng, 6, 7, 4)
+        x0 = rng.integers(0, 4, 42)
+        x, gain = expansion_run(unary, nbr, nw, x0)
+        assert gain == energy(x0, unary, nbr, nw) - energy(x, unary, nbr, nw) > 0
 
 
 def test_two_labels_reach_the_global_optimum():
@@ -177,7 +192,7 @@ def test_gco_and_numba_results_are_fixed_points_of_each_other():
     gc.destroy_graph()
 
     for alpha in range(k):
-        assert not apply_move(alpha, x_gco.copy(), unary, nbr, nw)
+        assert apply_move(alpha, x_gco.copy(), unary, nbr, nw) == 0
     x0 = np.argmin(unary, axis=1)
     x = alpha_expansion(unary, nbr, nw, x0)
     e_gco, e_numba = energy(x_gco, unary, nbr, nw), energy(x, unary, nbr, nw)
