@@ -243,3 +243,38 @@ def test_damaged_or_missing_model_refuses_to_start_with_one_line(tmp_path, model
     assert (
         len(lines) == 1 and lines[0].startswith("topseg worker: error:") and str(path) in lines[0]
     )
+
+
+def test_worker_labels_a_driver_replay_frame_for_frame(tmp_path, peers, model_path):
+    from topseg.core.recording import RecordingWriter
+
+    test = frames(5, 4)
+    rec = tmp_path / "scene.mcap"
+    with RecordingWriter(rec) as w:
+        for i, (depth, _) in enumerate(test):
+            t = 10**9 + i * 33_000_000
+            w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t)), t)
+    port, cell = free_port(), "wk4"
+    peer = peers(port, cell)
+    worker = start_worker(port, model_path, "--lossless", "--cameras", f"{cell}/cam0")
+    driver = subprocess.Popen(
+        [sys.executable, "-m", "topseg.services.cli", "driver", "--cell", cell,
+         "--source", f"replay:{rec}", "--as-fast-as-possible", "--zenoh-port", str(port)],
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert driver.wait(timeout=120) == 0, driver.stderr.read()
+        wait_for(lambda: len(peer.labels) == len(test), 60, "labels for the whole replay")
+        rc, err = stop(worker)
+    finally:
+        for proc in (worker, driver):
+            if proc.poll() is None:
+                proc.kill()
+    assert rc == 0, err
+    model, _ = forest.load_model(model_path)
+    got = [wire.decode_labels(b) for b in peer.labels]
+    assert [g.seq for g in got] == list(range(len(test)))
+    for g, (depth, _) in zip(got, test, strict=True):
+        proba = forest.predict_proba(model, depth)
+        expected = crf.segment_crf(proba, depth, crf.CRFConfig(mode="realtime"))
+        np.testing.assert_array_equal(g.labels, expected)
