@@ -216,6 +216,11 @@ def test_ring_worker_serves_cameras_it_discovers_and_stops_on_sigterm(peers, mod
             time.sleep(0.05)
         assert len(peer.labels) >= 3, "no labels from a worker started without --cameras"
         assert (wire.alive_key(cell, "cam0", "worker"), "PUT") in peer.alive
+        burst = 300  # far faster than it labels: the ring keeps only the newest frame
+        for i in range(seq, seq + burst):
+            peer.put_depth(depth, i)
+        newest = seq + burst - 1
+        wait_for(lambda: wire.decode_labels(peer.labels[-1]).seq == newest, 60, "the newest frame")
         rc, err = stop(proc)
     finally:
         if proc.poll() is None:
@@ -227,6 +232,7 @@ def test_ring_worker_serves_cameras_it_discovers_and_stops_on_sigterm(peers, mod
     counts = peer.stats[-1]["counts"]
     assert counts["processed"] == len(seqs)
     assert counts["dropped"] == seqs[-1] - seqs[0] + 1 - len(seqs)
+    assert counts["dropped"] > 0 and counts["processed"] < burst
 
 
 @pytest.mark.parametrize("damage", ["missing", "truncated", "not-a-model"])
