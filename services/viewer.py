@@ -83,7 +83,14 @@ class Viewer:
         self.depth: dict[tuple[str, str], OrderedDict] = {}
         self.pinholes: dict[tuple[str, str], Any] = {}
         self.rejected = 0
+        self.seen: set[str] = set()
         rec.log("/", annotation_context(), static=True)
+
+    def _first(self, entity: str) -> None:
+        """Log an entity's first message once (operators and tests see what is live)."""
+        if entity not in self.seen:
+            self.seen.add(entity)
+            log.info("logging %s", entity)
 
     def handle(self, key: str, payload: bytes) -> None:
         from topseg.core import wire
@@ -142,6 +149,7 @@ class Viewer:
         if depth is not None and depth.depth.shape == frame.labels.shape:
             xyz, ids = point_cloud(depth, frame.labels, self.stride)
             self.rec.log(f"{base}/points", rr.Points3D(xyz, class_ids=ids))
+            self._first(f"{base}/points")
 
     def log_stats(self, base: str, stats: dict) -> None:
         import rerun as rr
@@ -155,6 +163,7 @@ class Viewer:
             self.rec.log(f"{base}/stats/fps", rr.Scalars(stats["fps"]))
         for name, n in stats["counts"].items():
             self.rec.log(f"{base}/stats/count/{name}", rr.Scalars(float(n)))
+        self._first(f"{base}/stats")
 
 
 def open_recording(args: argparse.Namespace):

@@ -5,6 +5,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -70,6 +71,14 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
     proc = subprocess.Popen(
         [*cmd, "--zenoh-port", str(port)], stderr=subprocess.PIPE, text=True, env=os.environ
     )
+    lines = []
+
+    def read_stderr():
+        for line in proc.stderr:
+            lines.append(line)
+
+    reader = threading.Thread(target=read_stderr)
+    reader.start()
     try:
         block = dict(congestion_control=zenoh.CongestionControl.BLOCK)
         rng = np.random.default_rng(1)
@@ -101,9 +110,13 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
                     })
                 )  # fmt: skip
         pubs[cams[0][0], cams[0][1], "depth"].put(b"garbage")
-        time.sleep(1.0)  # let the viewer take them in
+        wanted = [f"logging {c}/{m}/{e}" for c, m in cams for e in ("points", "stats")]
+        wanted.append("(1 rejected)")
+        wait_for(lambda: all(w in "".join(lines) for w in wanted), 60, "the viewer's log lines")
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
+        reader.join(timeout=30)
+        proc.wait(timeout=30)
+        err = "".join(lines)
     finally:
         if proc.poll() is None:
             proc.kill()
