@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 from topseg.core.density import MODES
 from topseg.core.errors import TopsegError
@@ -88,3 +89,31 @@ class SyntheticSource(Source):
 def open(arg: str | None, options: SourceOptions) -> SyntheticSource:
     """`synthetic[:OPTIONS]` -> a SyntheticSource (warms its pybullet pools, ~1.5 s)."""
     return SyntheticSource(arg, options)
+
+
+def record(
+    path: str | Path, n_frames: int, arg: str | None = None, fps: float = DEFAULT_FPS
+) -> Path:
+    """Write `n_frames` synthetic frames (depth + truth, 1/fps apart) to an MCAP recording that
+    `replay:PATH` plays back with its ground truth; atomic like every RecordingWriter."""
+    from topseg.core import wire
+    from topseg.core.recording import RecordingWriter
+
+    if n_frames < 1:
+        raise SourceError(f"a recording needs at least one frame, got {n_frames}")
+    source = SyntheticSource(arg, SourceOptions(realtime=False))
+    t0 = time.time_ns()
+    try:
+        with RecordingWriter(path, metadata={"source": source.description}) as w:
+            for frame in source.frames():
+                i = frame.depth.seq
+                stamp = t0 + round(i * 1e9 / fps)
+                depth = DepthFrame(frame.depth.depth, source.intrinsics, i, stamp, "")
+                truth = LabelFrame(frame.truth.labels, i, stamp, "")
+                w.write(wire.depth_key(), wire.encode_depth(depth), log_time_ns=stamp)
+                w.write(wire.truth_key(), wire.encode_labels(truth), log_time_ns=stamp)
+                if i + 1 == n_frames:
+                    break
+    finally:
+        source.close()
+    return Path(path)

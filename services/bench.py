@@ -20,6 +20,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "transport": ("topseg.services.bench_transport", "depth frames over loopback Zenoh"),
     "synthesis": ("topseg.services.bench_synthesis", "synthetic frames, stage by stage"),
     "crf": ("topseg.services.bench_crf", "Potts CRF: realtime vs exact, time and energy"),
+    "pipeline": ("topseg.services.bench_pipeline", "driver -> worker over Zenoh: fps, latency p50/p99, F1"),
 }
 
 

@@ -1,0 +1,277 @@
+"""The live path end to end: driver -> Zenoh -> worker -> Zenoh (-> viewer), as separate processes.
+
+`run_pipeline` starts `topseg worker` (and `topseg viewer --save` when given an .rrd path),
+waits until they say they are ready, then starts `topseg driver`, all peers on a private
+loopback Zenoh port under their own cell. This process subscribes to the camera's depth,
+truth and labels and measures:
+
+- `fps`: labelled frames a second over the time labels came;
+- `latency_p50_ms` / `latency_p99_ms`: driver stamp (the moment the source handed the frame
+  on) -> labels received here, over every labelled frame after the first `WARMUP_FRAMES`;
+- `frames_sent` (depth messages seen), `frames_labelled`, `frames_scored`;
+- `scores`: `ConfusionAccumulator.scores()` of the labels against the truth channel (frames
+  paired by seq; scored after the run so that scoring takes no CPU from the pipeline).
+
+It stops after `duration_s` seconds of labels, or, with no duration, when a finite source (a
+replay) ends; then SIGTERM to the driver, a short wait for labels in flight, SIGTERM to the
+worker and the viewer. The children's logs go to `logs_dir` (a temporary folder by default).
+"""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from topseg.core.errors import TopsegError
+
+CELL = "pipeline"
+CAMERA = "cam0"
+WARMUP_FRAMES = 5
+START_TIMEOUT_S = 180.0
+MAX_SCORED = 3000  # frames kept for scoring (~0.6 MB each)
+DRAIN_S = 1.0  # wait for labels still in flight after the driver stops
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Collector:
+    """Subscriber callbacks: count depth, keep truth and labels by seq, time the labels."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.frames_sent = 0
+        self.truth: dict[int, np.ndarray] = {}
+        self.labels: dict[int, np.ndarray] = {}
+        self.latency_ms: list[float] = []
+        self.first_label_s: float | None = None
+        self.last_label_s: float | None = None
+        self.n_labels = 0
+        self.rejected = 0
+
+    def on_depth(self, _sample) -> None:
+        with self.lock:
+            self.frames_sent += 1
+
+    def on_truth(self, sample) -> None:
+        from topseg.core import wire
+
+        try:
+            frame = wire.decode_labels(sample.payload.to_bytes())
+        except wire.WireError:
+            self.rejected += 1
+            return
+        with self.lock:
+            if len(self.truth) < MAX_SCORED:
+                self.truth[frame.seq] = frame.labels
+
+    def on_labels(self, sample) -> None:
+        from topseg.core import wire
+
+        now_ns, now_s = time.time_ns(), time.monotonic()
+        try:
+            frame = wire.decode_labels(sample.payload.to_bytes())
+        except wire.WireError:
+            self.rejected += 1
+            return
+        with self.lock:
+            self.n_labels += 1
+            if self.first_label_s is None:
+                self.first_label_s = now_s
+            self.last_label_s = now_s
+            if self.n_labels > WARMUP_FRAMES:
+                self.latency_ms.append((now_ns - frame.stamp_ns) / 1e6)
+            if len(self.labels) < MAX_SCORED:
+                self.labels[frame.seq] = frame.labels
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "topseg.services.cli", "-v", *args]
+
+
+class _Children:
+    """The started processes, their log files, and stopping them with SIGTERM."""
+
+    def __init__(self, logs_dir: Path) -> None:
+        self.logs_dir = logs_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, cmd: list[str]) -> None:
+        log = (self.logs_dir / f"{name}.log").open("w")
+        self.procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+        log.close()
+
+    def log_text(self, name: str) -> str:
+        return (self.logs_dir / f"{name}.log").read_text(errors="replace")
+
+    def wait_ready(self, name: str, marker: str, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        proc = self.procs[name]
+        while marker not in self.log_text(name):
+            if proc.poll() is not None:
+                raise TopsegError(f"{name} exited ({proc.returncode}): {self.tail(name)}")
+            if time.monotonic() > deadline:
+                raise TopsegError(f"{name} not ready after {timeout_s:.0f} s: {self.tail(name)}")
+            time.sleep(0.05)
+
+    def tail(self, name: str) -> str:
+        lines = self.log_text(name).strip().splitlines()
+        return lines[-1] if lines else "(no output)"
+
+    def stop(self, name: str, timeout_s: float = 20.0) -> int | None:
+        proc = self.procs.get(name)
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            return proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            return -signal.SIGKILL
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    return float(np.percentile(values, q)) if values else None
+
+
+def run_pipeline(
+    source: str,
+    model: Path,
+    duration_s: float | None,
+    fps: float | None,
+    crf: str = "realtime",
+    rrd: Path | None = None,
+    lossless: bool = False,
+    *,
+    port: int | None = None,
+    logs_dir: Path | None = None,
+) -> dict:
+    """Run driver, worker (and viewer when `rrd` is given) and return the figures.
+
+    Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
+    "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
+    "exit_codes", "logs"}. `duration_s` None runs a finite source to its end (and a live
+    one until SIGINT/SIGTERM reaches this process). Raises TopsegError when a child fails
+    to start.
+    """
+    from topseg.core import wire
+    from topseg.core.metrics import ConfusionAccumulator
+    from topseg.drivers.spec import parse_spec
+    from topseg.services.zenoh_session import open_session
+
+    spec = parse_spec(source)
+    model = Path(model)
+    if not model.is_file():
+        raise TopsegError(
+            f"model file {model} does not exist (make one with scripts/make_model.sh)"
+        )
+    if duration_s is not None and duration_s <= 0:
+        raise TopsegError(f"duration must be > 0 seconds, got {duration_s}")
+    port = port or free_port()
+    logs = Path(logs_dir or tempfile.mkdtemp(prefix="topseg-pipeline-"))
+    logs.mkdir(parents=True, exist_ok=True)
+    zenoh = ["--zenoh-port", str(port)]
+
+    stop = threading.Event()
+    old = {
+        s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)
+    }  # fmt: skip
+    session = open_session(port=port)
+    col = _Collector()
+    subs = [
+        session.declare_subscriber(wire.depth_key(CELL, CAMERA), col.on_depth),
+        session.declare_subscriber(wire.truth_key(CELL, CAMERA), col.on_truth),
+        session.declare_subscriber(wire.labels_key(CELL, CAMERA), col.on_labels),
+    ]
+    kids = _Children(logs)
+    codes: dict[str, int | None] = {}
+    try:
+        worker = ["worker", "--model", str(model), "--crf", crf, "--cameras", f"{CELL}/{CAMERA}"]
+        kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
+        if rrd is not None:
+            kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))
+        kids.wait_ready("worker", "worker ready", START_TIMEOUT_S)
+        if rrd is not None:
+            kids.wait_ready("viewer", "viewer ready", START_TIMEOUT_S)
+        driver = ["driver", "--source", str(spec), "--cell", CELL, "--camera", CAMERA]
+        if fps is not None:
+            driver += ["--fps", str(fps)]
+        if duration_s is not None and spec.kind == "replay":
+            driver.append("--loop")
+        kids.start("driver", _cli(*driver, *zenoh))
+        drv = kids.procs["driver"]
+        while col.first_label_s is None and not stop.is_set():
+            if drv.poll() is not None and drv.returncode != 0:
+                raise TopsegError(f"driver exited ({drv.returncode}): {kids.tail('driver')}")
+            if drv.poll() is not None and col.frames_sent == 0:
+                raise TopsegError(f"driver ended without a frame: {kids.tail('driver')}")
+            stop.wait(0.05)
+        end = None if duration_s is None else time.monotonic() + duration_s
+        while not stop.is_set() and drv.poll() is None:
+            if end is not None and time.monotonic() >= end:
+                break
+            stop.wait(0.05)
+        codes["driver"] = kids.stop("driver")
+        time.sleep(DRAIN_S)
+    finally:
+        for name in kids.procs:
+            if name not in codes:
+                codes[name] = kids.stop(name)
+        for sub in subs:
+            sub.undeclare()
+        session.close()
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+    with col.lock:
+        span = (col.last_label_s or 0.0) - (col.first_label_s or 0.0)
+        acc = ConfusionAccumulator()
+        scored = 0
+        for seq, pred in col.labels.items():
+            truth = col.truth.get(seq)
+            if truth is not None and truth.shape == pred.shape:
+                acc.add(truth, pred)
+                scored += 1
+        return {
+            "source": str(spec),
+            "fps": (col.n_labels - 1) / span if span > 0 else 0.0,
+            "latency_p50_ms": _percentile(col.latency_ms, 50),
+            "latency_p99_ms": _percentile(col.latency_ms, 99),
+            "frames_sent": col.frames_sent,
+            "frames_labelled": col.n_labels,
+            "frames_scored": scored,
+            "scores": acc.scores() if scored else None,
+            "confusion": acc.to_dict()["confusion"] if scored else None,
+            "exit_codes": codes,
+            "logs": str(logs),
+        }
+
+
+def summary(figures: dict) -> str:
+    """Two lines for an operator: throughput and latency, then F1 against the truth."""
+
+    def ms(x):
+        return "-" if x is None else f"{x:.1f} ms"
+
+    line = (
+        f"{figures['frames_labelled']}/{figures['frames_sent']} frames labelled, "
+        f"{figures['fps']:.1f} fps, latency p50 {ms(figures['latency_p50_ms'])}, "
+        f"p99 {ms(figures['latency_p99_ms'])}"
+    )
+    s = figures.get("scores")
+    if s is None:
+        return line + "\nno ground truth on this source: no F1"
+    return line + f"\nF1 against ground truth (mean of classes 1-10): {s['avg_f1']:.3f}"
