@@ -16,11 +16,17 @@ import sys
 #: benchmark -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
     "forest": ("topseg.services.bench_forest", "forest inference ms per 640x480 frame (T=5, D=19)"),
-    "datagen": ("topseg.services.bench_datagen", "datagen end to end on local Dask: frames/s, write cost"),
+    "datagen": (
+        "topseg.services.bench_datagen",
+        "datagen end to end on local Dask: frames/s, write cost",
+    ),
     "transport": ("topseg.services.bench_transport", "depth frames over loopback Zenoh"),
     "synthesis": ("topseg.services.bench_synthesis", "synthetic frames, stage by stage"),
     "crf": ("topseg.services.bench_crf", "Potts CRF: realtime vs exact, time and energy"),
-    "pipeline": ("topseg.services.bench_pipeline", "driver -> worker over Zenoh: fps, latency p50/p99, F1"),
+    "pipeline": (
+        "topseg.services.bench_pipeline",
+        "driver -> worker over Zenoh: fps, latency p50/p99, F1",
+    ),
 }
 
 

@@ -18,8 +18,14 @@ from topseg.core.errors import TopsegError
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("topseg.services.demo", "run the main job end to end and print what it measured"),
     "train": ("topseg.services.train", "train a forest on a dataset (Dask), write a model file"),
-    "evaluate": ("topseg.services.evaluate", "score a model on a dataset: per-class table, JSON, plots"),
-    "segment": ("topseg.services.segment", "segment depth PNGs or recordings offline into label PNGs"),
+    "evaluate": (
+        "topseg.services.evaluate",
+        "score a model on a dataset: per-class table, JSON, plots",
+    ),
+    "segment": (
+        "topseg.services.segment",
+        "segment depth PNGs or recordings offline into label PNGs",
+    ),
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),

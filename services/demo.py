@@ -12,7 +12,9 @@ import time
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--train-frames", type=int, default=24, help="procedural frames to train on")
+    parser.add_argument(
+        "--train-frames", type=int, default=24, help="procedural frames to train on"
+    )
     parser.add_argument("--test-frames", type=int, default=8, help="held-out frames to score")
     parser.add_argument("--trees", type=int, default=3)
     parser.add_argument("--depth", type=int, default=14, help="maximum tree depth")
@@ -38,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
     config = forest.TrainConfig(n_trees=args.trees, max_depth=args.depth)
     t0 = time.perf_counter()
     model = forest.train_forest(depth, truth, config, seed=args.seed)
-    print(f"trained {args.trees} trees of depth <= {args.depth} in {time.perf_counter() - t0:.1f} s")
+    print(
+        f"trained {args.trees} trees of depth <= {args.depth} in {time.perf_counter() - t0:.1f} s"
+    )
 
     modes = ("none", "realtime", "exact")
     totals = {mode: metrics.ConfusionAccumulator() for mode in modes}
@@ -63,5 +67,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"\n{title} on {len(test)} held-out frames")
         print(metrics.format_table(scores))
     n = len(test)
-    print("\nms per 640x480 frame: " + ", ".join(f"{k} {1000 * v / n:.1f}" for k, v in seconds.items()))
+    print(
+        "\nms per 640x480 frame: "
+        + ", ".join(f"{k} {1000 * v / n:.1f}" for k, v in seconds.items())
+    )
     return 0
