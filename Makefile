@@ -16,6 +16,7 @@ $(STAMP): pyproject.toml scripts/install.sh
 ## the whole test suite but the slow soaks (< 25 min on 2 cores)
 test: install
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(PYTEST) -m "not slow" -q
 
 ## everything, slow suites included
@@ -30,6 +31,9 @@ demo: install
 bench: install
 	$(TOPSEG) bench forest
 	$(TOPSEG) bench crf
+	$(TOPSEG) bench synthesis
+	$(TOPSEG) bench datagen
+	$(TOPSEG) bench transport
 
 lint: install
 	$(VENV)/bin/ruff check .
