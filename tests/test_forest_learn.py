@@ -5,7 +5,14 @@ import pytest
 
 from topseg.core import labels, procedural
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.forest import FeatureConfig, TrainConfig, predict_labels, train_forest
+from topseg.core.crf import CRFConfig, segment_crf
+from topseg.core.forest import (
+    FeatureConfig,
+    TrainConfig,
+    predict_labels,
+    predict_proba,
+    train_forest,
+)
 
 # half resolution keeps the test fast; a 32 px patch here spans what 64 px do at 640x480
 MOUNT = TopViewMount(KINECT_V1.scaled_to(320, 240))
@@ -19,9 +26,13 @@ def scenes():
     return train, test
 
 
-def score(forest, test):
+def score(forest, test, crf_mode=None):
     depth, truth = test
-    pred = np.stack([predict_labels(forest, d) for d in depth])
+    if crf_mode is None:
+        pred = np.stack([predict_labels(forest, d) for d in depth])
+    else:
+        config = CRFConfig(mode=crf_mode)
+        pred = np.stack([segment_crf(predict_proba(forest, d), d, config) for d in depth])
     assert np.all(pred[depth == 0] == labels.NO_DEPTH)
     m = truth != labels.NO_DEPTH
     accuracy = float((pred[m] == truth[m]).mean())
@@ -45,6 +56,9 @@ def test_forest_reaches_95_percent_pixel_accuracy(scenes):
     accuracy, recalls = score(forest, test)
     assert accuracy >= 0.95
     assert min(recalls) >= 0.7  # every class is learnt, not only the floor
+    for mode in ("realtime", "exact"):  # the CRF does not lower it
+        crf_accuracy, _ = score(forest, test, mode)
+        assert crf_accuracy >= accuracy, mode
 
 
 def test_paper_features_learn_every_class(scenes):
