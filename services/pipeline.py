@@ -186,9 +186,9 @@ def run_pipeline(
     zenoh = ["--zenoh-port", str(port)]
 
     stop = threading.Event()
-    old = {
-        s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)
-    }  # fmt: skip
+    old = {}
+    if threading.current_thread() is threading.main_thread():  # signals only reach main
+        old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     session = open_session(port=port)
     col = _Collector()
     subs = [
