@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
 from topseg.core.tree import ARRAY_DTYPES, Forest
 
@@ -72,16 +72,8 @@ def save_model(
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"model header is not plain JSON: {exc}") from None
     arrays = {"header": np.frombuffer(blob, np.uint8), **forest.arrays()}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path) as f:
+        np.savez(f, **arrays)
 
 
 def _read_header(npz: Any, path: Path) -> dict[str, Any]:

@@ -18,13 +18,13 @@ from __future__ import annotations
 import os
 import re
 import struct
-import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from topseg.core.atomic import atomic_write
 from topseg.drivers.base import SourceError
 
 WIDTH, HEIGHT = 640, 480
@@ -120,15 +120,9 @@ class DumpFrame:
 
 
 def _atomic_write(path: Path, chunks: Iterable[bytes]) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path) as f:
+        for chunk in chunks:
+            f.write(chunk)
 
 
 def write_dump(

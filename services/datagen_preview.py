@@ -12,8 +12,6 @@ wide and SPACE + rows (tile + SPACE) + LEGEND tall.
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -107,14 +105,10 @@ def write_png(rgb: np.ndarray, out: Path) -> None:
     """Write atomically: a temp file beside `out`, then rename."""
     from PIL import Image
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            Image.fromarray(rgb).save(f, format="PNG")
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from topseg.core.atomic import atomic_write
+
+    with atomic_write(out) as f:
+        Image.fromarray(rgb).save(f, format="PNG")
 
 
 def default_png(path: str) -> Path:

@@ -84,12 +84,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_text(path: Path, text: str) -> None:
     """Atomic: a reader sees the old file or the whole new one."""
-    import os
-    import tempfile
+    from topseg.core.atomic import atomic_write
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as f:
-        f.write(text + "\n")
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    with atomic_write(path) as f:
+        f.write((text + "\n").encode())
