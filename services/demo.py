@@ -1,27 +1,95 @@
 """Run the main job end to end and print what it measured.
 
-Until the live pipeline lands, the demo exercises the segmentation core for real: it draws
-procedural top-view scenes, trains a small forest on some, segments held-out ones with the
-forest and both CRF modes, and prints the per-class table and each stage's time per frame.
+By default: the bundled recording (`recordings/demo.mcap`, synthetic modeled scenes with
+ground truth) is replayed through driver -> Zenoh -> worker -> Zenoh -> viewer, each a
+separate process, with the bundled model; the viewer writes an `.rrd` (and serves the web
+viewer with `--web`). Prints fps, latency p50/p99 and the per-class table against the
+recording's ground truth. Needs no sensor and no display.
+
+`--core` instead exercises the segmentation core alone: it trains a small forest on
+procedural top-view scenes and scores forest, realtime and exact CRF on held-out ones.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--recording", type=Path, default=REPO / "recordings" / "demo.mcap")
+    parser.add_argument("--model", type=Path, default=REPO / "models" / "default.npz")
+    parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
     parser.add_argument(
-        "--train-frames", type=int, default=24, help="procedural frames to train on"
+        "--rrd", type=Path, default=Path("out/demo.rrd"), help="Rerun file the viewer writes"
     )
-    parser.add_argument("--test-frames", type=int, default=8, help="held-out frames to score")
-    parser.add_argument("--trees", type=int, default=3)
-    parser.add_argument("--depth", type=int, default=14, help="maximum tree depth")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--web", action="store_true", help="also serve Rerun's web viewer")
+    parser.add_argument(
+        "--fps", type=float, default=None, help="replay rate (default: the recorded rate, 30 fps)"
+    )
+    parser.add_argument(
+        "--lossless",
+        action="store_true",
+        help="label every frame (the replay waits for the worker)",
+    )
+    core = parser.add_argument_group("--core: the segmentation core on procedural scenes")
+    core.add_argument(
+        "--core", action="store_true", help="run the core demo instead of the live one"
+    )
+    core.add_argument("--train-frames", type=int, default=24, help="procedural frames to train on")
+    core.add_argument("--test-frames", type=int, default=8, help="held-out frames to score")
+    core.add_argument("--trees", type=int, default=3)
+    core.add_argument("--depth", type=int, default=14, help="maximum tree depth")
+    core.add_argument("--seed", type=int, default=0)
 
 
 def run(args: argparse.Namespace) -> int:
+    return run_core(args) if args.core else run_live(args)
+
+
+def run_live(args: argparse.Namespace) -> int:
+    from topseg.core import metrics
+    from topseg.core.errors import TopsegError
+    from topseg.services.pipeline import run_pipeline, summary
+
+    for what, path in (("recording", args.recording), ("model", args.model)):
+        if not path.exists():
+            raise TopsegError(f"no {what} at {path} (rebuild it with `make {what}`)")
+    args.rrd.parent.mkdir(parents=True, exist_ok=True)
+    print(
+        f"replaying {args.recording} through driver -> worker (--crf {args.crf}) -> viewer, "
+        "each a separate process on loopback Zenoh"
+    )
+    if args.web:
+        print("the viewer serves Rerun's web viewer; its address is in the viewer's log")
+    figures = run_pipeline(
+        f"replay:{args.recording}",
+        args.model,
+        duration_s=None,
+        fps=args.fps,
+        crf=args.crf,
+        rrd=args.rrd,
+        lossless=args.lossless,
+        web=args.web,
+    )
+    if figures.get("scores"):
+        print(
+            metrics.format_table(
+                figures["scores"],
+                title=f"labels vs ground truth, {figures['frames_scored']} frames",
+            )
+        )
+    print(summary(figures))
+    print(
+        f"Rerun recording: {args.rrd} (open it with `.venv/bin/rerun {args.rrd}`); logs: {figures['logs']}"
+    )
+    return 0
+
+
+def run_core(args: argparse.Namespace) -> int:
     import numpy as np
 
     from topseg.core import crf, forest, metrics, procedural

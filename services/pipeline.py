@@ -156,6 +156,7 @@ def run_pipeline(
     rrd: Path | None = None,
     lossless: bool = False,
     *,
+    web: bool = False,
     port: int | None = None,
     logs_dir: Path | None = None,
 ) -> dict:
@@ -163,7 +164,7 @@ def run_pipeline(
 
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
     "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
-    "exit_codes", "logs"}. `duration_s` None runs a finite source to its end (and a live
+    "exit_codes", "logs"}. `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
     one until SIGINT/SIGTERM reaches this process). Raises TopsegError when a child fails
     to start.
     """
@@ -203,9 +204,13 @@ def run_pipeline(
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
             kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))
+        if web:
+            kids.start("web-viewer", _cli("viewer", "--web", *zenoh))
         kids.wait_ready("worker", "worker ready", START_TIMEOUT_S)
         if rrd is not None:
             kids.wait_ready("viewer", "viewer ready", START_TIMEOUT_S)
+        if web:
+            kids.wait_ready("web-viewer", "viewer ready", START_TIMEOUT_S)
         driver = ["driver", "--source", str(spec), "--cell", CELL, "--camera", CAMERA]
         if fps is not None:
             driver += ["--fps", str(fps)]

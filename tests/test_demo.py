@@ -1,0 +1,45 @@
+"""`topseg demo` as `make demo` runs it: the bundled recording through the live pipeline."""
+
+import subprocess
+import sys
+
+
+def test_live_demo_labels_the_bundled_recording(tmp_path):
+    rrd = tmp_path / "demo.rrd"
+    r = subprocess.run(
+        [sys.executable, "-m", "topseg.services.cli", "demo", "--rrd", str(rrd)],
+        capture_output=True,
+        text=True,
+        timeout=400,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "F1 against ground truth" in r.stdout
+    assert "mean (1-10)" in r.stdout
+    labelled = int(r.stdout.split(" frames labelled")[0].rsplit("\n", 1)[-1].split("/")[0])
+    assert labelled > 0
+    assert rrd.stat().st_size > 0
+
+
+def test_core_demo_trains_and_scores(tmp_path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "topseg.services.cli",
+            "demo",
+            "--core",
+            "--train-frames",
+            "6",
+            "--test-frames",
+            "2",
+            "--trees",
+            "1",
+            "--depth",
+            "8",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=400,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.count("mean (1-10)") == 3  # forest, realtime CRF, exact CRF
