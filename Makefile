@@ -5,7 +5,7 @@ TOPSEG := $(VENV)/bin/topseg
 STAMP  := $(VENV)/.installed
 PYTEST := $(PY) -m pytest
 
-.PHONY: install test test-all demo bench lint format clean
+.PHONY: install test test-all demo bench lint format clean model recording
 
 install: $(STAMP)
 
@@ -34,6 +34,15 @@ bench: install
 	$(TOPSEG) bench synthesis
 	$(TOPSEG) bench datagen
 	$(TOPSEG) bench transport
+	$(TOPSEG) bench pipeline
+
+## rebuild the bundled model (models/default.npz) from a fresh synthetic dataset
+model: install
+	bash scripts/make_model.sh
+
+## rebuild the bundled demo recording (recordings/demo.mcap)
+recording: install
+	bash scripts/make_recording.sh
 
 lint: install
 	$(VENV)/bin/ruff check .
