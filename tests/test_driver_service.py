@@ -3,13 +3,13 @@
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
+from netutil import free_port, wait_for
 
 from topseg.core import wire
 from topseg.core.camera import KINECT_V1, TopViewMount
@@ -21,21 +21,6 @@ from topseg.services.zenoh_session import default_config_json, open_session
 
 N = 6
 K = KINECT_V1.scaled_to(160, 120)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(predicate, timeout=20.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def frames_and_truth(n=N):

@@ -3,7 +3,6 @@
 import os
 import resource
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -11,18 +10,13 @@ import time
 import numpy as np
 import pytest
 import zenoh
+from netutil import free_port
 
 from topseg.core import recording, wire
 from topseg.core.camera import KINECT_V1
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start_recorder(port, out, *extra, preexec_fn=None):

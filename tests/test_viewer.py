@@ -2,16 +2,15 @@
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
+from netutil import free_port, wait_for
 
 from topseg.core import labels, wire
 from topseg.core.camera import KINECT_V1, TopViewMount
@@ -21,21 +20,6 @@ from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
 RERUN = Path(sys.executable).with_name("rerun")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(predicate, timeout=20.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def rrd_print(path) -> str:

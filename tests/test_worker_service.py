@@ -2,7 +2,6 @@
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -11,27 +10,12 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from netutil import free_port, wait_for
 
 from topseg.core import crf, forest, metrics, wire
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(predicate, timeout=20.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
-
 
 K = KINECT_V1.scaled_to(160, 120)
 MOUNT = TopViewMount(K)
