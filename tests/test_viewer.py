@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -76,27 +77,40 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
         }
         for pub in pubs.values():
             wait_for(lambda p=pub: p.matching_status.matching, 60, "the viewer's subscribers")
-        for seq in range(3):
-            for cell, cam in cams:
-                depth, truth = procedural_frame(rng, TopViewMount(K))
-                stamp = 10**18 + seq * 10**8
-                pubs[cell, cam, "depth"].put(
-                    wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp))
-                )
-                pubs[cell, cam, "labels"].put(
-                    wire.encode_labels(wire.LabelFrame(truth, seq, stamp))
-                )
-                pubs[cell, cam, "stats"].put(
-                    wire.encode_stats({
-                        "stamp_ns": stamp, "seq": seq, "fps": 30.0,
-                        "timings_ms": {"forest": 5.0, "crf": 2.0},
-                        "counts": {"processed": seq + 1, "dropped": 0, "rejected": 0},
-                    })
-                )  # fmt: skip
-        pubs[cams[0][0], cams[0][1], "depth"].put(b"garbage")
+
+        def send_round(first_seq):
+            for seq in range(first_seq, first_seq + 3):
+                for cell, cam in cams:
+                    depth, truth = procedural_frame(rng, TopViewMount(K))
+                    stamp = 10**18 + seq * 10**8
+                    pubs[cell, cam, "depth"].put(
+                        wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp))
+                    )
+                    pubs[cell, cam, "labels"].put(
+                        wire.encode_labels(wire.LabelFrame(truth, seq, stamp))
+                    )
+                    pubs[cell, cam, "stats"].put(
+                        wire.encode_stats({
+                            "stamp_ns": stamp, "seq": seq, "fps": 30.0,
+                            "timings_ms": {"forest": 5.0, "crf": 2.0},
+                            "counts": {"processed": seq + 1, "dropped": 0, "rejected": 0},
+                        })
+                    )  # fmt: skip
+            pubs[cams[0][0], cams[0][1], "depth"].put(b"garbage")
+
         wanted = [f"logging {c}/{m}/{e}" for c, m in cams for e in ("points", "stats")]
-        wanted.append("(1 rejected)")
-        wait_for(lambda: all(w in "".join(lines) for w in wanted), 60, "the viewer's log lines")
+        wanted.append("rejected)")
+        # Resend until the viewer has logged everything: a round sent while Zenoh's routes
+        # are still settling may miss the viewer (discovery race), which is not under test.
+        deadline = time.monotonic() + 90
+        first = 0
+        while not all(w in "".join(lines) for w in wanted):
+            assert time.monotonic() < deadline, (
+                "viewer never logged " + repr(wanted) + "".join(lines)
+            )
+            send_round(first)
+            first += 3
+            time.sleep(2)
         proc.send_signal(signal.SIGTERM)
         reader.join(timeout=30)
         proc.wait(timeout=30)
@@ -106,7 +120,7 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
             proc.kill()
         session.close()
     assert proc.returncode == 0, err
-    assert "1 rejected" in err
+    assert " rejected)" in err
     text = rrd_print(rrd)
     assert "AnnotationContext" in text
     for cell, cam in cams:
