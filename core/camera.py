@@ -63,6 +63,16 @@ class Intrinsics:
 KINECT_V1 = Intrinsics()
 
 
+def check_depth(depth: np.ndarray, user: str = "depth") -> np.ndarray:
+    """`depth` as a C-contiguous (H, W) uint16 frame in mm; ValueError naming `user` if not."""
+    depth = np.asarray(depth)
+    if depth.ndim != 2 or depth.dtype != np.uint16:
+        raise ValueError(
+            f"{user} needs a (H, W) uint16 depth frame in mm, got {depth.dtype} {depth.shape}"
+        )
+    return np.ascontiguousarray(depth)
+
+
 def backproject(depth_mm: np.ndarray, k: Intrinsics) -> np.ndarray:
     """(H, W) depth in mm -> (H, W, 3) float32 points in metres in the camera frame.
 

@@ -28,6 +28,8 @@ from dataclasses import asdict, dataclass
 import numba
 import numpy as np
 
+from topseg.core.camera import check_depth
+
 
 @dataclass(frozen=True)
 class FeatureConfig:
@@ -149,15 +151,6 @@ def _extract(depth, rows, cols, offsets, background, out):
             out[i, f] = pair_feature(depth, r, c, inv_d, offsets[f], background)
 
 
-def _check_depth(depth: np.ndarray) -> np.ndarray:
-    depth = np.asarray(depth)
-    if depth.ndim != 2 or depth.dtype != np.uint16:
-        raise ValueError(
-            f"depth must be a (H, W) uint16 frame in mm, got {depth.dtype} {depth.shape}"
-        )
-    return np.ascontiguousarray(depth)
-
-
 def extract_features(
     depth: np.ndarray,
     rows: np.ndarray,
@@ -171,7 +164,7 @@ def extract_features(
     Every pixel must have depth (> 0); training samples only such pixels. `out`, if given,
     is an (n, PC) int16 array (e.g. a slice of a larger matrix) filled in place.
     """
-    depth = _check_depth(depth)
+    depth = check_depth(depth, "features")
     rows = np.asarray(rows, np.int64)
     cols = np.asarray(cols, np.int64)
     offsets = np.ascontiguousarray(offsets, np.float32)
@@ -213,7 +206,7 @@ def node_response_image(
 
     For inspecting a split and for tests; inference walks the trees without it.
     """
-    depth = _check_depth(depth)
+    depth = check_depth(depth, "features")
     offsets = np.ascontiguousarray(np.atleast_2d(offsets), np.float32)
     weights = np.ascontiguousarray(np.atleast_1d(weights), np.float32)
     if offsets.shape != (weights.shape[0], 4):

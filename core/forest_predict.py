@@ -22,6 +22,7 @@ import numba
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.camera import check_depth
 from topseg.core.features import inverse_depth, response_at
 from topseg.core.tree import Forest
 
@@ -263,15 +264,6 @@ def _apply(depth, offsets, weights, threshold, left, roots, background, out):
                 out[t, r, c] = node if d > 0 else -1
 
 
-def _check_depth(depth: np.ndarray) -> np.ndarray:
-    depth = np.asarray(depth)
-    if depth.ndim != 2 or depth.dtype != np.uint16:
-        raise ValueError(
-            f"depth must be a (H, W) uint16 frame in mm, got {depth.dtype} {depth.shape}"
-        )
-    return np.ascontiguousarray(depth)
-
-
 def predict_proba(
     forest: Forest, depth: np.ndarray, out: np.ndarray | None = None, stride: int = 1
 ) -> np.ndarray:
@@ -283,7 +275,7 @@ def predict_proba(
     copies the result over each stride x stride block: a faster, blockier approximation
     (the posteriors at the evaluated pixels are exact).
     """
-    depth = _check_depth(depth)
+    depth = check_depth(depth, "forest inference")
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
     shape = (*depth.shape, forest.posteriors.shape[1])
@@ -315,7 +307,7 @@ def apply(forest: Forest, depth: np.ndarray) -> np.ndarray:
 
     A plain per-pixel walk (not the fast kernel): for inspection, path statistics and tests.
     """
-    depth = _check_depth(depth)
+    depth = check_depth(depth, "forest inference")
     out = np.empty((forest.n_trees, *depth.shape), np.int32)
     _apply(
         depth,

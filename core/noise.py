@@ -31,6 +31,7 @@ from typing import Protocol
 import numba
 import numpy as np
 
+from topseg.core.camera import check_depth
 from topseg.core.errors import TopsegError
 
 
@@ -38,15 +39,6 @@ class NoiseModel(Protocol):
     spec: str
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray: ...
-
-
-def _check_depth(depth: np.ndarray) -> np.ndarray:
-    depth = np.asarray(depth)
-    if depth.dtype != np.uint16 or depth.ndim != 2:
-        raise ValueError(
-            f"noise needs a 2-D uint16 depth image in mm, got {depth.dtype} {depth.shape}"
-        )
-    return depth
 
 
 @dataclass(frozen=True)
@@ -58,7 +50,7 @@ class NoNoise:
         return "none"
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        return _check_depth(depth).copy()
+        return check_depth(depth, "noise").copy()
 
 
 @dataclass(frozen=True)
@@ -76,7 +68,7 @@ class GaussianNoise:
         return f"gaussian:{self.sigma_mm:g}"
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        depth = _check_depth(depth)
+        depth = check_depth(depth, "noise")
         out = depth.copy()
         valid = depth > 0
         if self.sigma_mm == 0 or not valid.any():
@@ -335,7 +327,7 @@ class KinectNoise:
         return flags, near_h
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        depth = np.ascontiguousarray(_check_depth(depth))
+        depth = check_depth(depth, "noise")
         field, seed = self.draws(depth.shape, rng)
         out = np.empty_like(depth)
         _kinect_kernel(
@@ -353,7 +345,7 @@ def kinect_reference(
     model: KinectNoise, depth: np.ndarray, field: np.ndarray, seed: int
 ) -> np.ndarray:
     """The Kinect model in plain numpy (slow; the reference the numba kernels are tested against)."""
-    depth = _check_depth(depth)
+    depth = check_depth(depth, "noise")
     h, w = depth.shape
     z = depth.astype(np.float64) * 0.001
     valid = depth > 0
