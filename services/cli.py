@@ -13,6 +13,7 @@ import sys
 
 from topseg import __version__
 from topseg.core.errors import TopsegError
+from topseg.services import config_file, systemd_notify
 
 #: subcommand -> (module, one-line help). Add a line here to add a command.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -71,12 +72,25 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=help_text, description=module.__doc__)
         module.add_arguments(p)
+        config_file.add_arguments(p, name, argv, COMMANDS)  # --config FILE: TOML defaults
         p.set_defaults(_run=module.run)
     return parser
 
 
+def fail(command: str | None, exc: BaseException) -> None:
+    """The one error line, on stderr and (under systemd) as the unit's STATUS=."""
+    line = f"topseg {command}: error: {exc}" if command else f"topseg: error: {exc}"
+    print(line, file=sys.stderr)
+    cause = exc if isinstance(exc, OSError) else exc.__cause__ or exc.__context__
+    systemd_notify.failed(line, getattr(cause, "errno", None))
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser(argv).parse_args(argv)
+    try:
+        args = build_parser(argv).parse_args(argv)
+    except TopsegError as exc:  # a bad --config file
+        fail(next((a for a in argv or sys.argv[1:] if a in COMMANDS), None), exc)
+        return 2
     setup_logging(0 if args.quiet else args.verbose)
     try:
         return int(args._run(args) or 0)
@@ -84,8 +98,11 @@ def main(argv: list[str] | None = None) -> int:
         print("topseg: interrupted", file=sys.stderr)
         return 130
     except TopsegError as exc:
-        print(f"topseg {args.command}: error: {exc}", file=sys.stderr)
+        fail(args.command, exc)
         return 2
+    except Exception as exc:
+        systemd_notify.failed(f"topseg {args.command}: crashed: {type(exc).__name__}: {exc}")
+        raise
 
 
 if __name__ == "__main__":
