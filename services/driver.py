@@ -30,7 +30,7 @@ import threading
 import time
 
 from topseg.core.wire import DEFAULT_CAMERA, DEFAULT_CELL
-from topseg.services import zenoh_session
+from topseg.services import systemd_notify, zenoh_session
 
 log = logging.getLogger("topseg.driver")
 
@@ -125,7 +125,13 @@ def run(args: argparse.Namespace) -> int:
     import zenoh
 
     from topseg.core import wire
-    from topseg.drivers import Reconnecting, SourceOptions, open_source, parse_spec
+    from topseg.drivers import (
+        Reconnecting,
+        SourceOptions,
+        SourceUnavailable,
+        open_source,
+        parse_spec,
+    )
 
     spec = parse_spec(args.source)
     if args.congestion == "auto":
@@ -170,9 +176,30 @@ def run(args: argparse.Namespace) -> int:
             fields.pop("finite", None)
             state.update(**fields)
             log.info("publishing %s on %s", source.description, keys["depth"])
+            systemd_notify.ready(f"publishing {args.cell}/{args.camera} from {args.source}")
 
+        def open_fn():
+            try:
+                return open_source(spec, options)
+            except SourceUnavailable as exc:  # up and retrying: ready, and say what is missing
+                systemd_notify.ready(f"waiting for {args.source}: {exc}")
+                systemd_notify.watchdog()
+                raise
+
+        last = {"t": time.monotonic(), "n": 0}
+
+        def status_text() -> str:
+            now, n = time.monotonic(), state.info["frames"]
+            fps = (n - last["n"]) / max(now - last["t"], 1e-9)
+            last.update(t=now, n=n)
+            return (
+                f"publishing {args.cell}/{args.camera} from {args.source}: {fps:.1f} fps, "
+                f"{n} frames, {state.info['reconnects']} reconnects"
+            )
+
+        beat = systemd_notify.Heartbeat(status_text)
         reconnecting = Reconnecting(
-            lambda: open_source(spec, options),
+            open_fn,
             name=f"driver {args.cell}/{args.camera} ({spec})",
             stop=stop,
             on_open=on_open,
@@ -197,6 +224,7 @@ def run(args: argparse.Namespace) -> int:
                 truth_pub.put(wire.encode_labels(truth))
                 truth_count += 1
             seq += 1
+            beat()  # watchdog ping from the publishing loop, STATUS= every few s
             state.update(
                 frames=seq,
                 truth_frames=truth_count,
@@ -209,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
         pass
     finally:
         waiting = False
+        systemd_notify.stopping()
         for s, handler in old.items():
             signal.signal(s, handler)
         if frames is not None:

@@ -74,6 +74,7 @@ class Notifier:
         self._next_ping = 0.0
         self._sock: socket.socket | None = None
         self._warned = False
+        self.is_ready = False
 
     @property
     def enabled(self) -> bool:
@@ -102,12 +103,15 @@ class Notifier:
         return self._send(format_message(fields)) if fields else False
 
     def ready(self, status: str | None = None) -> bool:
-        fields: dict[str, object] = {"READY": 1}
+        """READY=1 (once; later calls only update STATUS=) and a first watchdog ping."""
+        fields: dict[str, object] = {} if self.is_ready else {"READY": 1}
         if status:
             fields["STATUS"] = status
         sent = self.notify(**fields)
-        self._next_ping = 0.0
-        self.watchdog()
+        if not self.is_ready:
+            self.is_ready = True
+            self._next_ping = 0.0
+            self.watchdog()
         return sent
 
     def status(self, text: str) -> bool:

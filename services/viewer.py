@@ -25,7 +25,7 @@ import time
 from collections import OrderedDict
 from typing import Any
 
-from topseg.services import zenoh_session
+from topseg.services import systemd_notify, zenoh_session
 
 log = logging.getLogger("topseg.viewer")
 
@@ -224,8 +224,17 @@ def run(args: argparse.Namespace) -> int:
             for kind in ("depth", "labels", "stats")
         ]
         log.info("viewer ready")
+        sink = f" to {args.save}" if args.save else " to the web viewer" if args.web else ""
+
+        def status_text() -> str:
+            n = len(viewer.pinholes)
+            return f"logging {n} camera(s){sink}; {viewer.rejected} rejected, {dropped} dropped"
+
+        systemd_notify.ready(status_text())
+        beat = systemd_notify.Heartbeat(status_text)
         end = None if args.duration is None else time.monotonic() + args.duration
         while not stop.is_set() and (end is None or time.monotonic() < end):
+            beat()  # watchdog ping from the logging loop, STATUS= every few s
             try:
                 key, payload = inbox.get(timeout=0.05)
             except queue.Empty:

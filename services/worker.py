@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from topseg.services import zenoh_session
+from topseg.services import systemd_notify, zenoh_session
 
 log = logging.getLogger("topseg.worker")
 
@@ -304,6 +304,22 @@ class Worker:
                 sub.undeclare()
 
 
+def status_line(worker: Worker) -> str:
+    """One line for `systemctl status`: each camera's fps and counts."""
+    if not worker.cameras:
+        return f"model {worker.labeller.model_id}: waiting for depth frames"
+    now, parts = time.perf_counter(), []
+    for s in worker.cameras.values():
+        c = s.counts
+        idle = s.last_time is None or now - s.last_time > 2.0
+        rate = "idle" if idle else f"{s.fps:.1f} fps"
+        parts.append(
+            f"{s.cell}/{s.camera}: {rate}, {c['processed']} labelled, "
+            f"{c['dropped']} dropped, {c['rejected']} rejected"
+        )
+    return "serving " + "; ".join(parts)
+
+
 def run(args: argparse.Namespace) -> int:
     for text in args.cameras or ():
         parse_camera(text)  # bad names fail before anything is loaded
@@ -324,7 +340,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         worker = Worker(args, session, labeller)
         log.info("worker ready")
+        systemd_notify.ready(status_line(worker))
+        beat = systemd_notify.Heartbeat(lambda: status_line(worker))
         while not stop.is_set():
+            beat()  # watchdog ping from the serving loop, STATUS= every few s
             if not worker.poll():
                 stop.wait(POLL_S)
         for state in worker.cameras.values():
