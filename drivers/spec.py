@@ -19,6 +19,7 @@ DRIVERS: dict[str, str] = {
     "openni2": "topseg.drivers.openni2",
     "oak": "topseg.drivers.oak",
     "synthetic": "topseg.drivers.synthetic",
+    "faulty": "topseg.drivers.faulty",  # a test aid: faulty:fail_after=N,...@INNER-SPEC
 }
 USAGE = "replay:PATH, freenect[:index], openni2[:uri], oak[:device-id] or synthetic"
 
