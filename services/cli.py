@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "datagen": ("topseg.services.datagen", "render a synthetic dataset (Zarr) on Dask; preview it"),
     "worker": ("topseg.services.worker", "label depth on Zenoh: forest + CRF, labels, stats"),
     "viewer": ("topseg.services.viewer", "show depth, labels, points and stats in Rerun"),
+    "router": ("topseg.services.router", "run a Zenoh router (for several machines, see deploy/)"),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
