@@ -5,12 +5,17 @@ For each input frame NAME it writes `NAME_labels.png` (8-bit label ids, 255 = no
 from the camera the model was trained for (its size and focal length): the features are
 metric offsets scaled by the focal length, so another camera is refused rather than
 silently mis-segmented.
+
+A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a file that is
+not a recording) is skipped with one line on stderr and the others are still segmented; the
+exit status is then 2. A recording cut short or with damaged messages gives what it holds.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -42,16 +47,25 @@ def read_depth_png(path: Path):
     from PIL import Image, UnidentifiedImageError
 
     from topseg.core.errors import TopsegError
+    from topseg.core.wire import MAX_SIDE
 
     try:
         with Image.open(path) as img:
+            if max(img.size) > MAX_SIDE:  # before load(): a lying header must not allocate
+                raise TopsegError(f"{path}: a {img.width}x{img.height} image is no depth frame")
             img.load()
             if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
                 raise TopsegError(
                     f"{path}: a depth PNG must be 16-bit greyscale (mm), this one is {img.mode}"
                 )
             depth = np.asarray(img)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+    except (
+        UnidentifiedImageError,
+        OSError,
+        SyntaxError,
+        ValueError,
+        Image.DecompressionBombError,
+    ) as exc:
         raise TopsegError(f"{path}: not a readable PNG ({exc})") from None
     if depth.ndim != 2 or depth.min() < 0 or depth.max() > 65535:
         raise TopsegError(f"{path}: depth must be one channel of 0..65535 mm")
@@ -72,7 +86,7 @@ def frames_of(path: Path) -> Iterator[tuple[str, object, object]]:
     elif path.suffix.lower() == ".png":
         yield path.stem, read_depth_png(path), None
     elif path.suffix.lower() == ".mcap":
-        rejected = 0
+        rejected = frames = 0
         for msg in recording.read_messages(path):
             try:
                 if wire.parse_key(msg.key).kind != "depth":
@@ -82,9 +96,12 @@ def frames_of(path: Path) -> Iterator[tuple[str, object, object]]:
                 rejected += 1
                 log.warning("%s: skipping a damaged message: %s", path, exc)
                 continue
+            frames += 1
             yield f"{path.stem}_{frame.seq:06d}", frame.depth, frame.intrinsics
         if rejected:
             log.warning("%s: %d damaged messages skipped", path, rejected)
+        if not frames:
+            raise TopsegError(f"{path}: no readable depth frame in this recording")
     elif not path.exists():
         raise TopsegError(f"{path}: no such file or folder")
     else:
@@ -146,16 +163,32 @@ def run(args: argparse.Namespace) -> int:
         raise TopsegError(f"cannot create {args.out}: {exc.strerror}") from None
     config = crf.CRFConfig(mode=args.crf)
     count = 0
-    for source in args.inputs:
-        for name, depth, intrinsics in frames_of(source):
-            check_camera(name, depth, intrinsics, expected)
-            proba = forest.predict_proba(model, depth)
-            if args.crf == "none":
-                labels = forest.labels_from_proba(proba, depth)
-            else:
-                labels = crf.segment_crf(proba, depth, config)
-            save_png(args.out / f"{name}_labels.png", labels)
-            save_png(args.out / f"{name}_overlay.png", overlay(depth, labels))
-            count += 1
+    inputs = [p for arg in args.inputs for p in _expand(arg)]
+    skipped = 0
+    for source in inputs:
+        try:
+            for name, depth, intrinsics in frames_of(source):
+                check_camera(name, depth, intrinsics, expected)
+                proba = forest.predict_proba(model, depth)
+                if args.crf == "none":
+                    labels = forest.labels_from_proba(proba, depth)
+                else:
+                    labels = crf.segment_crf(proba, depth, config)
+                save_png(args.out / f"{name}_labels.png", labels)
+                save_png(args.out / f"{name}_overlay.png", overlay(depth, labels))
+                count += 1
+        except TopsegError as exc:  # this input is damaged: say so once, go on with the rest
+            skipped += 1
+            print(f"topseg segment: skipped {exc}", file=sys.stderr)
     print(f"segmented {count} frames into {args.out}")
+    if skipped:
+        raise TopsegError(f"{skipped} of {len(inputs)} inputs could not be segmented (see above)")
     return 0
+
+
+def _expand(path: Path) -> list[Path]:
+    """A folder of PNGs -> its PNGs (each one an input of its own); anything else as is."""
+    if path.is_dir():
+        pngs = sorted(path.glob("*.png"))
+        return pngs or [path]  # an empty folder: frames_of says so
+    return [path]
