@@ -5,7 +5,7 @@ runs the forest and the CRF on the newest depth frame and publishes
 
 - labels on `topseg/<cell>/<camera>/labels` (the depth frame's `seq`, `stamp_ns`, `frame_id`);
 - stats on `.../stats`: ms per stage (receive = copy + decode, forest, crf, publish, total),
-  fps, and the counts processed / dropped / rejected.
+  latency (depth stamp to labels published), fps, and the counts processed / dropped / rejected.
 
 Only the newest frame is kept: one `zenoh.handlers.RingChannel(1)` per camera, so a slow
 worker skips frames and its memory never grows. Skipped frames are counted from gaps in
@@ -271,6 +271,8 @@ class Worker:
             "publish": 1000 * (t3 - t2),
             "total": 1000 * (t3 - t0),
         }
+        if frame.stamp_ns:  # end to end: capture (driver host clock) -> labels published
+            timings["latency"] = max(0.0, (time.time_ns() - frame.stamp_ns) / 1e6)
         self.publish_stats(state, timings, seq=frame.seq, frame_id=frame.frame_id)
 
     def reject(self, state: CameraState, why: str) -> None:

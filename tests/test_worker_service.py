@@ -135,7 +135,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     last = peer.stats[-1]
     assert last["counts"] == {"processed": 6, "dropped": 2, "rejected": 0}
     assert last["role"] == "worker" and last["model_id"] == model_path.name
-    assert set(last["timings_ms"]) == {"receive", "forest", "crf", "publish", "total"}
+    assert set(last["timings_ms"]) == {"receive", "forest", "crf", "publish", "total", "latency"}
     assert last["timings_ms"]["total"] >= last["timings_ms"]["forest"] > 0
     assert last["seq"] == 7 and last["fps"] > 0
 
