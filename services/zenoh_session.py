@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 from typing import Any
 
 from topseg.core.errors import TopsegError
@@ -79,6 +80,19 @@ def default_config_json(port: int | None = None) -> dict[str, Any]:
     }
 
 
+def error_line(exc: BaseException) -> str:
+    """Zenoh's error text on one line, without its Rust source paths (for the one-line error
+    on stderr and systemd's STATUS=): its config parse errors span several lines."""
+    text = re.sub(r" at \S+\.rs:\d+\.?", "", str(exc))
+    m = re.search(r'msg: "(.*?)", location: Some\(Location \{ line: (\d+), column: (\d+)', text)
+    if m:
+        return f"line {m[2]}, column {m[3]}: {m[1]}"
+    m = re.search(r"-->\s*(\d+):(\d+).*?=\s*(.+)", text, re.S)
+    if m:
+        return f"line {m[1]}, column {m[2]}: {' '.join(m[3].split())}"
+    return " ".join(text.split()) or type(exc).__name__
+
+
 def make_config(config_file: str | None = None, port: int | None = None) -> Any:
     """A zenoh.Config: the file as is, or topseg's loopback default."""
     import zenoh
@@ -89,7 +103,7 @@ def make_config(config_file: str | None = None, port: int | None = None) -> Any:
         try:
             return zenoh.Config.from_file(config_file)
         except Exception as exc:  # zenoh reports parse errors as ZError
-            raise TopsegError(f"bad Zenoh config {config_file}: {exc}") from exc
+            raise TopsegError(f"bad Zenoh config {config_file}: {error_line(exc)}") from exc
     conf = zenoh.Config()
     for path, value in default_config_json(port).items():
         conf.insert_json5(path, json.dumps(value))
@@ -104,7 +118,7 @@ def open_session(config_file: str | None = None, port: int | None = None) -> Any
     try:
         return zenoh.open(conf)
     except Exception as exc:
-        raise TopsegError(f"cannot open a Zenoh session: {exc}") from exc
+        raise TopsegError(f"cannot open a Zenoh session: {error_line(exc)}") from exc
 
 
 def session_from_args(args: argparse.Namespace) -> Any:
