@@ -325,6 +325,7 @@ def status_line(worker: Worker) -> str:
 def run(args: argparse.Namespace) -> int:
     for text in args.cameras or ():
         parse_camera(text)  # bad names fail before anything is loaded
+    zenoh_session.make_config(args.zenoh_config, args.zenoh_port)  # so does a bad config
     labeller = Labeller(args.model, args.crf)  # ModelFileError: one line, exit 2
     t0 = time.perf_counter()
     labeller.warm_up()
