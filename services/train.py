@@ -167,7 +167,27 @@ def run(args: argparse.Namespace) -> int:
     train_idx, val_idx = split_frames(len(ds), args.validation, args.seed)
     if not train_idx:
         raise TopsegError(f"{args.data} has no frames to train on")
-    recipe_ = recipe(args, dataset_fingerprint(ds))
+    train_on(args, ds, train_idx, val_idx)
+    return 0
+
+
+def train_on(
+    args: argparse.Namespace,
+    ds,
+    train_idx: list[int],
+    val_idx: list[int],
+    fingerprint: str | None = None,
+) -> float:
+    """Train on frames `train_idx` of the open dataset `ds`, score `val_idx`, write
+    `args.out`; resumable through `<out>.parts`. Returns the training seconds.
+
+    `args` holds what the command line gives `run` (see `add_arguments`); other callers
+    (`topseg experiment`) build it themselves to train on a chosen subset, naming that
+    subset's identity in `fingerprint` (default: the whole dataset's).
+    """
+    from topseg.core.errors import TopsegError
+
+    recipe_ = recipe(args, fingerprint or dataset_fingerprint(ds))
     parts_dir = args.out.with_name(args.out.name + ".parts")
     try:
         parts_dir.mkdir(parents=True, exist_ok=True)
@@ -193,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
     for p in parts:
         p.unlink(missing_ok=True)
     parts_dir.rmdir()
-    return 0
+    return seconds
 
 
 def _train_trees(args, train_idx, recipe_, todo, parts) -> None:
