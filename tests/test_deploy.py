@@ -1,0 +1,244 @@
+"""deploy/: the systemd units pass `systemd-analyze verify`, keep the settings the services
+rely on (notify, watchdog, one user for shared memory, USB for the driver), start with the
+example configs, and the udev rules give sensors to a group without making them world-writable."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from topseg.services import cli
+
+ROOT = Path(__file__).resolve().parent.parent
+DEPLOY = ROOT / "deploy"
+UNITS = DEPLOY / "systemd"
+CONFIGS = DEPLOY / "config"
+INSTALLED_TOPSEG = "/opt/topseg/venv/bin/topseg"
+#: unit file -> the instance its example config is for ("" for plain units)
+UNIT_INSTANCES = {
+    "topseg-driver@.service": ["kinect", "oak"],
+    "topseg-worker@.service": ["kinect", "oak", "worker"],
+    "topseg-viewer.service": [""],
+    "topseg-router.service": [""],
+}
+SYSTEMD_ANALYZE = shutil.which("systemd-analyze") or (
+    "/usr/bin/systemd-analyze" if Path("/usr/bin/systemd-analyze").exists() else None
+)
+needs_analyze = pytest.mark.skipif(
+    SYSTEMD_ANALYZE is None, reason="systemd-analyze is not installed (Debian: systemd)"
+)
+
+
+def parse_unit(path: Path) -> dict[str, list[tuple[str, str]]]:
+    """{section: [(key, value), ...]} of a unit file (keys may repeat, as systemd allows)."""
+    sections: dict[str, list[tuple[str, str]]] = {}
+    current = None
+    for line in path.read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("["):
+            current = line.strip("[]")
+            sections.setdefault(current, [])
+            continue
+        key, _, value = line.partition("=")
+        sections[current].append((key.strip(), value.strip()))
+    return sections
+
+
+def values(unit: dict, section: str, key: str) -> list[str]:
+    return [v for k, v in unit.get(section, []) if k == key]
+
+
+def value(unit: dict, section: str, key: str) -> str | None:
+    found = values(unit, section, key)
+    return found[-1] if found else None
+
+
+def local_topseg() -> Path:
+    """The topseg entry point of the venv running the tests (stands in for /opt/topseg's)."""
+    path = Path(sys.executable).parent / "topseg"
+    if not path.exists():
+        pytest.skip(f"no topseg entry point next to {sys.executable}")
+    return path
+
+
+def test_units_exist():
+    assert sorted(p.name for p in UNITS.glob("*.service")) == sorted(UNIT_INSTANCES)
+
+
+@needs_analyze
+@pytest.mark.parametrize("name", sorted(UNIT_INSTANCES))
+def test_systemd_analyze_verify(name, tmp_path):
+    """Each unit (and one instance of a template) verifies with no warning at all.
+
+    `verify` checks that ExecStart's program exists, so the copy points at this venv's topseg.
+    """
+    text = (UNITS / name).read_text()
+    assert INSTALLED_TOPSEG in text
+    text = text.replace(INSTALLED_TOPSEG, str(local_topseg()))
+    files = [tmp_path / name]
+    if "@." in name:
+        files.append(tmp_path / name.replace("@.", "@kinect."))
+    for f in files:
+        f.write_text(text)
+    result = subprocess.run(
+        [SYSTEMD_ANALYZE, "verify", *map(str, files)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    output = (result.stdout + result.stderr).strip()
+    assert result.returncode == 0, output
+    assert output == "", f"systemd-analyze verify warned:\n{output}"
+
+
+@needs_analyze
+@pytest.mark.parametrize("name", sorted(UNIT_INSTANCES))
+def test_systemd_analyze_security(name, tmp_path):
+    """The hardening keeps the exposure score `OK` (below 2.0 of 10)."""
+    unit = tmp_path / name
+    unit.write_text((UNITS / name).read_text().replace(INSTALLED_TOPSEG, str(local_topseg())))
+    result = subprocess.run(
+        [SYSTEMD_ANALYZE, "security", "--offline=true", "--no-pager", str(unit)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    m = re.search(r"Overall exposure level for \S+: (\d+\.\d+)", result.stdout + result.stderr)
+    if m is None and "--offline" in result.stderr:
+        pytest.skip("this systemd-analyze has no --offline (systemd < 250)")
+    assert m, result.stdout + result.stderr
+    assert float(m[1]) < 2.0, result.stdout
+
+
+@pytest.mark.parametrize("name", sorted(UNIT_INSTANCES))
+def test_unit_settings(name):
+    unit = parse_unit(UNITS / name)
+    service = "Service"
+    assert value(unit, service, "Type") == "notify"
+    assert value(unit, service, "NotifyAccess") == "main"
+    assert int(value(unit, service, "WatchdogSec")) > 0
+    assert value(unit, service, "Restart") == "on-failure"
+    assert value(unit, service, "RestartSec")
+    assert value(unit, "Unit", "StartLimitIntervalSec")
+    assert value(unit, "Unit", "StartLimitBurst")
+    # One unprivileged user for every service: Zenoh's /dev/shm files are mode 0600.
+    assert value(unit, service, "User") == "topseg"
+    assert value(unit, service, "DynamicUser") in (None, "no")
+    for key in ("RemoveIPC", "PrivateIPC"):  # would break shared memory between units
+        assert value(unit, service, key) in (None, "no"), key
+    assert value(unit, service, "NoNewPrivileges") == "yes"
+    assert value(unit, service, "ProtectSystem") == "strict"
+    assert value(unit, service, "ExecStart").startswith(INSTALLED_TOPSEG + " ")
+    assert value(unit, "Install", "WantedBy") == "multi-user.target"
+
+
+def test_driver_reaches_usb_devices():
+    unit = parse_unit(UNITS / "topseg-driver@.service")
+    assert value(unit, "Service", "PrivateDevices") in (None, "no")
+    assert "char-usb_device rw" in values(unit, "Service", "DeviceAllow")
+    groups = " ".join(values(unit, "Service", "SupplementaryGroups")).split()
+    assert {"plugdev", "video"} <= set(groups)
+    families = " ".join(values(unit, "Service", "RestrictAddressFamilies")).split()
+    assert "AF_NETLINK" in families  # libusb hotplug
+
+
+def test_worker_can_jit():
+    """numba needs writable+executable memory and a writable cache directory."""
+    unit = parse_unit(UNITS / "topseg-worker@.service")
+    assert value(unit, "Service", "MemoryDenyWriteExecute") in (None, "no")
+    env = " ".join(values(unit, "Service", "Environment"))
+    assert "NUMBA_CACHE_DIR=/var/cache/topseg/" in env
+    assert value(unit, "Service", "CacheDirectory") == "topseg"
+
+
+def exec_argv(name: str, instance: str) -> list[str]:
+    """ExecStart of a unit instance as topseg's argv, with /etc/topseg/ -> deploy/config/."""
+    unit = parse_unit(UNITS / name)
+    line = value(unit, "Service", "ExecStart").replace("%i", instance)
+    argv = shlex.split(line)
+    assert argv[0] == INSTALLED_TOPSEG
+    return [a.replace("/etc/topseg/", f"{CONFIGS}/") for a in argv[1:]]
+
+
+@pytest.mark.parametrize(
+    "name,instance", [(n, i) for n, insts in sorted(UNIT_INSTANCES.items()) for i in insts]
+)
+def test_units_start_with_the_example_configs(name, instance):
+    """Each unit's command line parses with its example config: every key is an option."""
+    argv = exec_argv(name, instance)
+    config = Path(argv[argv.index("--config") + 1])
+    assert config.is_file(), f"no example config {config.name} in deploy/config/"
+    args = cli.build_parser(argv).parse_args(argv)
+    command = argv[0]
+    if command == "driver":
+        assert args.source and args.cell and args.camera == instance
+    elif command == "worker":
+        assert args.model == "/opt/topseg/models/default.npz"
+        if instance != "worker":
+            assert [c.split("/")[1] for c in args.cameras] == [instance]
+    elif command == "viewer":
+        assert args.web and not args.save
+    elif command == "router":
+        assert args.zenoh_config == "/etc/topseg/zenoh/router.json5"
+
+
+def test_example_configs_are_all_used():
+    used = {
+        Path(a).name
+        for n, insts in UNIT_INSTANCES.items()
+        for i in insts
+        for a in exec_argv(n, i)
+        if a.endswith(".toml")
+    }
+    assert used == {p.name for p in CONFIGS.glob("*.toml")}
+
+
+UDEV_RULES = DEPLOY / "99-topseg.rules"
+SENSORS = [("045e", "02ae"), ("045e", "02ad"), ("045e", "02b0"), ("03e7", "2485"), ("03e7", "f63b")]
+
+
+def udev_rules() -> list[dict[str, str]]:
+    """The rules as {KEY: value} (KEY with its operator, e.g. 'ATTR{idVendor}==')."""
+    rules = []
+    for line in UDEV_RULES.read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        rule = {}
+        for m in re.finditer(
+            r'\s*([A-Za-z_]+(?:\{[^}]*\})?)\s*(==|!=|\+=|-=|:=|=)\s*"([^"]*)"', line
+        ):
+            rule[m[1] + m[2]] = m[3]
+        assert rule, f"cannot read udev rule: {line}"
+        rules.append(rule)
+    return rules
+
+
+@pytest.mark.parametrize("vendor,product", SENSORS)
+def test_udev_rule_gives_the_sensor_to_a_group(vendor, product):
+    matching = [
+        r
+        for r in udev_rules()
+        if r.get("ATTR{idVendor}==") == vendor and r.get("ATTR{idProduct}==") in (product, None)
+    ]
+    assert matching, f"no udev rule for {vendor}:{product}"
+    for rule in matching:
+        assert rule.get("SUBSYSTEM==") == "usb"
+        assert rule.get("GROUP=") == "plugdev"
+        mode = int(rule.get("MODE=", "0"), 8)
+        assert mode == 0o660, oct(mode)
+
+
+def test_udev_rules_never_world_writable():
+    for rule in udev_rules():
+        mode = rule.get("MODE=")
+        if mode is not None:
+            assert not int(mode, 8) & 0o002, rule
