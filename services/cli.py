@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "worker": ("topseg.services.worker", "label depth on Zenoh: forest + CRF, labels, stats"),
     "viewer": ("topseg.services.viewer", "show depth, labels, points and stats in Rerun"),
     "router": ("topseg.services.router", "run a Zenoh router (for several machines, see deploy/)"),
+    "status": ("topseg.services.status", "each camera's driver and worker: alive, fps, latency"),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"

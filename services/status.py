@@ -1,0 +1,405 @@
+"""Show each camera's health: `topseg status [--timeout S] [--json] [--watch] [--cell C]`.
+
+For every camera seen on Zenoh (a liveliness token, a stats message or a driver `info`
+reply under `topseg/<cell>/<camera>/`, or named with `--expect`) it reports, over a window
+of `--timeout` seconds:
+
+- driver: alive (its token `.../alive/driver`), source, frames published, reconnects and
+  last error (its `.../info` queryable, asked at the start and end of the window: the frame
+  difference gives the driver's measured fps);
+- worker: alive (`.../alive/worker`), fps, end-to-end latency p50/p99 (depth stamp to labels
+  published, from the worker's stats messages in the window), processed / dropped / rejected
+  counts since the worker started, and the model in use.
+
+Liveliness comes from a `get` at the end of the window plus a subscriber for the window, so
+a service that goes away during the window shows as DOWN. A service killed outright is seen
+as soon as its TCP link closes; one on a host that vanished, after Zenoh's lease (10 s).
+
+Exit status: 0 when every camera has both its driver and its worker alive; 1 when any
+camera's driver or worker is DOWN, or when no topseg service was found at all; 2 for bad
+arguments or no Zenoh session. A camera whose services are alive but labelled no frame in
+the window is shown as "idle" without changing the exit status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from topseg.services import zenoh_session
+
+log = logging.getLogger("topseg.status")
+
+#: The roles whose absence makes a camera DOWN.
+REQUIRED_ROLES = ("driver", "worker")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="listen this long for stats and tokens, plus up to 1 s for the final queries "
+        "(default: %(default)s s)",
+    )
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.add_argument(
+        "--watch", action="store_true", help="report every window until interrupted"
+    )
+    parser.add_argument("--cell", default="*", help="only this cell (default: every cell)")
+    parser.add_argument(
+        "--expect",
+        nargs="+",
+        metavar="CELL/CAMERA",
+        default=[],
+        help="cameras that must be there: shown DOWN when nothing of theirs answers",
+    )
+    zenoh_session.add_arguments(parser)
+
+
+# ---------------------------------------------------------------------------- pure part
+
+
+@dataclass
+class Observed:
+    """What one window saw: tokens, stats messages and driver info replies, by camera."""
+
+    alive: set = field(default_factory=set)  # (cell, camera, role) alive at the end
+    went_down: set = field(default_factory=set)  # (cell, camera, role) deleted in the window
+    stats: dict = field(default_factory=dict)  # (cell, camera) -> [stats dicts]
+    info_start: dict = field(default_factory=dict)  # (cell, camera) -> (monotonic, info)
+    info_end: dict = field(default_factory=dict)
+    window_s: float = 0.0
+
+
+def percentile(values: list[float], q: float) -> float | None:
+    """Nearest-rank percentile (q in 0..100) of `values`, None when empty."""
+    if not values:
+        return None
+    ordered = sorted(values)
+    rank = max(1, math.ceil(q / 100 * len(ordered)))
+    return ordered[rank - 1]
+
+
+def _driver_report(alive: bool, start: tuple | None, end: tuple | None) -> dict:
+    out: dict[str, Any] = {"alive": alive}
+    info = (end or start or (None, None))[1]
+    if info:
+        for name in ("source", "frames", "reconnects", "last_error"):
+            out[name] = info.get(name)
+        out["nominal_fps"] = info.get("fps")
+    if start and end and end[0] > start[0]:
+        frames = end[1].get("frames", 0) - start[1].get("frames", 0)
+        out["fps"] = max(0, frames) / (end[0] - start[0])
+    return out
+
+
+def _worker_report(alive: bool, stats: list[dict]) -> dict:
+    out: dict[str, Any] = {"alive": alive, "stats_messages": len(stats)}
+    if not stats:
+        return out
+    stats = sorted(stats, key=lambda s: s["stamp_ns"])
+    last = stats[-1]
+    latency = [s["timings_ms"]["latency"] for s in stats if "latency" in s["timings_ms"]]
+    total = [s["timings_ms"]["total"] for s in stats if "total" in s["timings_ms"]]
+    out["model"] = last.get("model_id")
+    out["fps"] = last.get("fps", 0.0)
+    first = stats[0]
+    span_s = (last["stamp_ns"] - first["stamp_ns"]) / 1e9
+    done = last["counts"].get("processed", 0) - first["counts"].get("processed", 0)
+    if span_s > 0 and done > 0:
+        out["fps"] = done / span_s  # measured over the window, not the worker's own estimate
+    out["latency_ms"] = {"p50": percentile(latency, 50), "p99": percentile(latency, 99)}
+    out["processing_ms"] = {"p50": percentile(total, 50), "p99": percentile(total, 99)}
+    for name in ("processed", "dropped", "rejected"):
+        out[name] = last["counts"].get(name, 0)
+        out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))
+    return out
+
+
+def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
+    """The JSON-able status of every camera `seen` knows of (and every expected one)."""
+    cameras = set(expect)
+    cameras |= {(c, cam) for c, cam, _ in seen.alive | seen.went_down}
+    cameras |= set(seen.stats) | set(seen.info_start) | set(seen.info_end)
+    rows = []
+    for cell, camera in sorted(cameras):
+        roles = {r for c, cam, r in seen.alive if (c, cam) == (cell, camera)}
+        driver = _driver_report(
+            "driver" in roles,
+            seen.info_start.get((cell, camera)),
+            seen.info_end.get((cell, camera)),
+        )
+        worker = _worker_report("worker" in roles, seen.stats.get((cell, camera), []))
+        problems = [f"{r} DOWN" for r in REQUIRED_ROLES if r not in roles]
+        problems += [
+            f"{r} went down during the window"
+            for c, cam, r in sorted(seen.went_down)
+            if (c, cam) == (cell, camera) and r not in roles
+        ]
+        idle = not problems and worker["stats_messages"] == 0
+        rows.append(
+            {
+                "cell": cell,
+                "camera": camera,
+                "ok": not any(r not in roles for r in REQUIRED_ROLES),
+                "idle": idle,
+                "driver": driver,
+                "worker": worker,
+                "other_roles": sorted(roles - set(REQUIRED_ROLES)),
+                "problems": problems,
+            }
+        )
+    ok = bool(rows) and all(r["ok"] for r in rows)
+    return {"window_s": round(seen.window_s, 3), "ok": ok, "cameras": rows}
+
+
+def exit_status(rep: dict) -> int:
+    return 0 if rep["ok"] else 1
+
+
+def _ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}" if value >= 10 else f"{value:.1f}"
+
+
+def format_table(rep: dict) -> str:
+    """The report as a table for people: one row per camera, DOWN in capitals."""
+    if not rep["cameras"]:
+        return f"no topseg service answered in {rep['window_s']:.1f} s (is Zenoh reachable?)"
+    head = (
+        "CAMERA", "DRIVER", "WORKER", "FPS", "LATENCY p50/p99 ms",
+        "PROCESSED", "DROPPED", "REJECTED", "MODEL", "SOURCE", "RECONNECTS",
+    )  # fmt: skip
+    lines = [head]
+    for row in rep["cameras"]:
+        d, w = row["driver"], row["worker"]
+        lat = w.get("latency_ms", {})
+        fps = f"{w['fps']:.1f}" if "fps" in w else "-"
+        if row["idle"]:
+            fps = "idle"
+        drv_fps = f" {d['fps']:.1f} fps" if d.get("fps") is not None and d["alive"] else ""
+        lines.append(
+            (
+                f"{row['cell']}/{row['camera']}",
+                ("alive" + drv_fps) if d["alive"] else "DOWN",
+                "alive" if w["alive"] else "DOWN",
+                fps,
+                f"{_ms(lat.get('p50'))}/{_ms(lat.get('p99'))}",
+                str(w.get("processed", "-")),
+                str(w.get("dropped", "-")),
+                str(w.get("rejected", "-")),
+                str(w.get("model") or "-"),
+                str(d.get("source") or "-"),
+                str(d.get("reconnects", "-")),
+            )
+        )
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    out = [
+        "  ".join(c.ljust(n) for c, n in zip(line, widths, strict=True)).rstrip() for line in lines
+    ]
+    for row in rep["cameras"]:
+        for p in row["problems"]:
+            out.append(f"{row['cell']}/{row['camera']}: {p}")
+        if row["driver"].get("last_error") and row["driver"]["alive"]:
+            out.append(
+                f"{row['cell']}/{row['camera']}: driver's last error: {row['driver']['last_error']}"
+            )
+    verdict = "all cameras up" if rep["ok"] else "PROBLEM: some service is DOWN"
+    out.append(f"{verdict} (window {rep['window_s']:.1f} s)")
+    return "\n".join(out)
+
+
+# ---------------------------------------------------------------------------- Zenoh part
+
+
+def _camera_of(key: str) -> tuple[str, str] | None:
+    from topseg.core import wire
+
+    try:
+        parts = wire.parse_key(key)
+    except wire.WireError:
+        return None
+    return parts.cell, parts.camera
+
+
+class Listener:
+    """Subscribers for tokens and stats on one session; `window()` collects one Observed."""
+
+    def __init__(self, session, cell: str) -> None:
+        self.session, self.cell = session, cell
+        self.lock = threading.Lock()
+        self.tokens: set = set()
+        self.went_down: set = set()
+        self.stats: dict = {}
+        self.alive_key = f"topseg/{cell}/*/alive/*"
+        self._subs = [
+            session.liveliness().declare_subscriber(self.alive_key, self._on_token, history=True),
+            session.declare_subscriber(f"topseg/{cell}/*/stats", self._on_stats),
+        ]
+
+    def _on_token(self, sample) -> None:
+        from topseg.core import wire
+
+        try:
+            parts = wire.parse_key(str(sample.key_expr))
+        except wire.WireError:
+            return
+        entry = (parts.cell, parts.camera, parts.role)
+        with self.lock:
+            if str(sample.kind).endswith("DELETE"):
+                self.tokens.discard(entry)
+                self.went_down.add(entry)
+            else:
+                self.tokens.add(entry)
+
+    def _on_stats(self, sample) -> None:
+        from topseg.core import wire
+
+        camera = _camera_of(str(sample.key_expr))
+        if camera is None:
+            return
+        try:
+            stats = wire.decode_stats(sample.payload.to_bytes())
+        except wire.WireError:
+            return  # not ours to judge: the worker counts its own rejects
+        with self.lock:
+            self.stats.setdefault(camera, []).append(stats)
+
+    def info(self, timeout: float):
+        """Ask every driver's info queryable; the returned callable collects the replies as
+        {(cell, camera): (monotonic, info dict)} (so other queries can go out meanwhile)."""
+        replies = self.session.get(f"topseg/{self.cell}/*/info", timeout=timeout)
+
+        def collect() -> dict:
+            out = {}
+            for reply in replies:
+                if reply.ok is None:
+                    continue
+                try:
+                    info = json.loads(reply.ok.payload.to_bytes())
+                except ValueError:
+                    continue
+                if not isinstance(info, dict):
+                    continue
+                # The driver replies on the query's key (a wildcard here): its payload names it.
+                camera = _camera_of(str(reply.ok.key_expr))
+                if camera is None:
+                    camera = _camera_of(f"topseg/{info.get('cell')}/{info.get('camera')}/info")
+                if camera is not None:
+                    out[camera] = (time.monotonic(), info)
+            return out
+
+        return collect
+
+    def live_tokens(self, timeout: float):
+        """Ask for the live tokens; the returned callable collects {(cell, camera, role)}."""
+        from topseg.core import wire
+
+        replies = self.session.liveliness().get(self.alive_key, timeout=timeout)
+
+        def collect() -> set:
+            out = set()
+            for reply in replies:
+                if reply.ok is None:
+                    continue
+                try:
+                    parts = wire.parse_key(str(reply.ok.key_expr))
+                except wire.WireError:
+                    continue
+                out.add((parts.cell, parts.camera, parts.role))
+            return out
+
+        return collect
+
+    def window(self, seconds: float, stop: threading.Event) -> Observed:
+        """Listen for `seconds`; ask the drivers' info at both ends and the tokens at the end
+        (those queries wait at most a third of the window, 1 s at most, for slow repliers)."""
+        t0 = time.monotonic()
+        with self.lock:
+            self.stats, self.went_down = {}, set()
+        query_s = max(0.2, min(1.0, seconds / 3))
+        start = self.info(query_s)()
+        stop.wait(max(0.0, seconds - (time.monotonic() - t0)))
+        end_info, end_tokens = self.info(query_s), self.live_tokens(query_s)
+        end, live = end_info(), end_tokens()
+        with self.lock:
+            alive = self.tokens | live
+            # a token deleted and never seen again is down; one that came back is alive
+            seen = Observed(
+                alive=alive,
+                went_down=self.went_down - alive,
+                stats={k: list(v) for k, v in self.stats.items()},
+                info_start=start,
+                info_end=end,
+                window_s=time.monotonic() - t0,
+            )
+        return seen
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def wait_connected(session, timeout: float) -> bool:
+    """Wait up to `timeout` s for a first peer or router, so the first queries reach someone."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if any(True for _ in session.info.peers_zid()) or any(
+            True for _ in session.info.routers_zid()
+        ):
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def _expected(entries: list[str]) -> list[tuple[str, str]]:
+    from topseg.services.worker import parse_camera
+
+    return [parse_camera(e) for e in entries]
+
+
+def run(args: argparse.Namespace) -> int:
+    from topseg.core import wire
+    from topseg.core.errors import TopsegError
+
+    if not args.timeout > 0:
+        raise TopsegError(f"--timeout must be > 0, got {args.timeout}")
+    if args.cell != "*":
+        try:
+            wire.camera_prefix(args.cell, "x")
+        except wire.WireError as exc:
+            raise TopsegError(str(exc)) from None
+    expect = _expected(args.expect)
+    stop = threading.Event()
+    session = zenoh_session.session_from_args(args)
+    try:
+        listener = Listener(session, args.cell)
+        wait_connected(session, min(1.0, args.timeout / 3))
+        rc = 1
+        while True:
+            try:
+                rep = report(listener.window(args.timeout, stop), expect)
+            except KeyboardInterrupt:
+                break
+            rc = exit_status(rep)
+            if args.json:
+                print(json.dumps(rep), flush=True)
+            else:
+                if args.watch and sys.stdout.isatty():
+                    print("\033[H\033[2J", end="")
+                print(time.strftime("%H:%M:%S"), format_table(rep), sep="\n", flush=True)
+            if not args.watch:
+                break
+        listener.close()
+    finally:
+        session.close()
+    return rc
