@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "topseg.services.segment",
         "segment depth PNGs or recordings offline into label PNGs",
     ),
+    "experiment": ("topseg.services.experiment", "the paper's experiments: Fig. 4 curves, Table I"),
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
