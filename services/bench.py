@@ -27,6 +27,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "topseg.services.bench_pipeline",
         "driver -> worker over Zenoh: fps, latency p50/p99, F1",
     ),
+    "train": (
+        "topseg.services.bench_train",
+        "topseg train, paper config x --scale: s, CPU s, peak RSS",
+    ),
 }
 
 
