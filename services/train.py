@@ -36,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--frames-per-tree", type=int, default=1600, help="bagged frames per tree (F)")
     g.add_argument("--pixels-per-frame", type=int, default=2000)
     g.add_argument("--split", choices=("linear", "axis"), default="linear")
+    g.add_argument(
+        "--absolute-fraction",
+        type=float,
+        default=0.0,
+        help="share of the pool comparing a probe with a fixed depth (not in the paper; 0)",
+    )
     g.add_argument("--seed", type=int, default=0)
     g.add_argument(
         "--validation",
@@ -100,7 +106,10 @@ def _train_config(args: argparse.Namespace):
         n_candidates=args.responses,
         n_thresholds=args.thresholds,
         split=args.split,
-        features=FeatureConfig(n_features=args.features),
+        features=FeatureConfig(
+            n_features=args.features,
+            absolute_fraction=getattr(args, "absolute_fraction", 0.0),
+        ),
     )
 
 
