@@ -1,0 +1,110 @@
+"""`topseg status` against a real driver (synthetic source) and worker on loopback Zenoh."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from netutil import Services, Tap, free_port, wait_for
+
+from topseg.services import status
+
+MODEL = Path(__file__).resolve().parent.parent / "models" / "default.npz"
+
+
+def topseg_status(port, *args, timeout=3.0):
+    """Run `topseg status` as a process; (exit status, stdout)."""
+    cmd = [sys.executable, "-m", "topseg.services.cli", "status", "--zenoh-port", str(port)]
+    cmd += ["--timeout", str(timeout), *args]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert done.returncode in (0, 1), done.stderr
+    return done.returncode, done.stdout
+
+
+@pytest.fixture
+def run():
+    services, taps = Services(), []
+
+    def tap(port, cell):
+        taps.append(Tap(port, cell))
+        return taps[-1]
+
+    services.tap = tap
+    yield services
+    services.close()
+    for t in taps:
+        t.close()
+
+
+def test_status_shows_driver_and_worker_alive_then_the_killed_worker_down(run):
+    port, cell = free_port(), "st1"
+    worker = run("worker", "--model", MODEL, "--cameras", f"{cell}/cam0", "--zenoh-port", port)
+    driver = run(
+        "driver", "--cell", cell, "--source", "synthetic", "--fps", "5", "--zenoh-port", port
+    )
+    worker.wait_line("worker ready", 120)
+    driver.wait_line("publishing", 120)
+
+    tap = run.tap(port, cell)  # the test's own look at the stats, to start when labels flow
+    wait_for(lambda: len(tap.stats) >= 2, 120, "two stats messages from the worker")
+
+    for window in (3, 6, 12, 24):  # on a loaded machine a frame can take longer than 3 s
+        rc, out = topseg_status(port, "--json", "--cell", cell, timeout=window)
+        rep = json.loads(out)
+        cams = rep["cameras"]
+        if cams and cams[0]["worker"]["stats_messages"] >= 1:
+            break
+    assert rc == 0 and rep["ok"], out
+    cam = cams[0]
+    assert (cam["cell"], cam["camera"], cam["problems"]) == (cell, "cam0", [])
+    assert len(cams) == 1, out
+    assert cam["driver"]["alive"] and cam["driver"]["source"] == "synthetic"
+    assert cam["driver"]["reconnects"] == 0 and cam["driver"]["frames"] > 0
+    w = cam["worker"]
+    assert w["alive"] and w["fps"] > 0 and w["model"] == "default.npz"
+    assert 0 < w["latency_ms"]["p50"] <= w["latency_ms"]["p99"]
+    assert w["processed"] > 0 and w["rejected"] == 0
+
+    worker.kill()  # kill -9: no goodbye, its token goes with its link
+    rc, out = topseg_status(port, "--cell", cell)
+    assert rc == 1, out
+    row = next(line for line in out.splitlines() if line.startswith(f"{cell}/cam0 "))
+    assert row.split()[1] == "alive" and row.split().count("DOWN") == 1  # driver up, worker not
+    assert f"{cell}/cam0: worker DOWN" in out and "PROBLEM" in out
+    assert driver.alive()
+
+
+def test_status_with_nothing_running_says_so_and_fails():
+    rc, out = topseg_status(free_port(), timeout=0.5)
+    assert rc == 1 and "no topseg service answered" in out
+
+
+def test_expected_camera_with_nothing_up_is_down():
+    rep = status.report(status.Observed(window_s=1.0), [("c", "cam9")])
+    assert not rep["ok"] and rep["cameras"][0]["problems"] == ["driver DOWN", "worker DOWN"]
+    assert "DOWN" in status.format_table(rep)
+
+
+def test_report_from_stats_messages():
+    seen = status.Observed(window_s=2.0)
+    seen.alive = {("c", "k", "driver"), ("c", "k", "worker"), ("c", "k", "viewer")}
+    seen.stats[("c", "k")] = [
+        {
+            "stamp_ns": i * 100_000_000,
+            "model_id": "m",
+            "fps": 9.0,
+            "timings_ms": {"total": 5.0, "latency": float(10 + i)},
+            "counts": {"processed": 10 + i, "dropped": 2 * i, "rejected": 0},
+        }
+        for i in range(11)
+    ]
+    seen.info_start[("c", "k")] = (0.0, {"frames": 100, "source": "s", "reconnects": 1})
+    seen.info_end[("c", "k")] = (2.0, {"frames": 140, "source": "s", "reconnects": 1})
+    rep = status.report(seen)
+    cam = rep["cameras"][0]
+    assert rep["ok"] and cam["other_roles"] == ["viewer"] and not cam["idle"]
+    assert cam["worker"]["fps"] == pytest.approx(10.0)  # 10 frames in 1 s of stamps
+    assert cam["worker"]["latency_ms"] == {"p50": 15.0, "p99": 20.0}
+    assert cam["worker"]["dropped"] == 20 and cam["worker"]["dropped_in_window"] == 20
+    assert cam["driver"]["fps"] == pytest.approx(20.0) and cam["driver"]["reconnects"] == 1
