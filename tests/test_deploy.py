@@ -4,6 +4,7 @@ example configs, and the udev rules give sensors to a group without making them 
 
 from __future__ import annotations
 
+import hashlib
 import re
 import shlex
 import shutil
@@ -22,8 +23,8 @@ CONFIGS = DEPLOY / "config"
 INSTALLED_TOPSEG = "/opt/topseg/venv/bin/topseg"
 #: unit file -> the instance its example config is for ("" for plain units)
 UNIT_INSTANCES = {
-    "topseg-driver@.service": ["kinect", "oak"],
-    "topseg-worker@.service": ["kinect", "oak", "worker"],
+    "topseg-driver@.service": ["kinect", "oak", "demo"],
+    "topseg-worker@.service": ["kinect", "oak", "demo", "worker"],
     "topseg-viewer.service": [""],
     "topseg-router.service": [""],
 }
@@ -242,3 +243,156 @@ def test_udev_rules_never_world_writable():
         mode = rule.get("MODE=")
         if mode is not None:
             assert not int(mode, 8) & 0o002, rule
+
+
+# --- deploy/install.sh and deploy/uninstall.sh into a temporary root ----------------------
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    """A topseg wheel built from the package sources, so that installing needs no network."""
+    src = tmp_path_factory.mktemp("src")
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    for name in ("topseg_pkg", "core", "drivers", "services"):
+        shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+    out = tmp_path_factory.mktemp("wheel")
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
+         "-w", str(out), str(src)],
+        check=True,
+        timeout=300,
+    )  # fmt: skip
+    (found,) = out.glob("topseg-*.whl")
+    return found
+
+
+@pytest.fixture
+def checkout(tmp_path) -> Path:
+    """A checkout whose deploy/ the test may change (the scripts are the real ones)."""
+    co = tmp_path / "checkout"
+    shutil.copytree(DEPLOY, co / "deploy")
+    for name in ("models", "recordings", "docs"):
+        (co / name).symlink_to(ROOT / name)
+    return co
+
+
+def run_script(script: Path, *args: str) -> list[str]:
+    result = subprocess.run(
+        ["bash", str(script), *args], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout.splitlines()
+
+
+def install(checkout: Path, root: Path, wheel: Path) -> list[str]:
+    return run_script(
+        checkout / "deploy" / "install.sh",
+        "--root", str(root), "--no-systemctl", "--python", sys.executable, "--no-venv-pip",
+        "--source", str(wheel), "--pip-args", "--no-deps --no-index",
+    )  # fmt: skip
+
+
+def snapshot(root: Path) -> dict[str, tuple]:
+    """Every file and link under root: content digest, mode and mtime (to see any change)."""
+    found = {}
+    for path in sorted(root.rglob("*")):
+        st = path.lstat()
+        digest = None
+        if path.is_file() and not path.is_symlink():
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        found[str(path.relative_to(root))] = (digest, st.st_mode, st.st_mtime_ns)
+    return found
+
+
+def lines_with(lines: list[str], text: str) -> list[str]:
+    return [line for line in lines if text in line]
+
+
+def test_install_twice_then_uninstall(tmp_path, checkout, wheel):
+    root = tmp_path / "root"
+    first = install(checkout, root, wheel)
+    assert lines_with(first, "installed topseg into /opt/topseg/venv (topseg ")
+    for path in (
+        "etc/systemd/system/topseg-driver@.service",
+        "etc/systemd/system/topseg-worker@.service",
+        "etc/systemd/system/topseg-viewer.service",
+        "etc/systemd/system/topseg-router.service",
+        "etc/udev/rules.d/99-topseg.rules",
+        "etc/topseg/kinect.toml",
+        "etc/topseg/oak.toml",
+        "opt/topseg/models/default.npz",
+        "opt/topseg/recordings/demo.mcap",
+    ):
+        assert (root / path).is_file(), path
+        assert lines_with(first, f"installed /{path}"), path
+    for conf in (DEPLOY / "zenoh").glob("*.json5"):
+        assert (root / "etc/topseg/zenoh" / conf.name).is_file()
+    assert (root / "etc/topseg/kinect.toml").stat().st_mode & 0o777 == 0o640
+    assert (root / "etc/topseg").stat().st_mode & 0o777 == 0o750
+    topseg = root / "opt/topseg/venv/bin/topseg"
+    version = subprocess.run([topseg, "--version"], capture_output=True, text=True, timeout=60)
+    assert version.stdout.startswith("topseg ")
+
+    before = snapshot(root)
+    second = install(checkout, root, wheel)
+    assert snapshot(root) == before, "a second install changed files"
+    changed = [line for line in second if "installed" in line or "updated" in line]
+    assert not changed, changed
+    assert lines_with(second, "unchanged /opt/topseg/venv")
+
+    run_script(checkout / "deploy" / "uninstall.sh", "--root", str(root), "--no-systemctl")
+    assert not (root / "opt/topseg").exists()
+    assert not list((root / "etc/systemd/system").glob("topseg-*"))
+    assert not (root / "etc/udev/rules.d/99-topseg.rules").exists()
+    assert (root / "etc/topseg/kinect.toml").is_file(), "configs are kept without --purge"
+    before = snapshot(root)
+    again = run_script(checkout / "deploy" / "uninstall.sh", "--root", str(root), "--no-systemctl")
+    assert snapshot(root) == before
+    assert not lines_with(again, "removed")
+    run_script(
+        checkout / "deploy" / "uninstall.sh", "--root", str(root), "--no-systemctl", "--purge"
+    )
+    assert not (root / "etc/topseg").exists()
+
+
+def test_install_keeps_edited_configs(tmp_path, checkout, wheel):
+    root = tmp_path / "root"
+    install(checkout, root, wheel)
+    etc = root / "etc/topseg"
+    (etc / "viewer.toml").write_text("[viewer]\nweb = true\nstride = 2\n")  # edited
+    (etc / "oak.toml").write_text('[driver]\nsource = "oak"\ncamera = "left"\n')  # edited
+    # A new release changes the defaults of kinect.toml (unedited) and oak.toml (edited).
+    for name in ("kinect.toml", "oak.toml"):
+        with open(checkout / "deploy/config" / name, "a") as f:
+            f.write("# a newer default\n")
+    lines = install(checkout, root, wheel)
+    assert lines_with(lines, "updated /etc/topseg/kinect.toml")
+    assert (etc / "kinect.toml").read_text().endswith("# a newer default\n")
+    assert lines_with(lines, "kept your edited /etc/topseg/viewer.toml")
+    assert not (etc / "viewer.toml.dist").exists()
+    assert (etc / "viewer.toml").read_text().endswith("stride = 2\n")
+    assert lines_with(lines, "kept your edited /etc/topseg/oak.toml; the new default is")
+    assert 'camera = "left"' in (etc / "oak.toml").read_text()
+    assert (etc / "oak.toml.dist").read_text() == (checkout / "deploy/config/oak.toml").read_text()
+    before = snapshot(root)
+    install(checkout, root, wheel)
+    assert snapshot(root) == before
+
+
+@needs_analyze
+def test_installed_units_verify_in_the_root(tmp_path, checkout, wheel):
+    """`systemd-analyze verify --root`: the installed units start the installed topseg."""
+    root = tmp_path / "root"
+    install(checkout, root, wheel)
+    shutil.copytree("/usr/lib/systemd/system", root / "usr/lib/systemd/system", symlinks=True)
+    units = ["topseg-driver@kinect.service", "topseg-worker@kinect.service"]
+    units += ["topseg-viewer.service", "topseg-router.service"]
+    result = subprocess.run(
+        [SYSTEMD_ANALYZE, "verify", f"--root={root}", *units],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    output = (result.stdout + result.stderr).strip()
+    assert result.returncode == 0 and output == "", output
