@@ -193,6 +193,7 @@ def test_a_worker_slower_than_the_sensor_stays_on_the_newest_frame(run):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # the default 600 s would cut the 600 s soak short
 def test_soak_slow_worker_ten_minutes(run):
     """10 minutes of the above; writes its figures to $TOPSEG_SOAK_REPORT when set."""
     seconds = float(os.environ.get("TOPSEG_SOAK_S", 600))
