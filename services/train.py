@@ -219,7 +219,8 @@ def train_on(
                 raise TopsegError(f"tree {t} did not come back whole from {parts[t]}")
     seconds = time.perf_counter() - t0
     _write_model(args, ds, val_idx, recipe_, [trees[t] for t in range(args.trees)], seconds)
-    for p in parts:
+    # the parts, and the temp files of part writes a kill -9 cut short (atomic_write's)
+    for p in [*parts, *parts_dir.glob(".tree-*.npz.*.tmp")]:
         p.unlink(missing_ok=True)
     parts_dir.rmdir()
     return seconds
