@@ -93,6 +93,9 @@ class RecordingWriter:
                 dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".partial"
             )
             self._tmp = Path(tmp)
+            mask = os.umask(0)
+            os.umask(mask)
+            os.fchmod(fd, 0o666 & ~mask)  # mkstemp's 0600 would lock other users out
             self._file = os.fdopen(fd, "wb")
             self._writer = Writer(self._file, chunk_size=chunk_size, compression=compress)
             self._writer.start(profile="", library=f"topseg {__version__}")
