@@ -122,7 +122,6 @@ def _raise_interrupt(signum, frame):
 
 def run(args: argparse.Namespace) -> int:
     from topseg.core.errors import TopsegError
-    from topseg.services import experiment_report as report
     from topseg.services import experiment_runs as runs
 
     runs.check_positive("--workers", args.workers)
@@ -141,7 +140,17 @@ def run(args: argparse.Namespace) -> int:
         f"{test_frames} test frames; data cache {cache}; results {out}",
         flush=True,
     )
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    old_handler = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        return _run_points(args, scale, test_frames, out, cache, points)
+    finally:
+        signal.signal(signal.SIGTERM, old_handler)
+
+
+def _run_points(args, scale, test_frames: int, out: Path, cache: Path, points) -> int:
+    from topseg.services import experiment_report as report
+    from topseg.services import experiment_runs as runs
+
     done: dict[str, dict] = {}
     t_start = time.perf_counter()
     try:

@@ -70,14 +70,14 @@ SCALES: dict[str, Scale] = {
         features=40,
         responses=10,
         thresholds=10,
-        frames=6,
+        frames=4,
         pixels_per_frame=300,
-        test_frames=3,
+        test_frames=2,
         serial=True,
         sweeps=(
-            ("noise", (0, 15, 100)),
+            ("noise", (0, 15)),
             ("features", (75, 150)),
-            ("frames", (3, 6)),
+            ("frames", (2, 4)),
             ("overlap", (0, 30)),
         ),
     ),
@@ -170,7 +170,8 @@ def ensure_dataset(
             print(f"  data: rendering {todo} frames of {path.name} in this process", flush=True)
             a = writer.attrs
             indices = writer.todo().tolist()
-            render_chunk(str(writer.path), str(writer.path), a["generator"], a["seed"], indices)
+            key = f"{writer.path}|{writer.frames}|{a['created']}"  # as datagen.generate's
+            render_chunk(str(writer.path), key, a["generator"], a["seed"], indices)
             writer.mark_complete(indices)
         elif todo:
             print(f"  data: rendering {todo} frames of {path.name}", flush=True)
