@@ -5,7 +5,7 @@ TOPSEG := $(VENV)/bin/topseg
 STAMP  := $(VENV)/.installed
 PYTEST := $(PY) -m pytest
 
-.PHONY: install test test-all demo bench lint format clean model recording
+.PHONY: install test test-all demo bench lint format clean model recording experiments
 
 install: $(STAMP)
 
@@ -43,6 +43,10 @@ model: install
 ## rebuild the bundled demo recording (recordings/demo.mcap)
 recording: install
 	bash scripts/make_recording.sh
+
+## the paper's experiments at the quick scale (docs/results.md): out/experiments-quick/
+experiments: install
+	for e in table noise features overlap frames; do $(TOPSEG) experiment $$e --scale quick --out out/experiments-quick || exit 1; done
 
 lint: install
 	$(VENV)/bin/ruff check .
