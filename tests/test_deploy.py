@@ -5,6 +5,7 @@ example configs, and the udev rules give sensors to a group without making them 
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 import shlex
 import shutil
@@ -13,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from netutil import Services, free_port
 
 from topseg.services import cli
 
@@ -396,3 +398,83 @@ def test_installed_units_verify_in_the_root(tmp_path, checkout, wheel):
     )
     output = (result.stdout + result.stderr).strip()
     assert result.returncode == 0 and output == "", output
+
+
+# --- the hardening keeps Zenoh's shared memory ---------------------------------------------
+
+#: The mount layout systemd gives the worker, viewer and router (PrivateDevices=: a private
+#: /dev with the host's /dev/shm bind-mounted in; PrivateTmp=; ProtectSystem=strict: / read
+#: only), made with unshare(1); $1 = host keeps /dev/shm as systemd does, private replaces it.
+SANDBOX = r"""
+set -e
+dev=$2
+mount -t tmpfs -o mode=755 tmpfs "$dev"
+for d in null zero random urandom; do touch "$dev/$d"; mount --bind "/dev/$d" "$dev/$d"; done
+mkdir "$dev/shm"
+if [ "$1" = host ]; then mount --bind /dev/shm "$dev/shm"; else mount -t tmpfs tmpfs "$dev/shm"; fi
+mount --move "$dev" /dev
+mount -t tmpfs tmpfs /tmp
+mount -o remount,bind,ro /
+shift 2
+exec "$@"
+"""
+
+#: Receives depth messages, then says whether its transport to the driver uses shared memory.
+COUNT = r"""
+import json, sys, threading, time
+import zenoh
+from topseg.services import zenoh_session
+sizes = []
+enough = threading.Event()
+def on(sample):
+    sizes.append(len(sample.payload.to_bytes()))
+    if len(sizes) >= 5:
+        enough.set()
+session = zenoh_session.open_session(None, int(sys.argv[1]))
+sub = session.declare_subscriber("topseg/*/*/depth", on)
+enough.wait(30)
+print(json.dumps({"n": len(sizes), "size": max(sizes, default=0),
+                  "shm": [t.is_shm for t in session.info.transports()]}))
+session.close()
+"""
+
+
+def can_unshare() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = ["unshare", "-m", "--propagation", "private", "mount", "-t", "tmpfs", "t", "/mnt"]
+    return subprocess.run(probe, capture_output=True, timeout=30).returncode == 0
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or not can_unshare(),
+    reason="needs root and mount namespaces (unshare -m) to build the units' sandbox",
+)
+@pytest.mark.parametrize("shm", ["host", "private"])
+def test_sandboxed_worker_gets_frames_by_shared_memory(shm, tmp_path):
+    """Under the units' mount layout a subscriber still shares memory with the driver.
+
+    The control (a private /dev/shm, as a unit with its own /dev/shm tmpfs would have)
+    shows the check can fail: Zenoh then falls back to TCP.
+    """
+    port = free_port()
+    services = Services()
+    try:
+        driver = services(
+            "driver", "--source", f"replay:{ROOT}/recordings/demo.mcap", "--loop",
+            "--zenoh-port", port,
+        )  # fmt: skip
+        driver.wait_line("publishing")
+        dev = tmp_path / "dev"
+        dev.mkdir()
+        result = subprocess.run(
+            ["unshare", "-m", "--propagation", "private", "bash", "-c", SANDBOX, "sandbox",
+             shm, str(dev), sys.executable, "-c", COUNT, str(port)],
+            capture_output=True, text=True, timeout=90, cwd="/",
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        seen = json.loads(result.stdout.strip().splitlines()[-1])
+    finally:
+        services.close()
+    assert seen["n"] >= 5 and seen["size"] > 600_000, seen  # 640x480 frames arrive either way
+    assert seen["shm"] == [shm == "host"], seen
