@@ -478,3 +478,59 @@ def test_sandboxed_worker_gets_frames_by_shared_memory(shm, tmp_path):
         services.close()
     assert seen["n"] >= 5 and seen["size"] > 600_000, seen  # 640x480 frames arrive either way
     assert seen["shm"] == [shm == "host"], seen
+
+
+#: Runs install.sh and uninstall.sh for "/" inside a mount namespace where /etc is a copy and
+#: /opt, /var/lib, /var/cache and /var/log are empty tmpfs: the real system is never touched.
+#: $1 = the copy of /etc, $2 = the wheel, $3 = the Python, $4 = the checkout.
+AS_ROOT = r"""
+set -euo pipefail
+mount --bind "$1" /etc
+for d in /opt /var/lib /var/cache /var/log; do mount -t tmpfs tmpfs "$d"; done
+for d in /etc /opt /var/lib /var/cache /var/log; do mountpoint -q "$d"; done
+args=(--python "$3" --no-venv-pip --source "$2" --pip-args "--no-deps --no-index")
+echo "== first"; bash "$4/deploy/install.sh" "${args[@]}"
+echo "== second"; bash "$4/deploy/install.sh" "${args[@]}"
+echo "== user"; id topseg
+echo "== etc"; stat -c '%U:%G %a %n' /etc/topseg /etc/topseg/kinect.toml
+echo "== uninstall"; bash "$4/deploy/uninstall.sh" --purge
+echo "== after"; getent passwd topseg || echo "no user topseg"
+"""
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or not can_unshare(),
+    reason="needs root and mount namespaces (unshare -m) to install for / in isolation",
+)
+def test_install_for_root_creates_the_user(tmp_path, checkout, wheel):
+    """The parts only a real install runs: the user in plugdev and video, /etc/topseg
+    readable by its group, and uninstall --purge removing the user again."""
+    etc = tmp_path / "etc"
+    shutil.copytree("/etc", etc, symlinks=True, ignore_dangling_symlinks=True)
+    result = subprocess.run(
+        ["unshare", "-m", "--propagation", "private", "bash", "-c", AS_ROOT, "as-root",
+         str(etc), str(wheel), sys.executable, str(checkout)],
+        capture_output=True, text=True, timeout=300, cwd="/",
+    )  # fmt: skip
+    out = result.stdout
+    assert result.returncode == 0, out + result.stderr
+    sections = {}  # {name: its lines}
+    for part in out.split("== ")[1:]:
+        name, _, text = part.partition("\n")
+        sections[name] = text
+    assert "install: created user topseg (groups plugdev, video)" in sections["first"]
+    changed = [
+        line
+        for line in sections["second"].splitlines()
+        if any(word in line for word in ("created", "installed", "updated", "added"))
+    ]
+    assert not changed, changed
+    assert "unchanged user topseg" in sections["second"]
+    groups = sections["user"]
+    assert "(plugdev)" in groups and "(video)" in groups, groups
+    assert sections["etc"].split("\n")[:2] == [
+        "root:topseg 750 /etc/topseg",
+        "root:topseg 640 /etc/topseg/kinect.toml",
+    ]
+    assert "removed user topseg" in sections["uninstall"]
+    assert "no user topseg" in sections["after"]
