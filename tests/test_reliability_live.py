@@ -181,8 +181,11 @@ def check_slow_worker(fig: dict) -> None:
         "the worker is not slower than the sensor"
     )
     for r in rows:  # newest frame: taken fresh, whatever the backlog could have been
-        assert r["waited_s"] < 0.5, r
-        assert r["behind"] <= (r["work_s"] + 0.5) * fig["depth_fps"], r
+        # a queue of even one frame would make a frame wait a whole work time; the slack
+        # also covers scheduling stalls of a loaded machine (0.9 s seen on 2 busy cores)
+        slack = max(0.5, r["work_s"] / 2)
+        assert r["waited_s"] < slack, r
+        assert r["behind"] <= (r["work_s"] + slack) * fig["depth_fps"], r
     rss = [w for t, w, _ in fig["rss"] if t >= 5.0]  # after the CRF's first allocations
     head, tail = max(rss[: len(rss) // 2]), max(rss[len(rss) // 2 :])
     assert tail - head < 30, f"worker RSS grows: {head:.0f} -> {tail:.0f} MB"
