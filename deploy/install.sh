@@ -162,11 +162,12 @@ if [ -d "$SOURCE" ]; then
     [ -f "$SOURCE/pyproject.toml" ] || die "$SOURCE has no pyproject.toml"
     if git -C "$SOURCE" rev-parse --git-dir >/dev/null 2>&1; then
         digest=$(cd "$SOURCE" && git ls-files -z --cached --others --exclude-standard \
-            | sort -z | xargs -0 sha256sum 2>/dev/null | sha256sum | cut -d' ' -f1)
+            | sort -z | xargs -0 sha256sum 2>/dev/null | sha256sum | cut -d' ' -f1) || true
     else
         digest=$(cd "$SOURCE" && find . -path ./.venv -prune -o -type f -print0 \
-            | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
+            | sort -z | xargs -0 sha256sum 2>/dev/null | sha256sum | cut -d' ' -f1) || true
     fi
+    [ -n "$digest" ] || die "cannot read $SOURCE"
     spec=$SOURCE${EXTRAS:+[$EXTRAS]}
 elif [ -f "$SOURCE" ]; then
     digest=$(sha "$SOURCE")
