@@ -5,7 +5,8 @@ rendezvous port (`--zenoh-port`, `$TOPSEG_ZENOH_PORT`, else 7447). Every process
 
 - listens on `tcp/127.0.0.1:<port>` if that port is free (the first one to start gets it),
   and on an ephemeral loopback port in any case;
-- connects to `tcp/127.0.0.1:<port>`, retrying in the background while nobody holds it;
+- connects to `tcp/127.0.0.1:<port>`, retrying in the background while nobody holds it
+  (every second at most: a restarted port holder is reached within about a second);
 - learns the other peers' ephemeral endpoints by gossip scouting and connects to them.
 
 So separate processes on one host find each other without multicast, in any start order,
@@ -77,6 +78,13 @@ def default_config_json(port: int | None = None) -> dict[str, Any]:
         "connect/endpoints": [endpoint],
         "connect/exit_on_failure": False,
         "connect/timeout_ms": 0,
+        # retry the rendezvous every second at most (Zenoh's default backs off to 4 s), so a
+        # restarted port holder is reached within about a second, not up to four
+        "connect/retry": {
+            "period_init_ms": 250,
+            "period_max_ms": 1000,
+            "period_increase_factor": 2,
+        },
     }
 
 
