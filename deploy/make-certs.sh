@@ -54,11 +54,12 @@ key() {  # key FILE: a new EC P-256 private key (PKCS#8), mode 0600
     chmod 0600 "$1"
 }
 
-# 1. The CA: kept if it exists, even with --force.
-if [ -f "$DIR/ca.pem" ] && [ -f "$DIR/ca-key.pem" ]; then
+# 1. The CA: kept if it exists, even with --force. ca-key.pem may be kept elsewhere; it is
+#    needed only when a certificate is to be issued.
+if [ -f "$DIR/ca.pem" ]; then
     :
-elif [ -f "$DIR/ca.pem" ] || [ -f "$DIR/ca-key.pem" ]; then
-    echo "$0: $DIR holds only half of the CA (ca.pem or ca-key.pem); remove it or restore the other" >&2
+elif [ -f "$DIR/ca-key.pem" ]; then
+    echo "$0: $DIR has ca-key.pem but no ca.pem; restore ca.pem or remove the key" >&2
     exit 1
 else
     key "$TMP/ca-key.pem"
@@ -79,6 +80,10 @@ leaf() {
     name=$1 cn=$2 usage=$3 san=$4
     if [ "$FORCE" = 0 ] && [ -f "$DIR/$name.pem" ] && [ -f "$DIR/$name-key.pem" ]; then
         return
+    fi
+    if [ ! -f "$DIR/ca-key.pem" ]; then
+        echo "$0: $DIR/ca-key.pem is needed to issue $name.pem; put it back (it was moved off?)" >&2
+        exit 1
     fi
     key "$TMP/$name-key.pem"
     openssl req -new -key "$TMP/$name-key.pem" -subj "/O=topseg/CN=$cn" -out "$TMP/$name.csr"

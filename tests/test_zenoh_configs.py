@@ -106,3 +106,13 @@ def test_make_certs_keeps_what_exists_and_force_reissues_all_but_the_ca(tmp_path
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     assert after["ca.pem"] == before["ca.pem"] and after["ca-key.pem"] == before["ca-key.pem"]
     assert all(after[n] != before[n] for n in after if not n.startswith("ca"))
+
+
+def test_make_certs_needs_the_ca_key_only_to_issue(tmp_path):
+    certs = tmp_path / "certs"
+    make_certs(certs)
+    (certs / "ca-key.pem").rename(tmp_path / "ca-key.pem")  # kept offline
+    assert "already holds every certificate" in make_certs(certs)
+    (certs / "worker.pem").unlink()
+    done = subprocess.run(["sh", str(MAKE_CERTS), str(certs)], capture_output=True, text=True)
+    assert done.returncode == 1 and "ca-key.pem is needed to issue worker.pem" in done.stderr
