@@ -16,7 +16,8 @@
 # router and client certificates (new keys) from the existing CA: that is how to rotate
 # them without touching ca.pem on the other machines. To replace the CA itself, remove
 # ca.pem and ca-key.pem first (then every machine needs the new ca.pem).
-# These are test and small-site certificates: keep ca-key.pem off the cell PCs.
+# These are test and small-site certificates. Move ca-key.pem off the cell PCs once done;
+# the script asks for it back only when it has a certificate to issue.
 set -eu
 
 usage() {
@@ -28,7 +29,7 @@ FORCE=0
 while [ $# -gt 0 ]; do
     case "$1" in
         --force) FORCE=1; shift ;;
-        -h|--help) sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h|--help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         --) shift; break ;;
         -*) echo "$0: unknown option $1" >&2; usage ;;
         *) break ;;
