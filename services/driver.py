@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         truth_pub = session.declare_publisher(keys["truth"], **publish)
         token = session.liveliness().declare_token(keys["alive"])
         queryable = session.declare_queryable(
-            keys["info"], lambda query: query.reply(query.key_expr, state.to_json())
+            keys["info"], lambda query: query.reply(keys["info"], state.to_json())
         )
 
         def on_open(source) -> None:
