@@ -57,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="(default realtime)",
     )
     parser.add_argument("--test-frames", type=int, help="test set size (default: the scale's)")
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="rewrite OUT/<experiment>.md/.json/.png from the finished points; run none",
+    )
 
 
 @dataclass(frozen=True)
@@ -164,6 +169,18 @@ def _run_points(args, scale, test_frames: int, out: Path, cache: Path, points) -
                 print(f"[{i}/{len(points)}] {p.key}: finished before, skipped")
                 done[p.key] = doc
                 continue
+            if args.report_only:
+                continue
+            same = runs.scored_elsewhere(out, recipe)
+            if same is not None:
+                doc = {**same, "experiment": args.experiment, "curve": p.curve, "x": p.x}
+                doc["key"] = p.key
+                runs.write_json(path, doc)
+                print(
+                    f"[{i}/{len(points)}] {p.key}: the same as {same['experiment']} {same['key']}"
+                )
+                done[p.key] = doc
+                continue
             print(f"[{i}/{len(points)}] {p.key}: model {p.model.key()}", flush=True)
             t0 = time.perf_counter()
             if test_ds is None:
@@ -198,7 +215,7 @@ def _run_points(args, scale, test_frames: int, out: Path, cache: Path, points) -
         return 130
     paths = report.write_all(out, args.experiment, scale, args.crf, test_frames, points, done)
     print(
-        f"finished {len(points)} points in {time.perf_counter() - t_start:.0f} s; wrote "
+        f"finished {len(done)} of {len(points)} points in {time.perf_counter() - t_start:.0f} s; wrote "
         + ", ".join(str(p) for p in paths)
     )
     return 0

@@ -311,6 +311,16 @@ def load_point(path: Path, recipe: dict) -> dict | None:
     return doc if doc.get("recipe") == recipe else None
 
 
+def scored_elsewhere(out: Path, recipe: dict) -> dict | None:
+    """A point another experiment in `out` already scored with the same recipe (the same
+    model on the same test frames: table's points are frames' F = 1600 points), or None."""
+    for path in sorted((out / "points").glob("*/*.json")):
+        doc = load_point(path, recipe)
+        if doc is not None:
+            return doc
+    return None
+
+
 def write_json(path: Path, doc: dict) -> None:
     from topseg.core.atomic import atomic_write
 

@@ -77,8 +77,20 @@ def test_rerun_skips_finished_points_and_redoes_a_missing_one(results, capsys):
     assert _run(out, cache, "table") == 0
     text = capsys.readouterr().out
     assert text.count("finished before, skipped") == 1
-    assert "train:" not in text  # its model was already there: only the scoring reran
+    # frames scored the same model on the same test frames (tiny F = 4): reused, not rerun
+    assert "non-modeled: the same as frames non-modeled-4" in text and "train:" not in text
     assert points[1].exists()
+
+
+def test_report_only_runs_no_point(results, tmp_path, capsys):
+    out, cache = results
+    (out / "noise.md").unlink()
+    (out / "points" / "noise" / "gaussian-0.json").unlink()
+    capsys.readouterr()
+    assert _run(out, cache, "noise", "--report-only") == 0
+    text = capsys.readouterr().out
+    assert "finished 1 of 2 points" in text and "model " not in text
+    assert "missing: gaussian-0" in (out / "noise.md").read_text()
 
 
 def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
