@@ -1,6 +1,6 @@
 """The model file (DESIGN section 4): a forest's flat arrays and a JSON header, no pickle.
 
-Layout: an uncompressed numpy `.npz` zip archive holding
+Layout: a deflate-compressed numpy `.npz` zip archive holding
 
 - `header`: uint8 bytes of a UTF-8 JSON object with `magic` ("topseg-model"),
   `format_version`, `labels` (the label table the forest predicts), `forest` (its shape and
@@ -8,7 +8,8 @@ Layout: an uncompressed numpy `.npz` zip archive holding
   dataset fingerprint, validation metrics...);
 - one `.npy` member per array of `Forest.arrays()`.
 
-Uncompressed, so a full T=5 D=19 model loads in well under a second (reading is a copy).
+Compressed because a forest's posteriors and unused leaf fields are mostly zeros: the bundled
+2-tree depth-19 model is 4.7 MB instead of 25.7 MB, and loads in 70 ms instead of 22 ms.
 Every member is covered by the zip's CRC-32, so flipped bytes are caught on reading; the
 arrays are then checked for dtype, shape and index bounds (`tree.validate_arrays`) so a
 damaged file can never make inference read out of bounds. Writes are atomic: a temporary
@@ -20,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -73,7 +75,7 @@ def save_model(
         raise ModelFileError(f"model header is not plain JSON: {exc}") from None
     arrays = {"header": np.frombuffer(blob, np.uint8), **forest.arrays()}
     with atomic_write(path) as f:
-        np.savez(f, **arrays)
+        np.savez_compressed(f, **arrays)
 
 
 def _read_header(npz: Any, path: Path) -> dict[str, Any]:
@@ -123,7 +125,7 @@ def load_model(path: str | os.PathLike) -> tuple[Forest, dict[str, Any]]:
             arrays = {name: npz[name] for name in ARRAY_NAMES}
     except ModelFileError:
         raise
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
         raise ModelFileError(f"{path} is damaged or truncated ({exc})") from None
     try:
         forest = Forest(**arrays, background_mm=header["forest"]["background_mm"])
