@@ -10,6 +10,7 @@ import argparse
 import importlib
 import logging
 import sys
+import warnings
 
 from topseg import __version__
 from topseg.core.errors import TopsegError
@@ -98,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
+        # an interrupt can leave zarr's async reads half done; their "coroutine was never
+        # awaited" warnings at exit would bury this line, which is the whole story
+        warnings.simplefilter("ignore")
         print("topseg: interrupted", file=sys.stderr)
         return 130
     except TopsegError as exc:

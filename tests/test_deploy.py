@@ -405,17 +405,22 @@ def test_installed_units_verify_in_the_root(tmp_path, checkout, wheel):
 #: The mount layout systemd gives the worker, viewer and router (PrivateDevices=: a private
 #: /dev with the host's /dev/shm bind-mounted in; PrivateTmp=; ProtectSystem=strict: / read
 #: only), made with unshare(1); $1 = host keeps /dev/shm as systemd does, private replaces it.
+#: $3 is a directory under /tmp to keep visible (a checkout under /tmp, as a CI clone may be:
+#: the installed units run from /opt), or "".
 SANDBOX = r"""
 set -e
 dev=$2
+keep=$3
 mount -t tmpfs -o mode=755 tmpfs "$dev"
 for d in null zero random urandom; do touch "$dev/$d"; mount --bind "/dev/$d" "$dev/$d"; done
 mkdir "$dev/shm"
 if [ "$1" = host ]; then mount --bind /dev/shm "$dev/shm"; else mount -t tmpfs tmpfs "$dev/shm"; fi
 mount --move "$dev" /dev
+if [ -n "$keep" ]; then mkdir /dev/.keep; mount --rbind "$keep" /dev/.keep; fi
 mount -t tmpfs tmpfs /tmp
+if [ -n "$keep" ]; then mkdir -p "$keep"; mount --move /dev/.keep "$keep"; rmdir /dev/.keep; fi
 mount -o remount,bind,ro /
-shift 2
+shift 3
 exec "$@"
 """
 
@@ -467,9 +472,10 @@ def test_sandboxed_worker_gets_frames_by_shared_memory(shm, tmp_path):
         driver.wait_line("publishing")
         dev = tmp_path / "dev"
         dev.mkdir()
+        keep = str(ROOT) if ROOT.is_relative_to("/tmp") else ""
         result = subprocess.run(
             ["unshare", "-m", "--propagation", "private", "bash", "-c", SANDBOX, "sandbox",
-             shm, str(dev), sys.executable, "-c", COUNT, str(port)],
+             shm, str(dev), keep, sys.executable, "-c", COUNT, str(port)],
             capture_output=True, text=True, timeout=90, cwd="/",
         )  # fmt: skip
         assert result.returncode == 0, result.stderr

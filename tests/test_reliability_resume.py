@@ -29,12 +29,19 @@ def topseg(*args, **kw) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=300, **kw)
 
 
+def ctrl_c_default() -> None:
+    """In the child before exec: SIGINT back to its default. A background job of a
+    non-interactive shell (`make test &`, nohup, some CI runners) inherits SIGINT ignored,
+    and Python then installs no KeyboardInterrupt handler: Ctrl-C would do nothing."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(*args, **kw) -> subprocess.Popen:
     """A command in its own process group (so the test can signal it as a terminal would)."""
     cmd = [sys.executable, "-m", "topseg.services.cli", *map(str, args)]
     return subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-        **kw,
+        preexec_fn=ctrl_c_default, **kw,
     )  # fmt: skip
 
 
@@ -129,7 +136,7 @@ def test_datagen_interrupted_by_ctrl_c_resumes_to_the_same_dataset(tmp_path):
     out, frames = tmp_path / "ds.zarr", 16
     proc = subprocess.Popen(
         datagen_args(out, frames), env=env(TOY_FRAME_S="0.1"), start_new_session=True,
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=ctrl_c_default,
     )  # fmt: skip
     with group_reaped(proc):
         deadline = time.monotonic() + 120
