@@ -47,7 +47,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers",
         type=int,
         help="Dask workers: datagen (default one per core) and training "
-        "(default 2, fewer when a tree's features would not fit in 6 GB)",
+        "(default 2, fewer when their trees' features would not fit in --memory-gb)",
+    )
+    parser.add_argument(
+        "--memory-gb",
+        type=float,
+        help="GB of training features the training workers may hold together (default 6; "
+        "a paper-scale tree holds 1.2 GB per 1000 frames)",
     )
     parser.add_argument("--seed", type=int, default=0, help="training data and forest seed")
     parser.add_argument(
@@ -131,6 +137,10 @@ def run(args: argparse.Namespace) -> int:
 
     runs.check_positive("--workers", args.workers)
     runs.check_positive("--test-frames", args.test_frames)
+    if args.memory_gb is None:
+        args.memory_gb = runs.FEATURE_BUDGET_GB
+    if not args.memory_gb > 0:
+        raise TopsegError(f"--memory-gb must be > 0, got {args.memory_gb}")
     if args.seed < 0:
         raise TopsegError(f"--seed must be >= 0, got {args.seed}")
     scale = runs.SCALES[args.scale]
@@ -185,7 +195,9 @@ def _run_points(args, scale, test_frames: int, out: Path, cache: Path, points) -
             t0 = time.perf_counter()
             if test_ds is None:
                 test_ds = runs.ensure_dataset(cache, test, test_frames, args.workers, scale.serial)
-            model_path = runs.ensure_model(out, cache, p.model, args.workers, scale.serial)
+            model_path = runs.ensure_model(
+                out, cache, p.model, args.workers, scale.serial, args.memory_gb
+            )
             t1 = time.perf_counter()
             scores = runs.score(model_path, test_ds, test_frames, args.crf)
             doc = {

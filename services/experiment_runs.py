@@ -31,7 +31,7 @@ TRAIN_NOISE = "gaussian:15"  # the paper's best training noise (sigma in mm, see
 TEST_NOISE = "kinect"  # the held-out set: realistic Kinect v1 noise
 TEST_SEED_OFFSET = 1000  # the test set's dataset seed is --seed + this: other scenes
 DEFAULT_THETA = 0.30  # the density's default theta' (DensityConfig)
-FEATURE_BUDGET_BYTES = 6e9  # training workers side by side hold at most this many features
+FEATURE_BUDGET_GB = 6.0  # default GB of features the training workers hold side by side
 
 
 @dataclass(frozen=True)
@@ -211,10 +211,14 @@ class ModelRecipe:
     def key(self) -> str:
         return short_hash(self.to_dict())
 
-    def train_args(self, data_path: Path, out: Path, workers: int | None, serial: bool):
-        """The namespace `train.train_on` reads (as `topseg train` would build it)."""
+    def train_args(
+        self, data_path: Path, out: Path, workers: int | None, serial: bool,
+        budget_gb: float = FEATURE_BUDGET_GB,
+    ):  # fmt: skip
+        """The namespace `train.train_on` reads (as `topseg train` would build it); as many
+        Dask workers as asked for whose trees' features (int16) fit in `budget_gb` together."""
         per_tree = self.frames * self.pixels_per_frame * self.features * 2
-        fit = max(1, int(FEATURE_BUDGET_BYTES // max(per_tree, 1)))
+        fit = max(1, int(budget_gb * 1e9 // max(per_tree, 1)))
         return argparse.Namespace(
             data=data_path,
             out=out,
@@ -235,7 +239,10 @@ class ModelRecipe:
         )
 
 
-def ensure_model(out: Path, cache: Path, recipe: ModelRecipe, workers, serial: bool) -> Path:
+def ensure_model(
+    out: Path, cache: Path, recipe: ModelRecipe, workers, serial: bool,
+    budget_gb: float = FEATURE_BUDGET_GB,
+) -> Path:  # fmt: skip
     """The model file of `recipe` under OUT/models/, trained (or its training resumed) when
     missing; the dataset is made or grown first."""
     from topseg.services import train
@@ -245,7 +252,7 @@ def ensure_model(out: Path, cache: Path, recipe: ModelRecipe, workers, serial: b
         return path
     ds = ensure_dataset(cache, recipe.data, recipe.frames, workers, serial)
     path.parent.mkdir(parents=True, exist_ok=True)
-    args = recipe.train_args(ds.path, path, workers, serial)
+    args = recipe.train_args(ds.path, path, workers, serial, budget_gb)
     print(
         f"  train: {recipe.trees} trees on the first {recipe.frames} frames of {ds.path.name} "
         f"({'serial' if serial else f'{args.workers} Dask worker(s)'})",

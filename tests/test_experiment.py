@@ -97,6 +97,28 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert _run(tmp_path / "o", tmp_path / "c", "noise", "--workers", "0") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--workers must be >= 1" in err[0]
+    assert _run(tmp_path / "o", tmp_path / "c", "noise", "--memory-gb", "0") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--memory-gb must be > 0" in err[0]
+
+
+@pytest.mark.parametrize(
+    ("frames", "budget_gb", "workers"),
+    [(1600, 6.0, 2), (4800, 6.0, 1), (4800, 12.0, 2), (40, 0.001, 1)],
+)
+def test_training_workers_are_as_many_as_the_feature_budget_holds(frames, budget_gb, workers):
+    """A paper-scale tree's int16 features: F x 2000 px x 300 features x 2 bytes."""
+    from topseg.services import experiment_runs as runs
+
+    scale = runs.SCALES["paper"]
+    model = runs.ModelRecipe(
+        data=runs.DataRecipe(mode="modeled", noise=runs.TRAIN_NOISE, theta=0.3, seed=0),
+        frames=frames, trees=scale.trees, depth=scale.depth, features=scale.features,
+        responses=scale.responses, thresholds=scale.thresholds,
+        pixels_per_frame=scale.pixels_per_frame,
+    )  # fmt: skip
+    args = model.train_args(Path("d.zarr"), Path("m.npz"), None, False, budget_gb)
+    assert args.workers == workers
 
 
 # ---------------------------------------------------------------- the paper's numbers
