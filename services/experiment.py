@@ -168,19 +168,22 @@ def _run_points(args, scale, test_frames: int, out: Path, cache: Path, points) -
 
     done: dict[str, dict] = {}
     t_start = time.perf_counter()
+    test = runs.test_recipe(args.seed)
+    # every finished point first, so that the reports written after each new point (and
+    # after an interrupt) list all of them, not only those the loop has reached
+    for i, p in enumerate(points, 1):
+        path = out / "points" / args.experiment / f"{p.key}.json"
+        doc = runs.load_point(path, runs.point_recipe(p.model, test, test_frames, args.crf))
+        if doc is not None:
+            print(f"[{i}/{len(points)}] {p.key}: finished before, skipped")
+            done[p.key] = doc
     try:
-        test = runs.test_recipe(args.seed)
         test_ds = None
         for i, p in enumerate(points, 1):
+            if p.key in done or args.report_only:
+                continue
             path = out / "points" / args.experiment / f"{p.key}.json"
             recipe = runs.point_recipe(p.model, test, test_frames, args.crf)
-            doc = runs.load_point(path, recipe)
-            if doc is not None:
-                print(f"[{i}/{len(points)}] {p.key}: finished before, skipped")
-                done[p.key] = doc
-                continue
-            if args.report_only:
-                continue
             same = runs.scored_elsewhere(out, recipe)
             if same is not None:
                 doc = {**same, "experiment": args.experiment, "curve": p.curve, "x": p.x}
