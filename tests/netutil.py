@@ -103,18 +103,26 @@ class Service:
 
 
 class Services:
-    """Every Service a test starts; `close()` kills those still running (pass or fail)."""
+    """Every Service and Tap a test starts; `close()` kills the services still running and
+    closes the taps (pass or fail)."""
 
     def __init__(self):
         self.made: list[Service] = []
+        self.taps: list[Tap] = []
 
     def __call__(self, *args, **kwargs) -> Service:
         self.made.append(Service(*args, **kwargs))
         return self.made[-1]
 
+    def tap(self, port, cell, camera="cam0") -> "Tap":
+        self.taps.append(Tap(port, cell, camera))
+        return self.taps[-1]
+
     def close(self):
         for s in self.made:
             s.kill()
+        for t in self.taps:
+            t.close()
 
 
 class Tap:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netutil import Services, Tap, free_port, wait_for
+from netutil import Services, free_port, wait_for
 
 from topseg.core import wire
 from topseg.core.camera import KINECT_V1, TopViewMount
@@ -41,17 +41,9 @@ def recording(tmp_path_factory):
 
 @pytest.fixture
 def run():
-    services, taps = Services(), []
-
-    def tap(port, cell):
-        taps.append(Tap(port, cell))
-        return taps[-1]
-
-    services.tap = tap
+    services = Services()
     yield services
     services.close()
-    for t in taps:
-        t.close()
 
 
 def worker(run, port, cell, *extra):

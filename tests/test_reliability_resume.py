@@ -107,21 +107,16 @@ def _kill_after_first_tree(cmd, parts: Path) -> list[str]:
     return done
 
 
-def test_training_killed_with_9_resumes_to_the_same_model(data, tmp_path, whole_model):
+@pytest.mark.parametrize(
+    "where",
+    [
+        pytest.param(("--serial",), id="serial"),
+        pytest.param(("--workers", "1"), marks=pytest.mark.slow, id="dask"),
+    ],
+)
+def test_training_killed_with_9_resumes_to_the_same_model(where, data, tmp_path, whole_model):
     out = tmp_path / "m.npz"
-    cmd = ("train", "--data", data, "--out", out, "--serial", *TRAIN)
-    done = _kill_after_first_tree(cmd, tmp_path / "m.npz.parts")
-    r = topseg("-v", *cmd)
-    assert r.returncode == 0, r.stderr
-    assert f"resuming: {len(done)} of 3 trees already trained" in r.stderr
-    assert_same_forest(out, whole_model)
-    assert not (tmp_path / "m.npz.parts").exists()
-
-
-@pytest.mark.slow
-def test_training_on_dask_killed_with_9_resumes_to_the_same_model(data, tmp_path, whole_model):
-    out = tmp_path / "m.npz"
-    cmd = ("train", "--data", data, "--out", out, "--workers", "1", *TRAIN)
+    cmd = ("train", "--data", data, "--out", out, *where, *TRAIN)
     done = _kill_after_first_tree(cmd, tmp_path / "m.npz.parts")
     r = topseg("-v", *cmd)
     assert r.returncode == 0, r.stderr

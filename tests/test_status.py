@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from netutil import Services, Tap, free_port, wait_for
+from netutil import Services, free_port, wait_for
 
 from topseg.services import status
 
@@ -24,17 +24,9 @@ def topseg_status(port, *args, timeout=3.0):
 
 @pytest.fixture
 def run():
-    services, taps = Services(), []
-
-    def tap(port, cell):
-        taps.append(Tap(port, cell))
-        return taps[-1]
-
-    services.tap = tap
+    services = Services()
     yield services
     services.close()
-    for t in taps:
-        t.close()
 
 
 def test_status_shows_driver_and_worker_alive_then_the_killed_worker_down(run):
