@@ -62,9 +62,10 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from topseg.core import depth_stats, labels
-    from topseg.core.noise import GaussianNoise, KinectNoise
-    from topseg.core.synthesis import SynthesisConfig, Synthesizer
+    from topseg.core import labels
+    from topseg.core.synth import depth_stats
+    from topseg.core.synth.noise import GaussianNoise, KinectNoise
+    from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(

@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 from topseg.core.camera import Intrinsics
 from topseg.core.errors import TopsegError
-from topseg.core.wire import DepthFrame, LabelFrame
+from topseg.core.formats.wire import DepthFrame, LabelFrame
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from topseg.core.camera import Intrinsics
-from topseg.core.wire import MAX_SIDE, DepthFrame, WireError
+from topseg.core.formats.wire import MAX_SIDE, DepthFrame, WireError
 from topseg.drivers.base import Source, SourceError, SourceFrame, SourceOptions, SourceUnavailable
 
 log = logging.getLogger(__name__)

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from topseg.core import recording, wire
 from topseg.core.camera import KINECT_V1, Intrinsics
-from topseg.core.wire import DepthFrame, LabelFrame, WireError
+from topseg.core.formats import recording, wire
+from topseg.core.formats.wire import DepthFrame, LabelFrame, WireError
 from topseg.drivers import fakenect_dump
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
 

@@ -16,9 +16,9 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from topseg.core.density import MODES
 from topseg.core.errors import TopsegError
-from topseg.core.wire import DepthFrame, LabelFrame
+from topseg.core.formats.wire import DepthFrame, LabelFrame
+from topseg.core.synth.density import MODES
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
 
 DEFAULT_FPS = 30.0
@@ -55,7 +55,7 @@ class SyntheticSource(Source):
     finite = False
 
     def __init__(self, arg: str | None, options: SourceOptions) -> None:
-        from topseg.core.synthesis import SynthesisConfig, Synthesizer
+        from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
         try:
             config = SynthesisConfig(**parse_options(arg))
@@ -96,8 +96,8 @@ def record(
 ) -> Path:
     """Write `n_frames` synthetic frames (depth + truth, 1/fps apart) to an MCAP recording that
     `replay:PATH` plays back with its ground truth; atomic like every RecordingWriter."""
-    from topseg.core import wire
-    from topseg.core.recording import RecordingWriter
+    from topseg.core.formats import wire
+    from topseg.core.formats.recording import RecordingWriter
 
     if n_frames < 1:
         raise SourceError(f"a recording needs at least one frame, got {n_frames}")

@@ -92,7 +92,8 @@ def run_live(args: argparse.Namespace) -> int:
 def run_core(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from topseg.core import crf, forest, metrics, procedural
+    from topseg.core import crf, forest, metrics
+    from topseg.core.synth import procedural
 
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()

@@ -29,7 +29,7 @@ import signal
 import threading
 import time
 
-from topseg.core.wire import DEFAULT_CAMERA, DEFAULT_CELL
+from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
 from topseg.services import systemd_notify, zenoh_session
 
 log = logging.getLogger("topseg.driver")
@@ -124,7 +124,7 @@ def _wait_for_subscriber(publisher, key: str, stop: threading.Event) -> None:
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
-    from topseg.core import wire
+    from topseg.core.formats import wire
     from topseg.drivers import (
         Reconnecting,
         SourceOptions,

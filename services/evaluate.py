@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from topseg.core import crf, forest, metrics
-    from topseg.core.dataset import open_dataset
+    from topseg.core.formats.dataset import open_dataset
 
     model, _ = forest.load_model(args.model)
     ds = open_dataset(args.data)

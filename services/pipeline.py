@@ -65,7 +65,7 @@ class _Collector:
             self.frames_sent += 1
 
     def on_truth(self, sample) -> None:
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         try:
             frame = wire.decode_labels(sample.payload.to_bytes())
@@ -77,7 +77,7 @@ class _Collector:
                 self.truth[frame.seq] = frame.labels
 
     def on_labels(self, sample) -> None:
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         now_ns, now_s = time.time_ns(), time.monotonic()
         try:
@@ -168,7 +168,7 @@ def run_pipeline(
     one until SIGINT/SIGTERM reaches this process). Raises TopsegError when a child fails
     to start.
     """
-    from topseg.core import wire
+    from topseg.core.formats import wire
     from topseg.core.metrics import ConfusionAccumulator
     from topseg.drivers.spec import parse_spec
     from topseg.services.zenoh_session import open_session

@@ -1,7 +1,7 @@
 """Record topseg's Zenoh traffic to an MCAP file: `topseg record --out FILE.mcap`.
 
 Subscribes to `--keys` (default: every camera's depth, labels and ground truth) and writes
-each message's exact bytes on a channel named after its key (`topseg.core.recording`).
+each message's exact bytes on a channel named after its key (`topseg.core.formats.recording`).
 Stops after `--duration` seconds, `--count` messages, or SIGTERM/SIGINT, and only then
 moves the finished file into place. If the disk fills up it stops, keeps what it wrote
 (readable up to its last complete chunk) and exits with status 2.
@@ -68,7 +68,7 @@ def _check(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from topseg.core.recording import RecordingWriter
+    from topseg.core.formats.recording import RecordingWriter
 
     keys = _check(args)
     stop = threading.Event()

@@ -47,7 +47,7 @@ def read_depth_png(path: Path):
     from PIL import Image, UnidentifiedImageError
 
     from topseg.core.errors import TopsegError
-    from topseg.core.wire import MAX_SIDE
+    from topseg.core.formats.wire import MAX_SIDE
 
     try:
         with Image.open(path) as img:
@@ -74,8 +74,8 @@ def read_depth_png(path: Path):
 
 def frames_of(path: Path) -> Iterator[tuple[str, object, object]]:
     """(name, depth, intrinsics or None) for every frame an input holds."""
-    from topseg.core import recording, wire
     from topseg.core.errors import TopsegError
+    from topseg.core.formats import recording, wire
 
     if path.is_dir():
         pngs = sorted(path.glob("*.png"))

@@ -222,7 +222,7 @@ def format_table(rep: dict) -> str:
 
 
 def _camera_of(key: str) -> tuple[str, str] | None:
-    from topseg.core import wire
+    from topseg.core.formats import wire
 
     try:
         parts = wire.parse_key(key)
@@ -247,7 +247,7 @@ class Listener:
         ]
 
     def _on_token(self, sample) -> None:
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         try:
             parts = wire.parse_key(str(sample.key_expr))
@@ -262,7 +262,7 @@ class Listener:
                 self.tokens.add(entry)
 
     def _on_stats(self, sample) -> None:
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         camera = _camera_of(str(sample.key_expr))
         if camera is None:
@@ -302,7 +302,7 @@ class Listener:
 
     def live_tokens(self, timeout: float):
         """Ask for the live tokens; the returned callable collects {(cell, camera, role)}."""
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         replies = self.session.liveliness().get(self.alive_key, timeout=timeout)
 
@@ -368,8 +368,8 @@ def _expected(entries: list[str]) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from topseg.core import wire
     from topseg.core.errors import TopsegError
+    from topseg.core.formats import wire
 
     if not args.timeout > 0:
         raise TopsegError(f"--timeout must be > 0, got {args.timeout}")

@@ -95,8 +95,8 @@ def recipe(args: argparse.Namespace, fingerprint: str) -> dict:
 
 
 def _train_config(args: argparse.Namespace):
-    from topseg.core.features import FeatureConfig
-    from topseg.core.forest_train import TrainConfig
+    from topseg.core.forest.features import FeatureConfig
+    from topseg.core.forest.train import TrainConfig
 
     return TrainConfig(
         n_trees=args.trees,
@@ -123,10 +123,10 @@ def train_one_tree(
     data: str, train_idx: list[int], recipe_: dict, tree: int, part: str, queue=None
 ) -> str:
     """Dask task: train tree `tree` and write it to `part`; returns the part's path."""
-    from topseg.core.dataset import open_dataset
-    from topseg.core.forest_train import TrainConfig, train_tree, tree_seed
-    from topseg.core.model_file import save_model
-    from topseg.core.tree import Forest
+    from topseg.core.forest.model_file import save_model
+    from topseg.core.forest.train import TrainConfig, train_tree, tree_seed
+    from topseg.core.forest.tree import Forest
+    from topseg.core.formats.dataset import open_dataset
 
     ds = open_dataset(data)
     config = TrainConfig.from_dict(recipe_["config"])
@@ -151,7 +151,7 @@ def train_one_tree(
 def _finished_part(part: Path, recipe_: dict):
     """The tree in `part` if it exists, loads whole and was made by the same recipe."""
     from topseg.core.errors import TopsegError
-    from topseg.core.model_file import load_model
+    from topseg.core.forest.model_file import load_model
 
     if not part.exists():
         return None
@@ -167,8 +167,8 @@ def _finished_part(part: Path, recipe_: dict):
 
 
 def run(args: argparse.Namespace) -> int:
-    from topseg.core.dataset import open_dataset
     from topseg.core.errors import TopsegError
+    from topseg.core.formats.dataset import open_dataset
 
     if args.trees < 1:
         raise TopsegError("--trees must be at least 1")
@@ -309,10 +309,10 @@ def _dask_trees(args, train_idx, recipe_, todo, parts, advance) -> None:
 
 def _write_model(args, ds, val_idx, recipe_, trees, seconds) -> None:
     from topseg import __version__
-    from topseg.core.forest_predict import predict_labels
+    from topseg.core.forest.model_file import save_model
+    from topseg.core.forest.predict import predict_labels
+    from topseg.core.forest.tree import Forest
     from topseg.core.metrics import ConfusionAccumulator, to_json
-    from topseg.core.model_file import save_model
-    from topseg.core.tree import Forest
 
     forest = Forest.from_trees(trees)
     acc = ConfusionAccumulator()

@@ -93,7 +93,7 @@ class Viewer:
             log.info("logging %s", entity)
 
     def handle(self, key: str, payload: bytes) -> None:
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         try:
             parts = wire.parse_key(key)

@@ -70,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_camera(text: str) -> tuple[str, str]:
     """'cell/camera' -> (cell, camera); TopsegError naming the bad entry."""
-    from topseg.core import wire
     from topseg.core.errors import TopsegError
+    from topseg.core.formats import wire
 
     parts = text.split("/")
     if len(parts) != 2:
@@ -174,7 +174,7 @@ class Worker:
 
     def _discover(self, sample) -> None:
         """Zenoh thread: note cameras not served yet (the main loop declares them)."""
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         try:
             parts = wire.parse_key(str(sample.key_expr))
@@ -189,7 +189,7 @@ class Worker:
         """Start serving one camera: publishers, liveliness token, maybe its own subscriber."""
         import zenoh
 
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         state = CameraState(cell, camera)
         publish = dict(congestion_control=self.congestion, express=True)
@@ -235,7 +235,7 @@ class Worker:
 
     def handle(self, sample, state: CameraState | None) -> None:
         """Decode, label and publish one depth message; count and drop what is not one."""
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         t0 = time.perf_counter()
         if state is None:  # the shared FIFO: the key says which camera
@@ -283,7 +283,7 @@ class Worker:
         self.publish_stats(state, {})
 
     def publish_stats(self, state: CameraState, timings: dict, **extra) -> None:
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         stats = {
             "stamp_ns": time.time_ns(),

@@ -16,7 +16,7 @@ each other, and the next process to start takes the port over (checked with ecli
 topseg process in router mode on that port serves the same purpose. Other hosts, TLS or
 access control: pass a full Zenoh JSON5 config with `--zenoh-config` (see `deploy/`).
 
-Key expressions live in `topseg.core.wire` (`depth_key`, `labels_key`, ... `alive_key`).
+Key expressions live in `topseg.core.formats.wire` (`depth_key`, `labels_key`, ... `alive_key`).
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from topseg.core import dataset as D
-from topseg.core import procedural
+from topseg.core.formats import dataset as D
+from topseg.core.synth import procedural
 
 
 @pytest.fixture(scope="session")

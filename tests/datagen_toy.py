@@ -13,8 +13,8 @@ import time
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.dataset import frame_seed
-from topseg.core.noise import parse_noise
+from topseg.core.formats.dataset import frame_seed
+from topseg.core.synth.noise import parse_noise
 
 SHAPE = (480, 640)
 

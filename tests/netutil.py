@@ -133,7 +133,7 @@ class Tap:
     def __init__(self, port, cell, camera="cam0"):
         import zenoh
 
-        from topseg.core import wire
+        from topseg.core.formats import wire
         from topseg.services.zenoh_session import open_session
 
         self.cell, self.camera = cell, camera
@@ -167,7 +167,7 @@ class Tap:
     def info(self) -> dict:
         import json
 
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         replies = self.session.get(wire.info_key(self.cell, self.camera), timeout=5.0)
         got = [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
@@ -176,7 +176,7 @@ class Tap:
 
     def publish(self, payload: bytes) -> None:
         """Put raw bytes on the camera's depth key (BLOCK: nothing is dropped on the way)."""
-        from topseg.core import wire
+        from topseg.core.formats import wire
 
         if self._pub is None:
             self._pub = self.session.declare_publisher(

@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from topseg.core.crf_expansion import (
+from topseg.core.crf.expansion import (
     alpha_expansion,
     energy,
     expansion_move,

@@ -9,7 +9,7 @@ import pytest
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import maximum_flow
 
-from topseg.core.crf_maxflow import build_csr, mincut
+from topseg.core.crf.maxflow import build_csr, mincut
 
 
 def random_graph(rng, n, density=2.0, cap=20):

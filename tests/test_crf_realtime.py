@@ -8,8 +8,8 @@ from scipy import ndimage
 
 from topseg.core import labels as L
 from topseg.core.crf import CRFConfig, edge_weights, potts_energy
-from topseg.core.crf_expansion import alpha_expansion, energy
-from topseg.core.crf_realtime import (
+from topseg.core.crf.expansion import alpha_expansion, energy
+from topseg.core.crf.realtime import (
     SETTLED_MARGIN,
     argmax_confidence,
     band_mask,
@@ -19,7 +19,7 @@ from topseg.core.crf_realtime import (
     number_band,
     segment_realtime,
 )
-from topseg.core.crf_synthetic import forest_like_posteriors, synthetic_scene
+from topseg.core.crf.synthetic import forest_like_posteriors, synthetic_scene
 
 C = L.NUM_CLASSES
 CROSS = ndimage.generate_binary_structure(2, 1)

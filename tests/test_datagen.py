@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from datagen_toy import toy_frame
 
-from topseg.core import dataset as D
+from topseg.core.formats import dataset as D
 from topseg.services import datagen
-from topseg.services.datagen_sources import GENERATORS, generator_config, load_factory
+from topseg.services.datagen.sources import GENERATORS, generator_config, load_factory
 
-HAVE_SYNTHESIS = importlib.util.find_spec("topseg.core.synthesis") is not None
+HAVE_SYNTHESIS = importlib.util.find_spec("topseg.core.synth.synthesis") is not None
 GENERATOR_NAMES = ["datagen_toy:slow_source"] + (["synthesis"] if HAVE_SYNTHESIS else [])
 
 
@@ -125,10 +125,10 @@ def test_the_cli_runs_on_an_existing_scheduler(tmp_path, two_workers):
     assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in bad.stderr
 
 
-@pytest.mark.skipif(not HAVE_SYNTHESIS, reason="topseg.core.synthesis not in the tree yet")
+@pytest.mark.skipif(not HAVE_SYNTHESIS, reason="topseg.core.synth.synthesis not in the tree yet")
 def test_the_default_generator_records_its_full_config(tmp_path, two_workers):
     from topseg import __version__
-    from topseg.core.synthesis import SynthesisConfig
+    from topseg.core.synth.synthesis import SynthesisConfig
 
     path = tmp_path / "ds.zarr"
     with writer_for(path, "synthesis", 4, seed=3, mode="non-modeled", noise="kinect") as w:

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from datagen_toy import toy_frame
 
-from topseg.core import dataset as D
 from topseg.core import labels
 from topseg.core.errors import TopsegError
+from topseg.core.formats import dataset as D
 
 GEN = {
     "factory": "datagen_toy:toy_source",
@@ -248,7 +248,7 @@ def test_a_creation_cut_short_is_finished_on_resume(tmp_path):
 
 
 def test_direct_chunk_writes_are_the_bytes_zarr_writes(tmp_path):
-    from topseg.core.zarr_chunks import ChunkWriter
+    from topseg.core.formats.zarr_chunks import ChunkWriter
 
     path = tmp_path / "ds.zarr"
     D.DatasetWriter.open(path, attrs(4)).close()
@@ -282,7 +282,7 @@ def test_arrays_of_another_layout_are_written_through_zarr(tmp_path):
     import zarr
     from zarr.codecs import GzipCodec
 
-    from topseg.core.zarr_chunks import ChunkWriter
+    from topseg.core.formats.zarr_chunks import ChunkWriter
 
     path = tmp_path / "ds.zarr"
     D.DatasetWriter.open(path, attrs(2)).close()

@@ -10,11 +10,11 @@ import math
 import numpy as np
 import pytest
 
-from topseg.core import furniture, humanoid, rooms
-from topseg.core.density import FACTORS, DensityConfig, DensityFunction
 from topseg.core.errors import TopsegError
-from topseg.core.geometry import overlap_fraction
-from topseg.core.scene import HUMAN, Scene
+from topseg.core.synth import furniture, humanoid, rooms
+from topseg.core.synth.density import FACTORS, DensityConfig, DensityFunction
+from topseg.core.synth.geometry import overlap_fraction
+from topseg.core.synth.scene import HUMAN, Scene
 
 
 @pytest.fixture(scope="module")

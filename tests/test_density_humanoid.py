@@ -7,10 +7,11 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from topseg.core import humanoid, labels, relations
-from topseg.core.density import DensityFunction
-from topseg.core.geometry import quat_to_matrix
-from topseg.core.scene_builder import SceneBuilder
+from topseg.core import labels
+from topseg.core.synth import humanoid, relations
+from topseg.core.synth.density import DensityFunction
+from topseg.core.synth.geometry import quat_to_matrix
+from topseg.core.synth.scene_builder import SceneBuilder
 
 
 @pytest.fixture(scope="module")

@@ -7,10 +7,10 @@ import copy
 import numpy as np
 import pytest
 
-from topseg.core import furniture, humanoid, relations
-from topseg.core.density import DensityFunction
-from topseg.core.geometry import clip_convex, points_in_convex, polygon_area
-from topseg.core.scene import HUMAN, PlacedObject, Scene
+from topseg.core.synth import furniture, humanoid, relations
+from topseg.core.synth.density import DensityFunction
+from topseg.core.synth.geometry import clip_convex, points_in_convex, polygon_area
+from topseg.core.synth.scene import HUMAN, PlacedObject, Scene
 
 H_CHAIR = (0.70, 0.90)
 H_STORAGE = (0.70, 0.90)

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from netutil import free_port, wait_for
 
-from topseg.core import wire
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.procedural import procedural_frame
-from topseg.core.recording import RecordingWriter
+from topseg.core.formats import wire
+from topseg.core.formats.recording import RecordingWriter
+from topseg.core.synth.procedural import procedural_frame
 from topseg.drivers import fakenect_dump
 from topseg.drivers.freenect import FAKENECT_LIBRARY_DIR
 from topseg.services.zenoh_session import default_config_json, open_session

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from topseg.core.camera import KINECT_V1
-from topseg.core.wire import DepthFrame
+from topseg.core.formats.wire import DepthFrame
 from topseg.drivers import (
     Reconnecting,
     Source,

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from topseg.core import wire
 from topseg.core.camera import KINECT_V1, TOP_VIEW, TopViewMount
-from topseg.core.procedural import procedural_frame
-from topseg.core.recording import RecordingWriter
+from topseg.core.formats import wire
+from topseg.core.formats.recording import RecordingWriter
+from topseg.core.synth.procedural import procedural_frame
 from topseg.drivers import SourceError, SourceOptions, open_source
 from topseg.drivers.fakenect_dump import quantisation_step_mm, write_dump
 

@@ -7,9 +7,9 @@ import sys
 import numpy as np
 import pytest
 
-from topseg.core import dataset as D
 from topseg.core import forest
-from topseg.core.forest_train import TrainConfig
+from topseg.core.forest.train import TrainConfig
+from topseg.core.formats import dataset as D
 from topseg.core.labels import LABELS, NO_DEPTH, NUM_CLASSES
 
 

@@ -9,9 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from topseg.core import paper_results
 from topseg.services.cli import main
-from topseg.services.experiment import EXPERIMENTS
+from topseg.services.experiment import EXPERIMENTS, paper_results
 
 TEX = Path(__file__).resolve().parents[2] / "shared" / "paper" / "sharma2016.tex"
 
@@ -108,7 +107,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
 )
 def test_training_workers_are_as_many_as_the_feature_budget_holds(frames, budget_gb, workers):
     """A paper-scale tree's int16 features: F x 2000 px x 300 features x 2 bytes."""
-    from topseg.services import experiment_runs as runs
+    from topseg.services.experiment import runs as runs
 
     scale = runs.SCALES["paper"]
     model = runs.ModelRecipe(

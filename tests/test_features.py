@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from topseg.core import features
-from topseg.core.features import FeatureConfig
+from topseg.core.forest import features
+from topseg.core.forest.features import FeatureConfig
 
 
 def probe_reference(depth, r, c, inv_d, dr, dc, background):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from topseg.core import labels, procedural
+from topseg.core import labels
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.crf import CRFConfig, segment_crf
 from topseg.core.forest import (
@@ -13,6 +13,7 @@ from topseg.core.forest import (
     predict_proba,
     train_forest,
 )
+from topseg.core.synth import procedural
 
 # half resolution keeps the test fast; a 32 px patch here spans what 64 px do at 640x480
 MOUNT = TopViewMount(KINECT_V1.scaled_to(320, 240))

@@ -6,8 +6,8 @@ from test_features import probe_reference
 
 from topseg.core import labels
 from topseg.core.forest import Forest, labels_from_proba, predict_labels, predict_proba, random_tree
-from topseg.core.forest_predict import apply
-from topseg.core.tree import node_depths
+from topseg.core.forest.predict import apply
+from topseg.core.forest.tree import node_depths
 
 
 def apply_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:

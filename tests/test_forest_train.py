@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from topseg.core import forest_train as ft
 from topseg.core import labels
-from topseg.core.features import FeatureConfig
-from topseg.core.forest_predict import predict_proba
-from topseg.core.tree import Forest
+from topseg.core.forest import train as ft
+from topseg.core.forest.features import FeatureConfig
+from topseg.core.forest.predict import predict_proba
+from topseg.core.forest.tree import Forest
 
 MASK = (1 << 64) - 1
 GOLDEN = 0x9E3779B97F4A7C15

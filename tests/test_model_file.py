@@ -17,7 +17,7 @@ from topseg.core.forest import (
     random_tree,
     save_model,
 )
-from topseg.core.model_file import MAGIC
+from topseg.core.forest.model_file import MAGIC
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from topseg.core import depth_stats, labels, noise, render
+from topseg.core import labels
 from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
-from topseg.core.geometry import BOX
+from topseg.core.synth import depth_stats, noise, render
+from topseg.core.synth.geometry import BOX
 
 SMALL = TopViewMount(Intrinsics(160, 120, 142.6, 142.6, 79.5, 59.5), 3500.0)
 

@@ -9,7 +9,7 @@ import pytest
 
 from topseg.core import forest, metrics
 from topseg.core.errors import TopsegError
-from topseg.core.synthesis import SynthesisConfig, Synthesizer
+from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.drivers import synthetic
 from topseg.services.pipeline import run_pipeline, summary
 from topseg.services.worker import Labeller

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from topseg.core import labels, procedural
+from topseg.core import labels
 from topseg.core.camera import KINECT_V1, TOP_VIEW, Intrinsics, TopViewMount
+from topseg.core.synth import procedural
 
 SMALL = TopViewMount(KINECT_V1.scaled_to(160, 120))
 

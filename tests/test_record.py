@@ -12,8 +12,8 @@ import pytest
 import zenoh
 from netutil import free_port
 
-from topseg.core import recording, wire
 from topseg.core.camera import KINECT_V1
+from topseg.core.formats import recording, wire
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)

@@ -7,9 +7,9 @@ import signal
 import numpy as np
 import pytest
 
-from topseg.core import recording, wire
 from topseg.core.camera import KINECT_V1
-from topseg.core.recording import RecordingError, RecordingWriter
+from topseg.core.formats import recording, wire
+from topseg.core.formats.recording import RecordingError, RecordingWriter
 
 
 def wire_messages(rng, n=6):

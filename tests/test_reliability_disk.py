@@ -19,8 +19,8 @@ import pytest
 from netutil import Services, Tap, free_port, wait_for
 from test_record import Publisher
 
-from topseg.core import recording, wire
 from topseg.core.camera import KINECT_V1
+from topseg.core.formats import recording, wire
 from topseg.services.zenoh_session import default_config_json
 
 

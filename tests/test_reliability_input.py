@@ -18,10 +18,11 @@ from hypothesis import strategies as st
 from netutil import Services, Tap, free_port, wait_for
 from PIL import Image
 
-from topseg.core import forest, recording, wire
+from topseg.core import forest
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.procedural import procedural_frame
-from topseg.core.wire import WireError
+from topseg.core.formats import recording, wire
+from topseg.core.formats.wire import WireError
+from topseg.core.synth.procedural import procedural_frame
 from topseg.drivers import SourceError, SourceOptions, open_source
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from netutil import Services, free_port, wait_for
 
-from topseg.core import wire
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.procedural import procedural_frame
-from topseg.core.recording import RecordingWriter
+from topseg.core.formats import wire
+from topseg.core.formats.recording import RecordingWriter
+from topseg.core.synth.procedural import procedural_frame
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "default.npz"

@@ -17,8 +17,8 @@ import pytest
 from netutil import wait_for
 from test_datagen_cli import assert_frames_whole, datagen_args, env, n_complete
 
-from topseg.core import dataset as D
 from topseg.core import forest
+from topseg.core.formats import dataset as D
 
 TRAIN = ["--trees", "3", "--depth", "10", "--frames-per-tree", "10", "--pixels-per-frame", "400",
          "--features", "40", "--responses", "20", "--thresholds", "20", "--seed", "3"]  # fmt: skip

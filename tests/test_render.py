@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from topseg.core import labels, render
+from topseg.core import labels
 from topseg.core.camera import Intrinsics, TopViewMount
-from topseg.core.geometry import (
+from topseg.core.synth import render
+from topseg.core.synth.geometry import (
     BOX,
     CAPSULE,
     CYLINDER,

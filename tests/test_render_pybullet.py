@@ -8,11 +8,12 @@ import pybullet as p
 import pytest
 from scipy import ndimage
 
-from topseg.core import humanoid, labels, render
-from topseg.core.density import DensityFunction
-from topseg.core.geometry import BOX
-from topseg.core.scene import PlacedObject, Scene
-from topseg.core.scene_builder import SceneBuilder
+from topseg.core import labels
+from topseg.core.synth import humanoid, render
+from topseg.core.synth.density import DensityFunction
+from topseg.core.synth.geometry import BOX
+from topseg.core.synth.scene import PlacedObject, Scene
+from topseg.core.synth.scene_builder import SceneBuilder
 
 
 @pytest.fixture(scope="module")

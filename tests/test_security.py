@@ -248,7 +248,7 @@ def test_roles_hold_only_their_own_liveliness_tokens(secure):
 def test_topseg_status_works_with_the_viewer_identity(secure):
     """`topseg status --zenoh-config secure-viewer.json5` sees the driver's info and both
     roles' tokens and stats through the access control."""
-    from topseg.core import wire
+    from topseg.core.formats import wire
 
     driver, worker = secure.client("driver"), secure.client("worker")
     info = {"role": "driver", "cell": "sec", "camera": "cam0", "source": "synthetic", "frames": 5}

@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from topseg.core import forest, procedural, recording, wire
+from topseg.core import forest
 from topseg.core.camera import KINECT_V1
-from topseg.core.forest_train import TrainConfig
+from topseg.core.forest.train import TrainConfig
+from topseg.core.formats import recording, wire
+from topseg.core.synth import procedural
 
 
 @pytest.fixture(scope="module")

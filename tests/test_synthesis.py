@@ -14,10 +14,10 @@ import pytest
 
 from topseg.core import labels
 from topseg.core.camera import TOP_VIEW
-from topseg.core.density import DensityFunction
 from topseg.core.errors import TopsegError
-from topseg.core.scene import PlacedObject, Scene
-from topseg.core.synthesis import POSES, ROOMS, SynthesisConfig, Synthesizer
+from topseg.core.synth.density import DensityFunction
+from topseg.core.synth.scene import PlacedObject, Scene
+from topseg.core.synth.synthesis import POSES, ROOMS, SynthesisConfig, Synthesizer
 
 
 def _digest(frame) -> str:
@@ -72,7 +72,7 @@ def test_the_same_seed_gives_the_same_frame_in_another_process(synth):
     """The other process does not warm its pools: frames cannot depend on what is pooled."""
     code = (
         "import hashlib, json, sys;"
-        "from topseg.core.synthesis import SynthesisConfig, Synthesizer;"
+        "from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer;"
         "s = Synthesizer(SynthesisConfig(noise='kinect', seed=3), warm=False);"
         "f = s.render(7);"
         "h = hashlib.sha256(); h.update(f.depth.tobytes()); h.update(f.labels.tobytes());"
@@ -144,7 +144,7 @@ def test_a_closed_synthesizer_refuses_to_render():
 def test_bench_reports_each_stage():
     import argparse
 
-    from topseg.services import bench_synthesis
+    from topseg.services.bench import synthesis as bench_synthesis
 
     args = argparse.Namespace(
         frames=3, warmup=1, mode="non-modeled", noise="gaussian:15", threads=0

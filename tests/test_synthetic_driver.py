@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topseg.core import labels
-from topseg.core.synthesis import SynthesisConfig, Synthesizer
+from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.drivers import SourceOptions, open_source
 from topseg.drivers.base import SourceError
 from topseg.drivers.synthetic import parse_options

@@ -14,7 +14,7 @@ from netutil import free_port, wait_for
 
 from topseg.core import forest
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.procedural import procedural_frame
+from topseg.core.synth.procedural import procedural_frame
 from topseg.services import systemd_notify as sd
 
 

@@ -5,10 +5,10 @@ import sys
 
 import numpy as np
 
-from topseg.core import dataset as D
 from topseg.core import forest
-from topseg.core.features import FeatureConfig
-from topseg.core.forest_train import TrainConfig
+from topseg.core.forest.features import FeatureConfig
+from topseg.core.forest.train import TrainConfig
+from topseg.core.formats import dataset as D
 
 SMALL = [
     "--trees",

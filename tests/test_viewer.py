@@ -13,9 +13,10 @@ import pytest
 import zenoh
 from netutil import free_port, wait_for
 
-from topseg.core import labels, wire
+from topseg.core import labels
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.procedural import procedural_frame
+from topseg.core.formats import wire
+from topseg.core.synth.procedural import procedural_frame
 from topseg.services.viewer import point_cloud
 from topseg.services.zenoh_session import open_session
 

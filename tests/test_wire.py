@@ -7,9 +7,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from topseg.core import labels, wire
+from topseg.core import labels
 from topseg.core.camera import KINECT_V1, Intrinsics
-from topseg.core.wire import DepthFrame, LabelFrame, WireError
+from topseg.core.formats import wire
+from topseg.core.formats.wire import DepthFrame, LabelFrame, WireError
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 VALID_IDS = [lab.id for lab in labels.LABELS] + [labels.NO_DEPTH]

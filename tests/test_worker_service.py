@@ -12,9 +12,10 @@ import pytest
 import zenoh
 from netutil import free_port, wait_for
 
-from topseg.core import crf, forest, metrics, wire
+from topseg.core import crf, forest, metrics
 from topseg.core.camera import KINECT_V1, TopViewMount
-from topseg.core.procedural import procedural_frame
+from topseg.core.formats import wire
+from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
@@ -236,7 +237,7 @@ def test_damaged_or_missing_model_refuses_to_start_with_one_line(tmp_path, model
 
 
 def test_worker_labels_a_driver_replay_frame_for_frame(tmp_path, peers, model_path):
-    from topseg.core.recording import RecordingWriter
+    from topseg.core.formats.recording import RecordingWriter
 
     test = frames(5, 4)
     rec = tmp_path / "scene.mcap"

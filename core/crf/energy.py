@@ -1,0 +1,174 @@
+"""The Potts energy of a labelling and the settings that shape it (the one definition that every
+CRF mode and test uses; see the package docstring)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Literal
+
+import numpy as np
+
+from topseg.core import labels as L
+from topseg.core.errors import TopsegError
+
+#: Factor from float energies (nats) to the solvers' integer energy terms.
+ENERGY_SCALE = 1000.0
+#: Largest smoothness accepted: keeps every scaled term far inside int32.
+MAX_SMOOTHNESS = 1000.0
+
+Mode = Literal["none", "exact", "realtime"]
+MODES: tuple[str, ...] = ("none", "exact", "realtime")
+
+
+@dataclass(frozen=True)
+class CRFConfig:
+    """How `segment_crf` smooths a frame; TOML-friendly through `to_dict` / `from_dict`.
+
+    mode            none | exact | realtime
+    smoothness      Potts weight per cut 4-neighbour edge, in nats
+    depth_sigma_mm  > 0 weights an edge by exp(-dd^2 / 2 sigma^2) of its depth step; 0 = off
+    eps             posterior floor before -log (caps a unary at -log(eps))
+    confidence      realtime: a pixel whose top posterior reaches this and whose 4
+                    neighbours share its argmax is fixed to it
+    ring            realtime: free pixels are grown by this many 4-neighbour steps
+    cycles          realtime: rounds of expansion moves over all labels; 0 = until none
+                    lowers the energy (as `exact`)
+    """
+
+    mode: Mode = "realtime"
+    smoothness: float = 1.0
+    depth_sigma_mm: float = 0.0
+    eps: float = 1e-6
+    confidence: float = 0.4
+    ring: int = 1
+    cycles: int = 1
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise TopsegError(f"crf mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if not 0.0 <= self.smoothness <= MAX_SMOOTHNESS:
+            raise TopsegError(
+                f"crf smoothness must be in [0, {MAX_SMOOTHNESS:g}], got {self.smoothness}"
+            )
+        if self.depth_sigma_mm < 0:
+            raise TopsegError(f"crf depth_sigma_mm must be >= 0, got {self.depth_sigma_mm}")
+        if not 0.0 < self.eps < 1.0:
+            raise TopsegError(f"crf eps must be in (0, 1), got {self.eps}")
+        if not 0.0 <= self.confidence <= 1.0:
+            raise TopsegError(f"crf confidence must be in [0, 1], got {self.confidence}")
+        if self.ring < 0:
+            raise TopsegError(f"crf ring must be >= 0, got {self.ring}")
+        if self.cycles < 0:
+            raise TopsegError(f"crf cycles must be >= 0 (0 = until converged), got {self.cycles}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> CRFConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise TopsegError(
+                f"unknown crf setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
+        return cls(**d)
+
+
+def check_proba(proba: np.ndarray) -> np.ndarray:
+    """(H, W, NUM_CLASSES) floating posteriors, or a TopsegError that says what is wrong."""
+    proba = np.asarray(proba)
+    if proba.ndim != 3 or proba.shape[2] != L.NUM_CLASSES:
+        raise TopsegError(f"posteriors must be (H, W, {L.NUM_CLASSES}), got shape {proba.shape}")
+    if not np.issubdtype(proba.dtype, np.floating):
+        raise TopsegError(f"posteriors must be floating point, got {proba.dtype}")
+    return proba
+
+
+def check_depth_shape(depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """`depth` as an array of the posteriors' (H, W), or a TopsegError."""
+    depth = np.asarray(depth)
+    if depth.shape != shape:
+        raise TopsegError(f"depth shape {depth.shape} does not match posteriors {shape}")
+    return depth
+
+
+def unaries_from_posteriors(proba: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """(H, W, C) posteriors -> (H, W, C) float32 unary energies -log(max(p, eps))."""
+    proba = check_proba(proba)
+    return -np.log(np.maximum(proba, np.float32(eps)), dtype=np.float32)
+
+
+def edge_weights(depth: np.ndarray, config: CRFConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Potts weights of the 4-connected grid: (horizontal (H, W-1), vertical (H-1, W)).
+
+    Horizontal [i, j] joins (i, j)-(i, j+1), vertical [i, j] joins (i, j)-(i+1, j).
+    An edge touching a pixel without depth weighs 0.
+    """
+    d = np.asarray(depth).astype(np.float32)
+    valid = d > 0
+    wh = np.full((d.shape[0], d.shape[1] - 1), config.smoothness, np.float32)
+    wv = np.full((d.shape[0] - 1, d.shape[1]), config.smoothness, np.float32)
+    if config.depth_sigma_mm > 0:
+        k = np.float32(-0.5 / config.depth_sigma_mm**2)
+        wh *= np.exp(k * (d[:, 1:] - d[:, :-1]) ** 2)
+        wv *= np.exp(k * (d[1:, :] - d[:-1, :]) ** 2)
+    wh[~(valid[:, 1:] & valid[:, :-1])] = 0.0
+    wv[~(valid[1:, :] & valid[:-1, :])] = 0.0
+    return wh, wv
+
+
+def grid_energy(
+    labels: np.ndarray, unary: np.ndarray, wh: np.ndarray, wv: np.ndarray, valid: np.ndarray
+) -> float:
+    """Potts energy of `labels` under explicit unaries and edge weights, in float64."""
+    lab = np.where(valid, labels, 0).astype(np.intp)
+    u = np.take_along_axis(unary, lab[..., None], axis=2)[..., 0]
+    data = float(u[valid].sum(dtype=np.float64))
+    cut_h = (lab[:, 1:] != lab[:, :-1]) & valid[:, 1:] & valid[:, :-1]
+    cut_v = (lab[1:, :] != lab[:-1, :]) & valid[1:, :] & valid[:-1, :]
+    smooth = float(wh[cut_h].sum(dtype=np.float64) + wv[cut_v].sum(dtype=np.float64))
+    return data + smooth
+
+
+def potts_energy(
+    labels: np.ndarray,
+    proba_or_unaries: np.ndarray,
+    depth: np.ndarray,
+    config: CRFConfig,
+    *,
+    kind: Literal["proba", "unary"] = "proba",
+) -> float:
+    """The CRF energy of a labeling (the one definition; lower is better).
+
+    `proba_or_unaries` is (H, W, C) posteriors (`kind="proba"`, turned into unaries with
+    `config.eps`) or ready unaries (`kind="unary"`). Pixels with depth == 0 are left out;
+    every other pixel must carry a class id below NUM_CLASSES.
+    """
+    arr = check_proba(proba_or_unaries)
+    depth = check_depth_shape(depth, arr.shape[:2])
+    labels = np.asarray(labels)
+    if labels.shape != arr.shape[:2]:
+        raise TopsegError(f"labels shape {labels.shape} does not match posteriors {arr.shape[:2]}")
+    valid = depth > 0
+    if np.any(labels[valid] >= L.NUM_CLASSES):
+        raise TopsegError("labels of pixels with depth must be class ids below NUM_CLASSES")
+    if kind == "proba":
+        unary = unaries_from_posteriors(arr, config.eps)
+    elif kind == "unary":
+        unary = arr
+    else:
+        raise ValueError(f"kind must be 'proba' or 'unary', got {kind!r}")
+    wh, wv = edge_weights(depth, config)
+    return grid_energy(labels, unary, wh, wv, valid)
+
+
+def grid_edges(
+    wh: np.ndarray, wv: np.ndarray, index: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges (s1 < s2, weight) of the grid between pixels with `index` >= 0 and weight > 0."""
+    a = np.concatenate([index[:, :-1].ravel(), index[:-1, :].ravel()])
+    b = np.concatenate([index[:, 1:].ravel(), index[1:, :].ravel()])
+    w = np.concatenate([wh.ravel(), wv.ravel()])
+    keep = (a >= 0) & (b >= 0) & (w > 0)
+    return a[keep], b[keep], w[keep]

@@ -1,0 +1,1 @@
+"""File and wire formats: Zenoh messages, MCAP recordings, the Zarr dataset."""

@@ -1,0 +1,656 @@
+"""The pybullet_data humanoid: its kinematics, its poses, and which body part each link is.
+
+The human of every scene is pybullet_data's `humanoid/humanoid.urdf` (spheres, capsules and
+boxes on 15 links), the character of pybullet's DeepMimic examples. This module reads that
+URDF and does its forward kinematics in numpy, so the density function can reason about a
+posed human (where its hips, hands and feet are) without a physics client; the scene builder
+then applies the same pose to the pybullet body, and a test checks both agree.
+
+Poses come from the motion-capture clips pybullet_data ships (`data/motions/humanoid3d_*.txt`,
+read like DeepMimic's `humanoid_pose_interpolator.py`) and from presets for the paper's poses
+that no clip covers (sitting, standing, stretching, working, bending, bowing, tilting,
+swinging). The model is y-up (x forward, z to its right); `base_quat` turns it upright in the
+z-up world and faces it along +x rotated by the human's yaw.
+"""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from topseg.core import labels
+from topseg.core.synth.geometry import (
+    BOX,
+    CAPSULE,
+    CYLINDER,
+    SPHERE,
+    half_extents,
+    quat_from_axis_angle,
+    quat_mul,
+    quat_normalize,
+    quat_to_matrix,
+    quats_to_matrices,
+    rotation_between,
+    yaw_quat,
+)
+
+URDF_RELPATH = "humanoid/humanoid.urdf"
+#: globalScaling of the DeepMimic humanoid, at which the clips were recorded (~1.62 m tall)
+REFERENCE_SCALING = 0.25
+#: heights are realised on this grid (metres) so the scene builder can pool bodies
+HEIGHT_STEP_M = 0.01
+#: turns the y-up model upright in the z-up world (rotation of +90 degrees about x)
+Y_UP_TO_Z_UP = quat_from_axis_angle((1.0, 0.0, 0.0), np.pi / 2)
+
+#: link name -> body part label; the head is the sphere on the neck link
+LINK_LABELS: dict[str, int] = {
+    "root": labels.BODY,
+    "chest": labels.BODY,
+    "neck": labels.HEAD,
+    "right_hip": labels.LEGS,
+    "right_knee": labels.LEGS,
+    "right_ankle": labels.LEGS,
+    "right_shoulder": labels.UPPER_ARM,
+    "right_elbow": labels.LOWER_ARM,
+    "right_wrist": labels.HAND,
+    "left_hip": labels.LEGS,
+    "left_knee": labels.LEGS,
+    "left_ankle": labels.LEGS,
+    "left_shoulder": labels.UPPER_ARM,
+    "left_elbow": labels.LOWER_ARM,
+    "left_wrist": labels.HAND,
+}
+SPHERICAL = (
+    "chest",
+    "neck",
+    "right_hip",
+    "right_ankle",
+    "right_shoulder",
+    "left_hip",
+    "left_ankle",
+    "left_shoulder",
+)
+REVOLUTE = ("right_knee", "right_elbow", "left_knee", "left_elbow")
+
+# Motion-capture clips per pose name; presets are the paper's poses no clip covers.
+CLIPS: dict[str, tuple[str, ...]] = {
+    "walking": ("walk",),
+    "running": ("run",),
+    "dancing": ("dance_a", "dance_b"),
+    "boxing": ("punch",),
+    "kicking": ("kick", "spinkick"),
+    "spinning": ("spin",),
+    "jumping": ("jump",),
+}
+PRESETS = (
+    "sitting",
+    "standing",
+    "stretching",
+    "working",
+    "bending",
+    "bowing",
+    "tilting",
+    "swinging",
+)
+POSES: tuple[str, ...] = (*PRESETS, *CLIPS)
+
+
+def data_path() -> Path:
+    import pybullet_data
+
+    return Path(pybullet_data.getDataPath())
+
+
+# --- the model ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Link:
+    """One link (pybullet link index = position in `HumanoidModel.links`), unscaled."""
+
+    name: str
+    parent: int  # -1 = the base
+    joint_type: str  # fixed | spherical | revolute
+    joint_xyz: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    shape_kind: int
+    shape_size: tuple[float, float, float]  # geometry.Part convention, unscaled
+    shape_xyz: tuple[float, float, float]
+    shape_quat: tuple[float, float, float, float]
+
+    @property
+    def label(self) -> int:
+        return LINK_LABELS[self.name]
+
+
+@dataclass(frozen=True)
+class HumanoidModel:
+    links: tuple[Link, ...]
+    index: dict = field(hash=False, compare=False)
+
+    def link(self, name: str) -> Link:
+        return self.links[self.index[name]]
+
+
+def _floats(s: str) -> tuple[float, ...]:
+    return tuple(float(v) for v in s.split())
+
+
+def _rpy_quat(rpy) -> np.ndarray:
+    r, p, y = rpy
+    qx = quat_from_axis_angle((1, 0, 0), r)
+    qy = quat_from_axis_angle((0, 1, 0), p)
+    qz = quat_from_axis_angle((0, 0, 1), y)
+    return quat_mul(qz, quat_mul(qy, qx))
+
+
+@lru_cache(maxsize=1)
+def load_model(path: str | None = None) -> HumanoidModel:
+    """Parse the humanoid URDF (links in file order = pybullet's with URDF_MAINTAIN_LINK_ORDER)."""
+    raw = Path(path or data_path() / URDF_RELPATH).read_bytes().rstrip(b"\x00\r\n ")
+    root = ET.fromstring(raw)
+    shapes = {}
+    for link in root.findall("link"):
+        col = link.find("collision")
+        if col is None:
+            continue
+        org = col.find("origin")
+        xyz = _floats(org.get("xyz", "0 0 0")) if org is not None else (0.0, 0.0, 0.0)
+        rpy = _floats(org.get("rpy", "0 0 0")) if org is not None else (0.0, 0.0, 0.0)
+        geom = col.find("geometry")[0]
+        if geom.tag == "sphere":
+            kind, size = SPHERE, (float(geom.get("radius")), 0.0, 0.0)
+        elif geom.tag == "capsule":
+            kind, size = CAPSULE, (float(geom.get("radius")), float(geom.get("length")) / 2, 0.0)
+        elif geom.tag == "box":
+            kind, size = BOX, tuple(v / 2 for v in _floats(geom.get("size")))
+        elif geom.tag == "cylinder":
+            kind, size = CYLINDER, (float(geom.get("radius")), float(geom.get("length")) / 2, 0.0)
+        else:
+            raise ValueError(f"humanoid link {link.get('name')}: unsupported geometry {geom.tag}")
+        shapes[link.get("name")] = (kind, size, xyz, tuple(_rpy_quat(rpy)))
+    links: list[Link] = []
+    index: dict[str, int] = {"base": -1}
+    for joint in root.findall("joint"):
+        child = joint.find("child").get("link")
+        parent = joint.find("parent").get("link")
+        org = joint.find("origin")
+        axis_el = joint.find("axis")
+        axis = _floats(axis_el.get("xyz")) if axis_el is not None else (1.0, 0.0, 0.0)
+        kind, size, sxyz, squat = shapes[child]
+        index[child] = len(links)
+        links.append(
+            Link(
+                child,
+                index[parent],
+                joint.get("type"),
+                _floats(org.get("xyz")),
+                axis,
+                kind,
+                size,
+                sxyz,
+                squat,
+            )
+        )
+    return HumanoidModel(tuple(links), index)
+
+
+# --- poses ----------------------------------------------------------------------------------
+
+
+@dataclass
+class Pose:
+    """Joint rotations of the humanoid: quaternions for spherical joints, angles for revolute.
+
+    `tilt` is the root's orientation in the model's own y-up frame with the heading removed
+    (identity = upright, facing +x); mocap clips tilt the root, presets mostly do not.
+    """
+
+    joints: dict[str, list[float]]
+    tilt: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    def to_dict(self) -> dict:
+        return {
+            "joints": {k: [float(x) for x in v] for k, v in self.joints.items()},
+            "tilt": [float(x) for x in self.tilt],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Pose:
+        return cls({k: list(v) for k, v in d["joints"].items()}, tuple(d["tilt"]))
+
+    def copy(self) -> Pose:
+        return Pose({k: list(v) for k, v in self.joints.items()}, tuple(self.tilt))
+
+
+def identity_pose() -> Pose:
+    j = {n: [0.0, 0.0, 0.0, 1.0] for n in SPHERICAL}
+    j.update({n: [0.0] for n in REVOLUTE})
+    return Pose(j)
+
+
+def scale_for_height(height_m: float) -> float:
+    """pybullet globalScaling that makes the upright humanoid `height_m` tall."""
+    return REFERENCE_SCALING * height_m / reference_height()
+
+
+@lru_cache(maxsize=1)
+def reference_height() -> float:
+    """Standing height (m) of the identity pose at REFERENCE_SCALING."""
+    prims = posed_primitives(identity_pose(), REFERENCE_SCALING, (0, 0, 0), Y_UP_TO_Z_UP)
+    lo, hi = prims_z_range(prims)
+    return hi - lo
+
+
+def quantize_height(h: float) -> float:
+    return round(round(h / HEIGHT_STEP_M) * HEIGHT_STEP_M, 4)
+
+
+def base_quat(tilt, yaw: float) -> np.ndarray:
+    """World orientation of the base: tilt in model frame, stood upright, turned by yaw."""
+    return quat_normalize(quat_mul(yaw_quat(yaw), quat_mul(Y_UP_TO_Z_UP, tilt)))
+
+
+# --- forward kinematics ---------------------------------------------------------------------
+
+
+@lru_cache(maxsize=1)
+def _model_arrays() -> dict:
+    """The model's constants as arrays, for vectorised kinematics."""
+    m = load_model()
+    return {
+        "parent": [lk.parent for lk in m.links],
+        "joint_xyz": np.array([lk.joint_xyz for lk in m.links], np.float64),
+        "spherical": [i for i, lk in enumerate(m.links) if lk.joint_type == "spherical"],
+        "revolute": [i for i, lk in enumerate(m.links) if lk.joint_type == "revolute"],
+        "axis": np.array([lk.axis for lk in m.links], np.float64),
+        "kind": np.array([lk.shape_kind for lk in m.links], np.int32),
+        "size": np.array([lk.shape_size for lk in m.links], np.float64),
+        "shape_xyz": np.array([lk.shape_xyz for lk in m.links], np.float64),
+        "shape_rot": quats_to_matrices(np.array([lk.shape_quat for lk in m.links])),
+        "label": np.array([lk.label for lk in m.links], np.uint8),
+    }
+
+
+def _joint_rotations(pose: Pose) -> np.ndarray:
+    """(15, 3, 3) rotation of each joint (identity for fixed joints)."""
+    a = _model_arrays()
+    names = [lk.name for lk in load_model().links]
+    rot = np.broadcast_to(np.eye(3), (len(names), 3, 3)).copy()
+    sph = a["spherical"]
+    rot[sph] = quats_to_matrices(np.array([pose.joints[names[i]] for i in sph]))
+    rev = a["revolute"]
+    half = np.array([pose.joints[names[i]][0] for i in rev]) / 2
+    axes = a["axis"][rev] / np.linalg.norm(a["axis"][rev], axis=1, keepdims=True)
+    q = np.column_stack([axes * np.sin(half)[:, None], np.cos(half)])
+    rot[rev] = quats_to_matrices(q)
+    return rot
+
+
+def link_frames(pose: Pose, scale: float, base_pos, base_q) -> tuple[np.ndarray, np.ndarray]:
+    """World (positions (15, 3), rotations (15, 3, 3)) of each link frame (= its joint)."""
+    a = _model_arrays()
+    jr = _joint_rotations(pose)
+    offsets = a["joint_xyz"] * scale
+    n = len(offsets)
+    pos = np.zeros((n, 3))
+    rot = np.zeros((n, 3, 3))
+    bp = np.asarray(base_pos, np.float64)
+    br = quat_to_matrix(base_q)
+    for i, parent in enumerate(a["parent"]):
+        ppos, prot = (bp, br) if parent < 0 else (pos[parent], rot[parent])
+        pos[i] = ppos + prot @ offsets[i]
+        rot[i] = prot @ jr[i]
+    return pos, rot
+
+
+@dataclass
+class Primitives:
+    """Posed shapes of the human: kind, size (Part convention), world centre and rotation."""
+
+    kind: np.ndarray
+    size: np.ndarray
+    center: np.ndarray
+    rot: np.ndarray
+    label: np.ndarray
+    link: np.ndarray
+
+
+def posed_primitives(pose: Pose, scale: float, base_pos, base_q) -> Primitives:
+    a = _model_arrays()
+    pos, rot = link_frames(pose, scale, base_pos, base_q)
+    center = pos + np.einsum("nij,nj->ni", rot, a["shape_xyz"] * scale)
+    return Primitives(
+        a["kind"], a["size"] * scale, center, rot @ a["shape_rot"], a["label"], np.arange(len(pos))
+    )
+
+
+def prims_z_range(p: Primitives) -> tuple[float, float]:
+    """Lowest and highest point of the posed body (m)."""
+    ext = half_extents(p.kind, p.size, p.rot)[:, 2]
+    return float((p.center[:, 2] - ext).min()), float((p.center[:, 2] + ext).max())
+
+
+def prims_xy_bounds(
+    p: Primitives, yaw: float, origin, arms: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (lo, hi) of the body on the floor, in the frame of `origin` turned by `yaw`;
+    `arms=False` leaves out upper arms, forearms and hands."""
+    from topseg.core.synth.geometry import rot2
+
+    keep = (
+        np.ones(len(p.kind), bool)
+        if arms
+        else ~np.isin(p.label, (labels.UPPER_ARM, labels.LOWER_ARM, labels.HAND))
+    )
+    ext = half_extents(p.kind[keep], p.size[keep], p.rot[keep])[:, :2]
+    c = p.center[keep, :2] - np.asarray(origin, np.float64)[:2]
+    # each shape's world box corners, turned into the human's frame
+    corners = np.concatenate(
+        [c + ext * np.array(sx_sy) for sx_sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    )
+    loc = corners @ rot2(-yaw).T
+    return loc.min(0), loc.max(0)
+
+
+# --- motion capture -------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=32)
+def load_clip(name: str) -> np.ndarray:
+    """Frames of a DeepMimic clip as a (n_frames, 44) array."""
+    path = data_path() / "data" / "motions" / f"humanoid3d_{name}.txt"
+    with open(path) as f:
+        frames = np.asarray(json.load(f)["Frames"], np.float64)
+    if frames.ndim != 2 or frames.shape[1] != 44:
+        raise ValueError(f"{path}: expected 44 values per frame, got {frames.shape}")
+    return frames
+
+
+# offsets of each joint in a DeepMimic frame (w, x, y, z quaternions; scalars for revolute)
+_CLIP_LAYOUT = (
+    ("chest", 8, 4),
+    ("neck", 12, 4),
+    ("right_hip", 16, 4),
+    ("right_knee", 20, 1),
+    ("right_ankle", 21, 4),
+    ("right_shoulder", 25, 4),
+    ("right_elbow", 29, 1),
+    ("left_hip", 30, 4),
+    ("left_knee", 34, 1),
+    ("left_ankle", 35, 4),
+    ("left_shoulder", 39, 4),
+    ("left_elbow", 43, 1),
+)
+
+
+def _wxyz(v) -> np.ndarray:
+    return quat_normalize([v[1], v[2], v[3], v[0]])
+
+
+def slerp(a, b, t: float) -> np.ndarray:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    d = float(a @ b)
+    if d < 0:
+        b, d = -b, -d
+    if d > 0.9995:
+        return quat_normalize(a + t * (b - a))
+    th = np.arccos(d)
+    return (np.sin((1 - t) * th) * a + np.sin(t * th) * b) / np.sin(th)
+
+
+def clip_pose(name: str, phase: float) -> Pose:
+    """The pose of clip `name` at `phase` in [0, 1), interpolated between key frames."""
+    frames = load_clip(name)
+    x = float(np.clip(phase, 0.0, 1.0)) * (len(frames) - 1)
+    i = min(int(x), len(frames) - 2)
+    t = x - i
+    f0, f1 = frames[i], frames[i + 1]
+    joints = {}
+    for jname, off, n in _CLIP_LAYOUT:
+        if n == 4:
+            joints[jname] = list(slerp(_wxyz(f0[off : off + 4]), _wxyz(f1[off : off + 4]), t))
+        else:
+            joints[jname] = [float((1 - t) * f0[off] + t * f1[off])]
+    root = slerp(_wxyz(f0[4:8]), _wxyz(f1[4:8]), t)
+    # remove the heading (rotation about the model's vertical y); keep pitch and roll
+    fwd = quat_to_matrix(root) @ np.array([1.0, 0.0, 0.0])
+    heading = np.arctan2(-fwd[2], fwd[0])
+    tilt = quat_mul(quat_from_axis_angle((0, 1, 0), -heading), root)
+    return Pose(joints, tuple(quat_normalize(tilt)))
+
+
+# --- presets --------------------------------------------------------------------------------
+
+
+def limb_quat(
+    flex: float = 0.0, abd: float = 0.0, twist: float = 0.0, side: str = "right"
+) -> np.ndarray:
+    """Spherical joint rotation from angles in degrees, in the model's frame.
+
+    flex swings a hanging limb forward (or bends the trunk forward for the chest and neck,
+    pass a negative value), abd lifts it sideways away from the body (right limbs sit at +z),
+    twist turns it about its own axis.
+    """
+    f, a, t = np.radians([flex, abd, twist])
+    a = -a if side == "right" else a
+    return quat_mul(
+        quat_from_axis_angle((0, 0, 1), f),
+        quat_mul(quat_from_axis_angle((1, 0, 0), a), quat_from_axis_angle((0, 1, 0), t)),
+    )
+
+
+def trunk_quat(bend: float = 0.0, side_tilt: float = 0.0, twist: float = 0.0) -> np.ndarray:
+    """Chest or neck rotation (degrees): bend forward, tilt to the right, twist about vertical."""
+    b, s, t = np.radians([bend, side_tilt, twist])
+    return quat_mul(
+        quat_from_axis_angle((0, 0, 1), -b),
+        quat_mul(quat_from_axis_angle((1, 0, 0), s), quat_from_axis_angle((0, 1, 0), t)),
+    )
+
+
+def _set_leg(p: Pose, side: str, hip_flex: float, hip_abd: float, knee: float) -> None:
+    """Leg with the foot kept flat on the floor (ankle undoes hip and knee flexion)."""
+    p.joints[f"{side}_hip"] = list(limb_quat(hip_flex, hip_abd, 0.0, side))
+    p.joints[f"{side}_knee"] = [float(np.radians(-abs(knee)))]
+    p.joints[f"{side}_ankle"] = list(limb_quat(-(hip_flex - abs(knee)), -hip_abd, 0.0, side))
+
+
+def _set_arm(p: Pose, side: str, flex: float, abd: float, twist: float, elbow: float) -> None:
+    p.joints[f"{side}_shoulder"] = list(limb_quat(flex, abd, twist, side))
+    p.joints[f"{side}_elbow"] = [float(np.radians(np.clip(elbow, 0.0, 170.0)))]
+
+
+def preset_pose(name: str, rng: np.random.Generator) -> Pose:
+    """One of the paper's poses with its free angles drawn uniformly from natural ranges."""
+    u = rng.uniform
+    p = identity_pose()
+    if name == "sitting":  # legs are set against the seat by sitting_legs()
+        p.joints["chest"] = list(trunk_quat(u(-5, 15), u(-5, 5), u(-10, 10)))
+        for s in ("right", "left"):
+            _set_arm(p, s, u(15, 45), u(5, 15), 0.0, u(50, 95))
+        return p
+    legs_straight = name not in ("bending",)
+    if legs_straight:
+        for s in ("right", "left"):
+            _set_leg(p, s, u(-4, 6), u(0, 8), u(0, 8))
+    if name == "standing":
+        p.joints["chest"] = list(trunk_quat(u(-3, 6), u(-4, 4), u(-10, 10)))
+        for s in ("right", "left"):
+            _set_arm(p, s, u(-10, 20), u(3, 15), 0.0, u(0, 30))
+    elif name == "stretching":
+        p.joints["chest"] = list(trunk_quat(u(-12, 0), u(-8, 8), 0.0))
+        if rng.random() < 0.5:  # both arms overhead
+            for s in ("right", "left"):
+                _set_arm(p, s, u(150, 178), u(0, 20), 0.0, u(0, 25))
+        else:  # arms out to the sides
+            for s in ("right", "left"):
+                _set_arm(p, s, u(-10, 30), u(75, 110), 0.0, u(0, 20))
+    elif name == "working":
+        p.joints["chest"] = list(trunk_quat(u(8, 25), u(-5, 5), u(-10, 10)))
+        for s in ("right", "left"):
+            _set_arm(p, s, u(25, 65), u(5, 20), 0.0, u(40, 90))
+    elif name == "bending":
+        bend = u(45, 85)
+        p.joints["chest"] = list(trunk_quat(bend, u(-5, 5), u(-10, 10)))
+        p.joints["neck"] = list(trunk_quat(u(-30, 0), 0.0, 0.0))
+        knee = u(0, 30)
+        for s in ("right", "left"):
+            _set_leg(p, s, knee / 2, u(0, 8), knee)
+            _set_arm(p, s, bend + u(-15, 15), u(0, 15), 0.0, u(0, 40))
+    elif name == "bowing":
+        bend = u(20, 45)
+        p.joints["chest"] = list(trunk_quat(bend, 0.0, 0.0))
+        p.joints["neck"] = list(trunk_quat(u(5, 20), 0.0, 0.0))
+        for s in ("right", "left"):
+            _set_arm(p, s, bend * u(0.6, 1.0), u(0, 8), 0.0, u(0, 15))
+    elif name == "tilting":  # trunk to one side, one or both arms up, angled or straight
+        tilt = u(12, 30) * rng.choice([-1.0, 1.0])
+        p.joints["chest"] = list(trunk_quat(u(-5, 8), tilt, u(-10, 10)))
+        sides = (
+            ("right", "left")
+            if rng.random() < 0.5
+            else (("right",) if rng.random() < 0.5 else ("left",))
+        )
+        for s in ("right", "left"):
+            if s in sides:
+                _set_arm(p, s, u(-20, 60), u(40, 160), 0.0, u(0, 100))
+            else:
+                _set_arm(p, s, u(-10, 15), u(3, 15), 0.0, u(0, 30))
+    elif name == "swinging":  # a two-handed swing: arms together in front, trunk twisted
+        twist = u(20, 60) * rng.choice([-1.0, 1.0])
+        p.joints["chest"] = list(trunk_quat(u(5, 25), 0.0, twist))
+        lift = u(30, 110)
+        for s in ("right", "left"):
+            inward = -u(10, 30)
+            _set_arm(p, s, lift, inward, 0.0, u(0, 20))
+    else:
+        raise ValueError(f"unknown preset pose {name!r}; presets: {', '.join(PRESETS)}")
+    return p
+
+
+#: cosine of the largest lean of the root a mocap pose may have (60 degrees)
+MIN_UPRIGHT = 0.5
+
+
+def trunk_uprightness(pose: Pose) -> float:
+    """Vertical component of the root's up axis (1 = upright, 0 = lying)."""
+    return float(quat_to_matrix(pose.tilt)[1, 1])
+
+
+def sample_pose(name: str, rng: np.random.Generator) -> tuple[Pose, dict]:
+    """A pose called `name` (see POSES) and where it came from: preset or clip and phase."""
+    if name in CLIPS:
+        clip = str(rng.choice(CLIPS[name]))
+        for _ in range(50):  # skip the moments a clip tumbles (a kick's horizontal trunk)
+            phase = float(rng.uniform(0.0, 1.0))
+            pose = clip_pose(clip, phase)
+            if trunk_uprightness(pose) >= MIN_UPRIGHT:
+                break
+        return pose, {"source": "mocap", "clip": clip, "phase": phase}
+    if name in PRESETS:
+        return preset_pose(name, rng), {"source": "preset"}
+    raise ValueError(f"unknown pose {name!r}; known: {', '.join(POSES)}")
+
+
+# --- sitting and reaching -------------------------------------------------------------------
+
+
+def limb_lengths(scale: float) -> dict[str, float]:
+    """Segment lengths (m) at `scale`: thigh, shank, foot drop, upper arm, forearm, radii."""
+    m = load_model()
+    foot = m.link("right_ankle")
+    return {
+        "thigh": -m.link("right_knee").joint_xyz[1] * scale,
+        "shank": -m.link("right_ankle").joint_xyz[1] * scale,
+        "foot_drop": (-foot.shape_xyz[1] + foot.shape_size[1]) * scale,
+        "thigh_radius": m.link("right_hip").shape_size[0] * scale,
+        "upper_arm": -m.link("right_elbow").joint_xyz[1] * scale,
+        "forearm": -m.link("right_wrist").joint_xyz[1] * scale,
+        "hand_radius": m.link("right_wrist").shape_size[0] * scale,
+        "pelvis_radius": m.link("root").shape_size[0] * scale,
+        "pelvis_offset": m.link("root").shape_xyz[1] * scale,
+    }
+
+
+def sitting_legs(p: Pose, scale: float, hip_z: float) -> None:
+    """Thighs on the seat and feet on the floor, for hip joints at height `hip_z`.
+
+    Thighs stay horizontal while the shank can reach the floor by swinging forward; a short
+    human on a high seat lowers the thighs' front a little; past that the feet hang.
+    """
+    L = limb_lengths(scale)
+    reach = L["shank"] + L["foot_drop"]
+    drop = 0.0
+    if hip_z > reach:
+        drop = float(
+            np.degrees(
+                np.arcsin(np.clip((hip_z - reach) / L["thigh"], 0.0, np.sin(np.radians(20))))
+            )
+        )
+    knee_z = hip_z - L["thigh"] * np.sin(np.radians(drop))
+    cos_a = np.clip((knee_z - L["foot_drop"]) / L["shank"], 0.0, 1.0)
+    alpha = float(np.degrees(np.arccos(cos_a)))  # shank forward of vertical
+    hip_flex = 90.0 - drop
+    knee = 90.0 - drop - alpha
+    for s in ("right", "left"):
+        abd = 0.0  # legs in the sagittal plane keep the feet exactly flat
+        p.joints[f"{s}_hip"] = list(limb_quat(hip_flex, abd, 0.0, s))
+        p.joints[f"{s}_knee"] = [float(np.radians(-knee))]
+        p.joints[f"{s}_ankle"] = list(limb_quat(-(hip_flex - knee), -abd, 0.0, s))
+
+
+def reach(p: Pose, scale: float, base_pos, base_q, side: str, target) -> bool:
+    """Bend arm `side` so its hand (wrist centre) lands on `target` (world, m).
+
+    Analytic two-link IK: the elbow angle from the distance, the shoulder rotation that points
+    the arm at the target, and the swivel about that line that keeps the elbow low and out.
+    Returns False (pose unchanged) when the target is out of reach.
+    """
+    model = load_model()
+    L = limb_lengths(scale)
+    l1, l2 = L["upper_arm"], L["forearm"]
+    pos, rot = link_frames(p, scale, base_pos, base_q)
+    si = model.index[f"{side}_shoulder"]
+    chest = model.links[si].parent
+    shoulder = pos[si]
+    t_world = np.asarray(target, np.float64) - shoulder
+    dist = float(np.linalg.norm(t_world))
+    if dist > (l1 + l2) * 0.999 or dist < abs(l1 - l2) + 1e-4:
+        return False
+    cos_g = (l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2)
+    elbow = float(np.pi - np.arccos(np.clip(cos_g, -1.0, 1.0)))
+    r_chest = rot[chest]
+    t_local = r_chest.T @ t_world
+    w0 = np.array([0.0, -l1, 0.0]) + quat_to_matrix(
+        quat_from_axis_angle((0, 0, 1), elbow)
+    ) @ np.array([0.0, -l2, 0.0])
+    q_min = rotation_between(w0, t_local)
+    axis = t_local / dist
+    outward = np.array([0.0, 0.0, 1.0 if side == "right" else -1.0])
+    best, best_score = None, np.inf
+    for phi in np.linspace(-np.pi, np.pi, 36, endpoint=False):
+        q = quat_mul(quat_from_axis_angle(axis, phi), q_min)
+        e_local = quat_to_matrix(q) @ np.array([0.0, -l1, 0.0])
+        e_world = r_chest @ e_local
+        score = e_world[2] - 0.5 * float(e_local @ outward) + 0.3 * float(e_local[0])
+        if score < best_score:
+            best, best_score = q, score
+    p.joints[f"{side}_shoulder"] = list(quat_normalize(best))
+    p.joints[f"{side}_elbow"] = [elbow]
+    return True
+
+
+def wrist_position(p: Pose, scale: float, base_pos, base_q, side: str) -> np.ndarray:
+    pos, _ = link_frames(p, scale, base_pos, base_q)
+    return pos[load_model().index[f"{side}_wrist"]]
+
+
+def hip_position(p: Pose, scale: float, base_pos, base_q, side: str = "right") -> np.ndarray:
+    pos, _ = link_frames(p, scale, base_pos, base_q)
+    return pos[load_model().index[f"{side}_hip"]]

@@ -1,0 +1,162 @@
+"""Potts CRF speed and quality: `topseg bench crf`.
+
+Runs `exact` (gco alpha-expansion over the full grid) and `realtime` (the band solver)
+on the same 640x480 frames and unaries, and reports milliseconds per frame and how close
+realtime's energy comes to exact's:
+
+- crf_energy_ratio: E(realtime) / E(exact), mean over frames (max in *_max; the same
+  as a percentage above exact in crf_energy_excess_pct); the target is <= 1.02.
+- crf_gain_fraction: (E(argmax) - E(realtime)) / (E(argmax) - E(exact)), the share of
+  the smoothing exact achieves that realtime also achieves (a stricter measure: the
+  unaries of the floor alone make the ratio close to 1).
+
+Unaries come from a forest on procedural top-view frames: the model given with --model,
+or else a small forest trained here on the spot (seeded, ~20 s). `--unaries synthetic`
+uses the stand-in forest-like posteriors of `topseg.core.crf.synthetic` instead. Timings
+are per-frame medians of --repeat runs, wall clock (*_ms_*) and this process's CPU time
+(*_cpu_ms_*: both solvers are single-threaded, so on an idle machine the two agree); the
+load average is reported beside them, since other processes on a 2-core machine inflate
+the wall-clock figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=int, default=4, help="frames to measure on")
+    parser.add_argument("--repeat", type=int, default=10, help="realtime runs per frame")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--unaries",
+        choices=("forest", "synthetic"),
+        default="forest",
+        help="forest posteriors on procedural frames, or the synthetic stand-in",
+    )
+    parser.add_argument("--model", type=Path, help="topseg model file (default: train a small one)")
+    parser.add_argument("--smoothness", type=float, default=None, help="Potts weight (nats)")
+    parser.add_argument("--confidence", type=float, default=None)
+    parser.add_argument("--ring", type=int, default=None)
+    parser.add_argument("--cycles", type=int, default=None)
+
+
+def _quick_forest(rng: np.random.Generator):
+    """A small forest on procedural frames: enough for forest-shaped posteriors."""
+    from topseg.core import forest
+    from topseg.core.synth import procedural
+
+    frames = [procedural.procedural_frame(rng) for _ in range(60)]
+    depth = np.stack([d for d, _ in frames])
+    labels = np.stack([lab for _, lab in frames])
+    config = forest.TrainConfig(
+        n_trees=3,
+        max_depth=16,
+        frames_per_tree=60,
+        pixels_per_frame=1500,
+        n_candidates=40,
+        n_thresholds=40,
+    )
+    return forest.train_forest(depth, labels, config, seed=int(rng.integers(2**31)))
+
+
+def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
+    """[(posteriors, depth)] and a sentence saying where the unaries came from."""
+    rng = np.random.default_rng(args.seed)
+    if args.unaries == "synthetic":
+        from topseg.core.crf.synthetic import forest_like_posteriors, synthetic_scene
+
+        out = []
+        for _ in range(args.frames):
+            depth, truth = synthetic_scene(rng)
+            out.append((forest_like_posteriors(truth, rng), depth))
+        return out, "stand-in forest-like posteriors on synthetic scenes (crf_synthetic)"
+    from topseg.core import forest
+    from topseg.core.synth import procedural
+
+    if args.model is not None:
+        model, _ = forest.load_model(args.model)
+        source = f"forest {args.model} on procedural frames"
+    else:
+        model = _quick_forest(rng)
+        source = "small forest (3 trees, depth 16, 60 frames) trained here, on procedural frames"
+    out = []
+    for _ in range(args.frames):
+        depth, _ = procedural.procedural_frame(rng)
+        out.append((forest.predict_proba(model, depth), depth))
+    return out, source
+
+
+def measure(args: argparse.Namespace) -> dict:
+    from topseg.core.crf import CRFConfig, potts_energy, segment_crf
+    from topseg.core.crf.realtime import band_mask
+
+    overrides = {
+        k: getattr(args, k)
+        for k in ("smoothness", "confidence", "ring", "cycles")
+        if getattr(args, k) is not None
+    }
+    realtime = CRFConfig(mode="realtime", **overrides)
+    exact = CRFConfig(**{**realtime.to_dict(), "mode": "exact"})
+    none = CRFConfig(**{**realtime.to_dict(), "mode": "none"})
+    frames, source = _frames(args)
+    segment_crf(*frames[0], realtime)  # compile / load the numba kernels
+    rows = []
+    for proba, depth in frames:
+        t0, c0 = time.perf_counter(), time.process_time()
+        lab_exact = segment_crf(proba, depth, exact)
+        t_exact, c_exact = time.perf_counter() - t0, time.process_time() - c0
+        times, cpu = [], []
+        for _ in range(args.repeat):
+            t0, c0 = time.perf_counter(), time.process_time()
+            lab_rt = segment_crf(proba, depth, realtime)
+            times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+        lab_none = segment_crf(proba, depth, none)
+        e_exact, e_rt, e_none = (
+            potts_energy(lab, proba, depth, realtime) for lab in (lab_exact, lab_rt, lab_none)
+        )
+        valid = depth > 0
+        band = band_mask(proba, depth, realtime)
+        rows.append(
+            {
+                "exact_ms": 1e3 * t_exact,
+                "exact_cpu_ms": 1e3 * c_exact,
+                "rt_ms": 1e3 * float(np.median(times)),
+                "rt_cpu_ms": 1e3 * float(np.median(cpu)),
+                "rt_min_ms": 1e3 * min(times),
+                "ratio": e_rt / e_exact,
+                "gain": (e_none - e_rt) / (e_none - e_exact) if e_none > e_exact else 1.0,
+                "agree": float((lab_rt == lab_exact)[valid].mean()),
+                "band": float(band.sum() / valid.sum()),
+            }
+        )
+
+    def col(key: str) -> np.ndarray:
+        return np.array([r[key] for r in rows])
+
+    return {
+        "crf_exact_ms_per_frame": round(float(np.median(col("exact_ms"))), 1),
+        "crf_realtime_ms_per_frame": round(float(np.median(col("rt_ms"))), 2),
+        "crf_exact_cpu_ms_per_frame": round(float(np.median(col("exact_cpu_ms"))), 1),
+        "crf_realtime_cpu_ms_per_frame": round(float(np.median(col("rt_cpu_ms"))), 2),
+        "crf_realtime_ms_best": round(float(col("rt_min_ms").min()), 2),
+        "crf_realtime_ms_worst_frame": round(float(col("rt_ms").max()), 2),
+        "crf_energy_ratio": round(float(col("ratio").mean()), 5),
+        "crf_energy_ratio_max": round(float(col("ratio").max()), 5),
+        "crf_energy_excess_pct": round(100 * float(col("ratio").mean() - 1), 4),
+        "crf_gain_fraction": round(float(col("gain").mean()), 4),
+        "crf_gain_fraction_min": round(float(col("gain").min()), 4),
+        "crf_label_agreement": round(float(col("agree").mean()), 4),
+        "crf_band_fraction": round(float(col("band").mean()), 4),
+        "frames": len(rows),
+        "frame_shape": "x".join(str(s) for s in frames[0][1].shape[::-1]),
+        "unaries": source,
+        "realtime_config": realtime.to_dict(),
+        "load_average_1min": round(os.getloadavg()[0], 2),
+    }
