@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+import numba
 import numpy as np
 
 
@@ -35,11 +36,15 @@ class Intrinsics:
         return (self.height, self.width)
 
     def to_dict(self) -> dict:
+        """The intrinsics as a plain dict (`from_dict` reads it back)."""
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> Intrinsics:
-        return cls(**{k: d[k] for k in ("width", "height", "fx", "fy", "cx", "cy")})
+    def from_dict(cls, d: dict, source: str = "camera intrinsics") -> Intrinsics:
+        """The intrinsics in `d`; all six keys are required (no silent Kinect fallback)."""
+        from topseg.core.config import from_dict
+
+        return from_dict(cls, d, source, required=("width", "height", "fx", "fy", "cx", "cy"))
 
     def scaled_to(self, width: int, height: int) -> Intrinsics:
         """The same optics resampled to another resolution."""
@@ -114,11 +119,13 @@ class TopViewMount:
         return (k.width * h / k.fx, k.height * h / k.fy)
 
     def world_to_camera(self, xyz_world_m: np.ndarray) -> np.ndarray:
+        """World points (z up, floor at 0) in metres -> camera-frame points."""
         p = np.asarray(xyz_world_m, np.float64)
         h = self.height_mm / 1000.0
         return np.stack([p[..., 0], -p[..., 1], h - p[..., 2]], axis=-1)
 
     def camera_to_world(self, xyz_cam_m: np.ndarray) -> np.ndarray:
+        """Camera-frame points in metres -> world points (the same flip, its own inverse)."""
         p = np.asarray(xyz_cam_m, np.float64)
         h = self.height_mm / 1000.0
         return np.stack([p[..., 0], -p[..., 1], h - p[..., 2]], axis=-1)
@@ -128,11 +135,38 @@ class TopViewMount:
         return self.height_mm - 1000.0 * z_world_m
 
     def to_dict(self) -> dict:
+        """The mount as a plain dict (`from_dict` reads it back)."""
         return {"intrinsics": self.intrinsics.to_dict(), "height_mm": self.height_mm}
 
     @classmethod
-    def from_dict(cls, d: dict) -> TopViewMount:
-        return cls(Intrinsics.from_dict(d["intrinsics"]), float(d["height_mm"]))
+    def from_dict(cls, d: dict, source: str = "camera mount") -> TopViewMount:
+        """The mount in `d` (`to_dict`'s form); both keys are required."""
+        from topseg.core.config import from_dict
+
+        return from_dict(cls, d, source, required=("intrinsics", "height_mm"))
 
 
 TOP_VIEW = TopViewMount()
+
+
+#: the largest depth a uint16 mm frame holds
+MAX_DEPTH_MM = 65535
+
+
+@numba.njit(cache=True, inline="always")
+def metres_to_mm_scalar(z_m: float) -> int:
+    """`metres_to_mm` of one value, for numba kernels: round half up, 0 when out of range."""
+    mm = np.floor(z_m * 1000.0 + 0.5)
+    if mm > 0.0 and mm <= 65535.0:  # False for NaN and +-inf too
+        return int(mm)
+    return 0
+
+
+def metres_to_mm(depth_m: np.ndarray) -> np.ndarray:
+    """Depth in metres -> uint16 mm, the one conversion: rounded half up (floor(1000 z + 0.5)),
+    0 (no depth) where not finite, below 0.5 mm or beyond the uint16 range."""
+    mm = np.floor(np.asarray(depth_m, np.float64) * 1000.0 + 0.5)
+    ok = (mm > 0) & (mm <= MAX_DEPTH_MM)  # False for NaN and +-inf too
+    out = np.zeros(mm.shape, np.uint16)
+    out[ok] = mm[ok].astype(np.uint16)
+    return out

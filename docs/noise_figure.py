@@ -60,10 +60,10 @@ def main() -> None:
     warnings.filterwarnings("ignore", message="All-NaN slice")  # depth bins a source lacks
 
     matplotlib.use("Agg")
+    import depth_stats  # docs/depth_stats.py, beside this script
     import matplotlib.pyplot as plt
 
     from topseg.core import labels
-    from topseg.core.synth import depth_stats
     from topseg.core.synth.noise import GaussianNoise, KinectNoise
     from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 

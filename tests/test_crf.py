@@ -16,8 +16,8 @@ from topseg.core.crf import (
     segment_crf,
     unaries_from_posteriors,
 )
-from topseg.core.crf.synthetic import forest_like_posteriors, synthetic_scene
 from topseg.core.errors import TopsegError
+from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
 C = L.NUM_CLASSES
 EXACT = CRFConfig(mode="exact")
@@ -264,7 +264,7 @@ def test_degenerate_frames():
 
 def test_stand_in_posteriors_err_like_a_forest():
     """The bench's and tests' stand-in: normalised, mostly right, wrong near boundaries."""
-    from topseg.core.crf.synthetic import boundary_distance
+    from topseg.services.bench.crf_standin import boundary_distance
 
     rng = np.random.default_rng(12)
     depth, truth = synthetic_scene(rng)

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference import reference_free, reference_settled
 from scipy import ndimage
 
 from topseg.core import labels as L
 from topseg.core.crf import CRFConfig, edge_weights, potts_energy
 from topseg.core.crf.expansion import alpha_expansion, energy
 from topseg.core.crf.realtime import (
-    SETTLED_MARGIN,
     argmax_confidence,
     band_mask,
     band_problem,
@@ -19,7 +19,7 @@ from topseg.core.crf.realtime import (
     number_band,
     segment_realtime,
 )
-from topseg.core.crf.synthetic import forest_like_posteriors, synthetic_scene
+from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
 C = L.NUM_CLASSES
 CROSS = ndimage.generate_binary_structure(2, 1)
@@ -30,28 +30,6 @@ def random_frame(rng, h=40, w=50):
     depth = rng.integers(1000, 3500, (h, w)).astype(np.uint16)
     depth[rng.random((h, w)) < 0.05] = 0
     return proba, depth
-
-
-def reference_settled(proba, valid, smoothness, eps, margin=SETTLED_MARGIN):
-    """Argmax ahead of every other label by more than any pixel's edges weigh (+ margin)."""
-    top2 = np.sort(np.maximum(proba.astype(np.float64), eps), axis=2)[..., -2:]
-    return valid & (np.log(top2[..., 1]) - np.log(top2[..., 0]) >= 4 * smoothness + margin)
-
-
-def reference_free(amax, pmax, valid, confidence, ring, settled):
-    """Neither sure (confident, every 4-neighbour with depth agrees) nor settled; + ring."""
-    h, w = amax.shape
-    pad_a = np.pad(amax.astype(np.int64), 1, constant_values=-1)
-    pad_v = np.pad(valid, 1, constant_values=False)
-    agree = np.ones((h, w), bool)
-    for di, dj in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        na = pad_a[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
-        nv = pad_v[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
-        agree &= ~nv | (na == amax)
-    free = valid & ~((pmax >= confidence) & agree) & ~settled
-    for _ in range(ring):
-        free = ndimage.binary_dilation(free, CROSS) & valid & ~settled
-    return free
 
 
 def test_argmax_confidence_matches_numpy():

@@ -2,40 +2,10 @@
 
 import numpy as np
 import pytest
+from reference import extract_reference, response_reference
 
 from topseg.core.forest import features
 from topseg.core.forest.features import FeatureConfig
-
-
-def probe_reference(depth, r, c, inv_d, dr, dc, background):
-    """Vectorised numpy probe: same float32 arithmetic as the kernel."""
-    pr = r + np.floor(dr * inv_d + np.float32(0.5)).astype(np.int64)
-    pc = c + np.floor(dc * inv_d + np.float32(0.5)).astype(np.int64)
-    h, w = depth.shape
-    inside = (pr >= 0) & (pc >= 0) & (pr < h) & (pc < w)
-    z = np.full(np.broadcast(pr, pc).shape, background, np.int64)
-    z[inside] = depth[pr[inside], pc[inside]]
-    z[(z == 0) | (z > background)] = background
-    return z
-
-
-def extract_reference(depth, rows, cols, offsets, background):
-    inv_d = np.float32(1.0) / depth[rows, cols].astype(np.float32)
-    r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
-    u = probe_reference(depth, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
-    v = probe_reference(depth, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
-    return (u - v).astype(np.int16)
-
-
-def response_reference(depth, offsets, weights, background):
-    rows, cols = np.nonzero(depth)
-    f = extract_reference(depth, rows, cols, offsets, background)
-    acc = np.zeros(rows.size, np.float32)
-    for j in range(weights.size):  # float32, feature by feature, like the kernel
-        acc = acc + weights[j] * f[:, j].astype(np.float32)
-    out = np.full(depth.shape, np.nan, np.float32)
-    out[rows, cols] = acc
-    return out
 
 
 def random_depth(rng, shape=(37, 53), zero_fraction=0.1, hi=12000):

@@ -1,113 +1,42 @@
-"""Forest training: every numba kernel against a plain numpy/Python reference, then trees."""
+"""Forest training: every numba kernel (criterion, splitter, builder) against a plain
+numpy/Python reference, then whole trees, bit for bit against trees saved before the split."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
+from reference import (
+    SplitMix,
+    best_split_reference,
+    gains_reference,
+    responses_reference,
+)
 
 from topseg.core import labels
+from topseg.core.forest import criterion, splitter
 from topseg.core.forest import train as ft
 from topseg.core.forest.features import FeatureConfig
 from topseg.core.forest.predict import predict_proba
 from topseg.core.forest.tree import Forest
 
-MASK = (1 << 64) - 1
-GOLDEN = 0x9E3779B97F4A7C15
-
-
-class SplitMix:
-    """Python reference of the per-node splitmix64 stream."""
-
-    def __init__(self, key, node_id):
-        self.state = (key + node_id * GOLDEN) & MASK
-        self.state = self.next()
-
-    def next(self):
-        self.state = (self.state + GOLDEN) & MASK
-        z = self.state
-        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & MASK
-        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & MASK
-        return z ^ (z >> 31)
-
-    def uniform(self):
-        return (self.next() >> 11) * (1.0 / 9007199254740992.0)
-
-    def randint(self, n):
-        return int(self.uniform() * n)
-
-    def unit_vector(self, k):
-        while True:
-            v = np.array([2.0 * self.uniform() - 1.0 for _ in range(k)])
-            sq = 0.0
-            for x in v:
-                sq += x * x
-            if 0.0 < sq <= 1.0:
-                return v / np.sqrt(sq)
-
-
-def responses_reference(fm, ids, feats, weights):
-    acc = np.zeros(len(ids), np.float32)
-    for j in range(len(feats)):
-        acc = acc + weights[j] * fm[feats[j], ids].astype(np.float32)
-    return acc
-
-
-def entropy_bits(counts):
-    n = counts.sum()
-    p = counts[counts > 0] / n
-    return float(-(p * np.log2(p)).sum())
-
-
-def gains_reference(resp, y, thresholds, n_classes):
-    """Information gain of each threshold by brute force: split, count, entropies."""
-    parent = np.bincount(y, minlength=n_classes)
-    h = entropy_bits(parent)
-    out = []
-    for t in thresholds:
-        go_left = resp < t
-        left = np.bincount(y[go_left], minlength=n_classes)
-        right = parent - left
-        n_l, n_r = left.sum(), right.sum()
-        child = (n_l * entropy_bits(left) if n_l else 0) + (n_r * entropy_bits(right) if n_r else 0)
-        out.append(h - child / len(y))
-    return np.array(out)
-
-
-def best_split_reference(fm, y, ids, key, node_id, n_cand, n_thr, k, linear, cap):
-    """The node optimisation written plainly, with the same stream of draws."""
-    rng = SplitMix(key, node_id)
-    n = len(ids)
-    sub = np.array([ids[rng.randint(n)] for _ in range(cap)]) if n > cap else ids
-    m = len(sub)
-    ys = y[sub]
-    best = (-1.0, None, None, None)
-    for _ in range(n_cand):
-        feats = np.array([rng.randint(fm.shape[0]) for _ in range(k)])
-        weights = rng.unit_vector(k).astype(np.float32) if linear else np.ones(k, np.float32)
-        resp = responses_reference(fm, sub, feats, weights)
-        thr = np.sort(np.array([resp[rng.randint(m)] for _ in range(min(n_thr, m))]))
-        gains = gains_reference(resp, ys, thr, labels.NUM_CLASSES)
-        for g, t in zip(gains, thr, strict=True):
-            if g > best[0] + 1e-12:
-                best = (g, feats, weights, t)
-    return best
-
 
 def test_splitmix_stream_matches_reference():
     key, node = 0xDEADBEEF12345678, 77
-    state = ft._node_state(key, node)
+    state = splitter._node_state(key, node)
     ref = SplitMix(key, node)
-    got = [int(ft._next_u64(state)) for _ in range(20)]
+    got = [int(splitter._next_u64(state)) for _ in range(20)]
     assert got == [ref.next() for _ in range(20)]
-    vals = [ft._uniform(state) for _ in range(1000)]
+    vals = [splitter._uniform(state) for _ in range(1000)]
     assert vals == [ref.uniform() for _ in range(1000)]
     assert 0.0 <= min(vals) and max(vals) < 1.0
 
 
 def test_unit_vector_is_uniform_direction():
-    state = ft._node_state(5, 0)
+    state = splitter._node_state(5, 0)
     out = np.empty(2)
     angles = []
     for _ in range(4000):
-        ft._unit_vector(state, 2, out)
+        splitter._unit_vector(state, 2, out)
         assert abs(np.hypot(*out) - 1) < 1e-12
         angles.append(np.arctan2(out[1], out[0]))
     hist, _ = np.histogram(angles, bins=8, range=(-np.pi, np.pi))
@@ -122,7 +51,7 @@ def test_responses_match_reference(seed):
     feats = rng.integers(0, 50, size=3)
     weights = rng.normal(size=3).astype(np.float32)
     out = np.empty(120, np.float32)
-    ft._responses(fm, ids, feats, weights, out)
+    splitter._responses(fm, ids, feats, weights, out)
     np.testing.assert_array_equal(out, responses_reference(fm, ids, feats, weights))
 
 
@@ -135,13 +64,13 @@ def test_histogram_gains_match_brute_force(seed):
     resp = np.round(rng.normal(size=n) * 50).astype(np.float32)  # ties on purpose
     thr = np.sort(resp[rng.integers(0, n, size=min(40, n))])
     hist = np.full((thr.size + 1, n_cls), -1, np.int64)
-    ft._bin_histogram(resp, y, thr, hist)
+    criterion._bin_histogram(resp, y, thr, hist)
     assert hist.sum() == n
     # bin b = number of thresholds <= response
     bins = np.searchsorted(thr, resp, side="right")
     np.testing.assert_array_equal(hist.sum(axis=1), np.bincount(bins, minlength=thr.size + 1))
     gains = np.empty(thr.size)
-    ft._gains_from_histogram(hist, ft._xlogx(n + 1), gains)
+    criterion._gains_from_histogram(hist, criterion.xlogx_table(n + 1), gains)
     np.testing.assert_allclose(gains, gains_reference(resp, y, thr, n_cls), atol=1e-12)
 
 
@@ -149,10 +78,10 @@ def test_bins_at_the_edges():
     thr = np.array([5, 5, 7], np.float32)
     resp = np.array([4, 5, 6, 7, 8], np.float32)
     hist = np.empty((4, 11), np.int64)
-    ft._bin_histogram(resp, np.zeros(5, np.int64), thr, hist)
+    criterion._bin_histogram(resp, np.zeros(5, np.int64), thr, hist)
     assert hist[:, 0].tolist() == [1, 0, 2, 2]  # searchsorted right: 0, 2, 2, 3, 3
     one = np.empty((2, 11), np.int64)
-    ft._bin_histogram(resp, np.zeros(5, np.int64), np.array([6], np.float32), one)
+    criterion._bin_histogram(resp, np.zeros(5, np.int64), np.array([6], np.float32), one)
     assert one[:, 0].tolist() == [2, 3]
 
 
@@ -161,9 +90,9 @@ def test_gain_is_parent_entropy_for_a_perfect_split():
     y = np.array([0, 0, 0, 5, 5, 5])
     thr = np.array([10], np.float32)
     hist = np.empty((2, 11), np.int64)
-    ft._bin_histogram(resp, y, thr, hist)
+    criterion._bin_histogram(resp, y, thr, hist)
     gains = np.empty(1)
-    ft._gains_from_histogram(hist, ft._xlogx(7), gains)
+    criterion._gains_from_histogram(hist, criterion.xlogx_table(7), gains)
     assert gains[0] == pytest.approx(1.0)
 
 
@@ -178,9 +107,9 @@ def test_best_split_matches_reference(linear, k, n, cap):
     fm[7] = (y * 1000 + rng.integers(-400, 400, size=500)).astype(np.int16)
     ids = np.sort(rng.choice(500, n, replace=False))
     key, node_id = 1234567, 9
-    state = ft._node_state(key, node_id)
-    xlogx = ft._xlogx(max(n, cap) + 1)
-    gain, feats, weights, thr = ft._best_split(
+    state = splitter._node_state(key, node_id)
+    xlogx = criterion.xlogx_table(max(n, cap) + 1)
+    gain, feats, weights, thr = splitter._best_split(
         fm, y, ids, state, labels.NUM_CLASSES, 25, 30, k, linear, cap, xlogx
     )
     r_gain, r_feats, r_weights, r_thr = best_split_reference(
@@ -202,7 +131,7 @@ def test_partition_is_stable_and_matches_reference():
     resp = responses_reference(fm, ids, feats, w)
     want = np.concatenate([ids[resp < 3.5], ids[~(resp < 3.5)]])
     got = ids.copy()
-    n_left = ft._partition(fm, got, feats, w, np.float32(3.5))
+    n_left = splitter._partition(fm, got, feats, w, np.float32(3.5))
     assert n_left == int((resp < 3.5).sum())
     np.testing.assert_array_equal(got, want)
 
@@ -363,3 +292,21 @@ def test_config_round_trip_and_validation():
     assert ft.TrainConfig().to_dict()["features"]["n_features"] == 300
     with pytest.raises(ValueError, match="split"):
         ft.TrainConfig(split="oblique")
+
+
+FIXTURE = Path(__file__).parent / "data" / "small_trees.npz"
+
+
+@pytest.mark.parametrize(("split", "seed"), [("linear", 3), ("axis", 5)])
+def test_trees_match_those_trained_before_the_split_into_criterion_splitter_builder(split, seed):
+    """tests/data/small_trees.npz holds trees trained on `small_frames()` with SMALL by the
+    single-module trainer (issue 13, before criterion/splitter/builder): the same bits now."""
+    depth, lab = small_frames()
+    config = ft.TrainConfig(**{**SMALL.to_dict(), "split": split, "features": SMALL.features})
+    tree = ft.train_tree(depth, lab, config, seed=seed)
+    with np.load(FIXTURE) as saved:
+        names = sorted(k.removeprefix(f"{split}_") for k in saved.files if k.startswith(split))
+        assert names == sorted(tree.arrays())
+        for name, arr in tree.arrays().items():
+            np.testing.assert_array_equal(arr, saved[f"{split}_{name}"], err_msg=name)
+            assert arr.dtype == saved[f"{split}_{name}"].dtype, name

@@ -3,14 +3,30 @@ their numpy reference and each effect against its parameters."""
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
+import reference
 
 from topseg.core import labels
 from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
-from topseg.core.synth import depth_stats, noise, render
+from topseg.core.synth import noise, render
 from topseg.core.synth.geometry import BOX
+
+
+def _docs_module(name: str):
+    """A module of docs/ (analysis tools beside the figures they make, not in the package)."""
+    path = Path(__file__).resolve().parents[1] / "docs" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+depth_stats = _docs_module("depth_stats")
 
 SMALL = TopViewMount(Intrinsics(160, 120, 142.6, 142.6, 79.5, 59.5), 3500.0)
 
@@ -83,7 +99,7 @@ def test_gaussian_noise_has_its_sigma_and_keeps_zeros():
 def test_hash_generator_matches_its_numpy_twin_and_is_uniform():
     seed = 123456789
     idx = np.arange(200_000)
-    ref = noise.hash_uniform_np(seed, idx)
+    ref = reference.hash_uniform_np(seed, idx)
     assert ref.min() >= 0 and ref.max() < 1
     assert ref.mean() == pytest.approx(0.5, abs=0.005) and ref.var() == pytest.approx(
         1 / 12, rel=0.02
@@ -108,7 +124,7 @@ def test_kinect_kernels_match_the_numpy_reference(params):
     for _ in range(3):
         depth = _boxes(rng)
         field, seed = model.draws(depth.shape, np.random.default_rng(int(rng.integers(1 << 30))))
-        ref = noise.kinect_reference(model, depth, field, seed)
+        ref = reference.kinect_reference(model, depth, field, seed)
         out = np.empty_like(depth)
         noise._kinect_kernel(
             depth, *model.flags(depth), field, float(model.noise_cell_px), np.uint64(seed), model.fb, float(model.subpixel),

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import reference
 
 from topseg.core import labels
-from topseg.core.camera import Intrinsics, TopViewMount
+from topseg.core.camera import Intrinsics, TopViewMount, metres_to_mm, metres_to_mm_scalar
 from topseg.core.synth import render
 from topseg.core.synth.geometry import (
     BOX,
@@ -53,7 +54,7 @@ def random_primitives(rng: np.random.Generator, n: int) -> render.Primitives:
 def test_numba_kernel_matches_numpy_reference(seed):
     prims = random_primitives(np.random.default_rng(seed), 40)
     depth, lab = render.raycast_m(prims, SMALL)
-    ref_depth, ref_lab = render.raycast_reference(prims, SMALL)
+    ref_depth, ref_lab = reference.raycast_reference(prims, SMALL)
     assert np.array_equal(lab, ref_lab)
     hit = np.isfinite(ref_depth)
     assert np.array_equal(np.isfinite(depth), hit)
@@ -67,7 +68,7 @@ def test_every_kind_is_hit_where_the_reference_hits_it():
         prims = random_primitives(rng, 12)
         prims.kind[1:] = kind
         _depth, lab = render.raycast_m(prims, SMALL)
-        _ref_depth, ref_lab = render.raycast_reference(prims, SMALL)
+        _ref_depth, ref_lab = reference.raycast_reference(prims, SMALL)
         assert np.array_equal(lab, ref_lab)
         assert np.mean(lab != labels.BACKGROUND) > 0.02
 
@@ -158,6 +159,11 @@ def test_screen_boxes_cull_what_is_behind_or_outside_the_camera():
     )
 
 
-def test_depth_to_mm_rounds_and_marks_misses():
-    d = np.array([[np.inf, 1.0004, 1.0006], [0.0, 70.0, 2.5]])
-    np.testing.assert_array_equal(render.depth_to_mm(d), [[0, 1000, 1001], [0, 0, 2500]])
+def test_metres_to_mm_rounds_half_up_and_marks_misses():
+    d = np.array([[np.inf, 1.0004, 1.0006], [0.0, 70.0, 2.5], [np.nan, -np.inf, 65.535]])
+    want = [[0, 1000, 1001], [0, 0, 2500], [0, 0, 65535]]
+    np.testing.assert_array_equal(metres_to_mm(d), want)
+    assert metres_to_mm(d).dtype == np.uint16
+    assert [metres_to_mm_scalar(float(x)) for x in d.ravel()] == np.ravel(want).tolist()
+    # half a millimetre rounds up (the renderer's rounding), not to even as np.rint does
+    assert metres_to_mm(np.array([0.0025, 0.0035])).tolist() == [3, 4]

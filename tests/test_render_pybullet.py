@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as p
 import pytest
+import reference
 from scipy import ndimage
 
 from topseg.core import labels
@@ -27,7 +28,7 @@ def _both(world, scene):
     client, builder = world
     builder.build(scene)
     ray = render.raycast(builder.primitives())
-    tiny = render.render_tiny(client, builder.label_of)
+    tiny = reference.render_tiny(client, builder.label_of)
     return ray, tiny
 
 

@@ -74,11 +74,16 @@ class FeatureConfig:
         return self.patch_px / 2 * self.reference_depth_mm
 
     def to_dict(self) -> dict:
+        """The config as a plain dict (`from_dict` reads it back)."""
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> FeatureConfig:
-        return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
+    def from_dict(cls, d: dict, source: str = "feature config") -> FeatureConfig:
+        """The config in `d` (`to_dict`'s form); a key missing takes its default, an unknown or
+        mistyped one is a ConfigError naming it."""
+        from topseg.core.config import from_dict
+
+        return from_dict(cls, d, source)
 
 
 #: a v offset no image reaches: the probe reads `background_mm`, so f = p(s + u/d) - background

@@ -17,17 +17,15 @@ One tree:
    R candidate responses (axis-aligned: one pool feature; linear: `linear_k` features and
    a random unit vector) and, per candidate, K thresholds among the candidate's responses.
    Responses are computed on at most `max_split_samples` samples of the node (drawn with
-   replacement when the node is larger); each sample's bin among the sorted thresholds
-   goes into a per-class histogram whose cumulative sums give the information gain (bits)
-   of all K thresholds at once. The best split is kept if its gain > `min_gain`, and all
-   the node's samples are partitioned by it (left: response < threshold).
+   replacement when the node is larger); the information gain (bits) of all K thresholds
+   comes from one per-class histogram. The best split is kept if its gain > `min_gain`,
+   and all the node's samples are partitioned by it (left: response < threshold).
 5. **Leaves** store the normalised class histogram of all samples that reach them.
 
-All randomness of a node comes from a splitmix64 stream seeded by (tree key, node id), so
-a tree depends only on its seed, never on thread scheduling. The draws of a node, in
-order: the subsample positions (only when the node is larger than `max_split_samples`),
-then per candidate its k feature ids, its weights (linear only: k uniforms in [-1, 1]
-redrawn until their norm is in (0, 1], then normalised), and its thresholds' positions.
+The work is split as scikit-learn splits it: this module samples and holds the entry points
+(`TrainConfig`, `train_tree`, `train_forest`, `tree_seed`); `criterion` scores thresholds,
+`splitter` draws and chooses a node's split (with its per-node random stream, so a tree
+depends only on its seed) and `builder` grows the tree and makes its leaves.
 """
 
 from __future__ import annotations
@@ -38,11 +36,11 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import numba
 import numpy as np
 
 from topseg.core import labels as label_table
 from topseg.core.errors import TopsegError
+from topseg.core.forest.builder import grow_tree
 from topseg.core.forest.features import FeatureConfig, extract_features, sample_offsets
 from topseg.core.forest.tree import Forest, Tree
 
@@ -105,280 +103,16 @@ class TrainConfig:
         return self.linear_k if self.split == "linear" else 1
 
     def to_dict(self) -> dict[str, Any]:
+        """The config as a plain dict (as model headers hold it; `from_dict` reads it back)."""
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        if "features" in known:
-            known["features"] = FeatureConfig.from_dict(known["features"])
-        return cls(**known)
+    def from_dict(cls, d: dict[str, Any], source: str = "train config") -> TrainConfig:
+        """The config in `d` (`to_dict`'s form, as model headers hold it); a key missing takes
+        its default, an unknown or mistyped one is a ConfigError naming it."""
+        from topseg.core.config import from_dict
 
-
-# --- random numbers: a splitmix64 stream per node -------------------------------------
-
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-
-
-@numba.njit(cache=True, inline="always")
-def _next_u64(state):
-    """Advance the 1-element uint64 `state`; return the next 64 random bits (splitmix64)."""
-    state[0] += _GOLDEN
-    z = state[0]
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
-@numba.njit(cache=True, inline="always")
-def _uniform(state):
-    """A float64 uniform in [0, 1) from the top 53 bits."""
-    return np.float64(_next_u64(state) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-
-
-@numba.njit(cache=True, inline="always")
-def _randint(state, n):
-    """An integer uniform in [0, n)."""
-    return np.int64(_uniform(state) * n)
-
-
-@numba.njit(cache=True)
-def _node_state(key, node_id):
-    """The stream of node `node_id` of the tree with `key`."""
-    state = np.empty(1, np.uint64)
-    state[0] = np.uint64(key) + np.uint64(node_id) * _GOLDEN
-    state[0] = _next_u64(state)
-    return state
-
-
-# --- node optimisation kernels ---------------------------------------------------------
-
-
-@numba.njit(cache=True)
-def _responses(fm, ids, feats, weights, out):
-    """out[i] = sum_j weights[j] * fm[feats[j], ids[i]] in float32 (same order as inference).
-
-    `fm` is feature-major (PC, n_samples): a node's ids are ascending, so each feature is
-    read as one forward pass over its row.
-    """
-    out[:] = 0.0
-    for j in range(feats.shape[0]):
-        row = fm[feats[j]]
-        wj = weights[j]
-        for i in range(ids.shape[0]):
-            out[i] += wj * np.float32(row[ids[i]])
-
-
-@numba.njit(cache=True)
-def _bin_histogram(resp, y, thresholds, hist):
-    """Fill hist (K + 1, C): row b counts samples with exactly b sorted thresholds <= response.
-
-    A sample goes left of threshold k (response < t_k) iff its bin is <= k.
-    """
-    k = thresholds.shape[0]
-    hist[:] = 0
-    for i in range(resp.shape[0]):
-        v = resp[i]
-        lo, hi = 0, k  # bisect right
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if v < thresholds[mid]:
-                hi = mid
-            else:
-                lo = mid + 1
-        b = lo
-        hist[b, y[i]] += 1
-
-
-@numba.njit(cache=True)
-def _gains_from_histogram(hist, xlogx, gains):
-    """Fill gains (K,) with the information gain (bits) of each threshold from hist (K + 1, C).
-
-    With S(counts) = n log2 n - sum_c n_c log2 n_c (= n H), the gain of a split is
-    (S(parent) - S(left) - S(right)) / n; `xlogx[i]` = i log2 i. Only classes present in
-    the node are visited.
-    """
-    k = hist.shape[0] - 1
-    n_classes = hist.shape[1]
-    total = np.zeros(n_classes, np.int64)
-    for b in range(k + 1):
-        for c in range(n_classes):
-            total[c] += hist[b, c]
-    present = np.empty(n_classes, np.int64)
-    n_present = 0
-    n = 0
-    s_parent = 0.0
-    for c in range(n_classes):
-        if total[c] > 0:
-            present[n_present] = c
-            n_present += 1
-            n += total[c]
-            s_parent -= xlogx[total[c]]
-    s_parent += xlogx[n]
-    left = np.zeros(n_classes, np.int64)
-    n_left = 0
-    for t in range(k):
-        s_left = 0.0
-        s_right = 0.0
-        for q in range(n_present):
-            c = present[q]
-            left[c] += hist[t, c]
-            n_left += hist[t, c]
-            s_left -= xlogx[left[c]]
-            s_right -= xlogx[total[c] - left[c]]
-        s_left += xlogx[n_left]
-        s_right += xlogx[n - n_left]
-        gains[t] = (s_parent - s_left - s_right) / n
-
-
-@numba.njit(cache=True)
-def _unit_vector(state, k, out):
-    """k uniforms in [-1, 1] redrawn until 0 < norm <= 1, normalised: uniform on the sphere."""
-    while True:
-        sq = 0.0
-        for j in range(k):
-            v = 2.0 * _uniform(state) - 1.0
-            out[j] = v
-            sq += v * v
-        if 0.0 < sq <= 1.0:
-            norm = np.sqrt(sq)
-            for j in range(k):
-                out[j] = out[j] / norm
-            return
-
-
-@numba.njit(cache=True)
-def _best_split(fm, y, ids, state, n_classes, n_candidates, n_thresholds, k, linear, cap, xlogx):
-    """Randomized node optimisation for the samples `ids` of one node.
-
-    Returns (gain, feats (k,) int64, weights (k,) float32, threshold float32); gain is -1
-    when no candidate was drawn. The draws follow the order in the module docstring.
-    """
-    n = ids.shape[0]
-    if n > cap:
-        m = cap
-        sub = np.empty(m, ids.dtype)
-        for i in range(m):
-            sub[i] = ids[_randint(state, n)]
-    else:
-        m = n
-        sub = ids
-    ys = np.empty(m, np.int64)
-    for i in range(m):
-        ys[i] = y[sub[i]]
-    n_thr = min(n_thresholds, m)
-    resp = np.empty(m, np.float32)
-    thr = np.empty(n_thr, np.float32)
-    feats = np.empty(k, np.int64)
-    w64 = np.empty(k, np.float64)
-    weights = np.empty(k, np.float32)
-    best_gain = -1.0
-    best_feats = np.zeros(k, np.int64)
-    best_weights = np.zeros(k, np.float32)
-    best_thr = np.float32(0.0)
-    hist = np.empty((n_thr + 1, n_classes), np.int64)
-    gains = np.empty(n_thr, np.float64)
-    n_features = fm.shape[0]
-    for _ in range(n_candidates):
-        for j in range(k):
-            feats[j] = _randint(state, n_features)
-        if linear:
-            _unit_vector(state, k, w64)
-            for j in range(k):
-                weights[j] = np.float32(w64[j])
-        else:
-            weights[:] = 1.0
-        _responses(fm, sub, feats, weights, resp)
-        for t in range(n_thr):
-            thr[t] = resp[_randint(state, m)]
-        thr.sort()
-        _bin_histogram(resp, ys, thr, hist)
-        _gains_from_histogram(hist, xlogx, gains)
-        for t in range(n_thr):
-            if gains[t] > best_gain:
-                best_gain = gains[t]
-                best_feats[:] = feats
-                best_weights[:] = weights
-                best_thr = thr[t]
-    return best_gain, best_feats, best_weights, best_thr
-
-
-@numba.njit(cache=True)
-def _partition(fm, ids, feats, weights, threshold):
-    """Stable in-place partition of `ids`: response < threshold first; returns the count."""
-    n = ids.shape[0]
-    resp = np.empty(n, np.float32)
-    _responses(fm, ids, feats, weights, resp)
-    tmp = np.empty(n, ids.dtype)
-    n_left = 0
-    for i in range(n):
-        if resp[i] < threshold:
-            tmp[n_left] = ids[i]
-            n_left += 1
-    j = n_left
-    for i in range(n):
-        if not resp[i] < threshold:
-            tmp[j] = ids[i]
-            j += 1
-    ids[:] = tmp
-    return n_left
-
-
-@numba.njit(cache=True, parallel=True)
-def _grow_level(
-    fm,
-    y,
-    idx,
-    starts,
-    ends,
-    node_ids,
-    key,
-    may_split,
-    n_classes,
-    n_candidates,
-    n_thresholds,
-    k,
-    linear,
-    cap,
-    min_samples,
-    min_gain,
-    xlogx,
-):
-    """Split every node of one level (in parallel); `idx[start:end]` are a node's samples.
-
-    Returns per node: mid (start of the right child's samples, -1 for a leaf), the chosen
-    feats (m, k), weights (m, k), thresholds (m,), gains (m,) and class counts (m, C).
-    """
-    m = starts.shape[0]
-    mid = np.full(m, -1, np.int64)
-    feats = np.zeros((m, k), np.int64)
-    weights = np.zeros((m, k), np.float32)
-    thresholds = np.zeros(m, np.float32)
-    gains = np.zeros(m, np.float64)
-    counts = np.zeros((m, n_classes), np.int64)
-    for i in numba.prange(m):
-        ids = idx[starts[i] : ends[i]]
-        for s in range(ids.shape[0]):
-            counts[i, y[ids[s]]] += 1
-        n_present = 0
-        for c in range(n_classes):
-            if counts[i, c] > 0:
-                n_present += 1
-        if not may_split or ids.shape[0] < min_samples or n_present < 2:
-            continue
-        state = _node_state(key, node_ids[i])
-        gain, f, w, t = _best_split(
-            fm, y, ids, state, n_classes, n_candidates, n_thresholds, k, linear, cap, xlogx
-        )
-        if gain > min_gain:
-            n_left = _partition(fm, ids, f, w, t)
-            if 0 < n_left < ids.shape[0]:
-                mid[i] = starts[i] + n_left
-                feats[i] = f
-                weights[i] = w
-                thresholds[i] = t
-                gains[i] = gain
-    return mid, feats, weights, thresholds, gains, counts
+        return from_dict(cls, d, source)
 
 
 # --- sampling ------------------------------------------------------------------------------
@@ -484,88 +218,6 @@ def gather_samples(
 def tree_seed(seed: int, tree_index: int) -> int:
     """The seed of tree `tree_index` of a forest trained with `seed` (any scheduler)."""
     return int(np.random.SeedSequence([seed, tree_index]).generate_state(1, np.uint64)[0])
-
-
-def _xlogx(n: int) -> np.ndarray:
-    i = np.arange(n + 1, dtype=np.float64)
-    out = np.zeros(n + 1)
-    out[1:] = i[1:] * np.log2(i[1:])
-    return out
-
-
-def grow_tree(
-    fm: np.ndarray,
-    y: np.ndarray,
-    offsets: np.ndarray,
-    config: TrainConfig,
-    key: int,
-    progress: Callable[[int, int], None] | None = None,
-) -> Tree:
-    """Grow one tree on a feature matrix (see the module docstring, steps 4 and 5)."""
-    n_classes = label_table.NUM_CLASSES
-    k = config.features_per_node
-    idx = np.arange(y.shape[0], dtype=np.int64)
-    y = y.astype(np.int64)
-    xlogx = _xlogx(min(config.max_split_samples, y.shape[0]) + 1)
-    starts, ends = np.array([0]), np.array([y.shape[0]])
-    levels = []
-    next_id = 0
-    for level in range(config.max_depth + 1):
-        node_ids = np.arange(next_id, next_id + starts.size)
-        next_id += starts.size
-        mid, feats, weights, thresholds, _gains, counts = _grow_level(
-            fm,
-            y,
-            idx,
-            starts,
-            ends,
-            node_ids,
-            np.uint64(key),
-            level < config.max_depth,
-            n_classes,
-            config.n_candidates,
-            config.n_thresholds,
-            k,
-            config.split == "linear",
-            config.max_split_samples,
-            config.min_samples_split,
-            config.min_gain,
-            xlogx,
-        )
-        split = mid >= 0
-        left = np.full(starts.size, -1, np.int64)
-        left[split] = next_id + 2 * np.arange(split.sum())
-        levels.append((left, feats, weights, thresholds, counts))
-        if progress is not None:
-            progress(level, int(starts.size))
-        if not split.any():
-            break
-        starts, ends = (
-            np.stack([starts[split], mid[split]], axis=1).ravel(),
-            np.stack([mid[split], ends[split]], axis=1).ravel(),
-        )
-    left = np.concatenate([lv[0] for lv in levels]).astype(np.int32)
-    feats = np.concatenate([lv[1] for lv in levels])
-    weights = np.concatenate([lv[2] for lv in levels])
-    threshold = np.concatenate([lv[3] for lv in levels])
-    counts = np.concatenate([lv[4] for lv in levels])
-    is_leaf = left < 0
-    leaf = np.full(left.size, -1, np.int32)
-    leaf[is_leaf] = np.arange(is_leaf.sum(), dtype=np.int32)
-    hist = counts[is_leaf].astype(np.float64)
-    posteriors = (hist / hist.sum(axis=1, keepdims=True)).astype(np.float32)
-    node_offsets = offsets[feats].astype(np.float32)
-    node_offsets[is_leaf] = 0.0
-    weights[is_leaf] = 0.0
-    return Tree(
-        node_offsets,
-        weights.astype(np.float32),
-        threshold.astype(np.float32),
-        left,
-        leaf,
-        posteriors,
-        config.features.background_mm,
-    )
 
 
 def train_tree(

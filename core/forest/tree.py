@@ -107,18 +107,22 @@ class Tree:
         validate_arrays(self.arrays(), np.zeros(1, np.int32))
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """The tree's arrays by name, as the model file stores them."""
         return {name: getattr(self, name) for name in ARRAY_DTYPES}
 
     @property
     def n_nodes(self) -> int:
+        """Number of nodes, leaves included."""
         return int(self.threshold.shape[0])
 
     @property
     def n_leaves(self) -> int:
+        """Number of leaves (rows of `posteriors`)."""
         return int(self.posteriors.shape[0])
 
     @property
     def depth(self) -> int:
+        """Length of the longest root-to-leaf path (0 for a lone leaf)."""
         return int(node_depths(self.left, np.zeros(1, np.int32)).max())
 
 
@@ -188,14 +192,17 @@ class Forest:
 
     @property
     def n_trees(self) -> int:
+        """Number of trees."""
         return int(self.roots.shape[0])
 
     @property
     def n_nodes(self) -> int:
+        """Number of nodes over all trees."""
         return int(self.threshold.shape[0])
 
     @property
     def features_per_node(self) -> int:
+        """k: pool features one node combines (1: axis-aligned)."""
         return int(self.offsets.shape[1])
 
     @property

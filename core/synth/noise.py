@@ -31,14 +31,18 @@ from typing import Protocol
 import numba
 import numpy as np
 
-from topseg.core.camera import check_depth
+from topseg.core.camera import MAX_DEPTH_MM, check_depth, metres_to_mm_scalar
 from topseg.core.errors import TopsegError
 
 
 class NoiseModel(Protocol):
+    """What datagen needs of a sensor model: a spec string and `apply`."""
+
     spec: str
 
-    def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray: ...
+    def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A noisy copy of uint16 mm `depth`; 0 (no depth) stays 0."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -47,9 +51,11 @@ class NoNoise:
 
     @property
     def spec(self) -> str:
+        """The spec string `parse_noise` turns back into this model."""
         return "none"
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The clean frame, copied."""
         return check_depth(depth, "noise").copy()
 
 
@@ -65,9 +71,11 @@ class GaussianNoise:
 
     @property
     def spec(self) -> str:
+        """The spec string `parse_noise` turns back into this model."""
         return f"gaussian:{self.sigma_mm:g}"
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """`depth` plus rounded N(0, sigma) mm on every measured pixel (clipped to 1..65535)."""
         depth = check_depth(depth, "noise")
         out = depth.copy()
         valid = depth > 0
@@ -102,16 +110,6 @@ def _hash_uniform(seed, index):
     z = (z ^ (z >> np.uint64(27))) * _MIX2
     z = z ^ (z >> np.uint64(31))
     return (z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
-
-
-def hash_uniform_np(seed: int, index: np.ndarray) -> np.ndarray:
-    """The same generator in numpy (the reference the kernel is tested against)."""
-    with np.errstate(over="ignore"):
-        z = np.uint64(seed) + index.astype(np.uint64) * _GOLDEN
-        z = (z ^ (z >> np.uint64(30))) * _MIX1
-        z = (z ^ (z >> np.uint64(27))) * _MIX2
-        z = z ^ (z >> np.uint64(31))
-    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
 
 
 @numba.njit(cache=True, inline="always")
@@ -251,7 +249,7 @@ def _kinect_kernel(
             z = fb / disp
             if z < zmin or z > zmax:
                 continue
-            out[v, u] = min(65535, int(np.floor(z * 1000.0 + 0.5)))
+            out[v, u] = metres_to_mm_scalar(z)  # zmax <= 65.535 m: never clipped
 
 
 @dataclass(frozen=True)
@@ -285,8 +283,8 @@ class KinectNoise:
             raise TopsegError(
                 "kinect noise: disparity_sigma_px >= 0, edge_band_px >= 0, jump_m > 0"
             )
-        if not 0 <= self.min_range_m < self.max_range_m:
-            raise TopsegError("kinect noise: 0 <= min_range_m < max_range_m")
+        if not 0 <= self.min_range_m < self.max_range_m <= MAX_DEPTH_MM / 1000.0:
+            raise TopsegError("kinect noise: 0 <= min_range_m < max_range_m <= 65.535 (uint16 mm)")
 
     @property
     def fb(self) -> float:
@@ -304,6 +302,7 @@ class KinectNoise:
 
     @property
     def spec(self) -> str:
+        """'kinect' and the parameters that differ from the defaults, as `parse_noise` reads them."""
         changed = [
             f"{f.name}={getattr(self, f.name):g}"
             for f in fields(self)
@@ -327,6 +326,7 @@ class KinectNoise:
         return flags, near_h
 
     def apply(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The frame as this Kinect would measure it; the draws come from `rng`."""
         depth = check_depth(depth, "noise")
         field, seed = self.draws(depth.shape, rng)
         out = np.empty_like(depth)
@@ -338,90 +338,8 @@ class KinectNoise:
         return out
 
     def to_dict(self) -> dict:
+        """The parameters by name."""
         return asdict(self)
-
-
-def kinect_reference(
-    model: KinectNoise, depth: np.ndarray, field: np.ndarray, seed: int
-) -> np.ndarray:
-    """The Kinect model in plain numpy (slow; the reference the numba kernels are tested against)."""
-    depth = check_depth(depth, "noise")
-    h, w = depth.shape
-    z = depth.astype(np.float64) * 0.001
-    valid = depth > 0
-    fb = model.fb
-    # shadows: projector column against the minimum over everything to the right
-    with np.errstate(divide="ignore"):
-        up = np.where(valid, np.arange(w)[None, :] - fb / z, np.inf)
-    right_min = np.minimum.accumulate(up[:, ::-1], axis=1)[:, ::-1]
-    right_min = np.concatenate([right_min[:, 1:], np.full((h, 1), np.inf)], axis=1)
-    shadow = valid & (up > right_min + 1e-9)
-    jump = np.zeros((h, w), bool)
-    for axis in (0, 1):
-        a = np.moveaxis(z, axis, 0)
-        step = (a[1:] > 0) & (a[:-1] > 0) & (np.abs(a[1:] - a[:-1]) > model.jump_m)
-        j = np.zeros(a.shape, bool)
-        j[1:] |= step
-        j[:-1] |= step
-        jump |= np.moveaxis(j, 0, axis)
-    jump &= valid
-    b = model.edge_band_px
-
-    def near(mask):
-        pad = np.pad(mask, b)
-        out = np.zeros((h, w), bool)
-        for dv in range(2 * b + 1):
-            for du in range(2 * b + 1):
-                out |= pad[dv : dv + h, du : du + w]
-        return out
-
-    near_shadow = near(shadow | ~valid)
-    near_jump = near(jump)
-    p_drop = np.where(
-        near_shadow, model.shadow_dropout, np.where(near_jump, model.edge_dropout, 0.0)
-    )
-    idx = (np.arange(h * w, dtype=np.uint64).reshape(h, w)) * np.uint64(4)
-    r0, r1, r2, r3 = (hash_uniform_np(seed, idx + np.uint64(k)) for k in range(4))
-    keep = (
-        valid
-        & ~shadow
-        & ~((p_drop > 0) & (r0 < p_drop))
-        & ~((model.speckle > 0) & (r1 < model.speckle))
-    )
-    with np.errstate(divide="ignore"):
-        disp = fb / z
-    # flying pixels mix with the neighbour that differs most
-    other = depth.astype(np.int64).copy()
-    padded = np.pad(depth.astype(np.int64), 1)
-    for dv, du in ((0, -1), (0, 1), (-1, 0), (1, 0)):
-        n = padded[1 + dv : 1 + dv + h, 1 + du : 1 + du + w]
-        better = (n > 0) & (np.abs(n - depth) > np.abs(other - depth))
-        other = np.where(better, n, other)
-    fly = jump & (r2 < model.flying)
-    a = 0.2 + 0.6 * r3
-    with np.errstate(divide="ignore"):
-        disp = np.where(fly, (1 - a) * disp + a * fb / (other * 0.001), disp)
-    c = float(model.noise_cell_px)
-    v, u = np.indices((h, w), dtype=np.float64)
-    x, y = u / c, v / c
-    i0, j0 = x.astype(int), y.astype(int)
-    tx, ty = x - i0, y - j0
-    w00, w01, w10, w11 = (1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty
-    n = (
-        w00 * field[j0, i0]
-        + w01 * field[j0, i0 + 1]
-        + w10 * field[j0 + 1, i0]
-        + w11 * field[j0 + 1, i0 + 1]
-    )
-    n /= np.sqrt(w00**2 + w01**2 + w10**2 + w11**2)
-    disp = disp + model.disparity_sigma_px * n
-    disp = np.floor(disp * model.subpixel + 0.5) / model.subpixel
-    with np.errstate(divide="ignore", invalid="ignore"):
-        zq = fb / disp
-    keep &= (disp > 0) & (zq >= model.min_range_m) & (zq <= model.max_range_m)
-    out = np.zeros((h, w), np.uint16)
-    out[keep] = np.minimum(65535, np.floor(zq[keep] * 1000.0 + 0.5)).astype(np.uint16)
-    return out
 
 
 def parse_noise(spec: str) -> NoiseModel:

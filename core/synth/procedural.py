@@ -1,15 +1,16 @@
-"""Procedural top-view scenes: boxes, cylinders and spheres on the floor, rendered exactly.
+"""Procedural top-view scenes: boxes, cylinders and spheres on the floor, for tests and benches.
 
-Until the density-function scenes exist, tests, the demo and the benches need labelled
-top-view frames with the right geometry: a floor 3.5 m below the camera and a few solids
-standing on it. Each solid is an analytic primitive with a topseg label; every pixel's ray
-from the pinhole camera is intersected with every primitive in closed form (vectorised
-numpy, no rasterisation error), the nearest hit wins, and Gaussian noise is added in mm.
+A quick source of labelled top-view frames with the right geometry, far cheaper than the
+paper's density-function scenes (`synthesis`): a floor 3.5 m below the camera and a few
+solids standing on it. Each solid is an analytic primitive with a topseg label, rendered by
+the package's ray caster (`render.raycast_m`: every pixel's centre ray meets the primitives in
+closed form, the nearest hit wins) and given the shared Gaussian noise model
+(`noise.GaussianNoise`).
 
 Shape kinds and their labels (`KINDS`): a large low box is a table, a long narrow box
 taller than a person is storage (a shelf), a short cylinder is a plant, and a "person" is
-a body cylinder with a head sphere resting on it. The kinds differ in size and height the way the real classes do, so a forest
-can learn them from depth-difference features.
+a body cylinder with a head sphere resting on it. The kinds differ in size and height the
+way the real classes do, so a forest can learn them from depth-difference features.
 """
 
 from __future__ import annotations
@@ -19,7 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount
+from topseg.core.camera import TOP_VIEW, TopViewMount, metres_to_mm
+from topseg.core.synth.geometry import BOX, CYLINDER, SPHERE
+from topseg.core.synth.noise import GaussianNoise
+from topseg.core.synth.render import Primitives, raycast_m
 
 
 @dataclass(frozen=True)
@@ -69,93 +73,48 @@ KINDS: dict[str, tuple[int, ...]] = {
 }
 
 
-def _rays(mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel ray slopes (a, b): the camera-frame point at depth z is (a z, b z, z)."""
-    k = mount.intrinsics
-    v, u = np.indices(k.shape, dtype=np.float64)
-    return (u - k.cx) / k.fx, (v - k.cy) / k.fy
-
-
-def _hit_box(box: Box, a: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
-    """Depth (m) at which each ray enters the box; inf where it misses (slab method).
-
-    The ray is world (a t, -b t, h - t) for depth t; in the box frame the x and y slabs
-    are |.| <= s/2 and the z slab is 0 <= h - t <= height.
-    """
-    c, s = np.cos(box.yaw), np.sin(box.yaw)
-    # world ray origin (0, 0, h), direction (a, -b, -1); rotate into the box frame
-    ox, oy = -box.x * c - box.y * s, box.x * s - box.y * c
-    dx, dy = a * c - b * s, -a * s - b * c
-    t_in = np.full(a.shape, h - box.height)
-    t_out = np.full(a.shape, h)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for o, d, half in ((ox, dx, box.sx / 2), (oy, dy, box.sy / 2)):
-            t1, t2 = (-half - o) / d, (half - o) / d
-            lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
-            parallel = d == 0
-            inside = abs(o) <= half
-            lo = np.where(parallel, np.where(inside, -np.inf, np.inf), lo)
-            hi = np.where(parallel, np.where(inside, np.inf, -np.inf), hi)
-            t_in, t_out = np.maximum(t_in, lo), np.minimum(t_out, hi)
-    return np.where(t_in <= t_out, t_in, np.inf)
-
-
-def _hit_cylinder(cyl: Cylinder, a: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
-    """Depth (m) at which each ray enters the vertical cylinder; inf where it misses."""
-    # |(a t - x, -b t - y)|^2 = r^2  ->  A t^2 + B t + Cc = 0
-    qa = a * a + b * b
-    qb = -2.0 * (a * cyl.x - b * cyl.y)
-    qc = cyl.x**2 + cyl.y**2 - cyl.radius**2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        disc = qb * qb - 4 * qa * qc
-        root = np.sqrt(np.maximum(disc, 0.0))
-        lo = (-qb - root) / (2 * qa)
-        hi = (-qb + root) / (2 * qa)
-    axis_ray = qa == 0
-    lo = np.where(axis_ray, np.where(qc <= 0, -np.inf, np.inf), np.where(disc >= 0, lo, np.inf))
-    hi = np.where(axis_ray, np.where(qc <= 0, np.inf, -np.inf), np.where(disc >= 0, hi, -np.inf))
-    t_in = np.maximum(lo, h - cyl.z1)
-    t_out = np.minimum(hi, h - cyl.z0)
-    return np.where(t_in <= t_out, t_in, np.inf)
-
-
-def _hit_sphere(sph: Sphere, a: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
-    """Depth (m) at which each ray enters the sphere; inf where it misses."""
-    # |(a t - x, -b t - y, h - t - z)|^2 = r^2
-    dz = h - sph.z
-    qa = a * a + b * b + 1.0
-    qb = -2.0 * (a * sph.x - b * sph.y + dz)
-    qc = sph.x**2 + sph.y**2 + dz**2 - sph.radius**2
-    disc = qb * qb - 4 * qa * qc
-    t = (-qb - np.sqrt(np.maximum(disc, 0.0))) / (2 * qa)
-    return np.where(disc >= 0, t, np.inf)
+def primitives(prims: list[Primitive]) -> Primitives:
+    """The solids as the ray caster's `render.Primitives` (world frame, z up, floor at 0)."""
+    n = len(prims)
+    kind = np.empty(n, np.int32)
+    size = np.zeros((n, 3))
+    center = np.zeros((n, 3))
+    rot = np.tile(np.eye(3), (n, 1, 1))
+    label = np.empty(n, np.uint8)
+    for i, prim in enumerate(prims):
+        label[i] = prim.label
+        if isinstance(prim, Box):
+            c, s = np.cos(prim.yaw), np.sin(prim.yaw)
+            kind[i] = BOX
+            size[i] = (prim.sx / 2, prim.sy / 2, prim.height / 2)
+            center[i] = (prim.x, prim.y, prim.height / 2)
+            rot[i] = ((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0))
+        elif isinstance(prim, Cylinder):
+            kind[i] = CYLINDER
+            size[i] = (prim.radius, (prim.z1 - prim.z0) / 2, 0.0)
+            center[i] = (prim.x, prim.y, (prim.z0 + prim.z1) / 2)
+        elif isinstance(prim, Sphere):
+            kind[i] = SPHERE
+            size[i] = (prim.radius, 0.0, 0.0)
+            center[i] = (prim.x, prim.y, prim.z)
+        else:
+            raise TypeError(f"not a primitive: {prim!r}")
+    return Primitives(kind, size, center, rot, label)
 
 
 def hit_depth_m(prim: Primitive, mount: TopViewMount = TOP_VIEW) -> np.ndarray:
     """(H, W) depth in metres at which each pixel's ray first meets `prim` (inf: misses)."""
-    a, b = _rays(mount)
-    h = mount.height_mm / 1000.0
-    if isinstance(prim, Box):
-        return _hit_box(prim, a, b, h)
-    if isinstance(prim, Cylinder):
-        return _hit_cylinder(prim, a, b, h)
-    if isinstance(prim, Sphere):
-        return _hit_sphere(prim, a, b, h)
-    raise TypeError(f"not a primitive: {prim!r}")
+    return raycast_m(primitives([prim]), mount)[0]
 
 
 def render(prims: list[Primitive], mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
-    """Exact noise-free render: (depth in metres float64, labels uint8), nearest hit wins.
-
-    Rays that meet nothing see the floor (depth = camera height, label background).
-    """
-    depth = np.full(mount.intrinsics.shape, mount.height_mm / 1000.0)
-    label = np.full(mount.intrinsics.shape, labels.BACKGROUND, np.uint8)
-    for prim in prims:
-        t = hit_depth_m(prim, mount)
-        nearer = t < depth
-        depth[nearer] = t[nearer]
-        label[nearer] = prim.label
+    """Exact noise-free render through `render.raycast_m`: (depth in metres float64, labels
+    uint8), nearest hit wins. Rays that meet nothing see the floor (depth = camera height,
+    label background)."""
+    depth, label = raycast_m(primitives(prims), mount)
+    floor = ~np.isfinite(depth)
+    depth[floor] = mount.height_mm / 1000.0
+    label[floor] = labels.BACKGROUND
     return depth, label
 
 
@@ -213,8 +172,8 @@ def procedural_frame(
 ) -> tuple[np.ndarray, np.ndarray]:
     """A random top-view frame: (depth uint16 mm, labels uint8).
 
-    `noise_sigma_mm` is additive white Gaussian noise on depth (DESIGN section 1.3: 15 mm by
-    default); `missing_fraction` of the pixels, drawn at random, read 0 (no depth) and carry
+    `noise_sigma_mm` is `noise.GaussianNoise`, additive white Gaussian noise on depth (DESIGN
+    section 1.3: 15 mm by default); `missing_fraction` of the pixels, drawn at random, read 0 (no depth) and carry
     the NO_DEPTH label, as a sensor's dropouts would.
     """
     if noise_sigma_mm < 0:
@@ -222,15 +181,12 @@ def procedural_frame(
     if not 0.0 <= missing_fraction < 1.0:
         raise ValueError(f"missing_fraction must be in [0, 1), got {missing_fraction}")
     depth_m, label = render(random_scene(rng, mount, n_objects), mount)
-    depth = depth_m * 1000.0
-    if noise_sigma_mm > 0:
-        depth = depth + rng.normal(0.0, noise_sigma_mm, depth.shape)
-    depth_u16 = np.clip(np.rint(depth), 1, np.iinfo(np.uint16).max).astype(np.uint16)
+    depth = GaussianNoise(noise_sigma_mm).apply(metres_to_mm(depth_m), rng)
     if missing_fraction > 0:
         missing = rng.random(depth.shape) < missing_fraction
-        depth_u16[missing] = 0
+        depth[missing] = 0
         label[missing] = labels.NO_DEPTH
-    return depth_u16, label
+    return depth, label
 
 
 def procedural_frames(

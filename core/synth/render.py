@@ -1,13 +1,12 @@
-"""Depth and label images of a pybullet scene from the ceiling camera: two renderers.
+"""Depth and label images of a pybullet scene from the ceiling camera: the ray caster.
 
-- `raycast` (the one datagen uses): a numba ray caster over the scene's primitives (spheres,
-  capsules, boxes, cylinders) read from pybullet. Each pixel's ray is intersected analytically
-  with every primitive whose projected bounding box covers it, rows in parallel; the nearest
-  hit gives the depth (z along the optical axis, rounded to mm) and its primitive's label.
-  Exact: a pixel's label is the surface its centre ray meets first.
-- `render_tiny`: pybullet's own TinyRenderer (`getCameraImage`), kept as the reference the ray
-  caster is tested against. It rasterises tessellated shapes, so curved silhouettes differ by
-  a pixel or so, and it is ~80 ms per frame here.
+`raycast` (the one datagen and the procedural scenes use) is a numba ray caster over the
+scene's primitives (spheres, capsules, boxes, cylinders) read from pybullet. Each pixel's ray
+is intersected analytically with every primitive whose projected bounding box covers it, rows
+in parallel; the nearest hit gives the depth (z along the optical axis, rounded to mm by
+`camera.metres_to_mm`) and its primitive's label. Exact: a pixel's label is the surface its
+centre ray meets first. Its references (a plain numpy caster and pybullet's TinyRenderer)
+live in tests/reference.py.
 
 `Primitives` are flat arrays in the world frame (z up, as pybullet has them). The camera is
 `camera.TopViewMount`: camera x = world x, camera y = -world y, depth = height - world z.
@@ -22,8 +21,8 @@ import numba
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount
-from topseg.core.synth.geometry import BOX, CAPSULE, SPHERE, half_extents
+from topseg.core.camera import TOP_VIEW, TopViewMount, metres_to_mm_scalar
+from topseg.core.synth.geometry import half_extents
 
 #: world -> camera rotation of the top-view mount (x stays, y and z flip)
 _FLIP = np.diag([1.0, -1.0, -1.0])
@@ -50,6 +49,7 @@ class Primitives:
 
     @staticmethod
     def empty() -> Primitives:
+        """No primitives."""
         return Primitives(
             np.zeros(0, np.int32),
             np.zeros((0, 3)),
@@ -60,6 +60,7 @@ class Primitives:
 
     @staticmethod
     def concat(parts: list[Primitives]) -> Primitives:
+        """The primitives of `parts`, in order, as one set."""
         parts = [p for p in parts if len(p)]
         if not parts:
             return Primitives.empty()
@@ -280,11 +281,9 @@ def _raycast_kernel(
                         depth_m[v, u] = z
                         out_lab[v, u] = lab[i]
         for u in range(width):  # millimetres, 0 (and no label) where nothing is in range
-            mm = np.floor(depth_m[v, u] * 1000.0 + 0.5)
-            if mm > 0.0 and mm <= 65535.0:
-                depth_mm[v, u] = np.uint16(mm)
-            else:
-                depth_mm[v, u] = 0
+            mm = metres_to_mm_scalar(depth_m[v, u])
+            depth_mm[v, u] = mm
+            if mm == 0:
                 out_lab[v, u] = no_hit
 
 
@@ -312,16 +311,6 @@ def _prepare(prims: Primitives, mount: TopViewMount):
     return origin_local, np.ascontiguousarray(rot_c), boxes, zmin
 
 
-def depth_to_mm(depth_m: np.ndarray) -> np.ndarray:
-    """Metres (inf = no hit) -> uint16 millimetres rounded half up, 0 where nothing was hit or
-    out of range (what the kernel does per pixel)."""
-    mm = np.floor(depth_m * 1000.0 + 0.5)
-    ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
-    out = np.zeros(depth_m.shape, np.uint16)
-    out[ok] = mm[ok].astype(np.uint16)
-    return out
-
-
 def _run(prims: Primitives, mount: TopViewMount):
     k = mount.intrinsics
     depth = np.empty(k.shape, np.float64)
@@ -346,142 +335,3 @@ def raycast(prims: Primitives, mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarr
     """(depth uint16 mm, labels uint8) of the primitives seen by `mount`; 0 / NO_DEPTH = no hit."""
     _, depth_mm, lab = _run(prims, mount)
     return depth_mm, lab
-
-
-# --- plain numpy reference of the ray caster (for tests) ------------------------------------
-
-
-def _np_sphere(o, d, r):
-    b = np.einsum("...i,...i->...", o, d)
-    c = np.einsum("...i,...i->...", o, o) - r * r
-    disc = b * b - c
-    with np.errstate(invalid="ignore"):
-        t = -b - np.sqrt(disc)
-    return np.where((disc >= 0) & (t > 0), t, np.inf)
-
-
-def _np_side(o, d, r, h):
-    a = d[..., 0] ** 2 + d[..., 1] ** 2
-    b = o[..., 0] * d[..., 0] + o[..., 1] * d[..., 1]
-    c = o[..., 0] ** 2 + o[..., 1] ** 2 - r * r
-    disc = b * b - a * c
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = (-b - np.sqrt(disc)) / a
-        z = o[..., 2] + t * d[..., 2]
-    ok = (a >= 1e-14) & (disc >= 0) & (t > 0) & (np.abs(z) <= h)
-    return np.where(ok, t, np.inf)
-
-
-def _np_hit(kind, size, o, d):
-    if kind == SPHERE:
-        return _np_sphere(o, d, size[0])
-    if kind == BOX:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1 = (-size - o) / d
-            t2 = (size - o) / d
-        t1 = np.where(np.abs(d) < 1e-12, np.where(np.abs(o) <= size, -np.inf, np.inf), t1)
-        t2 = np.where(np.abs(d) < 1e-12, np.where(np.abs(o) <= size, np.inf, -np.inf), t2)
-        tn = np.minimum(t1, t2).max(-1)
-        tf = np.maximum(t1, t2).min(-1)
-        return np.where((tn <= tf) & (tn > 0), tn, np.inf)
-    r, h = size[0], size[1]
-    best = _np_side(o, d, r, h)
-    if kind == CAPSULE:
-        for s in (-1.0, 1.0):
-            best = np.minimum(best, _np_sphere(o - np.array([0.0, 0.0, s * h]), d, r))
-        return best
-    for s in (-1.0, 1.0):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (s * h - o[..., 2]) / d[..., 2]
-            x = o[..., 0] + t * d[..., 0]
-            y = o[..., 1] + t * d[..., 1]
-        ok = (np.abs(d[..., 2]) > 1e-12) & (t > 0) & (x * x + y * y <= r * r)
-        best = np.minimum(best, np.where(ok, t, np.inf))
-    return best
-
-
-def raycast_reference(
-    prims: Primitives, mount: TopViewMount = TOP_VIEW
-) -> tuple[np.ndarray, np.ndarray]:
-    """The ray caster in plain numpy, every primitive against every pixel (no culling)."""
-    k = mount.intrinsics
-    prims = front_to_back(prims, mount)  # the same order, so equal depths resolve the same way
-    v, u = np.indices(k.shape, dtype=np.float64)
-    ray = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
-    norm = np.linalg.norm(ray, axis=-1)
-    w = ray / norm[..., None]
-    center_c, rot_c = to_camera(prims, mount)
-    depth = np.full(k.shape, np.inf)
-    lab = np.full(k.shape, labels.NO_DEPTH, np.uint8)
-    for i in range(len(prims)):
-        o = rot_c[i].T @ (-center_c[i])
-        d = w @ rot_c[i]  # R^T w for each pixel
-        z = _np_hit(int(prims.kind[i]), prims.size[i], o, d) / norm
-        closer = z < depth
-        depth[closer] = z[closer]
-        lab[closer] = prims.label[i]
-    return depth, lab
-
-
-# --- pybullet's TinyRenderer (the reference) -------------------------------------------------
-
-
-def camera_matrices(mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: float = 10.0):
-    """pybullet view and projection matrices equivalent to `mount` (square pixels, centred)."""
-    import pybullet as p
-
-    k = mount.intrinsics
-    h = mount.height_mm / 1000.0
-    if (
-        abs(k.cx - (k.width - 1) / 2) > 1e-6
-        or abs(k.cy - (k.height - 1) / 2) > 1e-6
-        or k.fx != k.fy
-    ):
-        raise ValueError("pybullet's camera needs a centred principal point and square pixels")
-    view = p.computeViewMatrix(
-        cameraEyePosition=[0, 0, h], cameraTargetPosition=[0, 0, 0], cameraUpVector=[0, 1, 0]
-    )
-    fov_y = 2 * np.degrees(np.arctan2(k.height / 2, k.fy))
-    proj = list(
-        p.computeProjectionMatrixFOV(fov=fov_y, aspect=k.width / k.height, nearVal=near, farVal=far)
-    )
-    # TinyRenderer samples pixel corners; shift its image half a pixel so it samples pixel
-    # centres at (u - cx) / fx like the ray caster and the Kinect model (found by rendering a
-    # box with both: with this shift they agree on every pixel)
-    proj[8] += 1.0 / k.width
-    proj[9] += 1.0 / k.height
-    return view, proj
-
-
-def render_tiny(
-    client: int, label_of, mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: float = 10.0
-):
-    """(depth uint16 mm, labels uint8) from pybullet's TinyRenderer.
-
-    `label_of(body_id, link_index)` maps pybullet's segmentation to a label id.
-    """
-    import pybullet as p
-
-    k = mount.intrinsics
-    view, proj = camera_matrices(mount, near, far)
-    _, _, _, zbuf, seg = p.getCameraImage(
-        k.width, k.height, view, proj, renderer=p.ER_TINY_RENDERER,
-        flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX, physicsClientId=client,
-    )  # fmt: skip
-    zbuf = np.asarray(zbuf, np.float64).reshape(k.height, k.width)
-    seg = np.asarray(seg, np.int64).reshape(k.height, k.width)
-    z = far * near / (far - (far - near) * zbuf)
-    z[seg < 0] = np.inf
-    depth = depth_to_mm(z)
-    lab = np.full(k.shape, labels.NO_DEPTH, np.uint8)
-    hit = seg >= 0
-    body = seg & ((1 << 24) - 1)
-    link = (seg >> 24) - 1
-    cache: dict[tuple[int, int], int] = {}
-    for b, li in set(zip(body[hit].tolist(), link[hit].tolist(), strict=True)):
-        cache[(b, li)] = label_of(b, li)
-    lut_keys = body * 64 + (link + 1)
-    for (b, li), lab_id in cache.items():
-        lab[hit & (lut_keys == b * 64 + li + 1)] = lab_id
-    lab[depth == 0] = labels.NO_DEPTH
-    return depth, lab

@@ -12,7 +12,7 @@ realtime's energy comes to exact's:
 
 Unaries come from a forest on procedural top-view frames: the model given with --model,
 or else a small forest trained here on the spot (seeded, ~20 s). `--unaries synthetic`
-uses the stand-in forest-like posteriors of `topseg.core.crf.synthetic` instead. Timings
+uses the stand-in forest-like posteriors of `bench.crf_standin` instead. Timings
 are per-frame medians of --repeat runs, wall clock (*_ms_*) and this process's CPU time
 (*_cpu_ms_*: both solvers are single-threaded, so on an idle machine the two agree); the
 load average is reported beside them, since other processes on a 2-core machine inflate
@@ -30,6 +30,7 @@ import numpy as np
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Frames, repeats, where the unaries come from and CRF setting overrides."""
     parser.add_argument("--frames", type=int, default=4, help="frames to measure on")
     parser.add_argument("--repeat", type=int, default=10, help="realtime runs per frame")
     parser.add_argument("--seed", type=int, default=0)
@@ -69,30 +70,36 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray
     """[(posteriors, depth)] and a sentence saying where the unaries came from."""
     rng = np.random.default_rng(args.seed)
     if args.unaries == "synthetic":
-        from topseg.core.crf.synthetic import forest_like_posteriors, synthetic_scene
+        from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
         out = []
         for _ in range(args.frames):
             depth, truth = synthetic_scene(rng)
             out.append((forest_like_posteriors(truth, rng), depth))
-        return out, "stand-in forest-like posteriors on synthetic scenes (crf_synthetic)"
-    from topseg.core import forest
+        return out, "stand-in forest-like posteriors on synthetic scenes (bench/crf_standin)"
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
     from topseg.core.synth import procedural
 
+    config = SegmenterConfig(check_camera=False)  # the model's camera need not be these frames'
     if args.model is not None:
-        model, _ = forest.load_model(args.model)
+        segmenter = Segmenter.from_file(args.model, config)
         source = f"forest {args.model} on procedural frames"
     else:
-        model = _quick_forest(rng)
+        segmenter = Segmenter(_quick_forest(rng), config=config)
         source = "small forest (3 trees, depth 16, 60 frames) trained here, on procedural frames"
     out = []
     for _ in range(args.frames):
         depth, _ = procedural.procedural_frame(rng)
-        out.append((forest.predict_proba(model, depth), depth))
+        out.append((segmenter.posteriors(depth).copy(), depth))  # the buffer is reused
     return out, source
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """Time exact and realtime CRF on the same posteriors; compare their energies.
+
+    The CRF stage is timed by itself (`segment_crf`, which `Segmenter.smooth` runs), on
+    posteriors made once per frame.
+    """
     from topseg.core.crf import CRFConfig, potts_energy, segment_crf
     from topseg.core.crf.realtime import band_mask
 

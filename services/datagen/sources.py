@@ -32,6 +32,8 @@ GENERATORS: dict[str, str] = {
 
 
 class FrameSource(Protocol):
+    """A generator: frame `index` of a dataset as a pure function of the index (resumable)."""
+
     def __call__(self, index: int) -> Frame: ...
 
 
@@ -103,6 +105,7 @@ def synthesis_source(config: dict, seed: int) -> FrameSource:
 def procedural_source(config: dict, seed: int) -> FrameSource:
     """Analytic procedural scenes with the dataset's noise model (room is ignored)."""
     from topseg.core import labels
+    from topseg.core.camera import metres_to_mm
     from topseg.core.synth import procedural
     from topseg.core.synth.noise import parse_noise
 
@@ -113,7 +116,7 @@ def procedural_source(config: dict, seed: int) -> FrameSource:
         rng = np.random.default_rng(frame_seed(seed, index))
         prims = procedural.random_scene(rng, n_objects=n_objects)
         depth_m, label = procedural.render(prims)
-        depth = np.clip(np.rint(depth_m * 1000.0), 1, 65535).astype(np.uint16)
+        depth = metres_to_mm(depth_m)
         depth = noise.apply(depth, rng)
         label[depth == 0] = labels.NO_DEPTH
         scene: dict[str, Any] = {

@@ -1,11 +1,11 @@
-"""Stand-in scenes and forest-like posteriors for testing and benchmarking the CRF.
+"""Stand-in scenes and forest-like posteriors for `topseg bench crf --unaries synthetic` and tests.
 
 The CRF needs realistic unaries to be judged: mostly confident floor, furniture and body
-parts with errors clustered near boundaries. Until a trained forest is at hand, these
-functions draw a top-view scene of a few primitives (a person, furniture, Kinect shadows)
-and turn its label map into posteriors by mixing the one-hot truth with spatially smooth
-Dirichlet noise, more of it near boundaries, so that argmax is ~85-90 % right on the
-foreground and wrong in blobs, as a forest's is.
+parts with errors clustered near boundaries. Without training a forest (which takes the bench
+~20 s), these functions draw a top-view scene of a few primitives (a person, furniture,
+Kinect shadows) and turn its label map into posteriors by mixing the one-hot truth with
+spatially smooth Dirichlet noise, more of it near boundaries, so that argmax is ~85-90 % right
+on the foreground and wrong in blobs, as a forest's is. Bench code, not part of the core.
 """
 
 from __future__ import annotations

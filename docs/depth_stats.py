@@ -1,10 +1,13 @@
-"""Statistics of a depth frame that describe its sensor, not its scene.
+"""Statistics of a depth frame that describe its sensor, not its scene (for docs/noise.md).
 
 Used to compare the synthetic Kinect v1 model with real Kinect v1 frames (docs/noise.md):
 how far apart the depth levels are at each depth (disparity quantisation), how rough flat
 surfaces are at each depth (noise), how wide the no-depth bands beside depth jumps are and on
 which side (projector shadows), how often pixels beside jumps are missing, and how often they
 take a depth between the two sides (flying pixels). All take uint16 mm frames, 0 = no depth.
+
+An analysis tool, not part of the package: docs/noise_figure.py imports it from this folder
+and tests/test_noise.py checks it.
 """
 
 from __future__ import annotations

@@ -1,0 +1,446 @@
+"""Plain numpy references of the numba kernels the package ships, for the tests only.
+
+Each reference is written for clarity, not speed: whole-array numpy, every primitive against
+every pixel, no culling or early exits. The tests compare the kernels against them bit for
+bit (as stumpy keeps its naive versions in one test module).
+
+- `raycast_reference`: `render.raycast` (the ray caster) in numpy.
+- `render_tiny`: pybullet's own TinyRenderer, against which the ray caster was matched.
+- `hash_uniform_np`, `kinect_reference`: the Kinect v1 noise model (`noise.KinectNoise`).
+- `probe_reference`, `extract_reference`, `response_reference`: the depth-difference features.
+- `apply_reference`, `predict_reference`: forest inference (`predict.apply`, `predict_proba`).
+- `SplitMix`, `responses_reference`, `gains_reference`, `best_split_reference`: training's
+  per-node random stream, criterion and splitter.
+- `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from topseg.core import labels
+from topseg.core.camera import TOP_VIEW, TopViewMount, check_depth, metres_to_mm
+from topseg.core.crf.realtime import SETTLED_MARGIN
+from topseg.core.forest.tree import Forest
+from topseg.core.synth import noise
+from topseg.core.synth.geometry import BOX, CAPSULE, SPHERE
+from topseg.core.synth.render import Primitives, front_to_back, to_camera
+
+# --- the ray caster (render.raycast) in plain numpy ----------------------------------------
+
+
+def _np_sphere(o, d, r):
+    b = np.einsum("...i,...i->...", o, d)
+    c = np.einsum("...i,...i->...", o, o) - r * r
+    disc = b * b - c
+    with np.errstate(invalid="ignore"):
+        t = -b - np.sqrt(disc)
+    return np.where((disc >= 0) & (t > 0), t, np.inf)
+
+
+def _np_side(o, d, r, h):
+    a = d[..., 0] ** 2 + d[..., 1] ** 2
+    b = o[..., 0] * d[..., 0] + o[..., 1] * d[..., 1]
+    c = o[..., 0] ** 2 + o[..., 1] ** 2 - r * r
+    disc = b * b - a * c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (-b - np.sqrt(disc)) / a
+        z = o[..., 2] + t * d[..., 2]
+    ok = (a >= 1e-14) & (disc >= 0) & (t > 0) & (np.abs(z) <= h)
+    return np.where(ok, t, np.inf)
+
+
+def _np_hit(kind, size, o, d):
+    if kind == SPHERE:
+        return _np_sphere(o, d, size[0])
+    if kind == BOX:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (-size - o) / d
+            t2 = (size - o) / d
+        t1 = np.where(np.abs(d) < 1e-12, np.where(np.abs(o) <= size, -np.inf, np.inf), t1)
+        t2 = np.where(np.abs(d) < 1e-12, np.where(np.abs(o) <= size, np.inf, -np.inf), t2)
+        tn = np.minimum(t1, t2).max(-1)
+        tf = np.maximum(t1, t2).min(-1)
+        return np.where((tn <= tf) & (tn > 0), tn, np.inf)
+    r, h = size[0], size[1]
+    best = _np_side(o, d, r, h)
+    if kind == CAPSULE:
+        for s in (-1.0, 1.0):
+            best = np.minimum(best, _np_sphere(o - np.array([0.0, 0.0, s * h]), d, r))
+        return best
+    for s in (-1.0, 1.0):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (s * h - o[..., 2]) / d[..., 2]
+            x = o[..., 0] + t * d[..., 0]
+            y = o[..., 1] + t * d[..., 1]
+        ok = (np.abs(d[..., 2]) > 1e-12) & (t > 0) & (x * x + y * y <= r * r)
+        best = np.minimum(best, np.where(ok, t, np.inf))
+    return best
+
+
+def raycast_reference(
+    prims: Primitives, mount: TopViewMount = TOP_VIEW
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ray caster in plain numpy, every primitive against every pixel (no culling)."""
+    k = mount.intrinsics
+    prims = front_to_back(prims, mount)  # the same order, so equal depths resolve the same way
+    v, u = np.indices(k.shape, dtype=np.float64)
+    ray = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
+    norm = np.linalg.norm(ray, axis=-1)
+    w = ray / norm[..., None]
+    center_c, rot_c = to_camera(prims, mount)
+    depth = np.full(k.shape, np.inf)
+    lab = np.full(k.shape, labels.NO_DEPTH, np.uint8)
+    for i in range(len(prims)):
+        o = rot_c[i].T @ (-center_c[i])
+        d = w @ rot_c[i]  # R^T w for each pixel
+        z = _np_hit(int(prims.kind[i]), prims.size[i], o, d) / norm
+        closer = z < depth
+        depth[closer] = z[closer]
+        lab[closer] = prims.label[i]
+    return depth, lab
+
+
+# --- pybullet's TinyRenderer: the reference the ray caster was matched against ----------------
+
+
+def camera_matrices(mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: float = 10.0):
+    """pybullet view and projection matrices equivalent to `mount` (square pixels, centred)."""
+    import pybullet as p
+
+    k = mount.intrinsics
+    h = mount.height_mm / 1000.0
+    if (
+        abs(k.cx - (k.width - 1) / 2) > 1e-6
+        or abs(k.cy - (k.height - 1) / 2) > 1e-6
+        or k.fx != k.fy
+    ):
+        raise ValueError("pybullet's camera needs a centred principal point and square pixels")
+    view = p.computeViewMatrix(
+        cameraEyePosition=[0, 0, h], cameraTargetPosition=[0, 0, 0], cameraUpVector=[0, 1, 0]
+    )
+    fov_y = 2 * np.degrees(np.arctan2(k.height / 2, k.fy))
+    proj = list(
+        p.computeProjectionMatrixFOV(fov=fov_y, aspect=k.width / k.height, nearVal=near, farVal=far)
+    )
+    # TinyRenderer samples pixel corners; shift its image half a pixel so it samples pixel
+    # centres at (u - cx) / fx like the ray caster and the Kinect model (found by rendering a
+    # box with both: with this shift they agree on every pixel)
+    proj[8] += 1.0 / k.width
+    proj[9] += 1.0 / k.height
+    return view, proj
+
+
+def render_tiny(
+    client: int, label_of, mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: float = 10.0
+):
+    """(depth uint16 mm, labels uint8) from pybullet's TinyRenderer.
+
+    `label_of(body_id, link_index)` maps pybullet's segmentation to a label id.
+    """
+    import pybullet as p
+
+    k = mount.intrinsics
+    view, proj = camera_matrices(mount, near, far)
+    _, _, _, zbuf, seg = p.getCameraImage(
+        k.width, k.height, view, proj, renderer=p.ER_TINY_RENDERER,
+        flags=p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX, physicsClientId=client,
+    )  # fmt: skip
+    zbuf = np.asarray(zbuf, np.float64).reshape(k.height, k.width)
+    seg = np.asarray(seg, np.int64).reshape(k.height, k.width)
+    z = far * near / (far - (far - near) * zbuf)
+    z[seg < 0] = np.inf
+    depth = metres_to_mm(z)
+    lab = np.full(k.shape, labels.NO_DEPTH, np.uint8)
+    hit = seg >= 0
+    body = seg & ((1 << 24) - 1)
+    link = (seg >> 24) - 1
+    cache: dict[tuple[int, int], int] = {}
+    for b, li in set(zip(body[hit].tolist(), link[hit].tolist(), strict=True)):
+        cache[(b, li)] = label_of(b, li)
+    lut_keys = body * 64 + (link + 1)
+    for (b, li), lab_id in cache.items():
+        lab[hit & (lut_keys == b * 64 + li + 1)] = lab_id
+    lab[depth == 0] = labels.NO_DEPTH
+    return depth, lab
+
+
+def hash_uniform_np(seed: int, index: np.ndarray) -> np.ndarray:
+    """`noise._hash_uniform` (splitmix64 of seed + index * golden) in numpy."""
+    with np.errstate(over="ignore"):
+        z = np.uint64(seed) + index.astype(np.uint64) * noise._GOLDEN
+        z = (z ^ (z >> np.uint64(30))) * noise._MIX1
+        z = (z ^ (z >> np.uint64(27))) * noise._MIX2
+        z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def kinect_reference(
+    model: noise.KinectNoise, depth: np.ndarray, field: np.ndarray, seed: int
+) -> np.ndarray:
+    """`noise.KinectNoise.apply` in plain numpy, given its draws (slow, whole-array)."""
+    depth = check_depth(depth, "noise")
+    h, w = depth.shape
+    z = depth.astype(np.float64) * 0.001
+    valid = depth > 0
+    fb = model.fb
+    # shadows: projector column against the minimum over everything to the right
+    with np.errstate(divide="ignore"):
+        up = np.where(valid, np.arange(w)[None, :] - fb / z, np.inf)
+    right_min = np.minimum.accumulate(up[:, ::-1], axis=1)[:, ::-1]
+    right_min = np.concatenate([right_min[:, 1:], np.full((h, 1), np.inf)], axis=1)
+    shadow = valid & (up > right_min + 1e-9)
+    jump = np.zeros((h, w), bool)
+    for axis in (0, 1):
+        a = np.moveaxis(z, axis, 0)
+        step = (a[1:] > 0) & (a[:-1] > 0) & (np.abs(a[1:] - a[:-1]) > model.jump_m)
+        j = np.zeros(a.shape, bool)
+        j[1:] |= step
+        j[:-1] |= step
+        jump |= np.moveaxis(j, 0, axis)
+    jump &= valid
+    b = model.edge_band_px
+
+    def near(mask):
+        pad = np.pad(mask, b)
+        out = np.zeros((h, w), bool)
+        for dv in range(2 * b + 1):
+            for du in range(2 * b + 1):
+                out |= pad[dv : dv + h, du : du + w]
+        return out
+
+    near_shadow = near(shadow | ~valid)
+    near_jump = near(jump)
+    p_drop = np.where(
+        near_shadow, model.shadow_dropout, np.where(near_jump, model.edge_dropout, 0.0)
+    )
+    idx = (np.arange(h * w, dtype=np.uint64).reshape(h, w)) * np.uint64(4)
+    r0, r1, r2, r3 = (hash_uniform_np(seed, idx + np.uint64(k)) for k in range(4))
+    keep = (
+        valid
+        & ~shadow
+        & ~((p_drop > 0) & (r0 < p_drop))
+        & ~((model.speckle > 0) & (r1 < model.speckle))
+    )
+    with np.errstate(divide="ignore"):
+        disp = fb / z
+    # flying pixels mix with the neighbour that differs most
+    other = depth.astype(np.int64).copy()
+    padded = np.pad(depth.astype(np.int64), 1)
+    for dv, du in ((0, -1), (0, 1), (-1, 0), (1, 0)):
+        n = padded[1 + dv : 1 + dv + h, 1 + du : 1 + du + w]
+        better = (n > 0) & (np.abs(n - depth) > np.abs(other - depth))
+        other = np.where(better, n, other)
+    fly = jump & (r2 < model.flying)
+    a = 0.2 + 0.6 * r3
+    with np.errstate(divide="ignore"):
+        disp = np.where(fly, (1 - a) * disp + a * fb / (other * 0.001), disp)
+    c = float(model.noise_cell_px)
+    v, u = np.indices((h, w), dtype=np.float64)
+    x, y = u / c, v / c
+    i0, j0 = x.astype(int), y.astype(int)
+    tx, ty = x - i0, y - j0
+    w00, w01, w10, w11 = (1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty
+    n = (
+        w00 * field[j0, i0]
+        + w01 * field[j0, i0 + 1]
+        + w10 * field[j0 + 1, i0]
+        + w11 * field[j0 + 1, i0 + 1]
+    )
+    n /= np.sqrt(w00**2 + w01**2 + w10**2 + w11**2)
+    disp = disp + model.disparity_sigma_px * n
+    disp = np.floor(disp * model.subpixel + 0.5) / model.subpixel
+    with np.errstate(divide="ignore", invalid="ignore"):
+        zq = fb / disp
+    keep &= (disp > 0) & (zq >= model.min_range_m) & (zq <= model.max_range_m)
+    out = np.zeros((h, w), np.uint16)
+    out[keep] = np.minimum(65535, np.floor(zq[keep] * 1000.0 + 0.5)).astype(np.uint16)
+    return out
+
+
+# --- depth-difference features and forest inference ------------------------------------------
+
+
+def probe_reference(depth, r, c, inv_d, dr, dc, background):
+    """`features.probe`, vectorised: the same float32 arithmetic as the kernel."""
+    pr = r + np.floor(dr * inv_d + np.float32(0.5)).astype(np.int64)
+    pc = c + np.floor(dc * inv_d + np.float32(0.5)).astype(np.int64)
+    h, w = depth.shape
+    inside = (pr >= 0) & (pc >= 0) & (pr < h) & (pc < w)
+    z = np.full(np.broadcast(pr, pc).shape, background, np.int64)
+    z[inside] = depth[pr[inside], pc[inside]]
+    z[(z == 0) | (z > background)] = background
+    return z
+
+
+def extract_reference(depth, rows, cols, offsets, background):
+    """`features.extract_features`: (n, PC) int16 probe differences at (rows, cols)."""
+    inv_d = np.float32(1.0) / depth[rows, cols].astype(np.float32)
+    r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
+    u = probe_reference(depth, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
+    v = probe_reference(depth, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
+    return (u - v).astype(np.int16)
+
+
+def response_reference(depth, offsets, weights, background):
+    """One node's response at every pixel with depth (NaN elsewhere), float32 in feature order."""
+    rows, cols = np.nonzero(depth)
+    f = extract_reference(depth, rows, cols, offsets, background)
+    acc = np.zeros(rows.size, np.float32)
+    for j in range(weights.size):  # float32, feature by feature, like the kernel
+        acc = acc + weights[j] * f[:, j].astype(np.float32)
+    out = np.full(depth.shape, np.nan, np.float32)
+    out[rows, cols] = acc
+    return out
+
+
+def apply_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
+    """(T, n) leaf reached by each pixel with depth (row-major order) in each tree."""
+    bg = forest.background_mm
+    rows, cols = np.nonzero(depth)
+    inv = np.float32(1.0) / depth[rows, cols].astype(np.float32)
+    leaves = []
+    for root in forest.roots:
+        node = np.full(rows.size, root, np.int64)
+        while True:
+            idx = np.flatnonzero(forest.left[node] >= 0)
+            if idx.size == 0:
+                break
+            nd = node[idx]
+            resp = np.zeros(idx.size, np.float32)
+            r, c, s = rows[idx], cols[idx], inv[idx]
+            for j in range(forest.features_per_node):
+                off = forest.offsets[nd, j]
+                u = probe_reference(depth, r, c, s, off[:, 0], off[:, 1], bg)
+                v = probe_reference(depth, r, c, s, off[:, 2], off[:, 3], bg)
+                resp = resp + forest.weights[nd, j] * (u - v).astype(np.float32)
+            node[idx] = forest.left[nd] + np.where(resp < forest.threshold[nd], 0, 1)
+        leaves.append(node)
+    return np.array(leaves)
+
+
+def predict_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
+    """Walk every pixel through every tree with numpy, then average (float32, tree order)."""
+    rows, cols = np.nonzero(depth)
+    acc = np.zeros((rows.size, forest.posteriors.shape[1]), np.float32)
+    for node in apply_reference(forest, depth):
+        acc += forest.posteriors[forest.leaf[node]]
+    out = np.zeros((*depth.shape, forest.posteriors.shape[1]), np.float32)
+    out[rows, cols] = acc * (np.float32(1.0) / np.float32(forest.n_trees))
+    return out
+
+
+# --- forest training: the node stream, the criterion, the splitter ---------------------------
+
+MASK = (1 << 64) - 1
+GOLDEN = 0x9E3779B97F4A7C15
+
+
+class SplitMix:
+    """Python reference of the per-node splitmix64 stream."""
+
+    def __init__(self, key, node_id):
+        self.state = (key + node_id * GOLDEN) & MASK
+        self.state = self.next()
+
+    def next(self):
+        self.state = (self.state + GOLDEN) & MASK
+        z = self.state
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & MASK
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & MASK
+        return z ^ (z >> 31)
+
+    def uniform(self):
+        return (self.next() >> 11) * (1.0 / 9007199254740992.0)
+
+    def randint(self, n):
+        return int(self.uniform() * n)
+
+    def unit_vector(self, k):
+        while True:
+            v = np.array([2.0 * self.uniform() - 1.0 for _ in range(k)])
+            sq = 0.0
+            for x in v:
+                sq += x * x
+            if 0.0 < sq <= 1.0:
+                return v / np.sqrt(sq)
+
+
+def responses_reference(fm, ids, feats, weights):
+    """`splitter._responses`: the weighted sum of features in float32, feature by feature."""
+    acc = np.zeros(len(ids), np.float32)
+    for j in range(len(feats)):
+        acc = acc + weights[j] * fm[feats[j], ids].astype(np.float32)
+    return acc
+
+
+def entropy_bits(counts):
+    """Shannon entropy (bits) of class counts."""
+    n = counts.sum()
+    p = counts[counts > 0] / n
+    return float(-(p * np.log2(p)).sum())
+
+
+def gains_reference(resp, y, thresholds, n_classes):
+    """Information gain of each threshold by brute force: split, count, entropies."""
+    parent = np.bincount(y, minlength=n_classes)
+    h = entropy_bits(parent)
+    out = []
+    for t in thresholds:
+        go_left = resp < t
+        left = np.bincount(y[go_left], minlength=n_classes)
+        right = parent - left
+        n_l, n_r = left.sum(), right.sum()
+        child = (n_l * entropy_bits(left) if n_l else 0) + (n_r * entropy_bits(right) if n_r else 0)
+        out.append(h - child / len(y))
+    return np.array(out)
+
+
+def best_split_reference(fm, y, ids, key, node_id, n_cand, n_thr, k, linear, cap):
+    """The node optimisation written plainly, with the same stream of draws."""
+    rng = SplitMix(key, node_id)
+    n = len(ids)
+    sub = np.array([ids[rng.randint(n)] for _ in range(cap)]) if n > cap else ids
+    m = len(sub)
+    ys = y[sub]
+    best = (-1.0, None, None, None)
+    for _ in range(n_cand):
+        feats = np.array([rng.randint(fm.shape[0]) for _ in range(k)])
+        weights = rng.unit_vector(k).astype(np.float32) if linear else np.ones(k, np.float32)
+        resp = responses_reference(fm, sub, feats, weights)
+        thr = np.sort(np.array([resp[rng.randint(m)] for _ in range(min(n_thr, m))]))
+        gains = gains_reference(resp, ys, thr, labels.NUM_CLASSES)
+        for g, t in zip(gains, thr, strict=True):
+            if g > best[0] + 1e-12:
+                best = (g, feats, weights, t)
+    return best
+
+
+# --- the real-time CRF's masks -----------------------------------------------------------------
+
+
+def reference_settled(proba, valid, smoothness, eps, margin=SETTLED_MARGIN):
+    """Argmax ahead of every other label by more than any pixel's edges weigh (+ margin)."""
+    top2 = np.sort(np.maximum(proba.astype(np.float64), eps), axis=2)[..., -2:]
+    return valid & (np.log(top2[..., 1]) - np.log(top2[..., 0]) >= 4 * smoothness + margin)
+
+
+def reference_free(amax, pmax, valid, confidence, ring, settled):
+    """Neither sure (confident, every 4-neighbour with depth agrees) nor settled; + ring."""
+    h, w = amax.shape
+    pad_a = np.pad(amax.astype(np.int64), 1, constant_values=-1)
+    pad_v = np.pad(valid, 1, constant_values=False)
+    agree = np.ones((h, w), bool)
+    for di, dj in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        na = pad_a[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
+        nv = pad_v[1 + di : 1 + di + h, 1 + dj : 1 + dj + w]
+        agree &= ~nv | (na == amax)
+    free = valid & ~((pmax >= confidence) & agree) & ~settled
+    for _ in range(ring):
+        free = (
+            ndimage.binary_dilation(free, ndimage.generate_binary_structure(2, 1))
+            & valid
+            & ~settled
+        )
+    return free
