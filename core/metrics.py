@@ -101,6 +101,21 @@ def scores(confusion: np.ndarray) -> dict:
     }
 
 
+def percentile(values, q: float) -> float | None:
+    """Nearest-rank percentile (q in 0..100) of `values`; None when there are none.
+
+    The smallest value with at least q % of the values at or below it: always one of the
+    values (what operators expect of p50 / p99), numpy's `method="inverted_cdf"`.
+    """
+    ordered = sorted(float(v) for v in values)
+    if not ordered:
+        return None
+    if not 0 <= q <= 100:
+        raise ValueError(f"percentile q must be in 0..100, got {q}")
+    rank = max(1, math.ceil(q / 100 * len(ordered)))
+    return ordered[rank - 1]
+
+
 def _fmt(x: float) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"
 
@@ -146,6 +161,7 @@ class ConfusionAccumulator:
         self.frames = 0
 
     def add(self, truth: np.ndarray, pred: np.ndarray) -> None:
+        """Count one frame's labels against its truth."""
         self.confusion += confusion_matrix(truth, pred)
         self.frames += 1
 
@@ -155,13 +171,16 @@ class ConfusionAccumulator:
         self.frames += other.frames
 
     def scores(self) -> dict:
+        """`scores` of the counts so far, with the number of frames."""
         return {**scores(self.confusion), "frames": self.frames}
 
     def to_dict(self) -> dict:
+        """The counts as JSON-able lists (to save or send)."""
         return {"confusion": self.confusion.tolist(), "frames": self.frames}
 
     @classmethod
     def from_dict(cls, d: dict) -> ConfusionAccumulator:
+        """Counts saved by `to_dict`; TopsegError when they are not a valid matrix."""
         acc = cls()
         cm = np.asarray(d["confusion"], np.int64)
         if cm.shape != (C, C) or (cm < 0).any():

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,80 +26,102 @@ import numpy as np
 
 from topseg.core.camera import KINECT_V1, Intrinsics
 from topseg.core.formats import recording, wire
-from topseg.core.formats.wire import DepthFrame, LabelFrame, WireError
+from topseg.core.formats.wire import MAX_SIDE, DepthFrame, LabelFrame, WireError
 from topseg.drivers import fakenect_dump
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FPS = 30.0
+#: PIL modes of a 16-bit single-channel image.
+DEPTH_PNG_MODES = ("I;16", "I;16B", "I;16L", "I")
 
 
 @dataclass
-class _Item:
-    media_s: float | None  # recorded time, seconds; None when the source has no timing
+class ReplayFrame:
+    """One recorded frame: a name for the files made from it, depth (uint16 mm), the camera
+    when the file says it (None for a PNG), the recorded time in seconds (None without
+    timing), the truth labels when recorded and the recorded `seq` (None for a PNG)."""
+
+    name: str
     depth: np.ndarray
-    intrinsics: Intrinsics
+    intrinsics: Intrinsics | None
+    media_s: float | None = None
     truth: np.ndarray | None = None
+    seq: int | None = None
 
 
-class ReplaySource(Source):
-    def __init__(self, path: Path, kind: str, options: SourceOptions, key: str | None = None):
+# -- readers: the one place recorded depth is read and validated (the replay driver and
+#    `topseg segment` both read through them)
+
+
+def read_depth_png(path: Path) -> np.ndarray:
+    """A 16-bit single-channel PNG as uint16 mm; a SourceError naming the file otherwise."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            if max(img.size) > MAX_SIDE:  # before load(): a lying header must not allocate
+                raise SourceError(f"{path}: a {img.width}x{img.height} image is no depth frame")
+            img.load()
+            if img.mode not in DEPTH_PNG_MODES:
+                raise SourceError(
+                    f"{path}: a depth PNG must be 16-bit greyscale (mm), this one is {img.mode}"
+                )
+            depth = np.asarray(img)
+    except (
+        UnidentifiedImageError,
+        OSError,
+        SyntaxError,
+        ValueError,
+        Image.DecompressionBombError,
+    ) as exc:
+        raise SourceError(f"{path}: not a readable PNG ({exc})") from None
+    if depth.ndim != 2 or depth.size == 0 or depth.min() < 0 or depth.max() > 65535:
+        raise SourceError(f"{path}: depth must be one channel of 0..65535 mm")
+    return depth.astype(np.uint16)
+
+
+def png_files(folder: Path) -> list[Path]:
+    """The PNGs of a folder in name order (the order they are replayed and segmented)."""
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
+
+
+def png_intrinsics(width: int, height: int) -> Intrinsics:
+    """The optics assumed for a PNG, which does not say: Kinect v1 scaled to its size."""
+    return KINECT_V1 if (width, height) == (640, 480) else KINECT_V1.scaled_to(width, height)
+
+
+def png_frames(paths: list[Path]) -> Iterator[ReplayFrame]:
+    """Frames of 16-bit PNGs (named by file stem, no intrinsics, no timing)."""
+    for p in paths:
+        yield ReplayFrame(p.stem, read_depth_png(p), None)
+
+
+class RecordingFrames:
+    """The frames of one depth channel of an MCAP recording (the first one unless `key`
+    names it), with the same camera's truth paired by `seq` when it has one.
+
+    Messages that do not decode are skipped, logged and counted in `rejected`; other
+    depth channels seen are in `others`. Frames are named `STEM_SEQ` (seq 6 digits).
+    Iterating again reads the file again.
+    """
+
+    def __init__(self, path: Path, key: str | None = None) -> None:
         self.path = path
-        self.kind = kind
         self.key = key
-        self.options = options
-        self.finite = not options.loop
-        self.description = f"replay:{path}" + (f"#{key}" if key else "")
-        self.nominal_fps = options.fps or (DEFAULT_FPS if kind == "png" else None)
+        self.depth_key: str | None = key
         self.rejected = 0
-        self._pngs: list[Path] = []
-        if kind == "png":
-            self._pngs = sorted(p for p in path.iterdir() if p.suffix.lower() == ".png")
-        elif kind == "fakenect":
-            self.intrinsics = KINECT_V1
+        self.others: set[str] = set()
 
-    # -- readers
-
-    def _items(self) -> Iterator[_Item]:
-        if self.kind == "mcap":
-            yield from self._mcap_items()
-        elif self.kind == "png":
-            yield from self._png_items()
-        else:
-            for f in fakenect_dump.read_dump(self.path):
-                yield _Item(f.host_s, fakenect_dump.raw_to_mm(f.raw), KINECT_V1)
-
-    def _png_items(self) -> Iterator[_Item]:
-        from PIL import Image, UnidentifiedImageError
-
-        for p in self._pngs:
-            try:
-                with Image.open(p) as img:
-                    mode = img.mode
-                    depth = np.array(img)
-            except (OSError, UnidentifiedImageError) as exc:
-                raise SourceError(f"cannot read {p}: {exc}") from exc
-            if depth.ndim != 2 or mode not in ("I;16", "I;16B", "I;16L", "I"):
-                raise SourceError(f"{p} is a {mode} image; replay needs 16-bit grey PNGs in mm")
-            if depth.dtype != np.uint16:
-                if depth.min() < 0 or depth.max() > 65535:
-                    raise SourceError(f"{p} holds values outside 0..65535 mm")
-                depth = depth.astype(np.uint16)
-            h, w = depth.shape
-            k = KINECT_V1 if (w, h) == (640, 480) else KINECT_V1.scaled_to(w, h)
-            yield _Item(None, depth, k)
-
-    def _mcap_items(self) -> Iterator[_Item]:
+    def __iter__(self) -> Iterator[ReplayFrame]:
         depth_key = self.key
         truth_key = None if depth_key is None else _truth_of(depth_key)
-        held: _Item | None = None
-        held_seq = -1
+        held: ReplayFrame | None = None
         truths: OrderedDict[int, np.ndarray] = OrderedDict()
-        others: set[str] = set()
 
-        def emit(item: _Item, seq: int) -> _Item:
-            truth = truths.pop(seq, None)
+        def emit(item: ReplayFrame) -> ReplayFrame:
+            truth = truths.pop(item.seq, None)
             if truth is not None and truth.shape != item.depth.shape:
                 self._reject(
                     truth_key, WireError(f"truth {truth.shape} != depth {item.depth.shape}")
@@ -112,6 +134,7 @@ class ReplaySource(Source):
             kind = msg.key.rsplit("/", 1)[-1]
             if depth_key is None and kind == "depth":
                 depth_key, truth_key = msg.key, _truth_of(msg.key)
+                self.depth_key = depth_key
             if msg.key == depth_key:
                 try:
                     frame = wire.decode_depth(msg.data)
@@ -119,9 +142,11 @@ class ReplaySource(Source):
                     self._reject(msg.key, exc)
                     continue
                 if held is not None:
-                    yield emit(held, held_seq)
-                held = _Item(msg.log_time_ns / 1e9, frame.depth, frame.intrinsics)
-                held_seq = frame.seq
+                    yield emit(held)
+                name = f"{self.path.stem}_{frame.seq:06d}"
+                held = ReplayFrame(
+                    name, frame.depth, frame.intrinsics, msg.log_time_ns / 1e9, seq=frame.seq
+                )
             elif msg.key == truth_key:
                 try:
                     truth = wire.decode_labels(msg.data)
@@ -131,24 +156,100 @@ class ReplaySource(Source):
                 truths[truth.seq] = truth.labels
                 while len(truths) > 16:
                     truths.popitem(last=False)
-                if held is not None and truth.seq == held_seq:
-                    yield emit(held, held_seq)
+                if held is not None and truth.seq == held.seq:
+                    yield emit(held)
                     held = None
-            elif kind == "depth" and msg.key not in others:
-                others.add(msg.key)
-                log.info("%s: also holds %s; replaying %s only", self.path, msg.key, depth_key)
+            elif kind == "depth" and msg.key not in self.others:
+                self.others.add(msg.key)
+                log.info("%s: also holds %s; reading %s only", self.path, msg.key, depth_key)
         if held is not None:
-            yield emit(held, held_seq)
+            yield emit(held)
         if depth_key is None:
             raise SourceError(f"{self.path} holds no depth channel")
 
-    def _reject(self, key: str, exc: Exception) -> None:
+    def _reject(self, key: str | None, exc: Exception) -> None:
         self.rejected += 1
-        log.warning("%s: skipped a bad message on %s: %s", self.path, key, exc)
+        log.warning("%s: skipped a damaged message on %s: %s", self.path, key, exc)
+
+
+def _truth_of(depth_key: str) -> str:
+    return depth_key.rsplit("/", 1)[0] + "/truth"
+
+
+def input_frames(
+    path: Path, on_recording: Callable[[RecordingFrames], None] | None = None
+) -> Iterator[ReplayFrame]:
+    """Every frame a file or folder holds, named for output files: a 16-bit PNG, a folder of
+    them, or an MCAP recording (its first depth channel). SourceError when `path` is none of
+    these or holds no frame. `on_recording` is handed the reader of a recording once it has
+    been read (to report what it skipped)."""
+    if path.is_dir():
+        pngs = png_files(path)
+        if not pngs:
+            raise SourceError(f"{path}: no .png files in this folder")
+        yield from png_frames(pngs)
+    elif path.suffix.lower() == ".png":
+        yield from png_frames([path])
+    elif path.suffix.lower() == ".mcap":
+        reader = RecordingFrames(path)
+        count = 0
+        for frame in reader:
+            count += 1
+            yield frame
+        if on_recording is not None:
+            on_recording(reader)
+        if not count:
+            raise SourceError(f"{path}: no readable depth frame in this recording")
+    elif not path.exists():
+        raise SourceError(f"{path}: no such file or folder")
+    else:
+        raise SourceError(f"{path}: expected a .png, a folder of PNGs or an .mcap recording")
+
+
+class ReplaySource(Source):
+    """A recording, PNG folder or fakenect dump played as a depth source (see the module)."""
+
+    def __init__(self, path: Path, kind: str, options: SourceOptions, key: str | None = None):
+        self.path = path
+        self.kind = kind
+        self.key = key
+        self.options = options
+        self.finite = not options.loop
+        self.description = f"replay:{path}" + (f"#{key}" if key else "")
+        self.nominal_fps = options.fps or (DEFAULT_FPS if kind == "png" else None)
+        self._rejected_before = 0  # by the readers of earlier passes
+        self._reader: RecordingFrames | None = None
+        self._pngs: list[Path] = []
+        if kind == "png":
+            self._pngs = png_files(path)
+        elif kind == "fakenect":
+            self.intrinsics = KINECT_V1
+
+    @property
+    def rejected(self) -> int:
+        """Messages skipped because they did not decode, over every pass so far."""
+        return self._rejected_before + (self._reader.rejected if self._reader else 0)
+
+    def _items(self) -> Iterator[ReplayFrame]:
+        if self.kind == "mcap":
+            if self._reader is not None:
+                self._rejected_before += self._reader.rejected
+            self._reader = RecordingFrames(self.path, self.key)
+            yield from self._reader
+        elif self.kind == "png":
+            for item in png_frames(self._pngs):
+                h, w = item.depth.shape
+                item.intrinsics = png_intrinsics(w, h)
+                yield item
+        else:
+            for i, f in enumerate(fakenect_dump.read_dump(self.path)):
+                yield ReplayFrame(str(i), fakenect_dump.raw_to_mm(f.raw), KINECT_V1, f.host_s)
 
     # -- playing
 
     def frames(self) -> Iterator[SourceFrame]:
+        """The frames paced as recorded (or at `fps`), restamped and numbered on, looping
+        when asked; SourceError when a pass holds no frame."""
         pacer = Pacer(self.options.realtime)
         estimate_fps = self.nominal_fps is None  # recorded timing: measure it on the first pass
         seq = 0
@@ -180,10 +281,6 @@ class ReplaySource(Source):
             estimate_fps = False
             period = 1.0 / (self.nominal_fps or DEFAULT_FPS)
             offset += last + period
-
-
-def _truth_of(depth_key: str) -> str:
-    return depth_key.rsplit("/", 1)[0] + "/truth"
 
 
 def open(arg: str | None, options: SourceOptions) -> ReplaySource:

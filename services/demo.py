@@ -20,8 +20,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The live demo's recording, model and CRF; the --core demo's sizes."""
+    from topseg.core.segmenter import MODEL_HELP
+
     parser.add_argument("--recording", type=Path, default=REPO / "recordings" / "demo.mcap")
-    parser.add_argument("--model", type=Path, default=REPO / "models" / "default.npz")
+    parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
     parser.add_argument(
         "--rrd", type=Path, default=Path("out/demo.rrd"), help="Rerun file the viewer writes"
@@ -47,15 +50,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The live demo, or the core demo with --core."""
     return run_core(args) if args.core else run_live(args)
 
 
 def run_live(args: argparse.Namespace) -> int:
+    """Replay the recording through driver -> worker -> viewer; print the figures and F1."""
     from topseg.core import metrics
     from topseg.core.errors import TopsegError
+    from topseg.core.segmenter import bundled_model_path
     from topseg.services.pipeline import run_pipeline, summary
 
-    for what, path in (("recording", args.recording), ("model", args.model)):
+    model = bundled_model_path() if args.model is None else args.model
+    for what, path in (("recording", args.recording), ("model", model)):
         if not path.exists():
             raise TopsegError(f"no {what} at {path} (rebuild it with `make {what}`)")
     args.rrd.parent.mkdir(parents=True, exist_ok=True)
@@ -67,7 +74,7 @@ def run_live(args: argparse.Namespace) -> int:
         print("the viewer serves Rerun's web viewer; its address is in the viewer's log")
     figures = run_pipeline(
         f"replay:{args.recording}",
-        args.model,
+        model,
         duration_s=None,
         fps=args.fps,
         crf=args.crf,
@@ -90,9 +97,11 @@ def run_live(args: argparse.Namespace) -> int:
 
 
 def run_core(args: argparse.Namespace) -> int:
+    """Train a small forest on procedural frames; score forest, realtime and exact CRF."""
     import numpy as np
 
-    from topseg.core import crf, forest, metrics
+    from topseg.core import forest, metrics
+    from topseg.core.segmenter import Segmenter
     from topseg.core.synth import procedural
 
     rng = np.random.default_rng(args.seed)
@@ -114,19 +123,21 @@ def run_core(args: argparse.Namespace) -> int:
     )
 
     modes = ("none", "realtime", "exact")
+    # one Segmenter per CRF mode on the same forest: the forest runs once a frame (through
+    # the first one) and each mode smooths the same posteriors
+    segmenters = {mode: Segmenter(model, crf=mode) for mode in modes}
     totals = {mode: metrics.ConfusionAccumulator() for mode in modes}
     seconds = dict.fromkeys(("forest", *modes[1:]), 0.0)
-    forest.predict_proba(model, test[0][0])  # compile once, outside the timings
+    segmenters["none"].posteriors(test[0][0])  # compile once, outside the timings
     for frame_depth, frame_truth in test:
+        segmenters["none"].check_frame(frame_depth)
         t0 = time.perf_counter()
-        proba = forest.predict_proba(model, frame_depth)
+        proba = segmenters["none"].posteriors(frame_depth)
         seconds["forest"] += time.perf_counter() - t0
         for mode in modes:
             t0 = time.perf_counter()
-            if mode == "none":
-                pred = forest.labels_from_proba(proba, frame_depth)
-            else:
-                pred = crf.segment_crf(proba, frame_depth, crf.CRFConfig(mode=mode))
+            pred = segmenters[mode].smooth(proba, frame_depth)
+            if mode != "none":
                 seconds[mode] += time.perf_counter() - t0
             totals[mode].add(frame_truth, pred)
 

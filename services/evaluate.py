@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", required=True, type=Path, help="model file from `topseg train`")
+    """--model (default: the bundled model), --data, --crf and what to write."""
+    from topseg.core.segmenter import MODEL_HELP
+
+    parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
     parser.add_argument("--frames", type=int, default=None, help="score only the first N frames")
@@ -25,59 +27,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
+    """Score the model on the dataset; print the tables, write the JSON and plots asked for."""
     from tqdm import tqdm
 
-    from topseg.core import crf, forest, metrics
+    from topseg.core import metrics
     from topseg.core.formats.dataset import open_dataset
+    from topseg.core.scoring import dataset_frames, score
+    from topseg.core.segmenter import Segmenter
 
-    model, _ = forest.load_model(args.model)
+    segmenter = Segmenter.from_file(args.model, crf=args.crf)
     ds = open_dataset(args.data)
     n = len(ds) if args.frames is None else min(args.frames, len(ds))
-    config = crf.CRFConfig(mode=args.crf)
-    raw, smooth = metrics.ConfusionAccumulator(), metrics.ConfusionAccumulator()
-    examples = []
-    seconds = {"forest": 0.0, "crf": 0.0}
-    for i in tqdm(range(n), desc="evaluate", unit="frame", disable=None):
-        depth, truth = np.asarray(ds.depth[i]), np.asarray(ds.labels[i])
-        t0 = time.perf_counter()
-        proba = forest.predict_proba(model, depth)
-        t1 = time.perf_counter()
-        pred = forest.labels_from_proba(proba, depth)
-        final = pred if args.crf == "none" else crf.segment_crf(proba, depth, config)
-        t2 = time.perf_counter()
-        seconds["forest"] += t1 - t0
-        seconds["crf"] += t2 - t1
-        raw.add(truth, pred)
-        smooth.add(truth, final)
-        if len(examples) < args.examples:
-            examples.append((depth, truth, pred, final))
+    frames = tqdm(
+        dataset_frames(ds, range(n)), total=n, desc="evaluate", unit="frame", disable=None
+    )
+    result = score(segmenter, frames, examples=args.examples)
 
-    forest_scores, final_scores = raw.scores(), smooth.scores()
+    forest_scores, final_scores = result.forest.scores(), result.crf.scores()
     print(metrics.format_table(forest_scores, title=f"forest alone, {n} frames of {args.data}"))
     if args.crf != "none":
         print()
         print(metrics.format_table(final_scores, title=f"forest + CRF ({args.crf})"))
-    timing = {k: 1000 * v / max(n, 1) for k, v in seconds.items()}
+    timing = result.ms_per_frame()
     print(f"\nms per frame: forest {timing['forest']:.1f}, crf {timing['crf']:.1f}")
 
     if args.json_out:
         doc = json.loads(metrics.to_json(final_scores))
         doc.update(
             crf=args.crf,
-            model=str(args.model),
+            model=str(segmenter.path),
             data=str(args.data),
             forest_only=json.loads(metrics.to_json(forest_scores)),
             ms_per_frame=timing,
-            confusion=smooth.confusion.tolist(),
+            confusion=result.crf.confusion.tolist(),
         )
         _write_text(args.json_out, json.dumps(doc, indent=2))
     if args.plots:
         from topseg.services.plots import confusion_figure, frames_figure
 
         args.plots.mkdir(parents=True, exist_ok=True)
-        confusion_figure(smooth.confusion, args.plots / "confusion.png", title=f"CRF: {args.crf}")
-        frames_figure(examples, args.plots / "frames.png", crf_name=args.crf)
+        confusion_figure(
+            result.crf.confusion, args.plots / "confusion.png", title=f"CRF: {args.crf}"
+        )
+        frames_figure(result.examples, args.plots / "frames.png", crf_name=args.crf)
         print(f"wrote {args.plots / 'confusion.png'} and {args.plots / 'frames.png'}")
     return 0
 

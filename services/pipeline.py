@@ -7,7 +7,8 @@ truth and labels and measures:
 
 - `fps`: labelled frames a second over the time labels came;
 - `latency_p50_ms` / `latency_p99_ms`: driver stamp (the moment the source handed the frame
-  on) -> labels received here, over every labelled frame after the first `WARMUP_FRAMES`;
+  on) -> labels received here, over every labelled frame after the first `WARMUP_FRAMES`
+  (nearest-rank percentiles, `core.metrics.percentile`, as `topseg status` reports them);
 - `frames_sent` (depth messages seen), `frames_labelled`, `frames_scored`;
 - `scores`: `ConfusionAccumulator.scores()` of the labels against the truth channel (frames
   paired by seq; scored after the run so that scoring takes no CPU from the pipeline).
@@ -41,6 +42,7 @@ DRAIN_S = 1.0  # wait for labels still in flight after the driver stops
 
 
 def free_port() -> int:
+    """A TCP port on loopback that nothing listens on now (for a private Zenoh)."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -143,13 +145,9 @@ class _Children:
             return -signal.SIGKILL
 
 
-def _percentile(values: list[float], q: float) -> float | None:
-    return float(np.percentile(values, q)) if values else None
-
-
 def run_pipeline(
     source: str,
-    model: Path,
+    model: Path | None,
     duration_s: float | None,
     fps: float | None,
     crf: str = "realtime",
@@ -162,6 +160,7 @@ def run_pipeline(
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
+    `model` None is the bundled model (`core.segmenter.bundled_model_path`).
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
     "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
     "exit_codes", "logs"}. `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
@@ -169,12 +168,13 @@ def run_pipeline(
     to start.
     """
     from topseg.core.formats import wire
-    from topseg.core.metrics import ConfusionAccumulator
+    from topseg.core.metrics import ConfusionAccumulator, percentile
+    from topseg.core.segmenter import bundled_model_path
     from topseg.drivers.spec import parse_spec
     from topseg.services.zenoh_session import open_session
 
     spec = parse_spec(source)
-    model = Path(model)
+    model = bundled_model_path() if model is None else Path(model)
     if not model.is_file():
         raise TopsegError(
             f"model file {model} does not exist (make one with scripts/make_model.sh)"
@@ -253,8 +253,8 @@ def run_pipeline(
         return {
             "source": str(spec),
             "fps": (col.n_labels - 1) / span if span > 0 else 0.0,
-            "latency_p50_ms": _percentile(col.latency_ms, 50),
-            "latency_p99_ms": _percentile(col.latency_ms, 99),
+            "latency_p50_ms": percentile(col.latency_ms, 50),
+            "latency_p99_ms": percentile(col.latency_ms, 99),
             "frames_sent": col.frames_sent,
             "frames_labelled": col.n_labels,
             "frames_scored": scored,

@@ -26,13 +26,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import sys
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from topseg.core.metrics import percentile
 from topseg.services import zenoh_session
 
 log = logging.getLogger("topseg.status")
@@ -42,6 +42,7 @@ REQUIRED_ROLES = ("driver", "worker")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The window, output format, watch mode, cell filter and expected cameras."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
         "--timeout",
@@ -79,15 +80,6 @@ class Observed:
     info_start: dict = field(default_factory=dict)  # (cell, camera) -> (monotonic, info)
     info_end: dict = field(default_factory=dict)
     window_s: float = 0.0
-
-
-def percentile(values: list[float], q: float) -> float | None:
-    """Nearest-rank percentile (q in 0..100) of `values`, None when empty."""
-    if not values:
-        return None
-    ordered = sorted(values)
-    rank = max(1, math.ceil(q / 100 * len(ordered)))
-    return ordered[rank - 1]
 
 
 def _driver_report(alive: bool, start: tuple | None, end: tuple | None) -> dict:
@@ -164,6 +156,7 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
 
 
 def exit_status(rep: dict) -> int:
+    """0 when every camera is up, 1 otherwise (see the module docstring)."""
     return 0 if rep["ok"] else 1
 
 
@@ -345,6 +338,7 @@ class Listener:
         return seen
 
     def close(self) -> None:
+        """Undeclare the subscribers."""
         for sub in self._subs:
             sub.undeclare()
 
@@ -368,6 +362,7 @@ def _expected(entries: list[str]) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Watch the window(s) and print the report; the exit status says whether all is up."""
     from topseg.core.errors import TopsegError
     from topseg.core.formats import wire
 

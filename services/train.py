@@ -14,15 +14,20 @@ import argparse
 import hashlib
 import json
 import logging
-import os
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from topseg.core.forest.train import TrainConfig
 
 log = logging.getLogger("topseg.train")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`topseg train`'s options; `TrainJob.from_args` turns them into a job."""
     parser.add_argument(
         "--data", required=True, type=Path, help="dataset written by `topseg datagen`"
     )
@@ -69,6 +74,95 @@ def split_frames(n: int, fraction: float, seed: int) -> tuple[list[int], list[in
     return sorted(order[n_val:].tolist()), sorted(order[:n_val].tolist())
 
 
+#: TrainConfig field -> the `topseg train` option that sets it (for error messages)
+OPTION_OF = {
+    "n_trees": "--trees",
+    "max_depth": "--depth",
+    "frames_per_tree": "--frames-per-tree",
+    "pixels_per_frame": "--pixels-per-frame",
+    "n_candidates": "--responses",
+    "n_thresholds": "--thresholds",
+    "split": "--split",
+    "n_features": "--features",
+    "absolute_fraction": "--absolute-fraction",
+}
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """One training run, typed: the dataset, the model file to write, the forest's
+    `TrainConfig`, the seed, the validation split and where the trees train (a Dask
+    `scheduler`, a local cluster of `workers`, or `serial`ly in this process).
+
+    `topseg train` builds it with `from_args`; `topseg experiment` builds it directly.
+    """
+
+    data: Path
+    out: Path
+    config: TrainConfig
+    seed: int = 0
+    validation: float = 0.1
+    max_validation_frames: int = 64
+    scheduler: str | None = None
+    workers: int | None = None
+    serial: bool = False
+
+    def __post_init__(self) -> None:
+        from topseg.core.errors import ConfigError
+
+        if not 0.0 <= self.validation < 1.0:
+            raise ConfigError(f"--validation must be in [0, 1), got {self.validation}")
+        if self.max_validation_frames < 0:
+            raise ConfigError(
+                f"--max-validation-frames must be >= 0, got {self.max_validation_frames}"
+            )
+        if self.workers is not None and self.workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {self.workers}")
+        if self.seed < 0:
+            raise ConfigError(f"--seed must be >= 0, got {self.seed}")
+
+    @property
+    def trees(self) -> int:
+        """Trees in the forest (the config's `n_trees`)."""
+        return self.config.n_trees
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> TrainJob:
+        """The job `topseg train`'s command line describes (see `add_arguments`); a bad
+        value is a ConfigError naming its option."""
+        from topseg.core.errors import ConfigError
+        from topseg.core.forest.features import FeatureConfig
+        from topseg.core.forest.train import TrainConfig
+
+        try:
+            config = TrainConfig(
+                n_trees=args.trees,
+                max_depth=args.depth,
+                frames_per_tree=args.frames_per_tree,
+                pixels_per_frame=args.pixels_per_frame,
+                n_candidates=args.responses,
+                n_thresholds=args.thresholds,
+                split=args.split,
+                features=FeatureConfig(
+                    n_features=args.features, absolute_fraction=args.absolute_fraction
+                ),
+            )
+        except ValueError as exc:
+            field, _, rest = str(exc).partition(" ")
+            raise ConfigError(f"{OPTION_OF.get(field, field)} {rest}") from None
+        return cls(
+            data=args.data,
+            out=args.out,
+            config=config,
+            seed=args.seed,
+            validation=args.validation,
+            max_validation_frames=args.max_validation_frames,
+            scheduler=args.scheduler,
+            workers=args.workers,
+            serial=args.serial,
+        )
+
+
 class FrameSubset:
     """Frames `indices` of an (N, H, W) array-like, indexable like an array of them."""
 
@@ -84,33 +178,14 @@ class FrameSubset:
         return self.frames[self.indices[int(i)]]
 
 
-def recipe(args: argparse.Namespace, fingerprint: str) -> dict:
+def recipe(job: TrainJob, fingerprint: str) -> dict:
     """What decides every tree: a part file is reused only when its recipe is the same."""
     return {
         "dataset": fingerprint,
-        "seed": args.seed,
-        "validation": args.validation,
-        "config": _train_config(args).to_dict(),
+        "seed": job.seed,
+        "validation": job.validation,
+        "config": job.config.to_dict(),
     }
-
-
-def _train_config(args: argparse.Namespace):
-    from topseg.core.forest.features import FeatureConfig
-    from topseg.core.forest.train import TrainConfig
-
-    return TrainConfig(
-        n_trees=args.trees,
-        max_depth=args.depth,
-        frames_per_tree=args.frames_per_tree,
-        pixels_per_frame=args.pixels_per_frame,
-        n_candidates=args.responses,
-        n_thresholds=args.thresholds,
-        split=args.split,
-        features=FeatureConfig(
-            n_features=args.features,
-            absolute_fraction=getattr(args, "absolute_fraction", 0.0),
-        ),
-    )
 
 
 def dataset_fingerprint(dataset) -> str:
@@ -129,7 +204,7 @@ def train_one_tree(
     from topseg.core.formats.dataset import open_dataset
 
     ds = open_dataset(data)
-    config = TrainConfig.from_dict(recipe_["config"])
+    config = TrainConfig.from_dict(recipe_["config"], source=f"the train recipe of {part}")
 
     def progress(level: int, nodes: int) -> None:
         if queue is not None:
@@ -167,58 +242,57 @@ def _finished_part(part: Path, recipe_: dict):
 
 
 def run(args: argparse.Namespace) -> int:
+    """`topseg train`: the command line as a `TrainJob`, trained on its dataset's split."""
     from topseg.core.errors import TopsegError
     from topseg.core.formats.dataset import open_dataset
 
-    if args.trees < 1:
-        raise TopsegError("--trees must be at least 1")
-    ds = open_dataset(args.data)
-    train_idx, val_idx = split_frames(len(ds), args.validation, args.seed)
+    job = TrainJob.from_args(args)
+    ds = open_dataset(job.data)
+    train_idx, val_idx = split_frames(len(ds), job.validation, job.seed)
     if not train_idx:
-        raise TopsegError(f"{args.data} has no frames to train on")
-    train_on(args, ds, train_idx, val_idx)
+        raise TopsegError(f"{job.data} has no frames to train on")
+    train_on(job, ds, train_idx, val_idx)
     return 0
 
 
 def train_on(
-    args: argparse.Namespace,
+    job: TrainJob,
     ds,
     train_idx: list[int],
     val_idx: list[int],
     fingerprint: str | None = None,
 ) -> float:
-    """Train on frames `train_idx` of the open dataset `ds`, score `val_idx`, write
-    `args.out`; resumable through `<out>.parts`. Returns the training seconds.
+    """Train `job` on frames `train_idx` of the open dataset `ds`, score `val_idx`, write
+    `job.out`; resumable through `<out>.parts`. Returns the training seconds.
 
-    `args` holds what the command line gives `run` (see `add_arguments`); other callers
-    (`topseg experiment`) build it themselves to train on a chosen subset, naming that
-    subset's identity in `fingerprint` (default: the whole dataset's).
+    `topseg experiment` trains on a chosen subset this way, naming that subset's identity
+    in `fingerprint` (default: the whole dataset's).
     """
     from topseg.core.errors import TopsegError
 
-    recipe_ = recipe(args, fingerprint or dataset_fingerprint(ds))
-    parts_dir = args.out.with_name(args.out.name + ".parts")
+    recipe_ = recipe(job, fingerprint or dataset_fingerprint(ds))
+    parts_dir = job.out.with_name(job.out.name + ".parts")
     try:
         parts_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise TopsegError(f"cannot create {parts_dir}: {exc.strerror}") from exc
-    parts = [parts_dir / f"tree-{t}.npz" for t in range(args.trees)]
+    parts = [parts_dir / f"tree-{t}.npz" for t in range(job.trees)]
     trees = {
         t: tree for t, p in enumerate(parts) if (tree := _finished_part(p, recipe_)) is not None
     }
     if trees:
-        log.info("resuming: %d of %d trees already trained", len(trees), args.trees)
-    todo = [t for t in range(args.trees) if t not in trees]
+        log.info("resuming: %d of %d trees already trained", len(trees), job.trees)
+    todo = [t for t in range(job.trees) if t not in trees]
 
     t0 = time.perf_counter()
     if todo:
-        _train_trees(args, train_idx, recipe_, todo, parts)
+        _train_trees(job, train_idx, recipe_, todo, parts)
         for t in todo:
             trees[t] = _finished_part(parts[t], recipe_)
             if trees[t] is None:
                 raise TopsegError(f"tree {t} did not come back whole from {parts[t]}")
     seconds = time.perf_counter() - t0
-    _write_model(args, ds, val_idx, recipe_, [trees[t] for t in range(args.trees)], seconds)
+    _write_model(job, ds, val_idx, recipe_, [trees[t] for t in range(job.trees)], seconds)
     # the parts, and the temp files of part writes a kill -9 cut short (atomic_write's)
     for p in [*parts, *parts_dir.glob(".tree-*.npz.*.tmp")]:
         p.unlink(missing_ok=True)
@@ -226,7 +300,7 @@ def train_on(
     return seconds
 
 
-def _train_trees(args, train_idx, recipe_, todo, parts) -> None:
+def _train_trees(job: TrainJob, train_idx, recipe_, todo, parts) -> None:
     """Train the trees in `todo`, serially or on Dask, with a progress bar per tree."""
     from tqdm import tqdm
 
@@ -242,11 +316,11 @@ def _train_trees(args, train_idx, recipe_, todo, parts) -> None:
         bar.update(max(0, level + 1 - bar.n))
 
     try:
-        if args.serial:
+        if job.serial:
             for t in todo:
-                _serial_tree(args, train_idx, recipe_, t, str(parts[t]), advance)
+                _serial_tree(job, train_idx, recipe_, t, str(parts[t]), advance)
         else:
-            _dask_trees(args, train_idx, recipe_, todo, parts, advance)
+            _dask_trees(job, train_idx, recipe_, todo, parts, advance)
     finally:
         for bar in bars.values():
             bar.close()
@@ -260,29 +334,24 @@ class _CallbackQueue:
         self.fn(*item)
 
 
-def _serial_tree(args, train_idx, recipe_, t, part, advance) -> None:
-    train_one_tree(str(args.data), train_idx, recipe_, t, part, _CallbackQueue(advance))
+def _serial_tree(job: TrainJob, train_idx, recipe_, t, part, advance) -> None:
+    train_one_tree(str(job.data), train_idx, recipe_, t, part, _CallbackQueue(advance))
 
 
-def _dask_trees(args, train_idx, recipe_, todo, parts, advance) -> None:
-    from distributed import Client, LocalCluster, Queue
+def _dask_trees(job: TrainJob, train_idx, recipe_, todo, parts, advance) -> None:
+    """Train the trees in `todo` as Dask tasks: on `job.scheduler`, or on a local cluster of
+    `job.workers` processes (default: one per tree, at most one per core)."""
+    from distributed import Queue
 
-    if args.scheduler:
-        cluster, client = None, Client(args.scheduler)
-    else:
-        n_workers = args.workers or max(1, min(len(todo), os.cpu_count() or 1))
-        threads = max(1, (os.cpu_count() or 1) // n_workers)
-        os.environ.setdefault("NUMBA_NUM_THREADS", str(threads))
-        cluster = LocalCluster(
-            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None
-        )
-        client = Client(cluster)
-    try:
+    from topseg.services.dask_cluster import dask_client, default_workers
+
+    workers = job.workers or max(1, min(len(todo), default_workers()))
+    with dask_client(job.scheduler, None if job.scheduler else workers) as client:
         queue = Queue(f"topseg-train-{uuid.uuid4().hex}", client=client)
         futures = [
             client.submit(
                 train_one_tree,
-                str(args.data.resolve()),
+                str(job.data.resolve()),
                 train_idx,
                 recipe_,
                 t,
@@ -301,23 +370,22 @@ def _dask_trees(args, train_idx, recipe_, todo, parts, advance) -> None:
             advance(*item)
         for f in futures:
             f.result()  # re-raise a worker's error here
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def _write_model(args, ds, val_idx, recipe_, trees, seconds) -> None:
     from topseg import __version__
     from topseg.core.forest.model_file import save_model
-    from topseg.core.forest.predict import predict_labels
     from topseg.core.forest.tree import Forest
-    from topseg.core.metrics import ConfusionAccumulator, to_json
+    from topseg.core.metrics import to_json
+    from topseg.core.scoring import dataset_frames, score
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
 
     forest = Forest.from_trees(trees)
-    acc = ConfusionAccumulator()
-    for i in val_idx[: args.max_validation_frames]:
-        acc.add(ds.labels[i], predict_labels(forest, ds.depth[i]))
+    # the forest's argmax through the one Segmenter; no camera check: these are frames of
+    # the dataset the forest was trained on, whatever their size
+    segmenter = Segmenter(forest, config=SegmenterConfig(check_camera=False), crf="none")
+    frames = dataset_frames(ds, val_idx[: args.max_validation_frames])
+    acc = score(segmenter, frames).crf
     validation = json.loads(to_json(acc.scores())) if val_idx else None  # NaN -> null
     header = {
         "made_by": f"topseg {__version__} train",

@@ -7,6 +7,7 @@ import pytest
 from PIL import Image
 
 from topseg.core.camera import KINECT_V1, TOP_VIEW, TopViewMount
+from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.recording import RecordingWriter
 from topseg.core.synth.procedural import procedural_frame
@@ -157,3 +158,39 @@ def test_what_is_not_replayable(tmp_path):
         pytest.raises(SourceError, match="no depth"),
     ):
         list(src.frames())
+
+
+def test_input_frames_names_what_segment_writes(tmp_path, frames):
+    """The reader `topseg segment` and the replay share: PNG files, folders and recordings."""
+    from topseg.drivers.replay import input_frames, read_depth_png
+
+    folder = tmp_path / "pngs"
+    folder.mkdir()
+    for i, (depth, _) in enumerate(frames[:2]):
+        Image.fromarray(depth).save(folder / f"f{i}.png")
+    got = list(input_frames(folder))
+    assert [f.name for f in got] == ["f0", "f1"]
+    assert got[0].intrinsics is None  # a PNG does not say its camera
+    np.testing.assert_array_equal(got[1].depth, frames[1][0])
+    np.testing.assert_array_equal(read_depth_png(folder / "f0.png"), frames[0][0])
+
+    rec = tmp_path / "rec.mcap"
+    record(rec, frames, junk_at=1)
+    readers = []
+    got = list(input_frames(rec, on_recording=readers.append))
+    assert [f.name for f in got] == [f"rec_{i:06d}" for i in range(len(frames))]
+    assert got[0].intrinsics == KINECT_V1.scaled_to(160, 120)
+    np.testing.assert_array_equal(got[2].truth, frames[2][1])
+    assert readers[0].rejected == 1 and readers[0].depth_key == wire.depth_key()
+
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "notes.txt").write_text("x")
+    for path, message in [
+        (tmp_path / "empty", r"no \.png"),
+        (tmp_path / "absent.png", "not a readable PNG"),
+        (tmp_path / "absent.mcap", "cannot read recording"),
+        (tmp_path / "nowhere", "no such file"),
+        (tmp_path / "notes.txt", "expected a .png"),
+    ]:
+        with pytest.raises(TopsegError, match=message):
+            list(input_frames(path))

@@ -2,48 +2,12 @@
 
 import numpy as np
 import pytest
-from test_features import probe_reference
+from reference import apply_reference, predict_reference
 
 from topseg.core import labels
-from topseg.core.forest import Forest, labels_from_proba, predict_labels, predict_proba, random_tree
+from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
 from topseg.core.forest.predict import apply
 from topseg.core.forest.tree import node_depths
-
-
-def apply_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
-    """(T, n) leaf reached by each pixel with depth (row-major order) in each tree."""
-    bg = forest.background_mm
-    rows, cols = np.nonzero(depth)
-    inv = np.float32(1.0) / depth[rows, cols].astype(np.float32)
-    leaves = []
-    for root in forest.roots:
-        node = np.full(rows.size, root, np.int64)
-        while True:
-            idx = np.flatnonzero(forest.left[node] >= 0)
-            if idx.size == 0:
-                break
-            nd = node[idx]
-            resp = np.zeros(idx.size, np.float32)
-            r, c, s = rows[idx], cols[idx], inv[idx]
-            for j in range(forest.features_per_node):
-                off = forest.offsets[nd, j]
-                u = probe_reference(depth, r, c, s, off[:, 0], off[:, 1], bg)
-                v = probe_reference(depth, r, c, s, off[:, 2], off[:, 3], bg)
-                resp = resp + forest.weights[nd, j] * (u - v).astype(np.float32)
-            node[idx] = forest.left[nd] + np.where(resp < forest.threshold[nd], 0, 1)
-        leaves.append(node)
-    return np.array(leaves)
-
-
-def predict_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
-    """Walk every pixel through every tree with numpy, then average (float32, tree order)."""
-    rows, cols = np.nonzero(depth)
-    acc = np.zeros((rows.size, forest.posteriors.shape[1]), np.float32)
-    for node in apply_reference(forest, depth):
-        acc += forest.posteriors[forest.leaf[node]]
-    out = np.zeros((*depth.shape, forest.posteriors.shape[1]), np.float32)
-    out[rows, cols] = acc * (np.float32(1.0) / np.float32(forest.n_trees))
-    return out
 
 
 def random_forest(seed, k, depths=(3, 6, 5), scale=300.0):
@@ -121,7 +85,6 @@ def test_labels_and_no_depth():
     proba = predict_proba(forest, depth)
     lab = predict_labels(forest, depth)
     assert lab.dtype == np.uint8
-    np.testing.assert_array_equal(lab, labels_from_proba(proba, depth))
     assert np.all(lab[depth == 0] == labels.NO_DEPTH)
     has = depth > 0
     np.testing.assert_array_equal(lab[has], proba[has].argmax(axis=1))

@@ -12,7 +12,7 @@ from topseg.core.errors import TopsegError
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.drivers import synthetic
 from topseg.services.pipeline import run_pipeline, summary
-from topseg.services.worker import Labeller
+from topseg.services.worker import load_segmenter
 
 N = 8
 
@@ -38,7 +38,7 @@ def recording(tmp_path_factory):
     return synthetic.record(tmp_path_factory.mktemp("rec") / "demo.mcap", N, "seed=9", fps=10)
 
 
-def test_replay_lossless_labels_every_frame_and_scores_them_like_the_labeller(
+def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
     recording, model_path, tmp_path
 ):
     rrd = tmp_path / "out.rrd"
@@ -49,12 +49,12 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_labeller(
     assert figures["fps"] > 0
     assert rrd.stat().st_size > 0
 
-    labeller = Labeller(str(model_path), "none")
+    segmenter = load_segmenter(str(model_path), "none")
     want = metrics.ConfusionAccumulator()
     with synthetic.open("seed=9", synthetic.SourceOptions(realtime=False)) as src:
         for i, frame in zip(range(N), src.frames(), strict=False):
             assert frame.depth.seq == i
-            want.add(frame.truth.labels, labeller.label(frame.depth.depth)[0])
+            want.add(frame.truth.labels, segmenter.label(frame.depth.depth).labels)
     np.testing.assert_array_equal(figures["confusion"], want.confusion)
     assert figures["scores"]["avg_f1"] == pytest.approx(want.scores()["avg_f1"], nan_ok=True)
     assert "F1" in summary(figures)

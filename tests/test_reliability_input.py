@@ -276,5 +276,5 @@ def test_damaged_recordings_are_read_up_to_the_damage_or_refused_in_one_line(
     ]
     assert 0 < len([g for g in got if g.startswith("truncated")]) < 6
     for name in ("not_mcap", "wrong_schema"):  # nothing readable: one line each, exit 2
-        assert f"skipped {files[name]}: no readable depth frame" in r.stderr
+        assert f"skipped {files[name]} holds no depth channel" in r.stderr
     assert r.returncode == 2 and "2 of 5 inputs" in r.stderr.splitlines()[-1]

@@ -100,3 +100,21 @@ def test_report_from_stats_messages():
     assert cam["worker"]["latency_ms"] == {"p50": 15.0, "p99": 20.0}
     assert cam["worker"]["dropped"] == 20 and cam["worker"]["dropped_in_window"] == 20
     assert cam["driver"]["fps"] == pytest.approx(20.0) and cam["driver"]["reconnects"] == 1
+
+
+def test_the_one_percentile_is_numpys_inverted_cdf():
+    """p50 / p99 of `status` and `pipeline`: nearest rank, always one of the values."""
+    import numpy as np
+
+    from topseg.core.metrics import percentile
+
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        values = rng.normal(50, 20, size=int(rng.integers(1, 80)))
+        if rng.random() < 0.3:
+            values = np.round(values)  # ties
+        for q in (0, 1, 25, 50, 90, 99, 99.9, 100, float(rng.uniform(0, 100))):
+            expected = float(np.percentile(values, q, method="inverted_cdf"))
+            assert percentile(list(values), q) == expected
+    assert percentile([], 50) is None
+    assert status.percentile is percentile

@@ -1,7 +1,7 @@
 """Forest inference: walk every tree at every pixel with depth, average the leaf posteriors.
 
-One numba kernel, parallel over rows. Within a row the trees are walked level by level for
-all pixels at once (a pixel's walk is a chain of dependent loads; many independent walks side
+One numba kernel body, compiled once per number k of features per node, parallel over rows.
+Within a row the trees are walked level by level for all pixels at once (a pixel's walk is a chain of dependent loads; many independent walks side
 by side let the CPU overlap them and let LLVM vectorise the step with gathers). For that the
 kernel uses a packed copy of the node arrays (`InferenceTable`): one float32 row per node
 (offsets, weights, threshold) and a `step` index in which a leaf points to itself with an
@@ -9,19 +9,19 @@ infinite threshold, so one more step never moves a pixel that has arrived; a row
 a whole level moved nothing.
 
 Pixels without depth (0) are walked too (their probes read the pixel itself) but their
-posterior row is set to all zeros (not a distribution); `labels_from_proba` gives them
-NO_DEPTH. A node sends a pixel left when its response < threshold (see `features`).
+posterior row is set to all zeros (not a distribution); the argmax (`crf.segment_argmax`)
+gives them NO_DEPTH. A node sends a pixel left when its response < threshold (see `features`).
 """
 
 from __future__ import annotations
 
+import functools
 import weakref
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from topseg.core import labels
 from topseg.core.camera import check_depth
 from topseg.core.forest.features import inverse_depth, response_at
 from topseg.core.forest.tree import Forest
@@ -86,29 +86,11 @@ def _padded(depth, background):
 
 
 @numba.njit(cache=True, inline="always")
-def _step_k1(padded, r, c, inv_d, nodes, step, n, h, w):
-    resp = np.float32(0.0) + nodes[n, 4] * np.float32(
-        _probe(padded, r, c, inv_d, nodes[n, 0], nodes[n, 1], h, w)
-        - _probe(padded, r, c, inv_d, nodes[n, 2], nodes[n, 3], h, w)
-    )
-    return step[n] + _i32(resp >= nodes[n, 5])
+def _step(padded, r, c, inv_d, nodes, step, n, k, h, w):
+    """One step of a walk: the node `n` sends the pixel to step[n] (left) or step[n] + 1.
 
-
-@numba.njit(cache=True, inline="always")
-def _step_k2(padded, r, c, inv_d, nodes, step, n, h, w):
-    f0 = _probe(padded, r, c, inv_d, nodes[n, 0], nodes[n, 1], h, w) - _probe(
-        padded, r, c, inv_d, nodes[n, 2], nodes[n, 3], h, w
-    )
-    f1 = _probe(padded, r, c, inv_d, nodes[n, 4], nodes[n, 5], h, w) - _probe(
-        padded, r, c, inv_d, nodes[n, 6], nodes[n, 7], h, w
-    )
-    resp = np.float32(0.0) + nodes[n, 8] * np.float32(f0)
-    resp += nodes[n, 9] * np.float32(f1)
-    return step[n] + _i32(resp >= nodes[n, 10])
-
-
-@numba.njit(cache=True, inline="always")
-def _step_any(padded, r, c, inv_d, nodes, step, n, k, h, w):
+    The response sums k weighted probe differences in float32, in feature order (as
+    training does); a leaf's infinite threshold keeps the pixel where it is."""
     resp = np.float32(0.0)
     for q in range(k):
         b = 4 * q
@@ -146,90 +128,45 @@ def _write_row(out, r, stride, inv, acc, n_trees):
             out[r, j * stride, q] = acc[j, q] * scale if has_depth else np.float32(0.0)
 
 
-@numba.njit(cache=True, parallel=True)
-def _predict_k2(depth, nodes, step, k, leaf, posteriors, roots, background, stride, out):
-    """Posteriors of a k = 2 forest. Within a row the trees are walked one level at a time
-    for all pixels; `cur` is local and the level loop plain so that LLVM vectorises it with
-    gathers (one kernel per k: a branch on k inside the row loop stops that)."""
-    h, w = _i32(depth.shape[0]), _i32(depth.shape[1])
-    padded = _padded(depth, background)
-    n_rows = (depth.shape[0] + stride - 1) // stride
-    n_cols = (depth.shape[1] + stride - 1) // stride
-    for i in numba.prange(n_rows):
-        r = _i32(i * stride)
-        inv = _row_inverse_depth(depth, r, stride, n_cols)
-        cur = np.empty(n_cols, np.int32)
-        acc = np.zeros((n_cols, posteriors.shape[1]), np.float32)
-        for t in range(roots.shape[0]):
-            for j in range(n_cols):
-                cur[j] = roots[t]
-            while True:
-                moving = 0
+@functools.cache
+def _kernel(k: int):
+    """The prediction kernel for forests of k features per node, compiled once per k.
+
+    k is a constant of the kernel (a closure variable, which numba freezes at compile time),
+    so `_step`'s feature loop is unrolled and LLVM vectorises the level loop with gathers; a
+    k passed at run time would leave a branch in that loop, which stops the vectorisation.
+    """
+
+    @numba.njit(cache=True, parallel=True)
+    def predict(depth, nodes, step, leaf, posteriors, roots, background, stride, out):
+        """Posteriors of the evaluated pixels. Within a row the trees are walked one level
+        at a time for all pixels; `cur` is local and the level loop plain so that it
+        vectorises."""
+        h, w = _i32(depth.shape[0]), _i32(depth.shape[1])
+        padded = _padded(depth, background)
+        n_rows = (depth.shape[0] + stride - 1) // stride
+        n_cols = (depth.shape[1] + stride - 1) // stride
+        for i in numba.prange(n_rows):
+            r = _i32(i * stride)
+            inv = _row_inverse_depth(depth, r, stride, n_cols)
+            cur = np.empty(n_cols, np.int32)
+            acc = np.zeros((n_cols, posteriors.shape[1]), np.float32)
+            for t in range(roots.shape[0]):
                 for j in range(n_cols):
-                    n = cur[j]
-                    nxt = _step_k2(padded, r, _i32(j * stride), inv[j], nodes, step, n, h, w)
-                    moving += _i32(nxt != n)
-                    cur[j] = nxt
-                if moving == 0:
-                    break
-            _accumulate(acc, cur, leaf, posteriors)
-        _write_row(out, r, stride, inv, acc, roots.shape[0])
+                    cur[j] = roots[t]
+                while True:
+                    moving = 0
+                    for j in range(n_cols):
+                        n = cur[j]
+                        nxt = _step(padded, r, _i32(j * stride), inv[j], nodes, step, n, k, h, w)
+                        moving += _i32(nxt != n)
+                        cur[j] = nxt
+                    if moving == 0:
+                        break
+                _accumulate(acc, cur, leaf, posteriors)
+            _write_row(out, r, stride, inv, acc, roots.shape[0])
 
-
-@numba.njit(cache=True, parallel=True)
-def _predict_k1(depth, nodes, step, k, leaf, posteriors, roots, background, stride, out):
-    """`_predict_k2` for axis-aligned forests (k = 1)."""
-    h, w = _i32(depth.shape[0]), _i32(depth.shape[1])
-    padded = _padded(depth, background)
-    n_rows = (depth.shape[0] + stride - 1) // stride
-    n_cols = (depth.shape[1] + stride - 1) // stride
-    for i in numba.prange(n_rows):
-        r = _i32(i * stride)
-        inv = _row_inverse_depth(depth, r, stride, n_cols)
-        cur = np.empty(n_cols, np.int32)
-        acc = np.zeros((n_cols, posteriors.shape[1]), np.float32)
-        for t in range(roots.shape[0]):
-            for j in range(n_cols):
-                cur[j] = roots[t]
-            while True:
-                moving = 0
-                for j in range(n_cols):
-                    n = cur[j]
-                    nxt = _step_k1(padded, r, _i32(j * stride), inv[j], nodes, step, n, h, w)
-                    moving += _i32(nxt != n)
-                    cur[j] = nxt
-                if moving == 0:
-                    break
-            _accumulate(acc, cur, leaf, posteriors)
-        _write_row(out, r, stride, inv, acc, roots.shape[0])
-
-
-@numba.njit(cache=True, parallel=True)
-def _predict_any(depth, nodes, step, k, leaf, posteriors, roots, background, stride, out):
-    """`_predict_k2` for any k (not vectorised)."""
-    h, w = _i32(depth.shape[0]), _i32(depth.shape[1])
-    padded = _padded(depth, background)
-    n_rows = (depth.shape[0] + stride - 1) // stride
-    n_cols = (depth.shape[1] + stride - 1) // stride
-    for i in numba.prange(n_rows):
-        r = _i32(i * stride)
-        inv = _row_inverse_depth(depth, r, stride, n_cols)
-        cur = np.empty(n_cols, np.int32)
-        acc = np.zeros((n_cols, posteriors.shape[1]), np.float32)
-        for t in range(roots.shape[0]):
-            for j in range(n_cols):
-                cur[j] = roots[t]
-            while True:
-                moving = 0
-                for j in range(n_cols):
-                    n = cur[j]
-                    nxt = _step_any(padded, r, _i32(j * stride), inv[j], nodes, step, n, k, h, w)
-                    moving += _i32(nxt != n)
-                    cur[j] = nxt
-                if moving == 0:
-                    break
-            _accumulate(acc, cur, leaf, posteriors)
-        _write_row(out, r, stride, inv, acc, roots.shape[0])
+    return predict
 
 
 @numba.njit(cache=True, parallel=True)
@@ -284,12 +221,10 @@ def predict_proba(
     elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
     table = inference_table(forest)
-    kernel = {1: _predict_k1, 2: _predict_k2}.get(table.k, _predict_any)
-    kernel(
+    _kernel(table.k)(
         depth,
         table.nodes,
         table.step,
-        table.k,
         forest.leaf,
         forest.posteriors,
         forest.roots,
@@ -322,13 +257,10 @@ def apply(forest: Forest, depth: np.ndarray) -> np.ndarray:
     return out
 
 
-def labels_from_proba(proba: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 argmax labels; NO_DEPTH (255) where depth == 0."""
-    out = np.argmax(proba, axis=-1).astype(np.uint8)
-    out[np.asarray(depth) == 0] = labels.NO_DEPTH
-    return out
-
-
 def predict_labels(forest: Forest, depth: np.ndarray, stride: int = 1) -> np.ndarray:
-    """(H, W) uint8 most probable label per pixel; NO_DEPTH where depth == 0."""
-    return labels_from_proba(predict_proba(forest, depth, stride=stride), depth)
+    """(H, W) uint8 most probable label per pixel; NO_DEPTH where depth == 0 (through the
+    one argmax, `crf.segment_argmax`, that the CRF's mode `none` is)."""
+    from topseg.core.crf.argmax import segment_argmax
+
+    depth = np.asarray(depth)
+    return segment_argmax(predict_proba(forest, depth, stride=stride), depth > 0)

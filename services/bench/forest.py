@@ -13,16 +13,20 @@ import argparse
 import os
 import tempfile
 import time
+from dataclasses import replace
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Which forest to time (trained here, random or a model file) and on how many frames."""
     parser.add_argument(
         "--forest",
         choices=("trained", "random"),
         default="trained",
         help="time a forest trained on procedural frames (default) or one of random splits",
     )
-    parser.add_argument("--model", help="time this model file instead")
+    parser.add_argument(
+        "--model", help="time this model file instead of a forest made here (see --forest)"
+    )
     parser.add_argument("--trees", type=int, default=5)
     parser.add_argument("--depth", type=int, default=19, help="maximum tree depth")
     parser.add_argument("--split", choices=("linear", "axis"), default="linear")
@@ -72,6 +76,7 @@ def _time_frames(predict, frames, repeats):
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """Time the forest stage of a Segmenter (and a strided one); held-out accuracy."""
     import numba
     import numpy as np
 
@@ -79,6 +84,7 @@ def measure(args: argparse.Namespace) -> dict:
     from topseg.core import labels
     from topseg.core.forest.predict import apply
     from topseg.core.forest.tree import node_depths
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
     from topseg.core.synth import procedural
 
     if args.threads:
@@ -87,10 +93,11 @@ def measure(args: argparse.Namespace) -> dict:
     model, kind = _forest(args, rng, procedural, forest_mod)
     test_depth, test_truth = procedural.procedural_frames(rng, args.frames)
     frames = list(test_depth)
-    out = np.empty((*frames[0].shape, labels.NUM_CLASSES), np.float32)
-    wall, cpu = _time_frames(
-        lambda d: forest_mod.predict_proba(model, d, out=out), frames, args.repeats
-    )
+    # the forest stage alone (`posteriors`, into the Segmenter's reused buffer); no camera
+    # check: a model file's camera need not be the procedural frames'
+    config = SegmenterConfig(check_camera=False)
+    segmenter = Segmenter(model, config=config, crf="none")
+    wall, cpu = _time_frames(segmenter.posteriors, frames, args.repeats)
     figures: dict = {
         "forest": kind,
         "frame": f"{frames[0].shape[1]}x{frames[0].shape[0]} procedural top view",
@@ -108,16 +115,13 @@ def measure(args: argparse.Namespace) -> dict:
     figures["node_visits_per_frame"] = int(walked.sum())
     figures["ns_per_node_visit_cpu"] = round(1e6 * cpu / max(int(walked.sum()), 1), 2)
     if args.stride > 1:
-        s_wall, _ = _time_frames(
-            lambda d: forest_mod.predict_proba(model, d, out=out, stride=args.stride),
-            frames,
-            args.repeats,
-        )
+        strided = Segmenter(model, config=replace(config, stride=args.stride), crf="none")
+        s_wall, _ = _time_frames(strided.posteriors, frames, args.repeats)
         figures[f"forest_ms_per_frame_stride{args.stride}"] = round(s_wall, 2)
     if args.forest == "trained" and not args.model:
         ok = total = 0
         for d, t in zip(test_depth, test_truth, strict=True):
-            pred = forest_mod.predict_labels(model, d)
+            pred = segmenter.label(d).labels
             m = t != labels.NO_DEPTH
             ok += int((pred[m] == t[m]).sum())
             total += int(m.sum())

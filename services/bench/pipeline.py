@@ -12,6 +12,9 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Duration, rate, source, model (default: the bundled one) and the worker's mode."""
+    from topseg.core.segmenter import MODEL_HELP
+
     parser.add_argument(
         "--duration",
         type=float,
@@ -28,12 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SPEC",
         help="depth source; a replay is looped (default: %(default)s)",
     )
-    parser.add_argument(
-        "--model",
-        default="models/default.npz",
-        metavar="PATH",
-        help="model file (default: %(default)s)",
-    )
+    parser.add_argument("--model", type=Path, default=None, metavar="PATH", help=MODEL_HELP)
     parser.add_argument(
         "--crf", choices=("none", "exact", "realtime"), default="realtime", help="worker CRF mode"
     )
@@ -41,10 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """Run the pipeline for --duration seconds; its figures with the mean F1 only."""
     from topseg.services.pipeline import run_pipeline
 
     figures = run_pipeline(
-        args.source, Path(args.model), args.duration, args.fps, args.crf, None, args.lossless
+        args.source, args.model, args.duration, args.fps, args.crf, None, args.lossless
     )
     scores = figures.pop("scores")
     figures.pop("exit_codes")

@@ -15,6 +15,7 @@ import time
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Frames timed and rendered before timing, mode, noise spec, numba threads."""
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--warmup", type=int, default=300, help="frames rendered before timing")
     parser.add_argument("--mode", choices=("modeled", "non-modeled"), default="modeled")
@@ -25,10 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """p50 and p90 ms of each stage and of build + raycast + noise; frames/s; pooled bodies."""
     import numba
     import numpy as np
 
     from topseg.core.errors import TopsegError
+    from topseg.core.metrics import percentile
     from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
     if args.frames < 1 or args.warmup < 0:
@@ -56,10 +59,10 @@ def measure(args: argparse.Namespace) -> dict:
         "numba_threads": numba.get_num_threads(),
     }
     for k, v in per.items():
-        out[f"{k}_ms_p50"] = round(float(np.median(v)), 2)
-        out[f"{k}_ms_p90"] = round(float(np.percentile(v, 90)), 2)
-    out["build_raycast_noise_ms_p50"] = round(float(np.median(render_ms)), 2)
-    out["build_raycast_noise_ms_p90"] = round(float(np.percentile(render_ms, 90)), 2)
+        out[f"{k}_ms_p50"] = round(percentile(v, 50), 2)
+        out[f"{k}_ms_p90"] = round(percentile(v, 90), 2)
+    out["build_raycast_noise_ms_p50"] = round(percentile(render_ms, 50), 2)
+    out["build_raycast_noise_ms_p90"] = round(percentile(render_ms, 90), 2)
     out["frames_per_s"] = round(args.frames / wall, 1)
     out["pooled_bodies"] = bodies
     return out

@@ -20,6 +20,7 @@ import time
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Frames, rate, Zenoh congestion control and express, and a slow or frozen subscriber."""
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--fps", type=float, default=30.0, help="publish rate; 0 = flat out")
     parser.add_argument("--congestion", choices=("block", "drop"), default="block")
@@ -72,11 +73,13 @@ def _subscriber(port: int, key: str, consumer_ms: float) -> None:
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """Publish to a subscriber process on a free port: loss, rate, encode/put/decode ms, latency."""
     import numpy as np
     import zenoh
 
     from topseg.core.camera import KINECT_V1
     from topseg.core.formats import wire
+    from topseg.core.metrics import percentile
     from topseg.services.zenoh_session import open_session
 
     port = _free_port()
@@ -146,8 +149,8 @@ def measure(args: argparse.Namespace) -> dict:
         "encode_ms_median": round(1000 * float(np.median(encode_s)), 3),
         "put_ms_max": round(1000 * max(put_s), 1),
         "decode_ms_median": round(1000 * float(np.median(result["decode_s"])), 3),
-        "latency_ms_p50": round(float(np.percentile(lat, 50)), 2) if got else None,
-        "latency_ms_p99": round(float(np.percentile(lat, 99)), 2) if got else None,
+        "latency_ms_p50": round(percentile(lat, 50), 2) if got else None,
+        "latency_ms_p99": round(percentile(lat, 99), 2) if got else None,
     }
 
 

@@ -15,11 +15,9 @@ model, and its scores on the held-out test set.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import logging
-import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -51,9 +49,11 @@ class Scale:
     sweeps: tuple[tuple[str, tuple], ...] = ()
 
     def sweep(self, experiment: str, default: tuple) -> tuple:
+        """The x values of `experiment` at this scale: its own sweep, else `default`."""
         return dict(self.sweeps).get(experiment, default)
 
     def describe(self) -> str:
+        """The scale's sizes in one line, for the run's first output."""
         return (
             f"scale {self.name}: T={self.trees} D={self.depth} PC={self.features} "
             f"R={self.responses} K={self.thresholds} F={self.frames}/tree (unless swept), "
@@ -108,6 +108,7 @@ SCALES: dict[str, Scale] = {
 
 
 def short_hash(obj) -> str:
+    """12 hex digits of the SHA-256 of `obj` as canonical JSON: a cache key."""
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -124,18 +125,21 @@ class DataRecipe:
     seed: int = 0
 
     def normalised(self) -> DataRecipe:
+        """The same recipe spelled one way (noise spec normalised, the default theta as None)."""
         theta = None if self.theta is None or abs(self.theta - DEFAULT_THETA) < 1e-9 else self.theta
         from topseg.core.synth.noise import parse_noise
 
         return replace(self, noise=parse_noise(self.noise).spec, theta=theta)
 
     def name(self) -> str:
+        """The dataset's folder name in the cache: readable parts and a hash of the recipe."""
         r = self.normalised()
         noise = r.noise.replace(":", "")
         theta = "" if r.theta is None else f"-theta{round(100 * r.theta)}"
         return f"{r.mode}-{noise}{theta}-seed{r.seed}-{short_hash(asdict(r))[:8]}.zarr"
 
     def attrs(self, frames: int) -> dict:
+        """The dataset attributes `topseg datagen` would write for this recipe and size."""
         from topseg.core.formats.dataset import make_attrs
         from topseg.core.synth.synthesis import SynthesisConfig
         from topseg.services.datagen.sources import GENERATORS
@@ -155,7 +159,8 @@ def ensure_dataset(
     grown on a local Dask cluster when short, or in this process when `serial`); returns it
     opened for reading."""
     from topseg.core.formats.dataset import DatasetWriter, open_dataset
-    from topseg.services.datagen import dask_client, generate, render_chunk
+    from topseg.services.dask_cluster import dask_client
+    from topseg.services.datagen import generate, render_chunk
 
     path = cache / recipe.name()
     if (path / "zarr.json").exists():
@@ -204,36 +209,49 @@ class ModelRecipe:
     seed: int = 0
 
     def to_dict(self) -> dict:
+        """The recipe as plain data, its dataset recipe normalised (what `key` hashes)."""
         d = asdict(self)
         d["data"] = asdict(self.data.normalised())
         return d
 
     def key(self) -> str:
+        """The model's name in OUT/models/: a hash of everything that decides it."""
         return short_hash(self.to_dict())
 
-    def train_args(
+    def train_config(self):
+        """The forest's `TrainConfig` (the paper's defaults for what the recipe leaves out)."""
+        from topseg.core.forest.features import FeatureConfig
+        from topseg.core.forest.train import TrainConfig
+
+        return TrainConfig(
+            n_trees=self.trees,
+            max_depth=self.depth,
+            frames_per_tree=self.frames,
+            pixels_per_frame=self.pixels_per_frame,
+            n_candidates=self.responses,
+            n_thresholds=self.thresholds,
+            split=self.split,
+            features=FeatureConfig(n_features=self.features),
+        )
+
+    def train_job(
         self, data_path: Path, out: Path, workers: int | None, serial: bool,
         budget_gb: float = FEATURE_BUDGET_GB,
     ):  # fmt: skip
-        """The namespace `train.train_on` reads (as `topseg train` would build it); as many
-        Dask workers as asked for whose trees' features (int16) fit in `budget_gb` together."""
+        """The `train.TrainJob` that trains this model into `out` (no validation split); as
+        many Dask workers as asked for whose trees' features (int16) fit in `budget_gb`
+        together."""
+        from topseg.services.train import TrainJob
+
         per_tree = self.frames * self.pixels_per_frame * self.features * 2
         fit = max(1, int(budget_gb * 1e9 // max(per_tree, 1)))
-        return argparse.Namespace(
+        return TrainJob(
             data=data_path,
             out=out,
-            trees=self.trees,
-            depth=self.depth,
-            features=self.features,
-            responses=self.responses,
-            thresholds=self.thresholds,
-            frames_per_tree=self.frames,
-            pixels_per_frame=self.pixels_per_frame,
-            split=self.split,
+            config=self.train_config(),
             seed=self.seed,
             validation=0.0,
             max_validation_frames=0,
-            scheduler=None,
             workers=max(1, min(workers or 2, fit, self.trees)),
             serial=serial,
         )
@@ -252,13 +270,13 @@ def ensure_model(
         return path
     ds = ensure_dataset(cache, recipe.data, recipe.frames, workers, serial)
     path.parent.mkdir(parents=True, exist_ok=True)
-    args = recipe.train_args(ds.path, path, workers, serial, budget_gb)
+    job = recipe.train_job(ds.path, path, workers, serial, budget_gb)
     print(
         f"  train: {recipe.trees} trees on the first {recipe.frames} frames of {ds.path.name} "
-        f"({'serial' if serial else f'{args.workers} Dask worker(s)'})",
+        f"({'serial' if serial else f'{job.workers} Dask worker(s)'})",
         flush=True,
     )
-    train.train_on(args, ds, list(range(recipe.frames)), [], fingerprint=recipe.key())
+    train.train_on(job, ds, list(range(recipe.frames)), [], fingerprint=recipe.key())
     return path
 
 
@@ -266,41 +284,40 @@ def ensure_model(
 
 
 def test_recipe(seed: int) -> DataRecipe:
+    """The held-out test set's recipe: modeled Kinect-noise scenes of other seeds."""
     return DataRecipe(mode="modeled", noise=TEST_NOISE, seed=seed + TEST_SEED_OFFSET)
 
 
 def score(model_path: Path, ds, frames: int, crf_mode: str) -> dict:
     """Forest-only and forest + CRF scores of a model on the first `frames` test frames."""
-    import numpy as np
     from tqdm import tqdm
 
-    from topseg.core import crf, forest, metrics
+    from topseg.core import metrics
+    from topseg.core.scoring import dataset_frames
+    from topseg.core.scoring import score as score_frames
+    from topseg.core.segmenter import Segmenter
 
-    model, _ = forest.load_model(model_path)
-    config = crf.CRFConfig(mode=crf_mode)
-    raw, smooth = metrics.ConfusionAccumulator(), metrics.ConfusionAccumulator()
-    seconds = {"forest": 0.0, "crf": 0.0}
-    for i in tqdm(range(frames), desc="  score", unit="frame", disable=None, leave=False):
-        depth, truth = np.asarray(ds.depth[i]), np.asarray(ds.labels[i])
-        t0 = time.perf_counter()
-        proba = forest.predict_proba(model, depth)
-        t1 = time.perf_counter()
-        pred = forest.labels_from_proba(proba, depth)
-        final = pred if crf_mode == "none" else crf.segment_crf(proba, depth, config)
-        seconds["forest"] += t1 - t0
-        seconds["crf"] += time.perf_counter() - t1
-        raw.add(truth, pred)
-        smooth.add(truth, final)
+    segmenter = Segmenter.from_file(model_path, crf=crf_mode)
+    pairs = tqdm(
+        dataset_frames(ds, range(frames)),
+        total=frames,
+        desc="  score",
+        unit="frame",
+        disable=None,
+        leave=False,
+    )
+    result = score_frames(segmenter, pairs)
     return {
-        "forest": json.loads(metrics.to_json(raw.scores())),
-        "crf": json.loads(metrics.to_json(smooth.scores())),
+        "forest": json.loads(metrics.to_json(result.forest.scores())),
+        "crf": json.loads(metrics.to_json(result.crf.scores())),
         "crf_mode": crf_mode,
         "test_frames": frames,
-        "ms_per_frame": {k: round(1000 * v / max(frames, 1), 2) for k, v in seconds.items()},
+        "ms_per_frame": {k: round(v, 2) for k, v in result.ms_per_frame().items()},
     }
 
 
 def point_recipe(model: ModelRecipe, test: DataRecipe, test_frames: int, crf_mode: str) -> dict:
+    """Everything that decides a point's scores; a finished point is reused only when equal."""
     return {
         "model": model.to_dict(),
         "test": asdict(test.normalised()),
@@ -329,6 +346,7 @@ def scored_elsewhere(out: Path, recipe: dict) -> dict | None:
 
 
 def write_json(path: Path, doc: dict) -> None:
+    """Write `doc` as indented JSON to `path` atomically (its folder made when missing)."""
     from topseg.core.atomic import atomic_write
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -337,5 +355,6 @@ def write_json(path: Path, doc: dict) -> None:
 
 
 def check_positive(name: str, value: int | None) -> None:
+    """A TopsegError when option `name` is given and below 1."""
     if value is not None and value < 1:
         raise TopsegError(f"{name} must be >= 1, got {value}")

@@ -1,0 +1,154 @@
+"""The one Segmenter and the one score(): the same labels as the forest + CRF path they replace,
+the bundled model, the frame check, and scores against a confusion computed by hand."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from topseg.core import crf, forest
+from topseg.core import labels as L
+from topseg.core import segmenter as S
+from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount
+from topseg.core.errors import TopsegError
+from topseg.core.formats import recording, wire
+from topseg.core.scoring import score
+from topseg.core.segmenter import Segmenter, SegmenterConfig
+
+REPO = Path(__file__).resolve().parents[1]
+SMALL = KINECT_V1.scaled_to(40, 30)
+
+
+def demo_frames(n):
+    """The first `n` (depth, truth) pairs of the bundled recording."""
+    depth, out = {}, []
+    for msg in recording.read_messages(REPO / "recordings" / "demo.mcap"):
+        if msg.key.endswith("/depth"):
+            f = wire.decode_depth(msg.data)
+            depth[f.seq] = f.depth
+        elif msg.key.endswith("/truth"):
+            t = wire.decode_labels(msg.data)
+            if t.seq in depth:
+                out.append((depth.pop(t.seq), t.labels))
+        if len(out) == n:
+            return out
+    return out
+
+
+def numpy_argmax(proba, depth):
+    """The argmax the forest-only path used to take (numpy's: first maximum on ties)."""
+    out = np.argmax(proba, axis=-1).astype(np.uint8)
+    out[np.asarray(depth) == 0] = L.NO_DEPTH
+    return out
+
+
+@pytest.fixture(scope="module")
+def bundled():
+    return Segmenter.from_file(None, crf="realtime")
+
+
+def test_from_file_none_is_the_bundled_model(bundled):
+    assert bundled.path == REPO / "models" / "default.npz" == S.bundled_model_path()
+    assert bundled.crf_mode == "realtime"
+    assert bundled.model_id  # the header's model_id, else the file name
+    assert bundled.camera.shape == (480, 640)
+
+
+def test_no_bundled_model_is_one_line(monkeypatch, tmp_path):
+    monkeypatch.setattr(S, "CHECKOUT_MODEL", Path("no-such-folder") / "none.npz")
+    monkeypatch.setattr(S, "INSTALLED_MODEL", tmp_path / "none.npz")
+    with pytest.raises(TopsegError, match="no bundled model") as err:
+        S.bundled_model_path()
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("mode", ["none", "realtime"])
+def test_labels_are_those_of_the_forest_then_crf_path(bundled, mode):
+    seg = Segmenter(bundled.forest, bundled.header, crf=mode)
+    model, _ = forest.load_model(bundled.path)
+    for depth, _ in demo_frames(3):
+        got = seg.label(depth, name="demo")
+        proba = forest.predict_proba(model, depth)
+        if mode == "none":
+            expected = numpy_argmax(proba, depth)
+        else:
+            expected = crf.segment_crf(proba, depth, crf.CRFConfig(mode=mode))
+        np.testing.assert_array_equal(got.labels, expected)
+        np.testing.assert_array_equal(got.proba, proba)
+        assert got.labels.dtype == np.uint8 and got.proba.dtype == np.float32
+        t = got.timings
+        assert t.forest_ms > 0 and t.crf_ms >= 0 and t.total_ms >= t.forest_ms
+
+
+def test_the_one_argmax_agrees_with_numpy_on_ties_and_no_depth():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        proba = rng.integers(0, 3, size=(17, 23, L.NUM_CLASSES)).astype(np.float32)  # ties
+        depth = rng.integers(0, 3, size=(17, 23)).astype(np.uint16)
+        got = crf.segment_argmax(proba, depth > 0)
+        np.testing.assert_array_equal(got, numpy_argmax(proba, depth))
+
+
+def test_frames_of_another_camera_are_refused_by_name(bundled):
+    with pytest.raises(TopsegError, match=r"cam7: frame is 320x240 but .* 640x480"):
+        bundled.label(np.zeros((240, 320), np.uint16), name="cam7")
+    wide = Intrinsics(640, 480, 400.0, 400.0, 319.5, 239.5)
+    with pytest.raises(TopsegError, match=r"f9: focal length 400\.0 px"):
+        bundled.label(np.zeros((480, 640), np.uint16), wide, name="f9")
+    # the check can be left out; warm_up compiles on a small frame whatever the camera
+    loose = Segmenter(bundled.forest, config=SegmenterConfig(check_camera=False))
+    assert loose.label(np.full((24, 32), 2000, np.uint16)).labels.shape == (24, 32)
+    bundled.warm_up()
+
+
+def test_model_camera_from_the_header():
+    header = {"dataset": {"attrs": {"camera": TopViewMount(SMALL).to_dict()}}}
+    assert S.model_camera(header) == SMALL
+    assert S.model_camera({}) == KINECT_V1
+    with pytest.raises(TopsegError, match="unreadable camera"):
+        S.model_camera({"dataset": {"attrs": {"camera": {"intrinsics": {}}}}})
+
+
+def hand_confusion(pairs):
+    cm = np.zeros((L.NUM_CLASSES, L.NUM_CLASSES), np.int64)
+    for truth, pred in pairs:
+        keep = truth != L.NO_DEPTH
+        p = np.where(pred[keep] == L.NO_DEPTH, L.BACKGROUND, pred[keep]).astype(np.int64)
+        t = truth[keep].astype(np.int64)
+        np.add.at(cm, (t, p), 1)
+    return cm
+
+
+def test_score_equals_the_confusion_computed_by_hand():
+    rng = np.random.default_rng(1)
+    trees = [forest.random_tree(rng, 5, 2, 40 * 2500.0, 300.0) for _ in range(2)]
+    model = forest.Forest.from_trees(trees)
+    header = {"dataset": {"attrs": {"camera": TopViewMount(SMALL).to_dict()}}}
+    frames = []
+    for _ in range(4):
+        depth = rng.integers(1500, 4000, size=SMALL.shape).astype(np.uint16)
+        depth[rng.random(SMALL.shape) < 0.1] = 0
+        truth = rng.integers(0, L.NUM_CLASSES, size=SMALL.shape).astype(np.uint8)
+        truth[rng.random(SMALL.shape) < 0.05] = L.NO_DEPTH
+        frames.append((depth, truth))
+    config = crf.CRFConfig(mode="realtime", smoothness=2.0)
+    result = score(Segmenter(model, header, crf=config), iter(frames), examples=2)
+
+    forest_pred, crf_pred = [], []
+    for depth, truth in frames:
+        proba = forest.predict_proba(model, depth)
+        forest_pred.append((truth, numpy_argmax(proba, depth)))
+        crf_pred.append((truth, crf.segment_crf(proba, depth, config)))
+    np.testing.assert_array_equal(result.forest.confusion, hand_confusion(forest_pred))
+    np.testing.assert_array_equal(result.crf.confusion, hand_confusion(crf_pred))
+    assert result.frames == result.forest.frames == 4 and result.crf_mode == "realtime"
+    assert len(result.examples) == 2
+    np.testing.assert_array_equal(result.examples[1][2], forest_pred[1][1])
+    np.testing.assert_array_equal(result.examples[1][3], crf_pred[1][1])
+    assert set(result.ms_per_frame()) == {"forest", "crf"}
+
+    none = score(Segmenter(model, header, crf="none"), frames)
+    np.testing.assert_array_equal(none.crf.confusion, none.forest.confusion)
+    np.testing.assert_array_equal(none.forest.confusion, result.forest.confusion)
+    with pytest.raises(TopsegError, match="frame 0"):
+        score(Segmenter(model, crf="none"), frames)  # Kinect v1 expected: 640x480
