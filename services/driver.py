@@ -25,21 +25,18 @@ import argparse
 import dataclasses
 import json
 import logging
-import signal
 import threading
 import time
 
 from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
-from topseg.services import systemd_notify, zenoh_session
+from topseg.services import zenoh_session
+from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.driver")
 
 
-class _Shutdown(BaseException):
-    """Raised by the signal handler to cut a wait on the source short."""
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The driver's options: the source, the camera's names, pacing and Zenoh."""
     parser.add_argument(
         "--source",
         required=True,
@@ -104,24 +101,28 @@ class DriverState:
         }
 
     def update(self, **fields) -> None:
+        """Set some fields (from the publishing loop; the queryable reads them)."""
         with self.lock:
             self.info.update(fields)
 
     def to_json(self) -> bytes:
+        """The info reply: all fields as JSON."""
         with self.lock:
             return json.dumps(self.info).encode()
 
 
-def _wait_for_subscriber(publisher, key: str, stop: threading.Event) -> None:
+def _wait_for_subscriber(publisher, key: str, svc: ServiceLifecycle) -> None:
+    """Block until `publisher` has a subscriber (or a stopping signal), saying so every 5 s."""
     next_note = 0.0
-    while not publisher.matching_status.matching and not stop.is_set():
+    while not publisher.matching_status.matching and not svc.stopping:
         if time.monotonic() >= next_note:
             log.info("waiting for a subscriber on %s", key)
             next_note = time.monotonic() + 5.0
-        stop.wait(0.05)
+        svc.wait(0.05)
 
 
 def run(args: argparse.Namespace) -> int:
+    """Publish the source's frames until it ends or a signal comes; 0 either way."""
     import zenoh
 
     from topseg.core.formats import wire
@@ -146,26 +147,28 @@ def run(args: argparse.Namespace) -> int:
         "alive": wire.alive_key(args.cell, args.camera, "driver"),
     }
     state = DriverState(args, keys)
-    stop = threading.Event()
-    waiting = False
+    last = {"t": time.monotonic(), "n": 0}
 
-    def on_signal(signum, _frame):
-        log.info("%s: stopping", signal.Signals(signum).name)
-        stop.set()
-        if waiting:
-            raise _Shutdown
+    def status_text() -> str:
+        now, n = time.monotonic(), state.info["frames"]
+        fps = (n - last["n"]) / max(now - last["t"], 1e-9)
+        last.update(t=now, n=n)
+        return (
+            f"publishing {args.cell}/{args.camera} from {args.source}: {fps:.1f} fps, "
+            f"{n} frames, {state.info['reconnects']} reconnects"
+        )
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
     congestion = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
-    session = zenoh_session.session_from_args(args)
-    frames = None
-    try:
+    with ServiceLifecycle("driver", args, status=status_text) as svc:
+        session = svc.session
         publish = dict(congestion_control=congestion[args.congestion], express=True)
         depth_pub = session.declare_publisher(keys["depth"], **publish)
         truth_pub = session.declare_publisher(keys["truth"], **publish)
-        token = session.liveliness().declare_token(keys["alive"])
-        queryable = session.declare_queryable(
-            keys["info"], lambda query: query.reply(keys["info"], state.to_json())
+        svc.declare(session.liveliness().declare_token(keys["alive"]))
+        svc.declare(
+            session.declare_queryable(
+                keys["info"], lambda query: query.reply(keys["info"], state.to_json())
+            )
         )
 
         def on_open(source) -> None:
@@ -176,47 +179,34 @@ def run(args: argparse.Namespace) -> int:
             fields.pop("finite", None)
             state.update(**fields)
             log.info("publishing %s on %s", source.description, keys["depth"])
-            systemd_notify.ready(f"publishing {args.cell}/{args.camera} from {args.source}")
+            svc.ready(f"publishing {args.cell}/{args.camera} from {args.source}")
 
         def open_fn():
             try:
                 return open_source(spec, options)
             except SourceUnavailable as exc:  # up and retrying: ready, and say what is missing
-                systemd_notify.ready(f"waiting for {args.source}: {exc}")
-                systemd_notify.watchdog()
+                svc.ready(f"waiting for {args.source}: {exc}")
+                svc.beat()
                 raise
 
-        last = {"t": time.monotonic(), "n": 0}
-
-        def status_text() -> str:
-            now, n = time.monotonic(), state.info["frames"]
-            fps = (n - last["n"]) / max(now - last["t"], 1e-9)
-            last.update(t=now, n=n)
-            return (
-                f"publishing {args.cell}/{args.camera} from {args.source}: {fps:.1f} fps, "
-                f"{n} frames, {state.info['reconnects']} reconnects"
-            )
-
-        beat = systemd_notify.Heartbeat(status_text)
         reconnecting = Reconnecting(
             open_fn,
             name=f"driver {args.cell}/{args.camera} ({spec})",
-            stop=stop,
+            stop=svc.stop,
             on_open=on_open,
         )
         if not args.realtime:  # as fast as consumed: there has to be a consumer
-            _wait_for_subscriber(depth_pub, keys["depth"], stop)
+            _wait_for_subscriber(depth_pub, keys["depth"], svc)
         frames = reconnecting.frames()
+        svc.defer(frames.close)  # closes the source (and its reader process)
         seq = truth_count = 0
-        while not stop.is_set():
-            waiting = True
+        while not svc.stopping:
             try:
-                frame = next(frames)
+                with svc.interruptible():  # a signal cuts a wait on the source short
+                    frame = next(frames)
             except StopIteration:
                 log.info("%s ended after %d frames", spec, seq)
                 break
-            finally:
-                waiting = False
             depth = dataclasses.replace(frame.depth, seq=seq, frame_id=args.camera)
             depth_pub.put(wire.encode_depth(depth))
             if frame.truth is not None:
@@ -224,23 +214,11 @@ def run(args: argparse.Namespace) -> int:
                 truth_pub.put(wire.encode_labels(truth))
                 truth_count += 1
             seq += 1
-            beat()  # watchdog ping from the publishing loop, STATUS= every few s
+            svc.beat()  # watchdog ping from the publishing loop, STATUS= every few s
             state.update(
                 frames=seq,
                 truth_frames=truth_count,
                 intrinsics=depth.intrinsics.to_dict(),
                 fps=args.fps or getattr(reconnecting.source, "nominal_fps", None),
             )
-        token.undeclare()
-        queryable.undeclare()
-    except _Shutdown:
-        pass
-    finally:
-        waiting = False
-        systemd_notify.stopping()
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        if frames is not None:
-            frames.close()  # closes the source (and its reader process)
-        session.close()
     return 0

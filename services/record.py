@@ -8,20 +8,20 @@ moves the finished file into place. If the disk fills up it stops, keeps what it
 
 Zenoh callbacks only queue the messages; the main thread writes them. If writing falls
 behind by more than `--queue` messages, new ones are dropped and counted, never buffered
-without bound.
+without bound. Under systemd it says READY=1 once subscribed and pings the watchdog.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import queue
-import signal
-import threading
 import time
 
 from topseg.core.errors import TopsegError
 from topseg.services import zenoh_session
+from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.record")
 
@@ -29,6 +29,7 @@ DEFAULT_KEYS = ("topseg/*/*/depth", "topseg/*/*/labels", "topseg/*/*/truth")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The recorder's options: the file, when to stop, the keys, the queue and Zenoh."""
     parser.add_argument("--out", required=True, metavar="FILE.mcap", help="the recording to write")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--count", type=int, metavar="N", help="stop after N messages")
@@ -68,15 +69,12 @@ def _check(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Record until --duration, --count or SIGTERM/SIGINT; 2 (and the part written) on a
+    full disk."""
     from topseg.core.formats.recording import RecordingWriter
 
     keys = _check(args)
-    stop = threading.Event()
-
-    def on_signal(signum, _frame):
-        log.info("%s: finishing the recording", signal.Signals(signum).name)
-        stop.set()
-
+    svc = ServiceLifecycle("record", args, signal_note="finishing the recording")
     inbox: queue.Queue = queue.Queue(maxsize=args.queue)
     dropped = 0
 
@@ -87,43 +85,44 @@ def run(args: argparse.Namespace) -> int:
         except queue.Full:
             dropped += 1
 
-    session = zenoh_session.session_from_args(args)
-    try:
-        writer = RecordingWriter(args.out, metadata={"keys": " ".join(keys)})
-    except BaseException:
-        session.close()
-        raise
+    def wake() -> None:  # a stopping signal: end the wait on the inbox at once
+        with contextlib.suppress(queue.Full):
+            inbox.put_nowait(None)
+
     written = 0
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        subscribers = [session.declare_subscriber(k, on_sample) for k in keys]
+    with svc:
+        writer = RecordingWriter(args.out, metadata={"keys": " ".join(keys)})
+        svc.defer(writer.close)  # moves the file into place; after a write error it is there
+        subscribers = [svc.session.declare_subscriber(k, on_sample) for k in keys]
+        svc.on_stop(wake)
         log.info("recording %s to %s", ", ".join(keys), args.out)
+        svc.ready(status=lambda: f"recording to {args.out}: {written} messages, {dropped} dropped")
         deadline = None if args.duration is None else time.monotonic() + args.duration
-        while not stop.is_set():
+        while not svc.stopping:
             if args.count is not None and written >= args.count:
                 break
-            timeout = 0.1 if deadline is None else min(0.1, deadline - time.monotonic())
+            svc.beat()
+            timeout = svc.tick if deadline is None else min(svc.tick, deadline - time.monotonic())
             if timeout <= 0:
                 break
             try:
-                key, data, log_time = inbox.get(timeout=timeout)
+                item = inbox.get(timeout=timeout)
             except queue.Empty:
                 continue
-            writer.write(key, data, log_time_ns=log_time)
-            written += 1
+            if item is not None:
+                key, data, log_time = item
+                writer.write(key, data, log_time_ns=log_time)
+                written += 1
         for sub in subscribers:
             sub.undeclare()
         while args.count is None or written < args.count:  # what arrived before the stop
             try:
-                key, data, log_time = inbox.get_nowait()
+                item = inbox.get_nowait()
             except queue.Empty:
                 break
-            writer.write(key, data, log_time_ns=log_time)
-            written += 1
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        session.close()
-        writer.close()  # moves the file into place; after a write error it is already there
+            if item is not None:
+                key, data, log_time = item
+                writer.write(key, data, log_time_ns=log_time)
+                written += 1
     log.info("recorded %d messages to %s (%d dropped)", written, args.out, dropped)
     return 0

@@ -17,21 +17,18 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
-import threading
 from collections import Counter
 from typing import Any
 
 from topseg.core.errors import TopsegError
-from topseg.services import systemd_notify, zenoh_session
+from topseg.services import zenoh_session
+from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.router")
 
-#: Main loop period: the watchdog ping and the stop check.
-TICK_S = 0.5
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The router's options: --listen and Zenoh."""
     parser.add_argument(
         "--listen",
         nargs="+",
@@ -82,35 +79,18 @@ def connections(session: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import zenoh
-
+    """Route until SIGTERM/SIGINT; a config in another mode or a taken port fails (exit 2)."""
     config = router_config(args.zenoh_config, args.zenoh_port, args.listen)
     endpoints = listen_endpoints(config)
-    stop = threading.Event()
-
-    def on_signal(signum, _frame):
-        log.info("%s: stopping", signal.Signals(signum).name)
-        stop.set()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        try:
-            session = zenoh.open(config)
-        except Exception as exc:
-            raise TopsegError(f"cannot start the router on {', '.join(endpoints)}: {exc}") from exc
-        try:
-            where = ", ".join(endpoints) or "no endpoints"
-            log.info("router %s listening on %s", session.info.zid(), where)
-            systemd_notify.ready(f"routing on {where}")
-            beat = systemd_notify.Heartbeat(lambda: f"routing on {where}: {connections(session)}")
-            tick = min(TICK_S, beat.notifier.watchdog_s or TICK_S)
-            while not stop.wait(tick):
-                beat()
-            systemd_notify.stopping()
-        finally:
-            session.close()
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
+    where = ", ".join(endpoints) or "no endpoints"
+    svc = ServiceLifecycle(
+        "router", config=config, open_error=f"cannot start the router on {', '.join(endpoints)}"
+    )
+    with svc:
+        log.info("router %s listening on %s", svc.session.info.zid(), where)
+        svc.ready(
+            f"routing on {where}", status=lambda: f"routing on {where}: {connections(svc.session)}"
+        )
+        svc.wait()  # until a stopping signal, pinging the watchdog
     log.info("router stopped")
     return 0

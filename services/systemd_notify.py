@@ -78,6 +78,7 @@ class Notifier:
 
     @property
     def enabled(self) -> bool:
+        """True when $NOTIFY_SOCKET names a socket we can write to."""
         return self.address is not None
 
     def _send(self, data: bytes, fds: list[int] | None = None) -> bool:
@@ -115,9 +116,11 @@ class Notifier:
         return sent
 
     def status(self, text: str) -> bool:
+        """STATUS=<text>: the line `systemctl status` shows."""
         return self.notify(STATUS=text)
 
     def stopping(self, status: str | None = None) -> bool:
+        """STOPPING=1 (and STATUS=): the service has begun shutting down."""
         return self.notify(STOPPING=1, **({"STATUS": status} if status else {}))
 
     def watchdog(self, now: float | None = None) -> bool:
@@ -201,24 +204,30 @@ def default() -> Notifier:
 
 
 def notify(**fields: object) -> bool:
+    """`Notifier.notify` on the process's notifier."""
     return default().notify(**fields)
 
 
 def ready(status: str | None = None) -> bool:
+    """`Notifier.ready` on the process's notifier."""
     return default().ready(status)
 
 
 def status(text: str) -> bool:
+    """`Notifier.status` on the process's notifier."""
     return default().status(text)
 
 
 def watchdog() -> bool:
+    """`Notifier.watchdog` on the process's notifier."""
     return default().watchdog()
 
 
 def stopping(status: str | None = None) -> bool:
+    """`Notifier.stopping` on the process's notifier."""
     return default().stopping(status)
 
 
 def failed(text: str, errno: int | None = None) -> bool:
+    """`Notifier.failed` on the process's notifier (the CLI's last word before exit 2)."""
     return default().failed(text, errno)

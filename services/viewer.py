@@ -17,15 +17,15 @@ SIGINT or after `--duration` seconds.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import queue
-import signal
-import threading
 import time
 from collections import OrderedDict
 from typing import Any
 
-from topseg.services import systemd_notify, zenoh_session
+from topseg.services import zenoh_session
+from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.viewer")
 
@@ -36,6 +36,7 @@ QUEUE_SIZE = 64
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The viewer's options: the sink, --duration, --stride and Zenoh."""
     sink = parser.add_mutually_exclusive_group()
     sink.add_argument("--spawn", action="store_true", help="open a native Rerun viewer (default)")
     sink.add_argument("--web", action="store_true", help="serve the web viewer (gRPC + HTTP)")
@@ -79,7 +80,15 @@ class Viewer:
     """Decodes topseg messages and logs them to one Rerun recording stream."""
 
     def __init__(self, rec, stride: int) -> None:
+        from topseg.core.formats import wire
+
         self.rec, self.stride = rec, stride
+        #: the kinds the viewer subscribes to, and their decoders
+        self.decoders = {
+            "depth": wire.decode_depth,
+            "labels": wire.decode_labels,
+            "stats": wire.decode_stats,
+        }
         self.depth: dict[tuple[str, str], OrderedDict] = {}
         self.pinholes: dict[tuple[str, str], Any] = {}
         self.rejected = 0
@@ -93,11 +102,15 @@ class Viewer:
             log.info("logging %s", entity)
 
     def handle(self, key: str, payload: bytes) -> None:
+        """Decode one message by the kind its key names (parsed once) and log it."""
         from topseg.core.formats import wire
 
         try:
             parts = wire.parse_key(key)
-            msg = wire.decode_for_key(key, payload)
+            decode = self.decoders.get(parts.kind)
+            if decode is None:
+                raise wire.WireError(f"{key!r} does not carry a message the viewer shows")
+            msg = decode(payload)
         except wire.WireError as exc:
             self.rejected += 1
             if self.rejected <= 10 or self.rejected % 100 == 0:
@@ -109,7 +122,7 @@ class Viewer:
             self.log_depth(cam, base, msg)
         elif parts.kind == "labels":
             self.log_labels(cam, base, msg)
-        elif parts.kind == "stats":
+        else:
             self.log_stats(base, msg)
 
     def _time(self, seq: int, stamp_ns: int) -> None:
@@ -117,6 +130,7 @@ class Viewer:
         self.rec.set_time("sensor_time", timestamp=stamp_ns * 1e-9)
 
     def log_depth(self, cam, base: str, frame) -> None:
+        """The camera's Pinhole (when it changed) and the depth image; keep it for pairing."""
         import rerun as rr
 
         k = frame.intrinsics
@@ -141,6 +155,7 @@ class Viewer:
             frames.popitem(last=False)
 
     def log_labels(self, cam, base: str, frame) -> None:
+        """The label image, and the point cloud when the depth frame of its seq is kept."""
         import rerun as rr
 
         self._time(frame.seq, frame.stamp_ns)
@@ -152,6 +167,7 @@ class Viewer:
             self._first(f"{base}/points")
 
     def log_stats(self, base: str, stats: dict) -> None:
+        """ms per stage, fps and counts as scalars over time."""
         import rerun as rr
 
         if "seq" in stats:
@@ -193,16 +209,17 @@ def open_recording(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    """Log what flows until SIGTERM/SIGINT or --duration; bad options fail first (exit 2)."""
     from topseg.core.errors import TopsegError
 
     if args.stride < 1:
         raise TopsegError(f"--stride must be >= 1, got {args.stride}")
     if args.duration is not None and args.duration <= 0:
         raise TopsegError(f"--duration must be > 0, got {args.duration}")
+    svc = ServiceLifecycle("viewer", args)
     rec = open_recording(args)
     viewer = Viewer(rec, args.stride)
     inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
-    stop = threading.Event()
     dropped = 0
 
     def on_sample(sample) -> None:  # Zenoh thread: copy and hand over, never block
@@ -212,41 +229,35 @@ def run(args: argparse.Namespace) -> int:
         except queue.Full:
             dropped += 1
 
-    def on_signal(signum, _frame):
-        log.info("%s: stopping", signal.Signals(signum).name)
-        stop.set()
+    def wake() -> None:  # a stopping signal: end the wait on the inbox at once
+        with contextlib.suppress(queue.Full):
+            inbox.put_nowait(None)
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    session = zenoh_session.session_from_args(args)
-    try:
-        subs = [
-            session.declare_subscriber(f"topseg/*/*/{kind}", on_sample)
-            for kind in ("depth", "labels", "stats")
-        ]
+    sink = f" to {args.save}" if args.save else " to the web viewer" if args.web else ""
+
+    def status_text() -> str:
+        n = len(viewer.pinholes)
+        return f"logging {n} camera(s){sink}; {viewer.rejected} rejected, {dropped} dropped"
+
+    with svc:
+        svc.defer(rec.disconnect)
+        svc.defer(rec.flush)  # runs first: the .rrd is complete on SIGTERM too
+        for kind in ("depth", "labels", "stats"):
+            svc.declare(svc.session.declare_subscriber(f"topseg/*/*/{kind}", on_sample))
+        svc.on_stop(wake)
         log.info("viewer ready")
-        sink = f" to {args.save}" if args.save else " to the web viewer" if args.web else ""
-
-        def status_text() -> str:
-            n = len(viewer.pinholes)
-            return f"logging {n} camera(s){sink}; {viewer.rejected} rejected, {dropped} dropped"
-
-        systemd_notify.ready(status_text())
-        beat = systemd_notify.Heartbeat(status_text)
+        svc.ready(status=status_text)
         end = None if args.duration is None else time.monotonic() + args.duration
-        while not stop.is_set() and (end is None or time.monotonic() < end):
-            beat()  # watchdog ping from the logging loop, STATUS= every few s
+        while not svc.stopping:
+            svc.beat()  # watchdog ping from the logging loop, STATUS= every few s
+            timeout = svc.tick if end is None else min(svc.tick, end - time.monotonic())
+            if timeout <= 0:
+                break
             try:
-                key, payload = inbox.get(timeout=0.05)
+                item = inbox.get(timeout=timeout)
             except queue.Empty:
                 continue
-            viewer.handle(key, payload)
-        for sub in subs:
-            sub.undeclare()
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        session.close()
-        rec.flush()
-        rec.disconnect()
+            if item is not None:
+                viewer.handle(*item)
     log.info("viewer done (%d rejected, %d dropped while busy)", viewer.rejected, dropped)
     return 0

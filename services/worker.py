@@ -22,32 +22,30 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from topseg.services import systemd_notify, zenoh_session
+from topseg.services import zenoh_session
+from topseg.services.lifecycle import ServiceLifecycle
+
+if TYPE_CHECKING:
+    from topseg.core.segmenter import Segmenter
 
 log = logging.getLogger("topseg.worker")
 
 #: FIFO depth in --lossless mode: a full FIFO holds Zenoh back (the publisher waits).
 LOSSLESS_QUEUE = 64
-#: Idle poll period of the subscriber handlers.
-POLL_S = 0.002
 #: Smoothing of the fps estimate (weight of the newest interval).
 FPS_ALPHA = 0.2
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--model",
-        required=True,
-        metavar="PATH",
-        help="model file from `topseg train` (required: there is no bundled model yet)",
-    )
+    """The worker's options: the model, the CRF, the cameras, --lossless and Zenoh."""
+    from topseg.core.segmenter import MODEL_HELP
+
+    parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
     parser.add_argument(
         "--crf",
         choices=("none", "exact", "realtime"),
@@ -105,63 +103,41 @@ class CameraState:
         self.last_seq = seq  # a smaller seq: the source restarted, nothing to count
 
     def note_done(self, now: float) -> None:
+        """Update the fps estimate with the time since the last labelled frame."""
         if self.last_time is not None and now > self.last_time:
             rate = 1.0 / (now - self.last_time)
             self.fps = rate if self.fps == 0.0 else (1 - FPS_ALPHA) * self.fps + FPS_ALPHA * rate
         self.last_time = now
 
 
-class Labeller:
-    """Forest + CRF on one depth image, reusing the posterior buffer across frames."""
-
-    def __init__(self, model_path: str, crf_mode: str) -> None:
-        from topseg.core import crf, forest
-
-        self.forest, self.header = forest.load_model(model_path)
-        self.model_id = str(self.header.get("model_id") or Path(model_path).name)
-        self.config = crf.CRFConfig(mode=crf_mode)
-        self._out: Any = None
-
-    def warm_up(self) -> None:
-        """Compile the numba kernels before the first frame (they are cached on disk)."""
-        import numpy as np
-
-        self.label(np.full((48, 64), 3000, np.uint16))
-
-    def label(self, depth) -> tuple[Any, float, float]:
-        """(labels, forest ms, crf ms) for one uint16 depth image."""
-        import numpy as np
-
-        from topseg.core import crf, forest
-        from topseg.core.labels import NUM_CLASSES
-
-        shape = (*depth.shape, NUM_CLASSES)
-        if self._out is None or self._out.shape != shape:
-            self._out = np.empty(shape, np.float32)
-        t0 = time.perf_counter()
-        proba = forest.predict_proba(self.forest, depth, out=self._out)
-        t1 = time.perf_counter()
-        labels = crf.segment_crf(proba, depth, self.config)
-        t2 = time.perf_counter()
-        return labels, 1000 * (t1 - t0), 1000 * (t2 - t1)
-
-
 class Worker:
-    """The serving loop: subscribers, per-camera state and the publish side."""
+    """The serving loop: subscribers, per-camera state and the publish side.
 
-    def __init__(self, args: argparse.Namespace, session, labeller: Labeller) -> None:
+    Depth arrives in Zenoh's own handlers: a RingChannel(1) per camera, which keeps the
+    newest frame without ever taking Python's GIL (the forest's kernels hold it for a whole
+    frame), or a FIFO with --lossless. A callback subscriber on the same keys, the doorbell,
+    only notes that something came (and which new cameras appeared) and notifies one
+    Condition; the main thread waits on it, then takes one sample per camera from the
+    handlers and labels it. Frames are never labelled on Zenoh's threads.
+    """
+
+    def __init__(self, args: argparse.Namespace, session, segmenter: Segmenter) -> None:
         import zenoh
 
-        self.args, self.session, self.labeller = args, session, labeller
+        self.args, self.session, self.segmenter = args, session, segmenter
         self.cameras: dict[tuple[str, str], CameraState] = {}
-        self.pending: set[tuple[str, str]] = set()
-        self.pending_lock = threading.Lock()
+        self.depth_keys: dict[str, tuple[str, str]] = {}  # the doorbell's cache of served keys
+        self.bell = threading.Condition()
+        self.rung = False  # something arrived (or a stop) since the main loop last looked
+        self.announced: set[tuple[str, str]] = set()  # new cameras, for the main loop to serve
         self.shared_sub = None  # --lossless without --cameras: one FIFO on the wildcard
-        self.discovery = None
+        self.doorbells: list[Any] = []
         self.congestion = (
             zenoh.CongestionControl.BLOCK if args.lossless else zenoh.CongestionControl.DROP
         )
         wanted = [parse_camera(c) for c in args.cameras or ()]
+        # discovery: without --cameras a camera is served from its first depth message on
+        self.discover = not wanted and not args.lossless
         for cell, camera in wanted:
             self.serve(cell, camera, own_subscriber=True)
         if not wanted:
@@ -169,21 +145,39 @@ class Worker:
                 self.shared_sub = session.declare_subscriber(
                     "topseg/*/*/depth", zenoh.handlers.FifoChannel(LOSSLESS_QUEUE)
                 )
-            else:
-                self.discovery = session.declare_subscriber("topseg/*/*/depth", self._discover)
+            self.doorbells.append(session.declare_subscriber("topseg/*/*/depth", self._ring))
 
-    def _discover(self, sample) -> None:
-        """Zenoh thread: note cameras not served yet (the main loop declares them)."""
+    def _ring(self, sample) -> None:
+        """Zenoh's callback thread: note that depth came, and from which new camera; wake
+        the main loop. Never decodes or labels (that is the main thread's job)."""
         from topseg.core.formats import wire
 
-        try:
-            parts = wire.parse_key(str(sample.key_expr))
-        except wire.WireError:
-            return
-        key = (parts.cell, parts.camera)
-        if key not in self.cameras:
-            with self.pending_lock:
-                self.pending.add(key)
+        key = str(sample.key_expr)
+        new = None
+        if self.discover and key not in self.depth_keys:
+            try:
+                parts = wire.parse_key(key)
+            except wire.WireError:
+                return
+            new = (parts.cell, parts.camera)
+        with self.bell:
+            self.rung = True
+            if new is not None:
+                self.announced.add(new)
+            self.bell.notify()
+
+    def wake(self) -> None:
+        """Wake the main loop now (a stopping signal)."""
+        with self.bell:
+            self.rung = True
+            self.bell.notify()
+
+    def wait(self, timeout: float) -> None:
+        """Block until the doorbell rang since the last wait, or `timeout` s."""
+        with self.bell:
+            if not self.rung:
+                self.bell.wait(timeout)
+            self.rung = False
 
     def serve(self, cell: str, camera: str, own_subscriber: bool) -> CameraState:
         """Start serving one camera: publishers, liveliness token, maybe its own subscriber."""
@@ -195,26 +189,29 @@ class Worker:
         publish = dict(congestion_control=self.congestion, express=True)
         state.labels_pub = self.session.declare_publisher(wire.labels_key(cell, camera), **publish)
         state.stats_pub = self.session.declare_publisher(wire.stats_key(cell, camera), **publish)
+        key = wire.depth_key(cell, camera)
         if own_subscriber:
             handler = (
                 zenoh.handlers.FifoChannel(LOSSLESS_QUEUE)
                 if self.args.lossless
                 else zenoh.handlers.RingChannel(1)
             )
-            state.subscriber = self.session.declare_subscriber(
-                wire.depth_key(cell, camera), handler
-            )
+            state.subscriber = self.session.declare_subscriber(key, handler)
+            if self.args.cameras:  # without, the wildcard doorbell covers discovered cameras
+                self.doorbells.append(self.session.declare_subscriber(key, self._ring))
         state.token = self.session.liveliness().declare_token(
             wire.alive_key(cell, camera, "worker")
         )
         self.cameras[(cell, camera)] = state
-        log.info("serving %s/%s (crf %s)", cell, camera, self.labeller.config.mode)
+        self.depth_keys[key] = (cell, camera)
+        log.info("serving %s/%s (crf %s)", cell, camera, self.segmenter.crf_mode)
         return state
 
-    def poll(self) -> bool:
-        """Handle what has arrived; False when nothing had."""
-        with self.pending_lock:
-            new, self.pending = self.pending, set()
+    def handle_ready(self) -> bool:
+        """Serve new cameras, then label one sample of each handler that has one; False when
+        none had."""
+        with self.bell:
+            new, self.announced = self.announced, set()
         for cell, camera in sorted(new):
             if (cell, camera) not in self.cameras:
                 self.serve(cell, camera, own_subscriber=True)
@@ -232,6 +229,15 @@ class Worker:
                 self.handle(sample, state)
                 busy = True
         return busy
+
+    def serve_until_stopped(self, svc: ServiceLifecycle) -> None:
+        """The main loop: label what is ready, else block until the doorbell rings (or the
+        heartbeat is due, or a stopping signal comes)."""
+        svc.on_stop(self.wake)
+        while not svc.stopping:
+            svc.beat()  # watchdog ping from the serving loop, STATUS= every few s
+            if not self.handle_ready():
+                self.wait(svc.tick)
 
     def handle(self, sample, state: CameraState | None) -> None:
         """Decode, label and publish one depth message; count and drop what is not one."""
@@ -253,12 +259,12 @@ class Worker:
             return
         t1 = time.perf_counter()
         try:
-            labels, forest_ms, crf_ms = self.labeller.label(frame.depth)
+            result = self.segmenter.label(frame.depth)
         except Exception as exc:  # a well-formed frame the forest or CRF cannot take
             self.reject(state, f"cannot label frame {frame.seq}: {type(exc).__name__}: {exc}")
             return
         t2 = time.perf_counter()
-        out = wire.LabelFrame(labels, frame.seq, frame.stamp_ns, frame.frame_id)
+        out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
         state.labels_pub.put(wire.encode_labels(out))
         t3 = time.perf_counter()
         state.note_seq(frame.seq)
@@ -266,8 +272,8 @@ class Worker:
         state.note_done(t3)
         timings = {
             "receive": 1000 * (t1 - t0),
-            "forest": forest_ms,
-            "crf": crf_ms,
+            "forest": result.timings.forest_ms,
+            "crf": result.timings.crf_ms,
             "publish": 1000 * (t3 - t2),
             "total": 1000 * (t3 - t0),
         }
@@ -276,6 +282,7 @@ class Worker:
         self.publish_stats(state, timings, seq=frame.seq, frame_id=frame.frame_id)
 
     def reject(self, state: CameraState, why: str) -> None:
+        """Count a message that could not be labelled, log it (sparingly), publish the counts."""
         state.counts["rejected"] += 1
         n = state.counts["rejected"]
         if n <= 10 or n % 100 == 0:  # a stream of garbage does not flood the log
@@ -283,12 +290,13 @@ class Worker:
         self.publish_stats(state, {})
 
     def publish_stats(self, state: CameraState, timings: dict, **extra) -> None:
+        """One stats message: ms per stage, fps, counts and `extra` (seq, frame_id)."""
         from topseg.core.formats import wire
 
         stats = {
             "stamp_ns": time.time_ns(),
             "role": "worker",
-            "model_id": self.labeller.model_id[: wire.MAX_FRAME_ID],
+            "model_id": self.segmenter.model_id[: wire.MAX_FRAME_ID],
             "fps": state.fps,
             "timings_ms": timings,
             "counts": dict(state.counts),
@@ -297,19 +305,21 @@ class Worker:
         state.stats_pub.put(wire.encode_stats(stats))
 
     def close(self) -> None:
+        """Undeclare the doorbells, subscribers and liveliness tokens."""
+        for bell in self.doorbells:
+            bell.undeclare()
         for state in self.cameras.values():
             state.token.undeclare()
             if state.subscriber is not None:
                 state.subscriber.undeclare()
-        for sub in (self.shared_sub, self.discovery):
-            if sub is not None:
-                sub.undeclare()
+        if self.shared_sub is not None:
+            self.shared_sub.undeclare()
 
 
 def status_line(worker: Worker) -> str:
     """One line for `systemctl status`: each camera's fps and counts."""
     if not worker.cameras:
-        return f"model {worker.labeller.model_id}: waiting for depth frames"
+        return f"model {worker.segmenter.model_id}: waiting for depth frames"
     now, parts = time.perf_counter(), []
     for s in worker.cameras.values():
         c = s.counts
@@ -322,39 +332,33 @@ def status_line(worker: Worker) -> str:
     return "serving " + "; ".join(parts)
 
 
+def load_segmenter(model: str | None, crf_mode: str) -> Segmenter:
+    """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`.
+
+    Frames are not checked against the model's camera yet: the worker labels whatever size
+    a camera sends (mount-aware checks come with the camera-mount work).
+    """
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
+
+    return Segmenter.from_file(model, SegmenterConfig(check_camera=False), crf=crf_mode)
+
+
 def run(args: argparse.Namespace) -> int:
+    """Serve until SIGTERM/SIGINT; a bad camera name, Zenoh config or model fails first (2)."""
     for text in args.cameras or ():
         parse_camera(text)  # bad names fail before anything is loaded
-    zenoh_session.make_config(args.zenoh_config, args.zenoh_port)  # so does a bad config
-    labeller = Labeller(args.model, args.crf)  # ModelFileError: one line, exit 2
+    svc = ServiceLifecycle("worker", args)  # so does a bad Zenoh config
+    segmenter = load_segmenter(args.model, args.crf)  # ModelFileError: one line, exit 2
     t0 = time.perf_counter()
-    labeller.warm_up()
-    log.info("model %s loaded and compiled in %.1f s", labeller.model_id, time.perf_counter() - t0)
+    segmenter.warm_up()
+    log.info("model %s loaded and compiled in %.1f s", segmenter.model_id, time.perf_counter() - t0)
 
-    stop = threading.Event()
-
-    def on_signal(signum, _frame):
-        log.info("%s: stopping", signal.Signals(signum).name)
-        stop.set()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
-    session = zenoh_session.session_from_args(args)
-    worker = None
-    try:
-        worker = Worker(args, session, labeller)
+    with svc:
+        worker = Worker(args, svc.session, segmenter)
+        svc.defer(worker.close)
         log.info("worker ready")
-        systemd_notify.ready(status_line(worker))
-        beat = systemd_notify.Heartbeat(lambda: status_line(worker))
-        while not stop.is_set():
-            beat()  # watchdog ping from the serving loop, STATUS= every few s
-            if not worker.poll():
-                stop.wait(POLL_S)
+        svc.ready(status=lambda: status_line(worker))
+        worker.serve_until_stopped(svc)
         for state in worker.cameras.values():
             log.info("%s/%s: %s", state.cell, state.camera, state.counts)
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        if worker is not None:
-            worker.close()
-        session.close()
     return 0

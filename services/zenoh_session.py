@@ -118,16 +118,26 @@ def make_config(config_file: str | None = None, port: int | None = None) -> Any:
     return conf
 
 
-def open_session(config_file: str | None = None, port: int | None = None) -> Any:
-    """An open zenoh.Session (close it, or use it as a context manager)."""
+def open_config(config: Any, what: str = "cannot open a Zenoh session") -> Any:
+    """An open zenoh.Session for a zenoh.Config; TopsegError("<what>: <Zenoh's reason>")."""
     import zenoh
 
-    conf = make_config(config_file, port)
     try:
-        return zenoh.open(conf)
+        return zenoh.open(config)
     except Exception as exc:
-        raise TopsegError(f"cannot open a Zenoh session: {error_line(exc)}") from exc
+        raise TopsegError(f"{what}: {error_line(exc)}") from exc
+
+
+def open_session(config_file: str | None = None, port: int | None = None) -> Any:
+    """An open zenoh.Session (close it, or use it as a context manager)."""
+    return open_config(make_config(config_file, port))
+
+
+def config_from_args(args: argparse.Namespace) -> Any:
+    """The zenoh.Config named by a service's --zenoh-config / --zenoh-port options."""
+    return make_config(args.zenoh_config, args.zenoh_port)
 
 
 def session_from_args(args: argparse.Namespace) -> Any:
-    return open_session(args.zenoh_config, args.zenoh_port)
+    """An open zenoh.Session from a service's --zenoh-config / --zenoh-port options."""
+    return open_config(config_from_args(args))

@@ -78,9 +78,10 @@ def test_worker_killed_mid_stream_labels_again_within_2s_and_the_driver_never_no
     assert first[0] - ready < 2.0, f"first labels {first[0] - ready:.2f} s after READY"
     wait_for(lambda: len(tap.labels_after(ready)) >= 10, 20, "labels flowing again")
 
+    received = len(tap.depth)  # before asking: frames keep coming while the reply travels
     info = tap.info()
     assert drv.alive() and info["reconnects"] == 0 and info["last_error"] is None
-    assert info["frames"] >= len(tap.depth) > 0
+    assert info["frames"] >= received > 0
     # the driver kept its pace: depth in order, and none lost but what DROP congestion
     # control sheds on a starved machine (at load 14 on 2 cores: up to 6 % in bursts of
     # 3-5 frames, with or without the kill; none on a quiet one), never a pause

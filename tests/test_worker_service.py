@@ -180,7 +180,7 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
             proc.kill()
     assert rc == 0, err
     model, _ = forest.load_model(model_path)
-    expected = forest.labels_from_proba(forest.predict_proba(model, depth2), depth2)
+    expected = forest.predict_labels(model, depth2)
     np.testing.assert_array_equal(wire.decode_labels(peer.labels[1]).labels, expected)
     wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == 2, 10, "stats")
     assert peer.stats[-1]["counts"] == {"processed": 2, "dropped": 0, "rejected": len(bad)}
@@ -269,3 +269,44 @@ def test_worker_labels_a_driver_replay_frame_for_frame(tmp_path, peers, model_pa
         proba = forest.predict_proba(model, depth)
         expected = crf.segment_crf(proba, depth, crf.CRFConfig(mode="realtime"))
         np.testing.assert_array_equal(g.labels, expected)
+
+
+def cpu_seconds(pid):
+    """User + system CPU time of a process so far (Linux /proc)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prompt(
+    peers, model_path
+):
+    port, cell = free_port(), "wk5"
+    peer = peers(port, cell)
+    proc = start_worker(port, model_path, "--lossless", "--cameras", f"{cell}/cam0")
+    try:
+        wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
+        time.sleep(1.0)  # settled: the idle worker blocks on its handlers, it does not poll
+        cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
+        time.sleep(2.0)
+        idle = (cpu_seconds(proc.pid) - cpu0) / (time.monotonic() - t0)
+        print(f"idle worker: {100 * idle:.1f} % of a core")
+        assert idle < 0.10, f"an idle worker uses {100 * idle:.0f} % of a core"
+        ((depth, _),) = frames(6, 1)
+        n = 3 * 64  # three times the FIFO: the publisher is held back, nothing is lost
+        for seq in range(n):
+            peer.put_depth(depth, seq)
+        wait_for(lambda: len(peer.labels) == n, 120, f"labels for all {n} frames")
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=15)
+        print(f"the worker exited {time.monotonic() - sent:.2f} s after SIGTERM")
+        assert time.monotonic() - sent < 5.0
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    assert [wire.decode_labels(b).seq for b in peer.labels] == list(range(n))
+    wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == n, 10, "stats")
+    assert peer.stats[-1]["counts"] == {"processed": n, "dropped": 0, "rejected": 0}
