@@ -7,3 +7,9 @@ class TopsegError(Exception):
     The CLI prints it as `topseg <command>: error: <message>` and exits with status 2;
     services refuse to start with it.
     """
+
+
+class ConfigError(TopsegError, ValueError):
+    """Bad configuration: an unknown or mistyped key, or a value out of range, named with
+    the file or section it came from. Also a ValueError, so callers that guard a
+    config's construction with `except ValueError` still catch it."""

@@ -13,6 +13,8 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Label:
+    """One row of the table: the id written in label images, its name and RGB colour."""
+
     id: int
     name: str
     color: tuple[int, int, int]
@@ -66,6 +68,7 @@ def by_name(name: str) -> Label:
 
 
 def name_of(label_id: int) -> str:
+    """The name of a label id (NO_DEPTH included); a KeyError for an id not in the table."""
     if label_id == NO_DEPTH:
         return NO_DEPTH_LABEL.name
     if 0 <= label_id < NUM_CLASSES:

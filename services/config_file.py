@@ -16,21 +16,21 @@ worker (`/etc/topseg/<instance>.toml` under systemd, see `deploy/`):
     camera = "kinect"
 
 Bad TOML, unknown tables or keys, and values of the wrong type stop the command with one
-line naming the file and line (TopsegError: exit 2). Paths are taken as written: use
+line naming the file and line (ConfigError: exit 2). Paths are taken as written: use
 absolute ones (a service runs in `/`).
 """
 
 from __future__ import annotations
 
 import argparse
-import difflib
 import os
 import re
 import tomllib
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from topseg.core.errors import TopsegError
+from topseg.core.config import describe, suggest
+from topseg.core.errors import ConfigError
 
 CONFIG_ENV = "TOPSEG_CONFIG"
 #: Tables any command may read, and the options they may hold.
@@ -70,18 +70,18 @@ def config_arg(argv: Sequence[str]) -> str | None:
 
 
 def load(path: str) -> tuple[dict[str, Any], str]:
-    """(parsed TOML, its text); TopsegError with file:line for a missing or bad file."""
+    """(parsed TOML, its text); ConfigError with file:line for a missing or bad file."""
     try:
         with open(path, "rb") as f:
             raw = f.read()
     except FileNotFoundError:
-        raise TopsegError(f"config {path} does not exist") from None
+        raise ConfigError(f"config {path} does not exist") from None
     except OSError as exc:
-        raise TopsegError(f"cannot read config {path}: {exc.strerror}") from None
+        raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise TopsegError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        raise ConfigError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     try:
         return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as exc:
@@ -89,8 +89,8 @@ def load(path: str) -> tuple[dict[str, Any], str]:
         m = re.search(r"\(at line (\d+), column (\d+)\)", message)
         if m:
             message = message[: m.start()].strip()
-            raise TopsegError(f"{path}:{m[1]}:{m[2]}: bad TOML: {message}") from None
-        raise TopsegError(f"{path}: bad TOML: {message}") from None
+            raise ConfigError(f"{path}:{m[1]}:{m[2]}: bad TOML: {message}") from None
+        raise ConfigError(f"{path}: bad TOML: {message}") from None
 
 
 def options(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
@@ -115,7 +115,7 @@ def apply(
     chosen: list[tuple[str, str, Any]] = []  # (table, key, value); later entries win
     for table, body in data.items():
         if not isinstance(body, dict):
-            raise TopsegError(
+            raise ConfigError(
                 f"{where(path, text, None, table)}: {table!r} must be inside a table "
                 f"such as [{command}]"
             )
@@ -126,7 +126,7 @@ def apply(
             for key, value in body.items():
                 name = key.replace("_", "-")
                 if name not in allowed:
-                    raise TopsegError(
+                    raise ConfigError(
                         f"{where(path, text, table, key)}: unknown key {key!r} in [{table}] "
                         f"(it takes {', '.join(allowed)})"
                     )
@@ -135,7 +135,7 @@ def apply(
             continue
         if table != command:
             tables = sorted({command, *others, *SHARED_TABLES})
-            raise TopsegError(
+            raise ConfigError(
                 f"{where(path, text, table, None)}: unknown table [{table}]"
                 f"{suggest(table, tables)} (tables: {', '.join(tables)})"
             )
@@ -146,14 +146,14 @@ def apply(
         name = key.replace("_", "-")
         action = known.get(name)
         if action is None:
-            raise TopsegError(
+            raise ConfigError(
                 f"{where(path, text, table, key)}: unknown option {key!r} in [{table}]"
                 f"{suggest(name, known)} (see topseg {command} --help)"
             )
         try:
             applied[action.dest] = convert(action, value)
         except ValueError as exc:
-            raise TopsegError(f"{where(path, text, table, key)}: {key}: {exc}") from None
+            raise ConfigError(f"{where(path, text, table, key)}: {key}: {exc}") from None
         action.required = False  # the file gave it
     parser.set_defaults(**applied)
     return applied
@@ -180,6 +180,7 @@ def convert(action: argparse.Action, value: Any) -> Any:
 
 
 def scalar(action: argparse.Action, value: Any) -> Any:
+    """One TOML value as the option's type (and among its choices); ValueError otherwise."""
     kind = action.type
     if isinstance(value, dict | list):
         raise ValueError(f"expected one value, got {describe(value)}")
@@ -207,18 +208,8 @@ def scalar(action: argparse.Action, value: Any) -> Any:
 
 
 def expected(kind) -> str:
+    """An option type in words, for an error message."""
     return {int: "an integer", float: "a number"}.get(kind, "a string")
-
-
-def describe(value: Any) -> str:
-    names = {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}
-    names |= {list: "a list", dict: "a table"}
-    return f"{names.get(type(value), type(value).__name__)} ({value!r})"
-
-
-def suggest(name: str, candidates: Iterable[str]) -> str:
-    close = difflib.get_close_matches(name, list(candidates), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def where(path: str, text: str, table: str | None, key: str | None) -> str:

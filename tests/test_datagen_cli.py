@@ -90,14 +90,24 @@ def one_error_line(result: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
+def test_out_in_a_missing_folder_creates_it(tmp_path):
+    out = tmp_path / "no" / "such" / "ds.zarr"
+    done = subprocess.run(datagen_args(out, 4), env=env(), capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert_frames_whole(out, expect_all=4)
+
+
 def test_a_bad_path_is_one_clear_line(tmp_path):
+    (tmp_path / "f").write_text("x")
     line = one_error_line(
         subprocess.run(
-            datagen_args(tmp_path / "no" / "ds.zarr", 4), env=env(), capture_output=True, text=True
+            datagen_args(tmp_path / "f" / "sub" / "ds.zarr", 4),
+            env=env(),
+            capture_output=True,
+            text=True,
         )
     )
-    assert "does not exist" in line and str(tmp_path / "no") in line
-    (tmp_path / "f").write_text("x")
+    assert "cannot create the folder" in line and str(tmp_path / "f" / "sub") in line
     line = one_error_line(
         subprocess.run(datagen_args(tmp_path / "f", 4), env=env(), capture_output=True, text=True)
     )

@@ -228,7 +228,7 @@ def test_config_round_trips_and_rejects_bad_values():
         DensityConfig(human_height_m=(1.9, 1.6))
     with pytest.raises(TopsegError, match="unknown poses"):
         DensityConfig(pose_weights={"moonwalk": 1.0})
-    with pytest.raises(TopsegError, match="unknown keys"):
+    with pytest.raises(TopsegError, match="unknown key"):
         DensityConfig.from_dict({"theta": 0.3})
     with pytest.raises(TopsegError, match="mode"):
         DensityFunction(mode="semi")

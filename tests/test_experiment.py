@@ -116,8 +116,9 @@ def test_training_workers_are_as_many_as_the_feature_budget_holds(frames, budget
         responses=scale.responses, thresholds=scale.thresholds,
         pixels_per_frame=scale.pixels_per_frame,
     )  # fmt: skip
-    args = model.train_args(Path("d.zarr"), Path("m.npz"), None, False, budget_gb)
-    assert args.workers == workers
+    job = model.train_job(Path("d.zarr"), Path("m.npz"), None, False, budget_gb)
+    assert job.workers == workers
+    assert job.config.n_trees == scale.trees and job.config.features.n_features == 300
 
 
 # ---------------------------------------------------------------- the paper's numbers
@@ -152,6 +153,11 @@ def test_fig4_curves_match_the_tex(tex):
 
 
 def test_table_i_matches_the_tex(tex):
+    # the paper's columns, in its names, are the label table's scored classes in its order
+    header = next(ln for ln in tex.splitlines() if ln.strip().startswith("F1-measure"))
+    columns = [c.strip() for c in header.split("\\\\")[0].split("&")[2:]]
+    ours = {"UArm": "upper-arm", "LArm": "lower-arm"}
+    assert [ours.get(c, c.lower()) for c in columns] == list(paper_results.TABLE_CLASSES)
     for mode, tag in (("non-modeled", "Non-Modeled"), ("modeled", "Modeled")):
         line = next(ln for ln in tex.splitlines() if ln.startswith(f"$CRF_{{{tag}}}$"))
         values = [float(v) for v in re.findall(r"(?<![\w.])(\d\.\d+)", line)]

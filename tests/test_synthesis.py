@@ -128,7 +128,7 @@ def test_config_round_trips_and_validates():
     ):
         with pytest.raises(TopsegError, match=msg):
             SynthesisConfig(**kw)
-    with pytest.raises(TopsegError, match="unknown keys"):
+    with pytest.raises(TopsegError, match="unknown key"):
         SynthesisConfig.from_dict({"modes": "modeled"})
     assert len(ROOMS) >= 4 and "sitting" in POSES and "walking" in POSES
 

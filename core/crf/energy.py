@@ -3,7 +3,7 @@ CRF mode and test uses; see the package docstring)."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Literal
 
 import numpy as np
@@ -62,17 +62,15 @@ class CRFConfig:
             raise TopsegError(f"crf cycles must be >= 0 (0 = until converged), got {self.cycles}")
 
     def to_dict(self) -> dict:
+        """The settings as a flat dict (a TOML table, a bench record); `from_dict` reads it back."""
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> CRFConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise TopsegError(
-                f"unknown crf setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
-            )
-        return cls(**d)
+    def from_dict(cls, d: dict, source: str = "crf settings") -> CRFConfig:
+        """The settings in `d` (a TOML table); ConfigError naming an unknown or mistyped key."""
+        from topseg.core.config import from_dict
+
+        return from_dict(cls, d, source)
 
 
 def check_proba(proba: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from topseg.core import labels
 from topseg.core.camera import TOP_VIEW, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.synth import furniture, humanoid, relations, rooms
@@ -48,7 +49,8 @@ FACTORS = (
     "OO_theta",
     "OO_rel",
 )
-CLASSES = ("chair", "plant", "storage", "table")
+#: object classes by label name, in the label table's order (the draw order of `rng.choice`)
+CLASSES: tuple[str, ...] = tuple(labels.name_of(i) for i in labels.OBJECT_IDS)
 REST_TOL_M = 1e-3
 
 
@@ -61,11 +63,13 @@ class Uniform:
     high: float
 
     def log_pdf(self, x: float) -> float:
+        """-log(high - low) on [low, high] (0 for a point mass); -inf outside or non-finite."""
         if not (self.low <= x <= self.high) or not math.isfinite(x):
             return -math.inf
         return 0.0 if self.high == self.low else -math.log(self.high - self.low)
 
     def sample(self, rng: np.random.Generator) -> float:
+        """One draw from [low, high] with `rng` (the only randomness, so scenes are seeded)."""
         return float(rng.uniform(self.low, self.high))
 
 
@@ -78,19 +82,23 @@ class Categorical:
 
     @property
     def choices(self) -> tuple[str, ...]:
+        """The names with a positive weight: the support of the factor."""
         return tuple(k for k, w in self.weights if w > 0)
 
     def prob(self, k: str, among=None) -> float:
+        """P(k), renormalised over the choices in `among` (all when None); 0 outside them."""
         ws = dict(self.weights)
         pool = [c for c in self.choices if among is None or c in among]
         total = sum(ws[c] for c in pool)
         return ws.get(k, 0.0) / total if k in pool and total > 0 else 0.0
 
     def log_pmf(self, k: str, among=None) -> float:
+        """log `prob(k, among)`, -inf where that is 0."""
         p = self.prob(k, among)
         return math.log(p) if p > 0 else -math.inf
 
     def sample(self, rng: np.random.Generator, among=None) -> str:
+        """A choice in `among` (all when None) drawn by weight; ValueError if none is left."""
         pool = [c for c in self.choices if among is None or c in among]
         if not pool:
             raise ValueError(f"{self.name}: nothing to choose from")
@@ -143,6 +151,8 @@ class DensityConfig:
         self.validate()
 
     def validate(self) -> None:
+        """TopsegError naming the first range, weight or name out of bounds (run on creation)."""
+
         def rng_ok(name, lo_hi, lo_bound, hi_bound):
             lo, hi = lo_hi
             if not (lo_bound <= lo <= hi <= hi_bound):
@@ -179,6 +189,7 @@ class DensityConfig:
             )
 
     def to_dict(self) -> dict:
+        """Plain lists and dicts (TOML and JSON friendly) that `from_dict` turns back into this."""
         d = asdict(self)
         d["human_height_m"] = list(self.human_height_m)
         d["object_height_m"] = {k: list(v) for k, v in self.object_height_m.items()}
@@ -186,12 +197,12 @@ class DensityConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> DensityConfig:
-        known = set(cls.__dataclass_fields__)
-        extra = set(d) - known
-        if extra:
-            raise TopsegError(f"density config: unknown keys {sorted(extra)}")
-        return cls(**d)
+    def from_dict(cls, d: dict, source: str = "density config") -> DensityConfig:
+        """The config a `to_dict` mapping or a TOML table describes; an unknown or mistyped
+        key is a ConfigError naming it."""
+        from topseg.core.config import from_dict
+
+        return from_dict(cls, d, source)
 
 
 class DensityFunction:
@@ -230,9 +241,11 @@ class DensityFunction:
     # --- factors ------------------------------------------------------------------------
 
     def oo_relation(self, room: str) -> Categorical:
+        """OO_rel: the object-object relation placing an object, weighted by `room`'s template."""
         return Categorical("OO_rel", tuple(rooms.get(room).oo_relation_weights.items()))
 
     def position_log_pdf(self, scene: Scene) -> float:
+        """H_pos / O_pos: log 1 / (w h), uniform over the scene's floor."""
         return -math.log(scene.floor_area)
 
     def ho_candidates(self, pose_name: str) -> tuple[str, ...]:
@@ -242,6 +255,7 @@ class DensityFunction:
         return (*(k for k, poses in relations.HO_POSES.items() if pose_name in poses), "free")
 
     def ho_relation_log_pmf(self, kind: str, pose_name: str) -> float:
+        """HO_rel: log P(kind | pose) among the relations the pose allows (sitting: on a chair)."""
         cands = self.ho_candidates(pose_name)
         if pose_name == "sitting":
             return 0.0 if kind == "sitting_on_chair" else -math.inf

@@ -62,6 +62,7 @@ class SynthesisConfig:
             raise TopsegError(f"seed must be a non-negative integer, got {self.seed!r}")
 
     def to_dict(self) -> dict:
+        """Plain JSON/TOML data (datasets record it as the generator's config); see `from_dict`."""
         return {
             "mode": self.mode,
             "noise": self.noise,
@@ -73,16 +74,11 @@ class SynthesisConfig:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> SynthesisConfig:
-        extra = set(d) - {"mode", "noise", "room", "theta_max", "density", "seed", "camera"}
-        if extra:
-            raise TopsegError(f"synthesis config: unknown keys {sorted(extra)}")
-        kw = dict(d)
-        if "density" in kw:
-            kw["density"] = DensityConfig.from_dict(kw["density"])
-        if "camera" in kw:
-            kw["camera"] = TopViewMount.from_dict(kw["camera"])
-        return cls(**kw)
+    def from_dict(cls, d: dict, source: str = "synthesis config") -> SynthesisConfig:
+        """The config in `d` (`to_dict`'s form); ConfigError naming an unknown or mistyped key."""
+        from topseg.core.config import from_dict
+
+        return from_dict(cls, d, source)
 
 
 @dataclass
@@ -168,6 +164,7 @@ class Synthesizer:
             raise TopsegError("this Synthesizer is closed")
 
     def close(self) -> None:
+        """Disconnect the pybullet client (its bodies go with it); safe to call twice."""
         if self.client is not None:
             try:
                 self._p.disconnect(self.client)

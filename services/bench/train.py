@@ -42,6 +42,7 @@ VALIDATION = 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`topseg bench train`'s options."""
     parser.add_argument(
         "--scale",
         type=float,
@@ -91,6 +92,7 @@ class TreeSampler:
         self._thread.join()
 
     def sample(self) -> None:
+        """One sample: every process of the tree's RSS and CPU time; updates the peaks."""
         import psutil
 
         try:
@@ -167,6 +169,7 @@ def ensure_dataset(frames: int, seed: int, cache: Path) -> Path:
 
 
 def train_command(data: Path, out: Path, f: int, seed: int, workers: int | None) -> list[str]:
+    """The `topseg train` command line of the paper's configuration at F = `f` frames per tree."""
     cmd = [sys.executable, "-m", "topseg.services.cli", "train", "--data", str(data)]
     cmd += ["--out", str(out), "--seed", str(seed), "--validation", str(VALIDATION)]
     cmd += ["--trees", str(PAPER["trees"]), "--depth", str(PAPER["depth"])]
@@ -179,6 +182,7 @@ def train_command(data: Path, out: Path, f: int, seed: int, workers: int | None)
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """Run `topseg train` once as a child process and return its figures (see the module doc)."""
     import resource
 
     from topseg.core.errors import TopsegError

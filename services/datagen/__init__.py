@@ -3,9 +3,10 @@
     topseg datagen --mode modeled --frames 2000 --out data/modeled.zarr --seed 1 --noise gaussian:15
     topseg datagen preview data/modeled.zarr
 
-Frames are rendered on a local Dask cluster (one single-threaded worker process per core;
-pybullet is not thread-safe) or on an existing scheduler (`--scheduler tcp://host:port`, whose
-workers must see `--out` at the same path). Work goes out in tasks of `--chunk` consecutive
+The store's folder is created (with its parents) when missing. Frames are rendered on a
+local Dask cluster (`topseg.services.dask_cluster`: one single-threaded worker process per
+core; pybullet is not thread-safe) or on an existing scheduler (`--scheduler
+tcp://host:port`, whose workers must see `--out` at the same path). Work goes out in tasks of `--chunk` consecutive
 frames; a task renders its frames and writes them straight into the store, returning only
 their indices and timings, and this process then sets their `complete` flags. Frame i is
 rendered from a seed that is a pure function of (--seed, i), so the dataset is the same
@@ -16,19 +17,21 @@ SIGTERM, SIGKILL, a full disk) resumes it: frames without their flag are rendere
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import os
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from topseg.core.errors import TopsegError
+from topseg.services.dask_cluster import dask_client, default_workers
+
+__all__ = ["add_arguments", "dask_client", "default_workers", "generate", "render_chunk", "run"]
 
 log = logging.getLogger("topseg.datagen")
 
@@ -36,13 +39,18 @@ MODES = ("modeled", "non-modeled")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`topseg datagen`'s options and its `preview` subcommand."""
     from topseg.core.synth.rooms import ROOMS  # a light module: the names only
 
     parser.add_argument(
         "--mode", choices=MODES, default="modeled", help="scene model (default: modeled)"
     )
     parser.add_argument("--frames", type=int, help="number of frames in the dataset")
-    parser.add_argument("--out", help="dataset directory (a Zarr v3 store) to create or resume")
+    parser.add_argument(
+        "--out",
+        help="dataset directory (a Zarr v3 store) to create or resume; missing folders above "
+        "it are created",
+    )
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     parser.add_argument(
         "--noise",
@@ -75,10 +83,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("preview", help=datagen_preview.HELP, description=datagen_preview.__doc__)
     datagen_preview.add_arguments(p)
-
-
-def default_workers() -> int:
-    return max(1, len(os.sched_getaffinity(0)))
 
 
 # ---------------------------------------------------------------- worker side
@@ -128,44 +132,6 @@ def render_chunk(path: str, store_key: str, generator: dict, seed: int, indices:
 
 
 # ---------------------------------------------------------------- client side
-
-
-@contextlib.contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
-    """A Dask client: on the scheduler at `scheduler`, or on a local cluster of `workers`."""
-    import distributed
-
-    quiet = logging.getLogger("topseg").getEffectiveLevel() > logging.DEBUG
-    if quiet:
-        # the client reports what went wrong itself; -vv shows Dask's own chatter
-        logging.getLogger("distributed").setLevel(logging.ERROR)
-    if scheduler:
-        try:
-            client = distributed.Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise TopsegError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
-        with client:
-            yield client
-        return
-    n = workers or default_workers()
-    threads = str(max(1, default_workers() // n))
-    env = {
-        k: threads
-        for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-    }
-    with (
-        distributed.LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",
-            # task errors reach the client, which reports them as one line; -vv shows all
-            silence_logs=logging.CRITICAL if quiet else logging.DEBUG,
-            env=env,
-        ) as cluster,
-        distributed.Client(cluster) as client,
-    ):
-        yield client
 
 
 def _chunks(todo: np.ndarray, size: int) -> list[list[int]]:
@@ -270,11 +236,24 @@ def generate(
     }
 
 
+def make_parent(out: Path) -> None:
+    """Create the folder the dataset `out` goes in (with its parents) if it is missing; a
+    TopsegError line naming it when it cannot be made."""
+    folder = out.absolute().parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise TopsegError(f"cannot create the folder {folder}: a file is in the way") from None
+    except OSError as exc:
+        raise TopsegError(f"cannot create the folder {folder}: {exc.strerror}") from None
+
+
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
 def run(args: argparse.Namespace) -> int:
+    """`topseg datagen`: create (or resume) the dataset at `--out` and render its missing frames."""
     if args.datagen_command == "preview":
         from topseg.services.datagen import preview as datagen_preview
 
@@ -302,6 +281,7 @@ def run(args: argparse.Namespace) -> int:
         generator=generator,
         frames=args.frames,
     )
+    make_parent(Path(args.out))
     signal.signal(signal.SIGTERM, _raise_interrupt)
     with DatasetWriter.open(args.out, attrs) as writer:
         had = int(writer.complete.sum())

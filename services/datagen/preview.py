@@ -29,6 +29,7 @@ BACKGROUND_RGB = (255, 255, 255)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`topseg datagen preview`'s options."""
     parser.add_argument("path", help="dataset directory")
     parser.add_argument("--png", help="output PNG (default: PATH without .zarr + -preview.png)")
     parser.add_argument(
@@ -112,12 +113,14 @@ def write_png(rgb: np.ndarray, out: Path) -> None:
 
 
 def default_png(path: str) -> Path:
+    """Where the sheet of dataset `path` goes by default: beside it, `<stem>-preview.png`."""
     p = Path(path.rstrip("/"))
     stem = p.name[: -len(".zarr")] if p.name.endswith(".zarr") else p.name
     return p.with_name(f"{stem}-preview.png")
 
 
 def run(args: argparse.Namespace) -> int:
+    """`topseg datagen preview`: draw a contact sheet of the dataset's frames into a PNG."""
     from topseg.core.formats.dataset import DatasetError, open_dataset
 
     if args.count < 1 or args.cols < 1 or args.scale < 1:

@@ -33,6 +33,7 @@ OVERLAPS = (0, 5, 10, 15, 20, 30, 50)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`topseg experiment`'s options."""
     from topseg.services.experiment.runs import SCALES
 
     parser.add_argument("experiment", choices=EXPERIMENTS)
@@ -72,12 +73,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 @dataclass(frozen=True)
 class Point:
+    """One point of an experiment: the model of `curve` at x value `x` (None in the table)."""
+
     curve: str
     x: float | None
-    model: object  # experiment_runs.ModelRecipe
+    model: object  # runs.ModelRecipe
 
     @property
     def key(self) -> str:
+        """The point's file name stem, unique within its experiment: `curve` or `curve-x`."""
         return self.curve if self.x is None else f"{self.curve}-{self.x:g}"
 
 
@@ -132,6 +136,7 @@ def _raise_interrupt(signum, frame):
 
 
 def run(args: argparse.Namespace) -> int:
+    """`topseg experiment`: run (or resume) one experiment's points and write its reports."""
     from topseg.core.errors import TopsegError
     from topseg.services.experiment import runs as runs
 

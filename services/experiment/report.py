@@ -29,6 +29,7 @@ def _f(x) -> str:
 
 
 def summary_line(doc: dict) -> str:
+    """One line about a finished point: its scores beside the paper's."""
     c, f = doc["crf"], doc["forest"]
     paper = _paper_pair(doc["experiment"], doc["curve"], doc["x"])
     tail = f"; paper mAP {_f(paper[0])} mAR {_f(paper[1])}" if paper != (None, None) else ""
@@ -111,6 +112,7 @@ def _header(doc: dict) -> list[str]:
 
 
 def curve_markdown(doc: dict) -> str:
+    """The Markdown report of a Fig. 4 experiment: one row per point, ours beside the paper's."""
     xl = X_LABELS[doc["experiment"]]
     lines = _header(doc)
     lines += [
@@ -129,6 +131,7 @@ def curve_markdown(doc: dict) -> str:
 
 
 def table_markdown(doc: dict) -> str:
+    """The Markdown report of Table I: per-class F1, ours beside the paper's."""
     rows = {r["curve"]: r for r in doc["points"]}
     cols = []  # (title, values: class -> f1)
     for mode in ("modeled", "non-modeled"):
@@ -250,4 +253,5 @@ def _write_text(path: Path, text: str) -> None:
 
 
 def load(path: Path) -> dict:
+    """A report JSON written by `write_all`, read back."""
     return json.loads(path.read_text())
