@@ -70,6 +70,8 @@ class SourceOptions:
 
 
 class SourceFrame(NamedTuple):
+    """One frame from a source: the depth image and, when the source knows it, the truth labels."""
+
     depth: DepthFrame
     truth: LabelFrame | None = None
 
@@ -124,12 +126,14 @@ class Backoff:
     failures: int = 0
 
     def next_delay(self, rng: random.Random | None = None) -> float:
+        """Seconds to wait after this failure: initial_s * factor**failures, capped, +/- jitter."""
         base = min(self.maximum_s, self.initial_s * self.factor**self.failures)
         self.failures += 1
         spread = (rng or random).uniform(-self.jitter, self.jitter)
         return max(0.0, base * (1.0 + spread))
 
     def reset(self) -> None:
+        """Forget past failures (a frame arrived), so the next one waits `initial_s` again."""
         self.failures = 0
 
 
@@ -147,9 +151,11 @@ class Pacer:
         self._origin: float | None = None  # wall time of media time 0
 
     def restart(self) -> None:
+        """Make the next `wait` media time 0 again (a replay looping back to its start)."""
         self._origin = None
 
     def wait(self, media_s: float, stop: threading.Event | None = None) -> None:
+        """Block until `media_s` s of media time are due or `stop` is set; no-op if not realtime."""
         if not self.realtime:
             return
         now = time.monotonic()
@@ -173,6 +179,7 @@ class Throttle:
         self._next = 0.0
 
     def admit(self, now: float | None = None) -> bool:
+        """True when a frame arriving at `now` (monotonic s) fits the rate; False means drop it."""
         if self.period is None:
             return True
         now = time.monotonic() if now is None else now
@@ -223,6 +230,7 @@ class Reconnecting:
         self.stop.wait(delay)
 
     def frames(self) -> Iterator[SourceFrame]:
+        """Frames across reopens until `stop` is set or a finite source ends (retries hidden)."""
         while not self.stop.is_set():
             try:
                 source = self.open_fn()

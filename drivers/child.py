@@ -139,6 +139,7 @@ class ChildSource(Source):
         return header
 
     def frames(self) -> Iterator[SourceFrame]:
+        """Frames as the child sends them; SourceUnavailable when it stalls or exits."""
         while True:
             magic, stamp_ns, width, height = FRAME_HEADER.unpack(
                 self._take(FRAME_HEADER.size, self.options.frame_timeout_s)
@@ -166,6 +167,7 @@ class ChildSource(Source):
             self._proc.wait()
 
     def close(self) -> None:
+        """SIGTERM the child so it closes its device, kill it after 1.5 s; safe to call twice."""
         proc = getattr(self, "_proc", None)
         if proc is None:
             return
@@ -182,6 +184,7 @@ class ChildSource(Source):
 
 
 def child_argv(module: str, *args: str) -> list[str]:
+    """The command line that runs `module` as a reader child under this same interpreter."""
     return [sys.executable, "-m", module, *args]
 
 

@@ -114,6 +114,8 @@ def quantisation_step_mm(mm: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class DumpFrame:
+    """One depth record: host seconds (fakenect paces by them), device timestamp, raw disparity."""
+
     host_s: float
     device_ts: int
     raw: np.ndarray  # (480, 640) uint16 disparity
@@ -164,6 +166,7 @@ def write_dump(
 
 
 def is_dump(path: str | os.PathLike) -> bool:
+    """True when `path` is a folder holding a complete dump (INDEX.txt is written last)."""
     return (Path(path) / "INDEX.txt").is_file()
 
 

@@ -61,6 +61,7 @@ class FaultySource(Source):
         self._closed = threading.Event()
 
     def frames(self) -> Iterator[SourceFrame]:
+        """The inner frames, then the drop-out or stall the settings ask for on a faulty open."""
         fail = self.settings.get("fail_after") if self.faulty else None
         stall = self.settings.get("stall_after") if self.faulty else None
         count = 0
@@ -75,6 +76,7 @@ class FaultySource(Source):
             count += 1
 
     def close(self) -> None:
+        """Cut a pending stall short and close the inner source."""
         self._closed.set()
         self.inner.close()
 

@@ -28,6 +28,7 @@ FAKENECT_LIBRARY_DIR = "/usr/lib/x86_64-linux-gnu/fakenect"
 
 
 def parse_index(arg: str | None) -> int:
+    """The Kinect index of `freenect[:index]` (0 when none is given), or SourceError."""
     try:
         index = int(arg) if arg else 0
     except ValueError:
@@ -38,6 +39,7 @@ def parse_index(arg: str | None) -> int:
 
 
 def open(arg: str | None, options: SourceOptions) -> ChildSource:
+    """`freenect[:index]` -> a ChildSource whose child reads that Kinect through libfreenect."""
     index = parse_index(arg)
     fps = "" if options.fps is None else str(options.fps)
     argv = child_argv("topseg.drivers.freenect", str(index), fps)

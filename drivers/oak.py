@@ -93,6 +93,7 @@ class OakSource(Source):
         return data.view("<u2").reshape(h, w).astype(np.uint16)
 
     def frames(self) -> Iterator[SourceFrame]:
+        """Checked RAW16 frames, at most `options.fps` a second; SourceUnavailable on a stall."""
         timeout = datetime.timedelta(seconds=self.options.frame_timeout_s)
         throttle = Throttle(self.options.fps)
         while True:
@@ -117,6 +118,7 @@ class OakSource(Source):
             yield SourceFrame(frame)
 
     def close(self) -> None:
+        """Stop the pipeline and wait for it (frees the device); safe to call twice."""
         if self._closed:
             return
         self._closed = True

@@ -26,6 +26,7 @@ DEFAULT_REDIST = "/usr/lib/x86_64-linux-gnu"
 
 
 def open(arg: str | None, options: SourceOptions) -> ChildSource:
+    """`openni2[:uri]` -> a ChildSource whose child reads that device (the first when no uri)."""
     fps = "" if options.fps is None else str(options.fps)
     wait_ms = str(int(1000 * options.frame_timeout_s))
     argv = child_argv("topseg.drivers.openni2", arg or "", fps, wait_ms)

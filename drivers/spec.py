@@ -26,6 +26,8 @@ USAGE = "replay:PATH, freenect[:index], openni2[:uri], oak[:device-id] or synthe
 
 @dataclass(frozen=True)
 class SourceSpec:
+    """A parsed `kind[:arg]`: the driver kind (a key of DRIVERS) and its argument, or None."""
+
     kind: str
     arg: str | None = None
 

@@ -71,6 +71,7 @@ class SyntheticSource(Source):
         self._stop = threading.Event()
 
     def frames(self) -> Iterator[SourceFrame]:
+        """Frame i is `render(i)` stamped with host time, paced at nominal_fps until closed."""
         pacer = Pacer(self.options.realtime)
         seq = 0
         while not self._stop.is_set():
@@ -82,6 +83,7 @@ class SyntheticSource(Source):
             seq += 1
 
     def close(self) -> None:
+        """Stop `frames` (also mid-wait) and release the pybullet pools."""
         self._stop.set()
         self.synth.close()
 

@@ -90,6 +90,7 @@ def fail(command: str | None, exc: BaseException) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one `topseg` command; its exit code (2 with one error line on a TopsegError)."""
     try:
         args = build_parser(argv).parse_args(argv)
     except TopsegError as exc:  # a bad --config file

@@ -33,11 +33,14 @@ class UsbDevice:
 
     @property
     def node(self) -> str:
+        """The device's usbfs node, whose permissions decide whether this user may open it."""
         return f"/dev/bus/usb/{self.bus:03d}/{self.address:03d}"
 
 
 @dataclass
 class Sensor:
+    """One sensor found: kind, `--source` spec, where it sits, its state, and a fix if needed."""
+
     kind: str  # "kinect-v1" or "oak"
     spec: str  # what to pass as --source
     usb: str  # bus/address or depthai's protocol
@@ -115,11 +118,13 @@ def describe(
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """`topseg devices` options: JSON output, and skipping depthai (slow to load, may be absent)."""
     parser.add_argument("--json", action="store_true", help="print a JSON object")
     parser.add_argument("--no-depthai", action="store_true", help="do not ask depthai for OAKs")
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the sensors found (a table or JSON) with the notes of probes that failed; always 0."""
     usb_devices, usb_note = probe_usb()
     oak_devices, oak_note = ([], "") if args.no_depthai else probe_oak()
     sensors = describe(usb_devices, oak_devices)

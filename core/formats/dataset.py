@@ -270,6 +270,7 @@ class DatasetWriter:
 
     @property
     def frames(self) -> int:
+        """Frames the store holds room for (N), complete or not."""
         return len(self.complete)
 
     def todo(self) -> np.ndarray:
@@ -291,6 +292,7 @@ class DatasetWriter:
                 raise dataset_os_error(exc, self.path, "writing") from exc
 
     def close(self) -> None:
+        """Release the store's lock so another run may open it; safe to call twice."""
         if self._lock_fd >= 0:
             os.close(self._lock_fd)
             self._lock_fd = -1

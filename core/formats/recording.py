@@ -39,6 +39,8 @@ class RecordingError(TopsegError):
 
 @dataclass(frozen=True)
 class RecordedMessage:
+    """One message as recorded: its key, the exact wire bytes, log and publish ns, sequence."""
+
     key: str
     data: bytes
     log_time_ns: int
@@ -58,6 +60,7 @@ class RecordingInfo:
 
     @property
     def keys(self) -> list[str]:
+        """The key expressions seen, sorted (one channel each)."""
         return sorted(self.counts)
 
 
@@ -267,6 +270,7 @@ def inspect(path: str | os.PathLike) -> RecordingInfo:
 
 
 def info_json(info: RecordingInfo) -> str:
+    """`inspect`'s answer as indented JSON (counts per key, time span, truncated, metadata)."""
     return json.dumps(
         {
             "keys": info.counts,

@@ -358,10 +358,12 @@ def camera_prefix(cell: str, camera: str) -> str:
 
 
 def depth_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    """Where a camera's driver publishes its depth frames (`encode_depth` messages)."""
     return f"{camera_prefix(cell, camera)}/depth"
 
 
 def labels_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    """Where the worker publishes the label image computed from each depth frame."""
     return f"{camera_prefix(cell, camera)}/labels"
 
 
@@ -371,10 +373,12 @@ def truth_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
 
 
 def stats_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    """Where the worker publishes its per-camera stats (`encode_stats` maps)."""
     return f"{camera_prefix(cell, camera)}/stats"
 
 
 def info_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
+    """The driver's queryable: its source, intrinsics, fps and health as JSON."""
     return f"{camera_prefix(cell, camera)}/info"
 
 
@@ -385,6 +389,8 @@ def alive_key(cell: str, camera: str, role: str) -> str:
 
 @dataclass(frozen=True)
 class KeyParts:
+    """A parsed key: cell, camera, kind (one of KINDS or `alive`) and, for `alive`, the role."""
+
     cell: str
     camera: str
     kind: str

@@ -94,12 +94,14 @@ class ChunkWriter:
         return cls(root, chain, separator, len(meta["shape"]))
 
     def encode(self, chunk) -> bytes:
+        """One chunk's array -> the bytes Zarr would store, through the array's own codec chain."""
         data = chunk
         for step in self._encode:
             data = step(data)
         return data
 
     def chunk_path(self, coords: tuple[int, ...]) -> Path:
+        """The file of the chunk at grid position `coords`: `c/i/j` or `c.i.j` as the array says."""
         if len(coords) != self._ndim:
             raise ValueError(f"chunk coordinates {coords} for a {self._ndim}-d array")
         return self.root / ("c" + self._sep + self._sep.join(map(str, coords)))

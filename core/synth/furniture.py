@@ -73,13 +73,16 @@ class FurnitureModel:
 
     @property
     def label(self) -> int:
+        """The label id of the item's class (every kind is one of the paper's four classes)."""
         return KINDS[self.kind]
 
     @property
     def cls(self) -> str:
+        """The class name ("chair", "table", "plant" or "storage") of this kind."""
         return CLASS_OF_KIND[self.kind]
 
     def footprint(self, x: float, y: float, yaw: float) -> np.ndarray:
+        """The floor polygon of the item at (x, y), turned by `yaw` rad (a disc ignores yaw)."""
         if self.shape == "disc":
             from topseg.core.synth.geometry import disc_footprint
 
@@ -87,6 +90,7 @@ class FurnitureModel:
         return rect_footprint(x, y, self.size_x, self.size_y, yaw)
 
     def top_z(self) -> float:
+        """Height (m) of the highest point of any part: what a top-view camera sees first."""
         return max(p.top_z() for p in self.parts)
 
 

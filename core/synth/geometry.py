@@ -126,15 +126,18 @@ def quat_mul(a, b) -> np.ndarray:
 
 
 def quat_conj(q) -> np.ndarray:
+    """The conjugate of an (x, y, z, w) quaternion: the inverse rotation of a unit one."""
     return np.array([-q[0], -q[1], -q[2], q[3]], np.float64)
 
 
 def quat_normalize(q) -> np.ndarray:
+    """`q` scaled to unit length, so it is a pure rotation again after arithmetic."""
     q = np.asarray(q, np.float64)
     return q / np.linalg.norm(q)
 
 
 def quat_from_axis_angle(axis, angle: float) -> np.ndarray:
+    """Rotation by `angle` radians about `axis` (any length, not zero) as (x, y, z, w)."""
     axis = np.asarray(axis, np.float64)
     axis = axis / np.linalg.norm(axis)
     s = np.sin(angle / 2.0)
@@ -155,6 +158,7 @@ def quat_from_euler_xyz(rx: float, ry: float, rz: float) -> np.ndarray:
 
 
 def quat_to_matrix(q) -> np.ndarray:
+    """3x3 rotation matrix of an (x, y, z, w) quaternion; a non-unit one is normalised."""
     x, y, z, w = (float(v) for v in q)
     n = x * x + y * y + z * z + w * w
     s = 2.0 / n if n > 0 else 0.0
@@ -218,11 +222,13 @@ def rect_footprint(x: float, y: float, width: float, depth: float, yaw: float) -
 
 
 def disc_footprint(x: float, y: float, radius: float, n: int = 24) -> np.ndarray:
+    """A circle of `radius` around (x, y) as an `n`-gon, CCW (round tables, pots)."""
     a = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
     return np.stack([x + radius * np.cos(a), y + radius * np.sin(a)], axis=1)
 
 
 def polygon_area(poly: np.ndarray) -> float:
+    """Area (m^2) of a simple polygon by the shoelace formula; 0 for fewer than 3 points."""
     if len(poly) < 3:
         return 0.0
     x, y = poly[:, 0], poly[:, 1]

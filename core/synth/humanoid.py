@@ -101,6 +101,7 @@ POSES: tuple[str, ...] = (*PRESETS, *CLIPS)
 
 
 def data_path() -> Path:
+    """pybullet_data's folder, which holds the humanoid URDF and the mocap clips."""
     import pybullet_data
 
     return Path(pybullet_data.getDataPath())
@@ -125,15 +126,19 @@ class Link:
 
     @property
     def label(self) -> int:
+        """The body-part label this link's shape is drawn with (LINK_LABELS)."""
         return LINK_LABELS[self.name]
 
 
 @dataclass(frozen=True)
 class HumanoidModel:
+    """The URDF's links in pybullet's order and a name -> index map (`base` is -1)."""
+
     links: tuple[Link, ...]
     index: dict = field(hash=False, compare=False)
 
     def link(self, name: str) -> Link:
+        """The link called `name`; KeyError for a name the URDF does not have."""
         return self.links[self.index[name]]
 
 
@@ -215,6 +220,7 @@ class Pose:
     tilt: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
     def to_dict(self) -> dict:
+        """Plain lists of floats (JSON-able), as a frame's scene description stores a pose."""
         return {
             "joints": {k: [float(x) for x in v] for k, v in self.joints.items()},
             "tilt": [float(x) for x in self.tilt],
@@ -222,13 +228,16 @@ class Pose:
 
     @classmethod
     def from_dict(cls, d: dict) -> Pose:
+        """The pose a `to_dict` mapping describes."""
         return cls({k: list(v) for k, v in d["joints"].items()}, tuple(d["tilt"]))
 
     def copy(self) -> Pose:
+        """A deep copy, so inverse kinematics can change joints without touching the original."""
         return Pose({k: list(v) for k, v in self.joints.items()}, tuple(self.tilt))
 
 
 def identity_pose() -> Pose:
+    """Every joint at rest and no tilt: the pose `reference_height` is measured in."""
     j = {n: [0.0, 0.0, 0.0, 1.0] for n in SPHERICAL}
     j.update({n: [0.0] for n in REVOLUTE})
     return Pose(j)
@@ -248,6 +257,7 @@ def reference_height() -> float:
 
 
 def quantize_height(h: float) -> float:
+    """Snap a height (m) to the 1 cm grid the scene builder pools human bodies on."""
     return round(round(h / HEIGHT_STEP_M) * HEIGHT_STEP_M, 4)
 
 
@@ -322,6 +332,7 @@ class Primitives:
 
 
 def posed_primitives(pose: Pose, scale: float, base_pos, base_q) -> Primitives:
+    """The human's shapes in the world: `pose` at `scale`, base at `base_pos` turned by `base_q`."""
     a = _model_arrays()
     pos, rot = link_frames(pose, scale, base_pos, base_q)
     center = pos + np.einsum("nij,nj->ni", rot, a["shape_xyz"] * scale)
@@ -394,6 +405,7 @@ def _wxyz(v) -> np.ndarray:
 
 
 def slerp(a, b, t: float) -> np.ndarray:
+    """Interpolate unit quaternions a (t = 0) to b (t = 1) along the shorter arc."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     d = float(a @ b)
     if d < 0:
@@ -647,10 +659,12 @@ def reach(p: Pose, scale: float, base_pos, base_q, side: str, target) -> bool:
 
 
 def wrist_position(p: Pose, scale: float, base_pos, base_q, side: str) -> np.ndarray:
+    """World position (m) of the `side` ("left" or "right") wrist of a posed, placed human."""
     pos, _ = link_frames(p, scale, base_pos, base_q)
     return pos[load_model().index[f"{side}_wrist"]]
 
 
 def hip_position(p: Pose, scale: float, base_pos, base_q, side: str = "right") -> np.ndarray:
+    """World position (m) of the `side` hip joint of a posed, placed human."""
     pos, _ = link_frames(p, scale, base_pos, base_q)
     return pos[load_model().index[f"{side}_hip"]]

@@ -94,6 +94,7 @@ def place_tables_joined(
 
 
 def check_tables_joined(scene: Scene, rel: Relation) -> bool:
+    """Two equally tall rectangular tables, a multiple of 90 degrees apart, meeting edge to edge."""
     b, a = scene.object(rel.subject), scene.object(rel.object)
     if a.kind != "table_rect" or b.kind != "table_rect" or abs(a.height - b.height) > 1e-6:
         return False
@@ -152,6 +153,7 @@ def place_storage_under_table(
 
 
 def check_storage_under_table(scene: Scene, rel: Relation) -> bool:
+    """Storage across a rect table, below its underside, at least half under it, inside the legs."""
     s, t = scene.object(rel.subject), scene.object(rel.object)
     if s.cls != "storage" or t.kind != "table_rect":
         return False
@@ -222,6 +224,7 @@ def place_chair_under_table(
 
 
 def check_chair_under_table(scene: Scene, rel: Relation) -> bool:
+    """The chair faces the table, its seat front under the top; a tall backrest stays out."""
     c, t = scene.object(rel.subject), scene.object(rel.object)
     if c.cls != "chair" or t.cls != "table":
         return False
@@ -279,6 +282,7 @@ def place_plant_on_table(
 
 
 def check_plant_on_table(scene: Scene, rel: Relation) -> bool:
+    """The plant stands on the table (support and height), its footprint wholly on the top."""
     p, t = scene.object(rel.subject), scene.object(rel.object)
     if p.cls != "plant" or t.cls != "table" or p.support != t.id:
         return False
@@ -437,6 +441,7 @@ def place_hand_on_table(
 
 
 def check_hand_on_table(scene: Scene, rel: Relation) -> bool:
+    """Every hand of the relation rests on the table top (wrist at top + hand radius, inside it)."""
     t = scene.object(rel.object)
     if t.cls != "table" or scene.human is None or not rel.params.get("hands"):
         return False
@@ -473,6 +478,7 @@ def place_holding_chair_back(
 
 
 def check_holding_chair_back(scene: Scene, rel: Relation) -> bool:
+    """Every hand of the relation rests on top of the chair's backrest."""
     c = scene.object(rel.object)
     if c.cls != "chair" or scene.human is None or not rel.params.get("hands"):
         return False
@@ -523,6 +529,7 @@ def place_standing_by_storage(
 
 
 def check_standing_by_storage(scene: Scene, rel: Relation) -> bool:
+    """The human faces the storage from within 1 m of its front; any hands rest on its top."""
     s, h = scene.object(rel.object), scene.human
     if s.cls != "storage" or h is None:
         return False
@@ -554,6 +561,7 @@ def place_sitting_on_chair(
 
 
 def check_sitting_on_chair(scene: Scene, rel: Relation) -> bool:
+    """A sitting human facing the chair's way with both hips on its seat, over its footprint."""
     c, h = scene.object(rel.object), scene.human
     if c.cls != "chair" or h is None or h.pose_name != "sitting":
         return False
@@ -594,6 +602,7 @@ def place_sitting_at_table(rng, scene: Scene, table: PlacedObject) -> Relation:
 
 
 def check_sitting_at_table(scene: Scene, rel: Relation) -> bool:
+    """The human sits on a chair that is under this table; any hands rest on the top."""
     t = scene.object(rel.object)
     seats = [r for r in scene.relations if r.kind == "sitting_on_chair"]
     if not seats or not any(

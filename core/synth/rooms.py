@@ -85,6 +85,7 @@ class RoomTemplate:
         return boxes
 
     def to_dict(self, mount: TopViewMount = TOP_VIEW) -> dict:
+        """Name, walls, and the floor and bounds corners (m) under `mount`, as JSON-able lists."""
         lo, hi = self.floor(mount)
         blo, bhi = self.bounds(mount)
         return {
@@ -155,6 +156,7 @@ ROOMS: tuple[str, ...] = tuple(TEMPLATES)
 
 
 def get(name: str) -> RoomTemplate:
+    """The template called `name`; KeyError naming the known rooms otherwise."""
     try:
         return TEMPLATES[name]
     except KeyError:

@@ -34,16 +34,20 @@ class PlacedObject:
 
     @property
     def cls(self) -> str:
+        """The item's class name ("chair", "table", "plant" or "storage")."""
         return furniture.CLASS_OF_KIND[self.kind]
 
     @property
     def label(self) -> int:
+        """The label id its pixels get."""
         return furniture.KINDS[self.kind]
 
     def model(self) -> furniture.FurnitureModel:
+        """The item's furniture model: its shape at its kind, variant and height (cached)."""
         return furniture.model(self.kind, self.variant, self.height)
 
     def footprint(self) -> np.ndarray:
+        """The item's polygon on the floor (m, world frame), what overlaps are measured with."""
         return self.model().footprint(self.x, self.y, self.yaw)
 
     def to_local(self, xy) -> np.ndarray:
@@ -53,6 +57,7 @@ class PlacedObject:
         return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
 
     def to_world(self, local_xy) -> np.ndarray:
+        """This item's frame -> world floor point(s); the inverse of `to_local`."""
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         p = np.asarray(local_xy, np.float64)
         return np.stack(
@@ -61,6 +66,7 @@ class PlacedObject:
         )
 
     def to_dict(self) -> dict:
+        """JSON-able record, with the class and size added for readers without this code."""
         m = self.model()
         return {
             "id": self.id,
@@ -78,6 +84,7 @@ class PlacedObject:
 
     @classmethod
     def from_dict(cls, d: dict) -> PlacedObject:
+        """The item a `to_dict` record describes (the derived class and size are ignored)."""
         return cls(
             int(d["id"]), d["kind"], int(d["variant"]), float(d["height"]),
             float(d["x"]), float(d["y"]), float(d["z"]), float(d["yaw"]),
@@ -100,17 +107,21 @@ class PlacedHuman:
 
     @property
     def scale(self) -> float:
+        """pybullet globalScaling that makes the humanoid `height` tall."""
         return humanoid.scale_for_height(self.height)
 
     @property
     def base_pos(self) -> tuple[float, float, float]:
+        """World position (m) of the humanoid's base (root link)."""
         return (self.x, self.y, self.z)
 
     @property
     def base_quat(self) -> np.ndarray:
+        """World orientation of the base: the pose's tilt, stood upright, turned by `yaw`."""
         return humanoid.base_quat(self.pose.tilt, self.yaw)
 
     def primitives(self) -> humanoid.Primitives:
+        """The posed body's shapes in the world, for rendering and relation checks."""
         return humanoid.posed_primitives(self.pose, self.scale, self.base_pos, self.base_quat)
 
     def footprint(self, arms: bool = False) -> np.ndarray:
@@ -126,6 +137,7 @@ class PlacedHuman:
         return rect_footprint(cx, cy, hi[0] - lo[0], hi[1] - lo[1], self.yaw)
 
     def to_dict(self) -> dict:
+        """JSON-able record with the pose's joints and the derived scale and base quaternion."""
         return {
             "height": self.height,
             "scale": self.scale,
@@ -141,6 +153,7 @@ class PlacedHuman:
 
     @classmethod
     def from_dict(cls, d: dict) -> PlacedHuman:
+        """The human a `to_dict` record describes (derived scale and base_quat are recomputed)."""
         return cls(
             float(d["height"]), d["pose"], humanoid.Pose.from_dict(d), dict(d["source"]),
             float(d["x"]), float(d["y"]), float(d["z"]), float(d["yaw"]),
@@ -157,6 +170,7 @@ class Relation:
     params: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
+        """JSON-able record of the relation."""
         return {
             "kind": self.kind,
             "subject": self.subject,
@@ -166,11 +180,14 @@ class Relation:
 
     @classmethod
     def from_dict(cls, d: dict) -> Relation:
+        """The relation a `to_dict` record describes (`params` may be missing)."""
         return cls(d["kind"], d["subject"], d["object"], dict(d.get("params", {})))
 
 
 @dataclass
 class Scene:
+    """One frame's scene: room, floor (m), thetas, objects, human and the relations placing them."""
+
     mode: str  # "modeled" | "non-modeled"
     room: str
     floor_lo: tuple[float, float]
@@ -186,24 +203,29 @@ class Scene:
 
     @property
     def floor_area(self) -> float:
+        """Area (m^2) of the floor where items' centres may go; H_pos and O_pos are 1 / it."""
         return (self.floor_hi[0] - self.floor_lo[0]) * (self.floor_hi[1] - self.floor_lo[1])
 
     @property
     def bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(lo, hi) corners footprints must stay within; the floor when no bounds are set."""
         lo = self.floor_lo if self.bounds_lo is None else self.bounds_lo
         hi = self.floor_hi if self.bounds_hi is None else self.bounds_hi
         return tuple(lo), tuple(hi)
 
     def object(self, oid: int) -> PlacedObject:
+        """The object with id `oid`; KeyError when there is none."""
         for o in self.objects:
             if o.id == oid:
                 return o
         raise KeyError(f"scene has no object {oid}")
 
     def related(self, a, b) -> list[Relation]:
+        """Relations between items `a` and `b`, in either direction (ids, or HUMAN)."""
         return [r for r in self.relations if {r.subject, r.object} == {a, b}]
 
     def to_dict(self) -> dict:
+        """JSON-able description of the frame, as a dataset stores it; `from_dict` reads it back."""
         return {
             "mode": self.mode,
             "room": self.room,
@@ -220,6 +242,7 @@ class Scene:
 
     @classmethod
     def from_dict(cls, d: dict) -> Scene:
+        """The scene a `to_dict` description records, exactly."""
         return cls(
             d["mode"],
             d["room"],

@@ -271,6 +271,7 @@ class SceneBuilder:
 
     @property
     def n_bodies(self) -> int:
+        """pybullet bodies made so far (floor, furniture and humanoid pools, walls)."""
         return (
             1
             + sum(len(v) for v in self._furniture.values())

@@ -35,6 +35,7 @@ BENCHES: dict[str, tuple[str, str]] = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """One subcommand per bench (each with `--json`); every bench module is imported here."""
     sub = parser.add_subparsers(dest="bench", metavar="STAGE")
     sub.required = True
     for name, (module_name, help_text) in BENCHES.items():
@@ -55,6 +56,7 @@ def peak_rss_mb() -> float:
 
 
 def format_table(figures: dict) -> str:
+    """Aligned `name  value` lines; floats to 3 decimals (1 from 100 up) so columns stay short."""
     width = max(len(k) for k in figures)
     lines = []
     for key, value in figures.items():
@@ -65,6 +67,7 @@ def format_table(figures: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Measure the chosen bench, add the peak RSS, print a table or one JSON object."""
     figures = args._measure(args)
     figures.setdefault("peak_rss_mb", round(peak_rss_mb(), 1))
     if args.json:

@@ -7,9 +7,9 @@ first task submitted to last frame flagged complete. The workers' own clocks spl
 rendering and writing (compression + chunk files); `ideal_frames_per_s` is what the workers
 would reach if the pipeline cost nothing beyond rendering, and `pipeline_overhead_pct` how
 far below it the run fell. The `*_cpu_ms_per_frame` figures are the worker threads' CPU
-time, which unlike wall time does not grow when other jobs share the cores. A second timed run replays a few pre-rendered frames instead of
-rendering (`replay_frames_per_s`): that is the ceiling the pipeline itself allows
-(compression, writing, scheduling, flags).
+time, which unlike wall time does not grow when other jobs share the cores. A second timed
+run replays a few pre-rendered frames instead of rendering (`replay_frames_per_s`): that is
+the ceiling the pipeline itself allows (compression, writing, scheduling, flags).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Frames, warm-up, workers, task size and generator of the run; temp stores in `--dir`."""
     parser.add_argument("--frames", type=int, default=240, help="frames in the timed run (240)")
     parser.add_argument("--warmup", type=int, default=8, help="frames per worker before timing (8)")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (one per core)")
@@ -68,6 +69,7 @@ def _run(root: Path, name: str, generator: dict, frames: int, client, chunk: int
 
 
 def measure(args: argparse.Namespace) -> dict:
+    """Warm up, then time a rendered run and a replayed run; the figures the module doc explains."""
     from topseg.core.errors import TopsegError
     from topseg.core.synth.noise import parse_noise
     from topseg.services.datagen import dask_client, default_workers
