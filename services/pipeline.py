@@ -39,6 +39,9 @@ WARMUP_FRAMES = 5
 START_TIMEOUT_S = 180.0
 MAX_SCORED = 3000  # frames kept for scoring (~0.6 MB each)
 DRAIN_S = 1.0  # wait for labels still in flight after the driver stops
+#: --lossless: after the driver stops, keep waiting while labels still come (at most this
+#: long between two), until every frame sent is labelled; a loaded worker has a backlog
+DRAIN_IDLE_S = 15.0
 
 
 def free_port() -> int:
@@ -46,6 +49,26 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _drain(col: _Collector, lossless: bool, stop: threading.Event) -> None:
+    """Wait for labels still in flight after the driver stopped.
+
+    DRAIN_S at least; with `lossless`, also until every depth frame seen is labelled, for as
+    long as labels keep coming (DRAIN_IDLE_S at most between two). A fixed wait lost the
+    tail of a loaded worker's FIFO to the SIGTERM that followed (issue 15).
+    """
+    t_end = time.monotonic() + DRAIN_S
+    while not stop.is_set():
+        now = time.monotonic()
+        with col.lock:
+            done = col.n_labels >= col.frames_sent
+            last = col.last_label_s  # monotonic
+        if now >= t_end and (not lossless or done):
+            return
+        if lossless and now >= t_end and last is not None and now - last > DRAIN_IDLE_S:
+            return  # the worker stopped making progress: report what came
+        stop.wait(0.05)
 
 
 class _Collector:
@@ -230,7 +253,7 @@ def run_pipeline(
                 break
             stop.wait(0.05)
         codes["driver"] = kids.stop("driver")
-        time.sleep(DRAIN_S)
+        _drain(col, lossless, stop)
     finally:
         for name in kids.procs:
             if name not in codes:
