@@ -2,12 +2,14 @@
 
 Depth is uint16 millimetres, 0 = no measurement. The camera frame is x right, y down,
 z forward (RDF). The mount places the camera at `height_mm` above the floor, looking
-straight down, so a pixel's depth is its distance from the camera plane.
+down with a small pitch and roll; `TopViewMount.height_map_mm` turns depth into height above
+the floor, which is what the model reads.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import functools
+from dataclasses import asdict, dataclass
 
 import numba
 import numpy as np
@@ -101,53 +103,170 @@ def project(points_m: np.ndarray, k: Intrinsics) -> np.ndarray:
     return np.stack([k.fx * p[..., 0] / z + k.cx, k.fy * p[..., 1] / z + k.cy], axis=-1)
 
 
+@functools.lru_cache(maxsize=64)
+def _ray_coefficients(k: Intrinsics, normal: tuple[float, float, float]) -> np.ndarray:
+    """(H, W) float32 `n . (x/z, y/z, 1)` of each pixel's ray: height = height + depth * it."""
+    v, u = np.indices(k.shape, dtype=np.float64)
+    a = normal[0] * (u - k.cx) / k.fx + normal[1] * (v - k.cy) / k.fy + normal[2]
+    a = a.astype(np.float32)
+    a.flags.writeable = False
+    return a
+
+
+def _rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Rx(pitch) @ Ry(roll) @ diag(1, -1, -1): world -> camera for a tilted top-view camera."""
+    p, r = np.radians(pitch_deg), np.radians(roll_deg)
+    cp, sp, cr, sr = np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
+    ry = np.array([[cr, 0.0, sr], [0.0, 1.0, 0.0], [-sr, 0.0, cr]])
+    return rx @ ry @ np.diag([1.0, -1.0, -1.0])
+
+
+#: the largest tilt (degrees) a mount may have: a top-view camera, not a wall camera
+MAX_MOUNT_TILT_DEG = 60.0
+
+
 @dataclass(frozen=True)
 class TopViewMount:
-    """A camera on the ceiling, `height_mm` above the floor, looking straight down.
+    """A camera on the ceiling, `height_mm` above the floor, looking down, tilted a little.
 
-    World frame: x, y on the floor, z up, origin on the floor below the camera.
-    Camera x = world x, camera y = -world y, camera z = -world z (looking down).
+    World frame: x, y on the floor, z up, origin on the floor below the camera centre.
+    Camera frame: x right, y down, z forward (RDF). A point maps as
+    `p_cam = R @ (p_world - centre)` with `R = Rx(pitch) @ Ry(roll) @ diag(1, -1, -1)`:
+    straight down (pitch = roll = 0) camera x = world x, camera y = -world y, camera
+    z = -world z. Positive pitch turns the optical axis towards the image's bottom rows
+    (the floor there reads farther); positive roll towards its left columns. The floor
+    fixes only pitch and roll; the heading about the vertical is taken as zero.
+
+    `height_mm` has no default: a mount comes from calibration (`core/calibration.py`),
+    from the frames' own metadata, or from a training distribution, never from a constant.
+    `sensor` names a sensor model in `core/sensors.py` (its noise family and ranges).
     """
 
-    intrinsics: Intrinsics = field(default_factory=Intrinsics)
-    height_mm: float = 3500.0
+    intrinsics: Intrinsics
+    height_mm: float
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+    sensor: str = "kinect_v1"
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.height_mm) and self.height_mm > 0):
+            raise ValueError(f"mount height must be a positive number of mm, got {self.height_mm}")
+        for name in ("pitch_deg", "roll_deg"):
+            angle = getattr(self, name)
+            if not (np.isfinite(angle) and abs(angle) <= MAX_MOUNT_TILT_DEG):
+                raise ValueError(
+                    f"mount {name} must be within +-{MAX_MOUNT_TILT_DEG:g} degrees, got {angle}"
+                )
+        if not self.sensor:
+            raise ValueError("mount sensor must be a sensor name, got an empty string")
+
+    # --- geometry ------------------------------------------------------------------------
+
+    def rotation_world_to_camera(self) -> np.ndarray:
+        """(3, 3) float64 R with `p_cam = R @ (p_world - centre)`; straight down diag(1,-1,-1)."""
+        return _rotation(self.pitch_deg, self.roll_deg)
+
+    def centre_world_m(self) -> np.ndarray:
+        """The camera centre in world metres: (0, 0, height)."""
+        return np.array([0.0, 0.0, self.height_mm / 1000.0])
+
+    def world_to_camera(self, xyz_world_m: np.ndarray) -> np.ndarray:
+        """World points (z up, floor at 0) in metres -> camera-frame points (float64)."""
+        p = np.asarray(xyz_world_m, np.float64)
+        return (p - self.centre_world_m()) @ self.rotation_world_to_camera().T
+
+    def camera_to_world(self, xyz_cam_m: np.ndarray) -> np.ndarray:
+        """Camera-frame points in metres -> world points (float64); `world_to_camera`'s inverse."""
+        p = np.asarray(xyz_cam_m, np.float64)
+        return p @ self.rotation_world_to_camera() + self.centre_world_m()
+
+    def up_normal_camera(self) -> np.ndarray:
+        """The floor's unit up-normal (towards the camera) in camera coordinates."""
+        return self.rotation_world_to_camera()[:, 2].copy()
+
+    def tilt_deg(self) -> float:
+        """Angle in degrees between the optical axis and straight down."""
+        return float(np.degrees(np.arccos(np.clip(-self.up_normal_camera()[2], -1.0, 1.0))))
+
+    def height_map_mm(self, depth_mm: np.ndarray) -> np.ndarray:
+        """(H, W) float32 height above the floor (mm) of each pixel's point; NaN without depth.
+
+        `height_mm + n . X` with n the floor's up-normal and X the back-projected point in mm.
+        """
+        depth_mm = np.asarray(depth_mm)
+        if depth_mm.shape != self.intrinsics.shape:
+            raise ValueError(
+                f"depth shape {depth_mm.shape} does not match camera {self.intrinsics.shape}"
+            )
+        n = tuple(float(x) for x in self.up_normal_camera())
+        a = _ray_coefficients(self.intrinsics, n)
+        z = depth_mm.astype(np.float32)
+        h = z * a + np.float32(self.height_mm)
+        h[depth_mm == 0] = np.nan
+        return h
+
+    @classmethod
+    def from_floor_plane(
+        cls,
+        normal_cam: np.ndarray,
+        offset_mm: float,
+        intrinsics: Intrinsics,
+        sensor: str = "kinect_v1",
+    ) -> TopViewMount:
+        """The mount whose floor is the plane `n . X + offset = 0` (X in camera mm).
+
+        `n` is the floor's normal in camera coordinates, pointing up (towards the camera);
+        it is normalised here (and flipped, with the offset, if it points down).
+        """
+        n = np.asarray(normal_cam, np.float64).reshape(3)
+        norm = float(np.linalg.norm(n))
+        if not np.isfinite(norm) or norm == 0.0:
+            raise ValueError(f"floor normal must be a non-zero vector, got {n.tolist()}")
+        n, d = n / norm, float(offset_mm) / norm
+        if n[2] > 0:  # pointing away from the camera: the same plane, the other side
+            n, d = -n, -d
+        # n = Rx(p) Ry(r) (0, 0, -1) = (-sin r, sin p cos r, -cos p cos r)
+        roll = np.degrees(np.arctan2(-n[0], np.hypot(n[1], n[2])))
+        pitch = np.degrees(np.arctan2(n[1], -n[2]))
+        return cls(intrinsics, d, float(pitch), float(roll), sensor)
 
     def floor_extent_m(self) -> tuple[float, float]:
-        """Width and depth (metres) of the floor area the camera sees."""
+        """Width and depth (metres) of the floor area a straight-down camera would see."""
         h = self.height_mm / 1000.0
         k = self.intrinsics
         return (k.width * h / k.fx, k.height * h / k.fy)
 
-    def world_to_camera(self, xyz_world_m: np.ndarray) -> np.ndarray:
-        """World points (z up, floor at 0) in metres -> camera-frame points."""
-        p = np.asarray(xyz_world_m, np.float64)
-        h = self.height_mm / 1000.0
-        return np.stack([p[..., 0], -p[..., 1], h - p[..., 2]], axis=-1)
-
-    def camera_to_world(self, xyz_cam_m: np.ndarray) -> np.ndarray:
-        """Camera-frame points in metres -> world points (the same flip, its own inverse)."""
-        p = np.asarray(xyz_cam_m, np.float64)
-        h = self.height_mm / 1000.0
-        return np.stack([p[..., 0], -p[..., 1], h - p[..., 2]], axis=-1)
-
     def depth_of_height(self, z_world_m: float) -> float:
-        """Depth in mm that a horizontal surface at height `z_world_m` reads."""
-        return self.height_mm - 1000.0 * z_world_m
+        """Depth in mm that a horizontal surface at height `z_world_m` reads on the optical axis."""
+        cos_tilt = -float(self.up_normal_camera()[2])
+        return (self.height_mm - 1000.0 * z_world_m) / cos_tilt
+
+    # --- as data -------------------------------------------------------------------------
 
     def to_dict(self) -> dict:
         """The mount as a plain dict (`from_dict` reads it back)."""
-        return {"intrinsics": self.intrinsics.to_dict(), "height_mm": self.height_mm}
+        return {
+            "intrinsics": self.intrinsics.to_dict(),
+            "height_mm": float(self.height_mm),
+            "pitch_deg": float(self.pitch_deg),
+            "roll_deg": float(self.roll_deg),
+            "sensor": self.sensor,
+        }
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "camera mount") -> TopViewMount:
-        """The mount in `d` (`to_dict`'s form); both keys are required."""
+        """The mount in `d` (`to_dict`'s form). `intrinsics` and `height_mm` are required;
+        the tilt and sensor default (straight down, Kinect v1), so dicts written before
+        they existed still load."""
         from topseg.core.config import from_dict
 
         return from_dict(cls, d, source, required=("intrinsics", "height_mm"))
 
 
-TOP_VIEW = TopViewMount()
-
+#: The paper's mount: a Kinect v1 3.5 m above the floor, looking straight down. For
+#: reproducing the paper's experiments only; real cameras are calibrated (`topseg calibrate`).
+PAPER_MOUNT = TopViewMount(KINECT_V1, 3.5 * 1000)  # the paper's setting, in mm
 
 #: the largest depth a uint16 mm frame holds
 MAX_DEPTH_MM = 65535

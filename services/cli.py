@@ -38,6 +38,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "viewer": ("topseg.services.viewer", "show depth, labels, points and stats in Rerun"),
     "router": ("topseg.services.router", "run a Zenoh router (for several machines, see deploy/)"),
     "status": ("topseg.services.status", "each camera's driver and worker: alive, fps, latency"),
+    "calibrate": (
+        "topseg.services.calibrate",
+        "fit the floor in a camera's frames, write a mount file",
+    ),
 }
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from topseg.core.camera import TOP_VIEW, Intrinsics, TopViewMount
+from topseg.core.camera import PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.config import from_dict
 from topseg.core.crf.energy import CRFConfig
 from topseg.core.errors import ConfigError, TopsegError
@@ -25,14 +25,20 @@ def test_config_error_is_the_operators_error_and_a_value_error():
 
 @pytest.mark.parametrize("cls", [*CONFIGS, Intrinsics])
 def test_every_config_round_trips(cls):
-    value = TOP_VIEW.intrinsics if cls is Intrinsics else TOP_VIEW if cls is TopViewMount else cls()
+    value = (
+        PAPER_MOUNT.intrinsics
+        if cls is Intrinsics
+        else PAPER_MOUNT
+        if cls is TopViewMount
+        else cls()
+    )
     data = json.loads(json.dumps(value.to_dict()))
     assert cls.from_dict(data, source="x.json").to_dict() == value.to_dict()
 
 
 @pytest.mark.parametrize("cls", CONFIGS)
 def test_an_unknown_key_names_it_and_the_source(cls):
-    data = json.loads(json.dumps((TOP_VIEW if cls is TopViewMount else cls()).to_dict()))
+    data = json.loads(json.dumps((PAPER_MOUNT if cls is TopViewMount else cls()).to_dict()))
     data["colour"] = 1
     with pytest.raises(ConfigError, match=r"^cell1\.toml \[x\]: unknown key 'colour'"):
         cls.from_dict(data, source="cell1.toml [x]")
@@ -89,7 +95,9 @@ def test_missing_keys_take_defaults_and_numbers_are_normalised():
     assert FeatureConfig.from_dict(features) == FeatureConfig()
     crf = CRFConfig.from_dict({"smoothness": 2})
     assert crf.smoothness == 2.0 and isinstance(crf.smoothness, float)
-    mount = TopViewMount.from_dict({"intrinsics": TOP_VIEW.intrinsics.to_dict(), "height_mm": 3000})
+    mount = TopViewMount.from_dict(
+        {"intrinsics": PAPER_MOUNT.intrinsics.to_dict(), "height_mm": 3000}
+    )
     assert isinstance(mount.height_mm, float)
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from topseg.core import labels
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.crf import CRFConfig, segment_crf
 from topseg.core.forest import (
     FeatureConfig,
@@ -16,7 +16,7 @@ from topseg.core.forest import (
 from topseg.core.synth import procedural
 
 # half resolution keeps the test fast; a 32 px patch here spans what 64 px do at 640x480
-MOUNT = TopViewMount(KINECT_V1.scaled_to(320, 240))
+MOUNT = TopViewMount(KINECT_V1.scaled_to(320, 240), PAPER_MOUNT.height_mm)
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,14 @@ import numpy as np
 import pytest
 
 from topseg.core import labels
-from topseg.core.camera import KINECT_V1, TOP_VIEW, Intrinsics, TopViewMount, backproject, project
+from topseg.core.camera import (
+    KINECT_V1,
+    PAPER_MOUNT,
+    Intrinsics,
+    TopViewMount,
+    backproject,
+    project,
+)
 
 
 def test_label_table_matches_design():
@@ -60,7 +67,7 @@ def test_backproject_then_project_returns_pixels():
 
 
 def test_top_view_mount():
-    m = TOP_VIEW
+    m = PAPER_MOUNT
     assert m.height_mm == 3500.0
     w, h = m.floor_extent_m()
     assert w == pytest.approx(640 * 3.5 / 570.3)

@@ -13,7 +13,7 @@ import pytest
 from netutil import free_port, wait_for
 
 from topseg.core import forest
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services import systemd_notify as sd
 
@@ -65,7 +65,7 @@ def notify_socket(tmp_path):
 def model_path(tmp_path_factory):
     """A tiny forest, saved as a model file."""
     rng = np.random.default_rng(0)
-    mount = TopViewMount(KINECT_V1.scaled_to(160, 120))
+    mount = TopViewMount(KINECT_V1.scaled_to(160, 120), PAPER_MOUNT.height_mm)
     pairs = [procedural_frame(rng, mount) for _ in range(6)]
     depth = np.stack([d for d, _ in pairs])
     truth = np.stack([t for _, t in pairs])

@@ -14,7 +14,7 @@ import zenoh
 from netutil import free_port, wait_for
 
 from topseg.core import labels
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.viewer import point_cloud
@@ -35,7 +35,9 @@ def rrd_print(path) -> str:
 
 def test_point_cloud_matches_backprojection_of_kept_pixels():
     rng = np.random.default_rng(0)
-    depth, truth = procedural_frame(rng, TopViewMount(K), missing_fraction=0.1)
+    depth, truth = procedural_frame(
+        rng, TopViewMount(K, PAPER_MOUNT.height_mm), missing_fraction=0.1
+    )
     frame = wire.DepthFrame(depth, K)
     xyz, ids = point_cloud(frame, truth, 4)
     sub = depth[::4, ::4]
@@ -82,7 +84,7 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
         def send_round(first_seq):
             for seq in range(first_seq, first_seq + 3):
                 for cell, cam in cams:
-                    depth, truth = procedural_frame(rng, TopViewMount(K))
+                    depth, truth = procedural_frame(rng, TopViewMount(K, PAPER_MOUNT.height_mm))
                     stamp = 10**18 + seq * 10**8
                     pubs[cell, cam, "depth"].put(
                         wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp))

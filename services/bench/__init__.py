@@ -31,6 +31,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "topseg.services.bench.train",
         "topseg train, paper config x --scale: s, CPU s, peak RSS",
     ),
+    "calibrate": (
+        "topseg.services.bench.calibrate",
+        "mount calibration on rendered frames: height and tilt errors over random mounts",
+    ),
 }
 
 

@@ -14,8 +14,10 @@ import numpy as np
 from scipy import ndimage
 
 from topseg.core import labels as L
+from topseg.core.camera import PAPER_MOUNT
 
-FLOOR_MM = 3500
+#: the stand-in scene's floor: the paper's mount, as the procedural scenes it imitates
+FLOOR_MM = int(PAPER_MOUNT.height_mm)
 
 
 def _ellipse(shape, cx, cy, ax, ay, angle):

@@ -1,0 +1,123 @@
+"""`topseg calibrate` as an operator runs it: a replayed camera in, figures, mount file, picture."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+from test_calibration import K, frames_of
+
+from topseg.core.camera import TopViewMount
+from topseg.core.formats import recording, wire
+from topseg.core.formats.mount_file import read_mount_document
+from topseg.core.sensors import get_sensor
+
+
+def calibrate(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "topseg.services.cli", "calibrate", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def figure(stdout: str, name: str) -> float:
+    """The number on the printed line that starts with `name`."""
+    match = re.search(rf"^{name}\s+([-+]?\d+(?:\.\d+)?)", stdout, re.MULTILINE)
+    assert match, f"no {name!r} line in:\n{stdout}"
+    return float(match.group(1))
+
+
+@pytest.fixture(scope="module")
+def png_folder(tmp_path_factory):
+    """Six 320x240 depth PNGs (Kinect v1 optics scaled) of a tilted floor with boxes."""
+    folder = tmp_path_factory.mktemp("cam")
+    truth = TopViewMount(K, 3250.0, 6.0, -4.0)
+    for i, depth in enumerate(frames_of(truth, n=6, cover=0.35)):
+        Image.fromarray(depth).save(folder / f"f{i:02d}.png")
+    return folder
+
+
+def test_calibrate_a_replayed_camera(png_folder, tmp_path):
+    out = tmp_path / "etc" / "topseg" / "cell1.json"  # folders made as needed
+    r = calibrate("--source", f"replay:{png_folder}", "--frames", 5, "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert abs(figure(r.stdout, "height") - 3250.0) < 10
+    assert abs(figure(r.stdout, "pitch") - 6.0) < 0.1
+    assert abs(figure(r.stdout, "roll") + 4.0) < 0.1
+    assert 5 < figure(r.stdout, "residual") < 25
+    assert 40 < figure(r.stdout, "floor") < 70
+    assert "frames     5 of 5" in r.stdout
+    assert "320x240" in r.stdout and "sensor     unknown" in r.stdout
+
+    doc = read_mount_document(out)
+    mount = doc["mount"]
+    assert mount.intrinsics == K
+    assert abs(mount.height_mm - 3250.0) < 10
+    assert doc["fit"]["frames_used"] == 5
+    picture = out.with_suffix(".png")
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with Image.open(picture) as img:
+        assert img.width > img.height > 200  # three panels side by side
+
+
+def test_calibrate_a_recording_of_another_sensor(tmp_path):
+    oak = get_sensor("oak_d")
+    truth = TopViewMount(oak.intrinsics, 2700.0, -3.0, 8.0, "oak_d")
+    rec = tmp_path / "oak.mcap"
+    w = recording.RecordingWriter(rec)
+    for i, depth in enumerate(frames_of(truth, n=4, cover=0.3, sigma_mm_per_m2=3.0)):
+        w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, oak.intrinsics, seq=i)))
+    w.close()
+    out, pic = tmp_path / "oak-mount.json", tmp_path / "pictures" / "oak.png"
+    pic.parent.mkdir()
+    r = calibrate("--source", f"replay:{rec}", "--sensor", "oak_d", "--out", out, "--picture", pic)
+    assert r.returncode == 0, r.stderr
+    assert "sensor     oak_d" in r.stdout and "640x400" in r.stdout
+    assert "frames     4 of 4" in r.stdout  # the recording ended before the default 60
+    mount = read_mount_document(out)["mount"]
+    assert mount.sensor == "oak_d" and mount.intrinsics == oak.intrinsics
+    assert abs(mount.height_mm - 2700.0) < 10
+    assert abs(mount.pitch_deg + 3.0) < 0.15 and abs(mount.roll_deg - 8.0) < 0.15
+    assert pic.read_bytes()[:4] == b"\x89PNG"
+
+
+def error_line(r) -> str:
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = [line for line in r.stderr.splitlines() if line.startswith("topseg calibrate: error")]
+    assert len(lines) == 1, r.stderr
+    return lines[0]
+
+
+def test_refusals_are_one_line(png_folder, tmp_path):
+    empty = tmp_path / "dark"
+    empty.mkdir()
+    for i in range(3):
+        Image.fromarray(np.zeros(K.shape, np.uint16)).save(empty / f"{i}.png")
+    line = error_line(calibrate("--source", f"replay:{empty}", "--out", tmp_path / "m.json"))
+    assert "no depth" in line
+
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    line = error_line(
+        calibrate("--source", f"replay:{png_folder}", "--out", blocked / "sub" / "m.json")
+    )
+    assert "cannot create" in line
+
+    line = error_line(
+        calibrate(
+            "--source",
+            f"replay:{png_folder}",
+            "--sensor",
+            "kinect_v9",
+            "--out",
+            tmp_path / "m.json",
+        )
+    )
+    assert "unknown sensor 'kinect_v9'" in line
+    assert not (tmp_path / "m.json").exists()
