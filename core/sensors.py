@@ -1,0 +1,124 @@
+"""The depth sensors topseg supports, as data: intrinsics, noise family and range.
+
+A `SensorModel` says what a frame from that camera looks like: its resolution and focal
+length (the synthesiser renders at these; features scale by the focal length), its noise
+(a `core.synth.noise.parse_noise` spec of the sensor's family) and the range it measures.
+`get_sensor(name)` looks one up; `SENSORS` lists them all. Values and their sources:
+docs/research/sensor-noise-sources.md (codes R/S/K/D there), summarised in docs/noise.md.
+
+- kinect_v1: structured light (PrimeSense), 640x480, fx 570.3; today's `kinect` noise.
+- kinect_v2: time of flight, 512x424, fx ~365 (70.6 x 60 deg). The Azure Kinect's NFOV
+  modes (640x576 unbinned / 320x288 binned, 75 x 65 deg, fx ~504 / ~252) are close in
+  field of view and noise family; frames from one are labelled as a `kinect_v2`-family
+  camera with their own intrinsics.
+- oak_d: stereo (Luxonis OAK-D, OV9282 pair), 640x400, fx 441.25, baseline 75 mm.
+- realsense_d435: active stereo (Intel D435), 640x480, fx ~385, baseline 50 mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from topseg.core.camera import Intrinsics
+from topseg.core.errors import ConfigError
+
+STRUCTURED_LIGHT = "structured_light"
+TIME_OF_FLIGHT = "time_of_flight"
+ACTIVE_STEREO = "active_stereo"
+FAMILIES = (STRUCTURED_LIGHT, TIME_OF_FLIGHT, ACTIVE_STEREO)
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """One depth camera: its intrinsics, noise family and spec, and measured range.
+
+    `noise_spec` parses with `core.synth.noise.parse_noise`; `baseline_m` is the
+    triangulation baseline (projector or second imager; 0 for time of flight).
+    """
+
+    name: str
+    family: str
+    intrinsics: Intrinsics
+    noise_spec: str
+    min_range_m: float
+    max_range_m: float
+    baseline_m: float = 0.0
+    note: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        if self.family not in FAMILIES:
+            raise ConfigError(
+                f"sensor {self.name!r}: family {self.family!r} is not one of {', '.join(FAMILIES)}"
+            )
+        if not 0 <= self.min_range_m < self.max_range_m:
+            raise ConfigError(f"sensor {self.name!r}: needs 0 <= min_range_m < max_range_m")
+
+    def noise(self):
+        """The sensor's noise model (`parse_noise(noise_spec)`)."""
+        from topseg.core.synth.noise import parse_noise
+
+        return parse_noise(self.noise_spec)
+
+    def sigma_mm(self, z_m):
+        """Standard deviation (mm) of the sensor's random depth error at depth `z_m` (metres,
+        scalar or array), at normal incidence away from edges: a noise-aware margin's unit."""
+        return np.asarray(self.noise().sigma_mm(np.asarray(z_m, np.float64)))
+
+
+KINECT_V1 = SensorModel(
+    "kinect_v1",
+    STRUCTURED_LIGHT,
+    Intrinsics(640, 480, 570.3, 570.3, 319.5, 239.5),
+    "kinect",
+    0.5,
+    8.0,
+    baseline_m=0.075,
+    note="PrimeSense PS1080; the noise model's own range (Microsoft SDK: 0.8-4 m default)",
+)
+KINECT_V2 = SensorModel(
+    "kinect_v2",
+    TIME_OF_FLIGHT,
+    Intrinsics(512, 424, 365.0, 365.0, 255.5, 211.5),
+    "tof",
+    0.5,
+    6.0,
+    note=(
+        "fx ~365 (K/D from 70.6 deg); libfreenect2 cuts at 4.5 m by default, depth is delivered "
+        "beyond it; Azure Kinect NFOV (75 x 65 deg, fx ~504 at 640x576) is the same family"
+    ),
+)
+OAK_D = SensorModel(
+    "oak_d",
+    ACTIVE_STEREO,
+    Intrinsics(640, 400, 441.25, 441.25, 319.5, 199.5),
+    "stereo:focal_px=441.25,baseline_m=0.075,subpixel_bits=3,disparity_sigma_px=0.1,"
+    "min_range_m=0.35,border_px=3",
+    0.35,
+    10.0,
+    baseline_m=0.075,
+    note="Luxonis OAK-D at 400P; MinZ = f B / 95 px = 0.35 m; 3 subpixel bits (default)",
+)
+REALSENSE_D435 = SensorModel(
+    "realsense_d435",
+    ACTIVE_STEREO,
+    Intrinsics(640, 480, 385.0, 385.0, 319.5, 239.5),
+    "stereo",
+    0.3,
+    10.0,
+    baseline_m=0.05,
+    note="Intel D435 at 640x480 (HFOV ~90 deg); subpixel RMS 0.08 px (Intel's advice)",
+)
+
+SENSORS: tuple[SensorModel, ...] = (KINECT_V1, KINECT_V2, OAK_D, REALSENSE_D435)
+_BY_NAME = {s.name: s for s in SENSORS}
+NAMES: tuple[str, ...] = tuple(_BY_NAME)
+
+
+def get_sensor(name: str) -> SensorModel:
+    """The sensor called `name`; a one-line ConfigError listing the known names if none."""
+    try:
+        return _BY_NAME[name]
+    except (KeyError, TypeError):
+        raise ConfigError(f"unknown sensor {name!r}; known: {', '.join(NAMES)}") from None
