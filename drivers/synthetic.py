@@ -2,8 +2,12 @@
 ground truth on every frame.
 
 OPTIONS is a comma-separated list: a mode (`modeled`, the default, or `non-modeled`) and
-`key=value` settings `seed=N` (default 0), `room=NAME` and `noise=SPEC` (a `parse_noise` spec),
-e.g. `synthetic:non-modeled,seed=3`. Frame `i` is `Synthesizer.render(i)`, so the same spec
+`key=value` settings `seed=N` (default 0), `room=NAME`, `noise=SPEC` (a `parse_noise` spec,
+or `sensor`: the camera's own noise family), `mount=paper|random` and `sensor=NAME`, e.g.
+`synthetic:non-modeled,seed=3` or `synthetic:mount=random,sensor=oak_d`. A camera stays put,
+so the stream has one mount: the paper's (default), or one drawn from the seed (height
+2.4-4.5 m, pitch and roll up to 10 degrees, the named sensor or one of all four; its noise
+family unless `noise` says otherwise). Every depth frame carries its mount. Frame `i` is `Synthesizer.render(i)`, so the same spec
 gives the same frames in any process. Frames come at `options.fps` (default 30) or as fast as
 they render without `realtime`; rendering one takes 15-40 ms on one core, so 30 fps is the
 most this source sustains. The source never ends on its own.
@@ -22,7 +26,7 @@ from topseg.core.synth.density import MODES
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
 
 DEFAULT_FPS = 30.0
-_KEYS = ("seed", "room", "noise")
+_KEYS = ("seed", "room", "noise", "mount", "sensor")
 
 
 def parse_options(arg: str | None) -> dict:
@@ -44,9 +48,32 @@ def parse_options(arg: str | None) -> dict:
                 kw["seed"] = int(value)
             except ValueError:
                 raise SourceError(f"synthetic: seed must be an integer, got {value!r}") from None
+        elif key == "mount" and value not in ("paper", "random"):
+            raise SourceError(f"synthetic: mount must be paper or random, got {value!r}")
         else:
             kw[key] = value
     return kw
+
+
+def synthesis_config(kw: dict):
+    """`parse_options`' result -> a SynthesisConfig with one fixed mount for the stream."""
+    import numpy as np
+
+    from topseg.core.camera import PAPER_MOUNT
+    from topseg.core.synth.synthesis import MountDistribution, SynthesisConfig
+
+    kw = dict(kw)
+    mount_kind, sensor = kw.pop("mount", "paper"), kw.pop("sensor", None)
+    if mount_kind == "paper" and sensor is None:
+        return SynthesisConfig(**kw)
+    d = MountDistribution() if sensor is None else MountDistribution(sensors=(sensor,))
+    if mount_kind == "paper":  # a sensor at the paper's height, straight down
+        h = PAPER_MOUNT.height_mm / 1000.0
+        d = MountDistribution(height_m=(h, h), tilt_deg=0.0, sensors=(sensor,))
+    seed = int(kw.get("seed", 0))
+    camera = d.draw(np.random.default_rng(np.random.SeedSequence([seed, 0x6D6F756E74])))
+    kw.setdefault("noise", "sensor")
+    return SynthesisConfig(camera=camera, **kw)
 
 
 class SyntheticSource(Source):
@@ -55,10 +82,10 @@ class SyntheticSource(Source):
     finite = False
 
     def __init__(self, arg: str | None, options: SourceOptions) -> None:
-        from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
+        from topseg.core.synth.synthesis import Synthesizer
 
         try:
-            config = SynthesisConfig(**parse_options(arg))
+            config = synthesis_config(parse_options(arg))
         except SourceError:
             raise
         except TopsegError as exc:
@@ -66,6 +93,7 @@ class SyntheticSource(Source):
         self.options = options
         self.description = "synthetic" + (f":{arg}" if arg else "")
         self.intrinsics = config.camera.intrinsics
+        self.mount = config.camera
         self.nominal_fps = options.fps or DEFAULT_FPS
         self.synth = Synthesizer(config)
         self._stop = threading.Event()
@@ -78,7 +106,7 @@ class SyntheticSource(Source):
             pacer.wait(seq / self.nominal_fps, self._stop)
             frame = self.synth.render(seq)
             stamp = time.time_ns()
-            depth = DepthFrame(frame.depth, self.intrinsics, seq, stamp, "")
+            depth = DepthFrame(frame.depth, self.intrinsics, seq, stamp, "", frame.mount)
             yield SourceFrame(depth, LabelFrame(frame.labels, seq, stamp, ""))
             seq += 1
 
@@ -110,7 +138,9 @@ def record(
             for frame in source.frames():
                 i = frame.depth.seq
                 stamp = t0 + round(i * 1e9 / fps)
-                depth = DepthFrame(frame.depth.depth, source.intrinsics, i, stamp, "")
+                depth = DepthFrame(
+                    frame.depth.depth, source.intrinsics, i, stamp, "", frame.depth.mount
+                )
                 truth = LabelFrame(frame.truth.labels, i, stamp, "")
                 w.write(wire.depth_key(), wire.encode_depth(depth), log_time_ns=stamp)
                 w.write(wire.truth_key(), wire.encode_labels(truth), log_time_ns=stamp)

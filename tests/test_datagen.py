@@ -167,3 +167,50 @@ def test_a_crashing_worker_is_a_clear_error_and_keeps_what_was_done(tmp_path):
     assert 3 not in ds.indices and 2 not in ds.indices
     for k, i in enumerate(ds.indices):
         np.testing.assert_array_equal(ds.depth[k], toy_frame(5, int(i), "none")[0])
+
+
+def test_a_mixed_sensor_dataset_pads_small_frames_and_keeps_each_mount(tmp_path):
+    """Drawn mounts (the datagen default): frames of every sensor in one 480 x 640 store,
+    smaller ones top-left and padded, each frame's mount read back by Dataset.mount."""
+    import argparse
+
+    from topseg.core import labels
+    from topseg.services.datagen.sources import mount_summary
+
+    args = argparse.Namespace(mounts=None, sensors="kinect_v2,oak_d,kinect_v1")
+    target = GENERATORS["synthesis"]
+    mounts = datagen.mount_distribution(args, target)
+    assert mounts["sensors"] == ["kinect_v2", "oak_d", "kinect_v1"]
+    generator = {
+        "factory": target,
+        "config": generator_config(target, "modeled", "sensor", None, mounts),
+    }
+    attrs = D.make_attrs(
+        seed=3, mode="modeled", noise="sensor", room=None, generator=generator, frames=8,
+        mounts=mount_summary(generator),
+    )  # fmt: skip
+    path = tmp_path / "mixed.zarr"
+    with D.DatasetWriter.open(path, attrs) as w:
+        todo = w.todo().tolist()
+        datagen.render_chunk(str(path), "k", generator, 3, todo)
+        w.mark_complete(todo)
+    ds = D.open_dataset(path)
+    assert ds.attrs["mounts"]["resolutions"] == [[512, 424], [640, 400], [640, 480]]
+    sensors = set()
+    for k in range(len(ds)):
+        depth, _lab, mount = ds.frame(k)
+        sensors.add(mount.sensor)
+        h, w = mount.intrinsics.shape
+        assert depth.shape == (h, w) and ds.scene(k)["mount"] == mount.to_dict()
+        assert not ds.depth[k][h:].any() and not ds.depth[k][:, w:].any()
+        assert np.all(ds.labels[k][h:] == labels.NO_DEPTH)
+        assert np.all(ds.labels[k][:, w:] == labels.NO_DEPTH)
+        assert (
+            2400 <= mount.height_mm <= 4500 and max(abs(mount.pitch_deg), abs(mount.roll_deg)) <= 10
+        )
+    assert len(sensors) >= 2
+    assert (
+        datagen.mount_distribution(argparse.Namespace(mounts="paper", sensors=None), target) is None
+    )
+    with pytest.raises(Exception, match="needs --mounts random"):
+        datagen.mount_distribution(argparse.Namespace(mounts="paper", sensors="oak_d"), target)

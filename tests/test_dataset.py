@@ -141,7 +141,11 @@ def test_frames_that_break_the_contract_are_refused(tmp_path):
     depth, lab, scene = toy_frame(7, 0, "none")
     cases = [
         ((depth.astype(np.int32), lab, scene), "depth is int32"),
-        ((depth[:-1], lab[:-1], scene), r"expected uint16\(480, 640\)"),
+        (
+            (np.pad(depth, ((0, 1), (0, 0))), np.pad(lab, ((0, 1), (0, 0))), scene),
+            r"expected uint16\(480, 640\)",
+        ),
+        ((depth[:-1], lab[:, :-1], scene), r"expected uint16\(480, 640\)"),
         ((depth, lab.astype(np.uint16), scene), "labels are uint16"),
         ((depth, np.where(lab == 0, 42, lab).astype(np.uint8), scene), r"unknown label ids \[42\]"),
         ((np.where(depth == 0, 1, depth).astype(np.uint16), lab, scene), "NO_DEPTH exactly where"),
@@ -301,3 +305,65 @@ def test_arrays_of_another_layout_are_written_through_zarr(tmp_path):
     ds = D.open_dataset(path)
     np.testing.assert_array_equal(ds.depth[1], toy_frame(7, 1, "none")[0])
     np.testing.assert_array_equal(ds.labels[1], toy_frame(7, 1, "none")[1])
+
+
+def test_smaller_frames_are_stored_top_left_and_each_frame_keeps_its_mount(tmp_path):
+    from topseg.core.camera import PAPER_MOUNT, TopViewMount
+    from topseg.core.sensors import get_sensor
+
+    path = tmp_path / "ds.zarr"
+    small = TopViewMount(get_sensor("kinect_v2").intrinsics, 2650.0, 4.0, -9.5, "kinect_v2")
+    oak = TopViewMount(get_sensor("oak_d").intrinsics, 4400.0, -1.0, 2.0, "oak_d")
+    frames = []
+    for i, mount in enumerate((small, oak, None)):
+        h, w = (mount or PAPER_MOUNT).intrinsics.shape
+        rng = np.random.default_rng(i)
+        depth = rng.integers(1, 5000, (h, w)).astype(np.uint16)
+        depth[:3] = 0
+        lab = rng.integers(0, labels.NUM_CLASSES, (h, w)).astype(np.uint8)
+        lab[depth == 0] = labels.NO_DEPTH
+        scene = {"i": i} if mount is None else {"i": i, "mount": mount.to_dict()}
+        frames.append((depth, lab, scene))
+    mounts = {"height_mm": [2400.0, 4500.0], "tilt_deg": 14.1, "sensors": ["kinect_v2", "oak_d"],
+              "resolutions": [[512, 424], [640, 400]]}  # fmt: skip
+    with D.DatasetWriter.open(path, attrs(3, mounts=mounts)) as w:
+        fw = D.FrameWriter(path)
+        for i, f in enumerate(frames):
+            fw.write(i, *f)
+        w.mark_complete(range(3))
+    ds = D.open_dataset(path)
+    assert ds.depth.shape == (3, 480, 640)
+    assert ds.mount(0) == small and ds.mount(1) == oak
+    assert ds.mount(2) == PAPER_MOUNT  # no mount of its own: the dataset's camera
+    for k, (depth, lab, _) in enumerate(frames):
+        h, w = depth.shape
+        full_d, full_l = ds.depth[k], ds.labels[k]
+        np.testing.assert_array_equal(full_d[:h, :w], depth)
+        np.testing.assert_array_equal(full_l[:h, :w], lab)
+        assert not full_d[h:].any() and not full_d[:, w:].any()
+        assert np.all(full_l[h:] == labels.NO_DEPTH) and np.all(full_l[:, w:] == labels.NO_DEPTH)
+        got_d, got_l, got_m = ds.frame(k)
+        np.testing.assert_array_equal(got_d, depth)
+        np.testing.assert_array_equal(got_l, lab)
+        assert got_m.intrinsics.shape == (h, w)
+    assert ds.mount_summary() == mounts
+
+
+def test_datasets_made_before_mounts_read_their_camera(tmp_path):
+    from topseg.core.camera import PAPER_MOUNT
+
+    path = tmp_path / "ds.zarr"
+    old = attrs(2)
+    del old["mounts"]
+    old["camera"] = {"intrinsics": PAPER_MOUNT.intrinsics.to_dict(), "height_mm": 3500.0}
+    with D.DatasetWriter.open(path, old) as w:
+        fw = D.FrameWriter(path)
+        for i in range(2):
+            fw.write(i, *toy_frame(7, i, "none"))
+        w.mark_complete(range(2))
+    ds = D.open_dataset(path)
+    assert ds.mount(1) == PAPER_MOUNT
+    assert ds.mount_summary() == {
+        "height_mm": [3500.0, 3500.0], "tilt_deg": 0.0, "sensors": ["kinect_v1"],
+        "resolutions": [[640, 480]],
+    }  # fmt: skip

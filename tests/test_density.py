@@ -258,9 +258,9 @@ def test_furniture_has_two_kinds_per_class_and_exact_heights():
 
 
 def test_room_templates_have_walls_inside_the_view():
-    from topseg.core.camera import TOP_VIEW
+    from topseg.core.camera import PAPER_MOUNT
 
-    w, d = TOP_VIEW.floor_extent_m()
+    w, d = PAPER_MOUNT.floor_extent_m()
     lo, hi = rooms.get("industrial_workspace").floor()  # no walls: the floor is the view
     assert np.allclose((*lo, *hi), (-w / 2, -d / 2, w / 2, d / 2))
     blo, bhi = rooms.get("industrial_workspace").bounds()
@@ -282,3 +282,34 @@ def test_room_templates_have_walls_inside_the_view():
             assert edge < (d if side in ("north", "south") else w) / 2  # the camera sees the wall
         assert len(t.wall_boxes()) == len(t.walls)
     assert HUMAN == "human"
+
+
+def test_people_walk_in_and_out_of_view_with_full_headings():
+    """With human_edge_share, free humans stand across the view's open edges (so the border
+    cuts them), every such scene stays in the support, and headings cover [0, 360)."""
+    import dataclasses
+
+    from topseg.core.camera import PAPER_MOUNT
+    from topseg.core.synth.density import HUMAN_EDGE_M, DensityConfig
+
+    mount = dataclasses.replace(PAPER_MOUNT, pitch_deg=6.0, roll_deg=-8.0, height_mm=2600.0)
+    d = DensityFunction(DensityConfig(human_edge_share=0.5), mode="non-modeled")
+    rng = np.random.default_rng(11)
+    scenes = [d.sample(rng, mount) for _ in range(150)]
+    humans = [s for s in scenes if s.human is not None]
+    outside = 0
+    for s in humans:
+        assert math.isfinite(d.log_density(s)) and s.mount == mount
+        h = s.human
+        lo, hi = np.array(s.floor_lo), np.array(s.floor_hi)
+        if not (lo[0] <= h.x <= hi[0] and lo[1] <= h.y <= hi[1]):
+            outside += 1
+            assert np.all(np.array([h.x, h.y]) >= lo - HUMAN_EDGE_M - 1e-9)
+            assert np.all(np.array([h.x, h.y]) <= hi + HUMAN_EDGE_M + 1e-9)
+    assert 0.1 < outside / len(humans) < 0.5  # about half land on the band, half of them out
+    yaws = np.degrees([s.human.yaw for s in humans])
+    assert yaws.min() >= 0 and yaws.max() < 360 and np.histogram(yaws, 4, (0, 360))[0].min() > 5
+    # the paper's density draws no edge humans and leaves their position factor as it was
+    paper = DensityFunction(mode="non-modeled")
+    s = next(x for x in (paper.sample(rng) for _ in range(20)) if x.human is not None)
+    assert paper.log_factors(s)["H_pos"] == pytest.approx(-math.log(s.floor_area))

@@ -10,7 +10,7 @@ import pytest
 from topseg.core import labels
 from topseg.core.synth import humanoid, relations
 from topseg.core.synth.density import DensityFunction
-from topseg.core.synth.geometry import quat_to_matrix
+from topseg.core.synth.geometry import CAPSULE, quat_to_matrix
 from topseg.core.synth.scene_builder import SceneBuilder
 
 
@@ -102,7 +102,8 @@ def test_sitting_humans_hips_are_at_seat_height_in_pybullet(world):
 
 
 def test_heights_and_labels_of_the_humanoid():
-    assert humanoid.reference_height() == pytest.approx(1.62, abs=0.01)
+    # pybullet_data's humanoid is ~1.62 m at its scaling; the smaller head takes ~2 cm off
+    assert humanoid.reference_height() == pytest.approx(1.60, abs=0.01)
     for h in (1.60, 1.75, 1.90):
         pose = humanoid.identity_pose()
         prims = humanoid.posed_primitives(
@@ -135,3 +136,46 @@ def test_clip_poses_interpolate_and_skip_tumbling_moments():
         assert humanoid.trunk_uprightness(pose) >= humanoid.MIN_UPRIGHT
     with pytest.raises(ValueError, match="unknown pose"):
         humanoid.sample_pose("moonwalking", rng)
+
+
+#: ANSUR II (2012) means and SDs, mm (docs/research/sensor-noise-sources.md section 4):
+#: dimension -> ((women mean, sd), (men mean, sd)); circumferences / pi for limb thickness
+ANSUR = {
+    "head_breadth": ((147.8, 5.2), (154.3, 5.5)),
+    "head_length": ((189.8, 7.4), (199.5, 7.0)),
+    "bideltoid_breadth": ((450.3, 28.7), (510.4, 32.5)),
+    "chest_breadth": ((269.3, 18.6), (289.4, 18.3)),
+    "chest_depth": ((247.4, 27.3), (253.8, 26.2)),
+    "hip_breadth": ((353.8, 26.7), (345.7, 24.2)),
+    "upper_arm_thickness": ((305.6 / np.pi, 30.8 / np.pi), (358.1 / np.pi, 34.6 / np.pi)),
+    "forearm_thickness": ((264.1 / np.pi, 18.5 / np.pi), (310.1 / np.pi, 22.0 / np.pi)),
+    "hand_breadth": ((78.2, 3.8), (88.3, 4.4)),
+}
+#: mean statures (m): women (ANSUR II data), men (ANSUR II, approximately)
+STATURE = (1.6285, 1.756)
+
+
+def test_the_body_seen_from_above_is_within_two_sd_of_ansur():
+    """At each sex's mean stature the humanoid's top-view dimensions lie within 2 SD of that
+    sex's ANSUR II mean (the table in docs/synthesis.md)."""
+    for stature, which in ((STATURE[0], 0), (STATURE[1], 1)):
+        dims = humanoid.top_view_dimensions(stature)
+        for name, pair in ANSUR.items():
+            mean, sd = pair[which]
+            z = (dims[name] - mean) / sd
+            assert abs(z) <= 2.0, f"{name} at {stature} m: {dims[name]:.0f} mm is {z:+.1f} SD"
+
+
+def test_fixed_proportions_reach_pybullet(world):
+    """The URDF pybullet loads carries the same head, chest and pelvis as the numpy model."""
+    _client, builder = world
+    body = builder._human_body(1.75)
+    model = humanoid.load_model()
+    for name in humanoid.PROPORTION_FIXES:
+        i = model.index[name]
+        rows = body.link == i
+        assert body.kind[rows].tolist() == [CAPSULE]
+        scale = humanoid.scale_for_height(1.75)
+        np.testing.assert_allclose(
+            body.size[rows][0, :2], np.array(model.links[i].shape_size[:2]) * scale, atol=1e-6
+        )

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from topseg.core import labels
-from topseg.core.camera import KINECT_V1, TOP_VIEW, Intrinsics, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.synth import procedural
 
-SMALL = TopViewMount(KINECT_V1.scaled_to(160, 120))
+SMALL = TopViewMount(KINECT_V1.scaled_to(160, 120), PAPER_MOUNT.height_mm)
 
 
 def world_points(depth_m, mount):
@@ -91,10 +91,10 @@ def test_procedural_frame_is_well_formed_and_seeded():
 def test_noise_and_missing_pixels():
     rng = np.random.default_rng(0)
     depth, lab = procedural.procedural_frame(
-        rng, TOP_VIEW, noise_sigma_mm=15.0, missing_fraction=0.05
+        rng, PAPER_MOUNT, noise_sigma_mm=15.0, missing_fraction=0.05
     )
     floor = (lab == labels.BACKGROUND) & (depth > 0)
-    err = depth[floor].astype(float) - TOP_VIEW.height_mm
+    err = depth[floor].astype(float) - PAPER_MOUNT.height_mm
     assert abs(err.mean()) < 1.0 and 13.5 < err.std() < 16.5
     missing = depth == 0
     assert 0.04 < missing.mean() < 0.06

@@ -8,7 +8,13 @@ import pytest
 import reference
 
 from topseg.core import labels
-from topseg.core.camera import Intrinsics, TopViewMount, metres_to_mm, metres_to_mm_scalar
+from topseg.core.camera import (
+    PAPER_MOUNT,
+    Intrinsics,
+    TopViewMount,
+    metres_to_mm,
+    metres_to_mm_scalar,
+)
 from topseg.core.synth import render
 from topseg.core.synth.geometry import (
     BOX,
@@ -85,7 +91,7 @@ def _one(kind, size, center, rot=None, label=labels.TABLE) -> render.Primitives:
 
 
 def test_a_box_of_known_size_and_place_gives_its_footprint_and_depth():
-    mount = TopViewMount()
+    mount = PAPER_MOUNT
     k = mount.intrinsics
     x0, x1, y0, y1, top = 0.40, 1.00, 0.25, 0.65, 0.80  # world metres; the box stands on the floor
     box = _one(
@@ -122,7 +128,7 @@ def test_a_box_of_known_size_and_place_gives_its_footprint_and_depth():
 
 
 def test_an_upright_cylinder_shows_a_disc_at_its_top():
-    mount = TopViewMount()
+    mount = PAPER_MOUNT
     k = mount.intrinsics
     cx, cy, r, top = -0.5, 0.3, 0.25, 0.74
     depth, lab = render.raycast(
@@ -141,7 +147,7 @@ def test_an_upright_cylinder_shows_a_disc_at_its_top():
 
 
 def test_screen_boxes_cull_what_is_behind_or_outside_the_camera():
-    mount = TopViewMount()
+    mount = PAPER_MOUNT
     prims = render.Primitives.concat(
         [
             _one(SPHERE, (0.1, 0, 0), (0.0, 0.0, 4.0)),  # above the camera
@@ -167,3 +173,78 @@ def test_metres_to_mm_rounds_half_up_and_marks_misses():
     assert [metres_to_mm_scalar(float(x)) for x in d.ravel()] == np.ravel(want).tolist()
     # half a millimetre rounds up (the renderer's rounding), not to even as np.rint does
     assert metres_to_mm(np.array([0.0025, 0.0035])).tolist() == [3, 4]
+
+
+# --- tilted cameras and other intrinsics ----------------------------------------------------
+
+TILTED = [
+    TopViewMount(Intrinsics(128, 106, 91.25, 91.25, 63.5, 52.5), 2400.0, 10.0, -10.0, "kinect_v2"),
+    TopViewMount(Intrinsics(160, 100, 110.3, 110.3, 79.5, 49.5), 4500.0, -7.5, 4.0, "oak_d"),
+    TopViewMount(Intrinsics(160, 120, 96.25, 96.25, 79.5, 59.5), 3100.0, 3.0, 9.0),
+]
+
+
+@pytest.mark.parametrize("mount", TILTED, ids=["tof-2.4m", "oak-4.5m", "d435-3.1m"])
+def test_tilted_cameras_match_both_references(mount):
+    prims = random_primitives(np.random.default_rng(5), 30)
+    depth, lab = render.raycast_m(prims, mount)
+    for ref in (reference.raycast_reference, reference.raycast_world_reference):
+        ref_depth, ref_lab = ref(prims, mount)
+        hit = np.isfinite(ref_depth)
+        assert np.array_equal(np.isfinite(depth), hit)
+        np.testing.assert_allclose(depth[hit], ref_depth[hit], rtol=0, atol=1e-9)
+        assert np.mean(lab != ref_lab) < 1e-3  # ties at exact edges only
+    assert np.isfinite(depth).all()  # the floor fills every pixel, tilted or not
+
+
+def _floor() -> render.Primitives:
+    return _one(BOX, (10.0, 10.0, 0.05), (0.0, 0.0, -0.05), label=labels.BACKGROUND)
+
+
+@pytest.mark.parametrize(
+    "intr",
+    [
+        Intrinsics(512, 424, 365.0, 365.0, 255.5, 211.5),
+        Intrinsics(640, 400, 441.25, 441.25, 319.5, 199.5),
+    ],
+    ids=["512x424", "640x400"],
+)
+@pytest.mark.parametrize("pitch,roll", [(10.0, 0.0), (0.0, -10.0), (-10.0, 10.0)])
+def test_a_tilted_camera_sees_a_plane_floor_of_height_zero(intr, pitch, roll):
+    mount = TopViewMount(intr, 2400.0, pitch, roll)
+    depth_m, lab = render.raycast_m(_floor(), mount)
+    assert np.isfinite(depth_m).all() and np.all(lab == labels.BACKGROUND)
+    # a plane seen by a pinhole: 1 / depth is exactly linear in (u, v)
+    v, u = np.indices(intr.shape, dtype=float)
+    a = np.column_stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    coef, *_ = np.linalg.lstsq(a, 1.0 / depth_m.ravel(), rcond=None)
+    assert np.abs(a @ coef - 1.0 / depth_m.ravel()).max() < 1e-9
+    # the depth gradient points the way the camera tilts: positive pitch, farther bottom rows
+    if pitch:
+        assert np.sign(depth_m[-1, :].mean() - depth_m[0, :].mean()) == np.sign(pitch)
+    if roll:
+        assert np.sign(depth_m[:, 0].mean() - depth_m[:, -1].mean()) == np.sign(roll)
+    # heights from the mount of the rendered floor are ~0 (mm rounding only)
+    h = mount.height_map_mm(metres_to_mm(depth_m))
+    assert np.nanmax(np.abs(h)) < 1.0
+    assert np.ptp(depth_m) > 0.3  # tilted: the floor is not at one depth
+
+
+def test_a_box_top_reads_its_height_through_a_tilted_mount():
+    mount = TopViewMount(Intrinsics(160, 120, 96.25, 96.25, 79.5, 59.5), 3000.0, -8.0, 6.0)
+    box = _one(BOX, (0.3, 0.25, 0.4), (0.1, -0.2, 0.4))
+    prims = render.Primitives.concat([_floor(), box])
+    depth, lab = render.raycast(prims, mount)
+    h = mount.height_map_mm(depth)
+    top = (lab == labels.TABLE) & (np.abs(h - 800.0) < 1.0)
+    assert top.sum() > 50  # the box's top, 0.8 m above the floor, seen tilted
+    assert np.nanmax(np.abs(h[lab == labels.BACKGROUND])) < 1.0
+
+
+def test_screen_boxes_give_a_primitive_straddling_the_near_plane_the_whole_image():
+    mount = TopViewMount(Intrinsics(160, 120, 96.25, 96.25, 79.5, 59.5), 2400.0, 10.0, 10.0)
+    prims = _floor()
+    c, rot = render.to_camera(prims, mount)
+    ext = render._half_extents(prims.kind, prims.size, rot)
+    assert c[0, 2] - ext[0, 2] < render.NEAR_M  # its camera-frame box reaches behind the camera
+    assert render.screen_boxes(c, ext, mount)[0].tolist() == [0, 159, 0, 119]

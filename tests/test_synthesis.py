@@ -13,11 +13,17 @@ import numpy as np
 import pytest
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW
+from topseg.core.camera import PAPER_MOUNT
 from topseg.core.errors import TopsegError
 from topseg.core.synth.density import DensityFunction
 from topseg.core.synth.scene import PlacedObject, Scene
-from topseg.core.synth.synthesis import POSES, ROOMS, SynthesisConfig, Synthesizer
+from topseg.core.synth.synthesis import (
+    POSES,
+    ROOMS,
+    MountDistribution,
+    SynthesisConfig,
+    Synthesizer,
+)
 
 
 def _digest(frame) -> str:
@@ -89,7 +95,7 @@ def test_a_known_table_appears_where_and_as_deep_as_it_should():
     scene = Scene("modeled", "industrial_workspace", (-2.3, -1.8), (2.3, 1.8), 0.3, 0.3, [table])
     with Synthesizer(SynthesisConfig(noise="none"), warm=False) as s:
         f = s.render_scene(scene)
-    k = TOP_VIEW.intrinsics
+    k = PAPER_MOUNT.intrinsics
     z = 3.5 - 0.75
     u = round(0.5 / z * k.fx + k.cx)
     v = round(0.4 / z * k.fy + k.cy)  # world y = -0.4 is below the image centre
@@ -175,3 +181,55 @@ def test_memory_stays_flat_over_thousands_of_frames():
         after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     assert after - before < 40  # MiB; the remaining growth is the last few pool entries
     assert s.builder.n_bodies - bodies < 0.2 * bodies
+
+
+def test_drawn_mounts_span_their_ranges_and_travel_with_each_frame():
+    config = SynthesisConfig(
+        mounts=MountDistribution(), noise="none", room="industrial_workspace", seed=2
+    )
+    assert SynthesisConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    seen = set()
+    with Synthesizer(config, warm=False) as s:
+        for i in range(10):
+            f = s.render(i)
+            m = f.mount
+            assert m == s.mount_for(i)  # a pure function of the frame's seed
+            assert f.scene["mount"] == m.to_dict()
+            assert f.depth.shape == f.labels.shape == m.intrinsics.shape
+            assert 2400 <= m.height_mm <= 4500 and abs(m.pitch_deg) <= 10 and abs(m.roll_deg) <= 10
+            seen.add(m.sensor)
+            # no walls in this room: every background pixel is floor, at height ~0
+            h = m.height_map_mm(f.depth)
+            floor = f.labels == labels.BACKGROUND
+            assert floor.mean() > 0.3 and np.nanmax(np.abs(h[floor])) < 1.0
+            people = np.isin(f.labels, labels.HUMAN_IDS)
+            if people.any():
+                assert np.nanmax(h[people]) < 2000  # heights are heights, whatever the mount
+        again = s.render(3)
+        assert np.array_equal(again.depth, s.render(3).depth)
+    assert len(seen) >= 3
+    summary = config.mount_summary()
+    assert summary["height_mm"] == [2400.0, 4500.0] and summary["tilt_deg"] > 10
+    assert [512, 424] in summary["resolutions"] and [640, 400] in summary["resolutions"]
+
+
+def test_sensor_noise_follows_each_frames_sensor():
+    for name in ("kinect_v1", "kinect_v2", "oak_d", "realsense_d435"):
+        config = SynthesisConfig(mounts=MountDistribution(sensors=(name,)), noise="sensor")
+        with Synthesizer(config, warm=False) as s:
+            f = s.render(0)
+            assert f.mount.sensor == name
+            assert s.noise_for(f.mount).spec.split(":")[0] in ("kinect", "tof", "stereo")
+            assert np.array_equal(f.labels == labels.NO_DEPTH, f.depth == 0)
+    with pytest.raises(TopsegError, match="unknown sensor"):
+        MountDistribution(sensors=("kinect_v3",))
+
+
+def test_a_fixed_mount_keeps_the_papers_frames():
+    """mounts=None draws no mount: scene and noise streams are those of before mounts."""
+    with Synthesizer(SynthesisConfig(noise="gaussian:15", seed=5), warm=False) as s:
+        f = s.render(7)
+        scene_rng, _ = s.rngs(7)
+        assert Scene.from_dict(f.scene).to_dict() == f.scene
+        assert s.density.sample(scene_rng).to_dict() == f.scene
+    assert f.mount == PAPER_MOUNT and f.depth.shape == PAPER_MOUNT.intrinsics.shape

@@ -44,3 +44,24 @@ def test_frames_match_the_synthesizer_and_carry_truth():
         np.testing.assert_array_equal(g.truth.labels, w.labels)
         assert np.all(g.truth.labels[g.depth.depth == 0] == labels.NO_DEPTH)
     assert not np.array_equal(got[0].depth.depth, got[1].depth.depth)
+
+
+def test_a_random_mount_stream_carries_its_mount_on_every_frame():
+    from topseg.core.camera import PAPER_MOUNT
+
+    src = open_source("synthetic:mount=random,sensor=oak_d,seed=2", SourceOptions(realtime=False))
+    try:
+        frames = [f for f, _ in zip(src.frames(), range(2), strict=False)]
+    finally:
+        src.close()
+    mount = frames[0].depth.mount
+    assert mount.sensor == "oak_d" and 2400 <= mount.height_mm <= 4500
+    for f in frames:
+        assert f.depth.mount == mount and f.depth.depth.shape == (400, 640)
+    plain = open_source("synthetic", SourceOptions(realtime=False))
+    try:
+        assert next(iter(plain.frames())).depth.mount == PAPER_MOUNT
+    finally:
+        plain.close()
+    with pytest.raises(SourceError, match="paper or random"):
+        parse_options("mount=tilted")

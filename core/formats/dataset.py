@@ -8,6 +8,13 @@ Layout (one directory, a Zarr v3 group; DESIGN section 4)::
     scene/              (N,) variable-length UTF-8: each frame's scene description as JSON
     complete/           (N,) uint8: 1 once all three of a frame's chunks are written
 
+Frames may come from cameras of different resolutions (a mount drawn per frame): the arrays
+are FRAME_SHAPE (480 x 640, the largest supported sensor's), and a smaller frame is stored
+top-left with depth 0 and labels NO_DEPTH (255) outside it. Each frame's camera mount is in
+its scene JSON under "mount" (`Dataset.mount(k)`; datasets made before mounts were recorded
+fall back to the `camera` attribute); `mount(k).intrinsics.shape` says how much of the stored
+frame is the frame, and `Dataset.frame(k)` returns it cropped.
+
 `depth`, `labels` and `scene` have one frame per chunk. Image chunks are Blosc-zstd (level 1,
 byte shuffle: ~2.5x on noisy depth at under a millisecond a frame) followed by a CRC32C
 checksum, so a damaged chunk is reported instead of decoded into garbage. The scene JSON lives
@@ -23,8 +30,10 @@ loses nothing the kernel already holds, a power cut may need the run to be redon
 
 Root attributes: `topseg_dataset` (format name and version), `frames`, `height`, `width`,
 `seed`, `mode`, `noise`, `room`, `generator` (the frame factory and its full config),
-`frame_seed` (how a frame's seed derives from `seed`), `camera`, `labels` (the label table),
-`topseg_version`, `created`. The identity of a dataset (what must match to resume into it) is
+`frame_seed` (how a frame's seed derives from `seed`), `camera` (the fixed mount, or the
+fallback of frames without their own), `mounts` (what the frames' mounts span: height_mm
+[lo, hi], tilt_deg, sensors, resolutions; what a model header's `trained_for` records),
+`labels` (the label table), `topseg_version`, `created`. The identity of a dataset (what must match to resume into it) is
 everything but `frames`, `topseg_version` and `created`; `frames` may grow.
 """
 
@@ -120,11 +129,16 @@ def make_attrs(
     frames: int,
     shape: tuple[int, int] = FRAME_SHAPE,
     camera: dict | None = None,
+    mounts: dict | None = None,
 ) -> dict:
-    """The root attributes of a new dataset (see the module docstring)."""
+    """The root attributes of a new dataset (see the module docstring); `mounts` None: every
+    frame is seen from `camera` (the paper's mount when that is None too)."""
     from topseg import __version__
-    from topseg.core.camera import TOP_VIEW
+    from topseg.core.camera import PAPER_MOUNT, TopViewMount
 
+    camera = camera if camera is not None else PAPER_MOUNT.to_dict()
+    if mounts is None:
+        mounts = _fixed_summary(TopViewMount.from_dict(camera, "dataset camera"))
     return _canonical(
         {
             "topseg_dataset": {"format": FORMAT, "version": FORMAT_VERSION},
@@ -137,12 +151,24 @@ def make_attrs(
             "room": room,
             "generator": generator,
             "frame_seed": FRAME_SEED_RULE,
-            "camera": camera if camera is not None else TOP_VIEW.to_dict(),
+            "camera": camera,
+            "mounts": mounts,
             "labels": label_table.as_json(),
             "topseg_version": __version__,
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
         }
     )
+
+
+def _fixed_summary(mount) -> dict:
+    """`mounts` of a dataset whose frames all come from `mount`."""
+    k = mount.intrinsics
+    return {
+        "height_mm": [float(mount.height_mm)] * 2,
+        "tilt_deg": round(mount.tilt_deg(), 6),
+        "sensors": [mount.sensor],
+        "resolutions": [[k.width, k.height]],
+    }
 
 
 def _check_format(attrs: dict, path: Path) -> None:
@@ -442,9 +468,21 @@ class FrameWriter:
 def check_frame(
     depth: np.ndarray, labels: np.ndarray, shape: tuple[int, int], index: int = -1
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Refuse a frame that breaks the dataset's contract (shape, dtype, label ids, no-depth)."""
+    """Refuse a frame that breaks the dataset's contract (shape, dtype, label ids, no-depth).
+
+    A frame smaller than `shape` (a sensor of lower resolution) is accepted and returned padded
+    top-left to `shape` with depth 0 and NO_DEPTH labels; a larger one is refused.
+    """
     what = f"frame {index}" if index >= 0 else "frame"
     depth, labels = np.asarray(depth), np.asarray(labels)
+    if (
+        depth.ndim == 2
+        and depth.shape == labels.shape
+        and depth.shape != tuple(shape)
+        and depth.shape[0] <= shape[0]
+        and depth.shape[1] <= shape[1]
+    ):
+        depth, labels = pad_frame(depth, labels, shape)
     if depth.dtype != np.uint16 or depth.shape != tuple(shape):
         raise DatasetError(f"{what}: depth is {depth.dtype}{depth.shape}, expected uint16{shape}")
     if labels.dtype != np.uint8 or labels.shape != tuple(shape):
@@ -457,6 +495,18 @@ def check_frame(
     if not np.array_equal(labels == label_table.NO_DEPTH, depth == 0):
         raise DatasetError(f"{what}: labels must be NO_DEPTH exactly where depth is 0")
     return depth, labels
+
+
+def pad_frame(
+    depth: np.ndarray, labels: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """`depth` and `labels` top-left in frames of `shape`: depth 0, labels NO_DEPTH around."""
+    h, w = depth.shape
+    out_d = np.zeros(shape, depth.dtype)
+    out_l = np.full(shape, label_table.NO_DEPTH, labels.dtype)
+    out_d[:h, :w] = depth
+    out_l[:h, :w] = labels
+    return out_d, out_l
 
 
 class FrameArray:
@@ -544,6 +594,31 @@ class Dataset:
             return json.loads(str(self._arrays["scene"][i]))
         except Exception as exc:
             raise DatasetError(f"{self.path}: the scene of frame {i} is damaged ({exc})") from exc
+
+    def mount(self, k: int):
+        """The camera mount (`TopViewMount`) of the k-th complete frame: its scene's "mount",
+        or the dataset's `camera` for frames that record none (datasets made before)."""
+        from topseg.core.camera import TopViewMount
+
+        m = self.scene(k).get("mount")
+        if isinstance(m, dict):
+            return TopViewMount.from_dict(m, f"{self.path}: mount of frame {int(self.indices[k])}")
+        return TopViewMount.from_dict(self.attrs["camera"], f"{self.path}: dataset camera")
+
+    def frame(self, k: int) -> tuple[np.ndarray, np.ndarray, Any]:
+        """(depth, labels, mount) of the k-th complete frame, cropped to its camera's size."""
+        mount = self.mount(k)
+        h, w = mount.intrinsics.shape
+        return self.depth[k][:h, :w], self.labels[k][:h, :w], mount
+
+    def mount_summary(self) -> dict:
+        """What the frames' mounts span (the `mounts` attribute; derived from `camera` for
+        datasets made before it): height_mm [lo, hi], tilt_deg, sensors, resolutions."""
+        from topseg.core.camera import TopViewMount
+
+        if isinstance(self.attrs.get("mounts"), dict):
+            return dict(self.attrs["mounts"])
+        return _fixed_summary(TopViewMount.from_dict(self.attrs["camera"], "dataset camera"))
 
     def __repr__(self) -> str:
         a = self.attrs

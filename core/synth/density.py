@@ -6,7 +6,7 @@ Phi is a product of named factors, each the paper's:
 |---|---|---|
 | H_h | human height | U[160, 190] cm |
 | H_p | pose | categorical over POSES |
-| H_pos, O_pos | position on the floor, resting on floor or support | uniform, 1 / (w h) |
+| H_pos, O_pos | position on the floor, resting on floor or support | uniform, 1 / (w h); humans: a share `human_edge_share` on the band across the view's open edges (0, the paper) |
 | H_ori, O_ori | heading about the vertical | U[0, 360) degrees |
 | O_h | object height | table, chair, storage U[70, 90] cm; plant U[15, 35] cm |
 | HO_theta, OO_theta | allowed footprint overlap theta and every unrelated pair within it | theta ~ U[0, theta'], theta' = 30 % |
@@ -19,6 +19,12 @@ scenes all lie in the support, with each factor's own range as configured. The o
 appear in both of the paper's Psi terms; they are counted once here. Modes: "modeled" (a human
 and several objects with relations) and "non-modeled" (the baseline: one object or one human
 alone, no interactions).
+
+The floor is what the frame's camera sees (`rooms.view_rect` of the mount passed to `sample`,
+PAPER_MOUNT by default), so a scene follows a mount drawn per frame; the scene records it.
+People walk in and out of view in real sequences: with `human_edge_share` > 0 a freely placed
+human stands, that often, with its centre in the band `HUMAN_EDGE_M` either side of an open
+(wall-less) edge of the view, so the image border cuts it.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount
+from topseg.core.camera import PAPER_MOUNT, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.synth import furniture, humanoid, relations, rooms
 from topseg.core.synth.geometry import inside_rect, overlap_fraction
@@ -52,6 +58,8 @@ FACTORS = (
 #: object classes by label name, in the label table's order (the draw order of `rng.choice`)
 CLASSES: tuple[str, ...] = tuple(labels.name_of(i) for i in labels.OBJECT_IDS)
 REST_TOL_M = 1e-3
+#: half width (m) of the band across an open edge of the view where edge humans stand
+HUMAN_EDGE_M = 0.4
 
 
 @dataclass(frozen=True)
@@ -140,6 +148,8 @@ class DensityConfig:
     #: (min, max) objects per modeled scene; None = the room template's
     n_objects: tuple[int, int] | None = None
     max_tries: int = 40
+    #: share of freely placed humans centred on the band across the view's open edges
+    human_edge_share: float = 0.0
 
     def __post_init__(self) -> None:
         self.human_height_m = tuple(float(v) for v in self.human_height_m)
@@ -167,7 +177,7 @@ class DensityConfig:
             )
         for k, v in self.object_height_m.items():
             rng_ok(f"object_height_m[{k}]", v, 0.1, 2.0)
-        for name in ("theta_max_ho", "theta_max_oo"):
+        for name in ("theta_max_ho", "theta_max_oo", "human_edge_share"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise TopsegError(f"density config: {name} is a fraction in [0, 1], got {v}")
@@ -213,7 +223,7 @@ class DensityFunction:
         config: DensityConfig | None = None,
         mode: str = "modeled",
         room: str | None = None,
-        mount: TopViewMount = TOP_VIEW,
+        mount: TopViewMount = PAPER_MOUNT,
     ) -> None:
         if mode not in MODES:
             raise TopsegError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
@@ -272,7 +282,8 @@ class DensityFunction:
         ):
             return bad
         tmpl = rooms.get(scene.room)
-        (lo, hi), (blo, bhi) = tmpl.floor(self.mount), tmpl.bounds(self.mount)
+        mount = scene.mount or self.mount
+        (lo, hi), (blo, bhi) = tmpl.floor(mount), tmpl.bounds(mount)
         expect = np.array((*lo, *hi, *blo, *bhi))
         got = np.array((*scene.floor_lo, *scene.floor_hi, *scene.bounds[0], *scene.bounds[1]))
         if np.max(np.abs(expect - got)) > 1e-6:
@@ -325,10 +336,55 @@ class DensityFunction:
         """A position (an item's centre) on the floor the camera sees."""
         return inside_rect(np.array([[x, y]]), scene.floor_lo, scene.floor_hi)
 
+    def _edge_rects(self, scene: Scene):
+        """(inner, outer, bounds) rectangles of the edge band: the view floor shrunk and grown
+        by HUMAN_EDGE_M on its open sides (where bounds reach past the floor), and the bounds
+        grown by it there; None without edge humans or open sides."""
+        if self.config.human_edge_share <= 0:
+            return None
+        lo, hi = np.array(scene.floor_lo, float), np.array(scene.floor_hi, float)
+        blo, bhi = (np.array(b, float) for b in scene.bounds)
+        open_lo, open_hi = blo < lo - 1e-9, bhi > hi + 1e-9
+        if not (open_lo.any() or open_hi.any()):
+            return None
+        e = HUMAN_EDGE_M
+        inner = (lo + e * open_lo, hi - e * open_hi)
+        outer = (lo - e * open_lo, hi + e * open_hi)
+        bounds = (blo - e * open_lo, bhi + e * open_hi)
+        return inner, outer, bounds
+
+    def _human_pos_log_pdf(self, scene: Scene, x: float, y: float) -> float:
+        """H_pos: uniform on the view floor, mixed with `human_edge_share` uniform on the band."""
+        rects = self._edge_rects(scene)
+        on_floor = self._on_floor(scene, x, y)
+        if rects is None:
+            return self.position_log_pdf(scene) if on_floor else -math.inf
+        (ilo, ihi), (olo, ohi), _ = rects
+        p = np.array([[x, y]])
+        in_band = inside_rect(p, olo, ohi) and not inside_rect(p, ilo, ihi)
+        band_area = float(np.prod(ohi - olo)) - float(np.prod(np.maximum(ihi - ilo, 0.0)))
+        s = self.config.human_edge_share
+        dens = (1 - s) / scene.floor_area * on_floor + (s / band_area if in_band else 0.0)
+        return math.log(dens) if dens > 0 else -math.inf
+
+    def _human_in_bounds(self, scene: Scene, poly: np.ndarray) -> bool:
+        rects = self._edge_rects(scene)
+        if rects is None:
+            return self._in_bounds(scene, poly)
+        return inside_rect(poly, *rects[2])
+
+    def _edge_spot(self, rng, scene: Scene) -> tuple[float, float] | None:
+        """A point uniform on the edge band (rejection from its outer rectangle)."""
+        (ilo, ihi), (olo, ohi), _ = self._edge_rects(scene)
+        for _ in range(200):
+            x, y = float(rng.uniform(olo[0], ohi[0])), float(rng.uniform(olo[1], ohi[1]))
+            if not inside_rect(np.array([[x, y]]), ilo, ihi):
+                return x, y
+        return None
+
     def _human_position(self, scene: Scene, h: PlacedHuman) -> float:
-        if not self._on_floor(scene, h.x, h.y) or not self._in_bounds(
-            scene, h.footprint(arms=True)
-        ):
+        pos = self._human_pos_log_pdf(scene, h.x, h.y)
+        if pos == -math.inf or not self._human_in_bounds(scene, h.footprint(arms=True)):
             return -math.inf
         lo, _ = humanoid.prims_z_range(h.primitives())
         seated = any(r.kind == "sitting_on_chair" for r in scene.relations)
@@ -337,7 +393,7 @@ class DensityFunction:
                 return -math.inf
         elif abs(lo) > REST_TOL_M:  # standing: the lowest point on the floor
             return -math.inf
-        return self.position_log_pdf(scene)
+        return pos
 
     def _object_position(self, scene: Scene, o: PlacedObject, objects: dict) -> float:
         if not self._on_floor(scene, o.x, o.y) or not self._in_bounds(scene, o.footprint()):
@@ -419,10 +475,10 @@ class DensityFunction:
 
     # --- sampling -----------------------------------------------------------------------
 
-    def sample(self, rng: np.random.Generator) -> Scene:
-        """Draw one scene description from the density function."""
+    def sample(self, rng: np.random.Generator, mount: TopViewMount | None = None) -> Scene:
+        """Draw one scene description seen from `mount` (this function's mount when None)."""
         for _ in range(self.config.max_tries):
-            scene = self._sample_once(rng)
+            scene = self._sample_once(rng, mount or self.mount)
             if scene is not None:
                 return scene
         raise TopsegError(
@@ -430,10 +486,10 @@ class DensityFunction:
             "(theta_max, n_objects) or choose a larger room"
         )
 
-    def _new_scene(self, rng) -> Scene:
+    def _new_scene(self, rng, mount: TopViewMount) -> Scene:
         room = self.rooms.sample(rng)
         tmpl = rooms.get(room)
-        (lo, hi), (blo, bhi) = tmpl.floor(self.mount), tmpl.bounds(self.mount)
+        (lo, hi), (blo, bhi) = tmpl.floor(mount), tmpl.bounds(mount)
         theta_ho, theta_oo = self.theta_ho.sample(rng), self.theta_oo.sample(rng)
         return Scene(
             self.mode,
@@ -444,10 +500,11 @@ class DensityFunction:
             theta_oo,
             bounds_lo=tuple(blo),
             bounds_hi=tuple(bhi),
+            mount=mount,
         )
 
-    def _sample_once(self, rng) -> Scene | None:
-        scene = self._new_scene(rng)
+    def _sample_once(self, rng, mount: TopViewMount) -> Scene | None:
+        scene = self._new_scene(rng, mount)
         p_human = self.config.human_probability.get(self.mode, 1.0)
         if self.mode == "non-modeled":
             if rng.random() < p_human:
@@ -548,8 +605,8 @@ class DensityFunction:
 
     def _fits_human(self, scene: Scene, human: PlacedHuman, related: set) -> bool:
         fp = human.footprint()
-        if not self._on_floor(scene, human.x, human.y) or not self._in_bounds(
-            scene, human.footprint(arms=True)
+        if self._human_pos_log_pdf(scene, human.x, human.y) == -math.inf or not (
+            self._human_in_bounds(scene, human.footprint(arms=True))
         ):
             return False
         exempt = related | {o.id for o in scene.objects if o.support in related}
@@ -587,9 +644,14 @@ class DensityFunction:
         if kind == "free":
             lo, hi = scene.floor_lo, scene.floor_hi
             z0 = relations.stand_z(pose, humanoid.scale_for_height(height))
+            edge = self._edge_rects(scene) is not None and (
+                rng.random() < self.config.human_edge_share
+            )  # no draw at share 0: the paper's scenes stay as they were
+            spot = self._edge_spot(rng, scene) if edge else None
+            if spot is None:
+                spot = float(rng.uniform(lo[0], hi[0])), float(rng.uniform(lo[1], hi[1]))
             human = PlacedHuman(
-                height, pose_name, pose, source,
-                float(rng.uniform(lo[0], hi[0])), float(rng.uniform(lo[1], hi[1])), z0, self.orientation.sample(rng),
+                height, pose_name, pose, source, *spot, z0, self.orientation.sample(rng),
             )  # fmt: skip
             return human, []
         need = {"sitting_on_chair": "chair", "holding_chair_back": "chair", "hand_on_table": "table",

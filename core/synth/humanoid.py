@@ -11,11 +11,19 @@ read like DeepMimic's `humanoid_pose_interpolator.py`) and from presets for the 
 that no clip covers (sitting, standing, stretching, working, bending, bowing, tilting,
 swinging). The model is y-up (x forward, z to its right); `base_quat` turns it upright in the
 z-up world and faces it along +x rotated by the human's yaw.
+
+Seen from above, three of the URDF's shapes are far from people (docs/synthesis.md measures
+the body against ANSUR II): its head is a 205 mm ball (heads are ~150 mm broad and ~195 mm
+long), its chest a 220 mm ball (chests are ~270-290 mm broad), its pelvis a 180 mm ball
+(hips are ~350 mm broad). `PROPORTION_FIXES` replaces them with capsules of measured size;
+`load_model` reads the fixed model and `urdf_path()` writes the same URDF for pybullet.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -99,6 +107,16 @@ PRESETS = (
 )
 POSES: tuple[str, ...] = (*PRESETS, *CLIPS)
 
+#: link -> (capsule radius, capsule cylinder length, origin xyz, origin rpy) replacing the
+#: URDF's shape, in model units (x 0.25 m at REFERENCE_SCALING, ~1.6 m tall). Head: 140 x
+#: 182 mm, long axis forward, centre 12 mm above the old ball's; chest: 220 mm deep, 265 mm
+#: broad (lateral capsule); pelvis: 180 mm deep, 330 mm broad. See docs/synthesis.md.
+PROPORTION_FIXES: dict[str, tuple[float, float, tuple, tuple]] = {
+    "neck": (0.28, 0.167, (0.0, 0.75, 0.0), (0.0, 1.570796, 0.0)),
+    "chest": (0.44, 0.18, (0.0, 0.48, 0.0), (0.0, 0.0, 0.0)),
+    "root": (0.36, 0.60, (0.0, 0.28, 0.0), (0.0, 0.0, 0.0)),
+}
+
 
 def data_path() -> Path:
     """pybullet_data's folder, which holds the humanoid URDF and the mocap clips."""
@@ -154,11 +172,47 @@ def _rpy_quat(rpy) -> np.ndarray:
     return quat_mul(qz, quat_mul(qy, qx))
 
 
-@lru_cache(maxsize=1)
-def load_model(path: str | None = None) -> HumanoidModel:
-    """Parse the humanoid URDF (links in file order = pybullet's with URDF_MAINTAIN_LINK_ORDER)."""
+def _fixed_urdf_root(path: str | None = None) -> ET.Element:
+    """The URDF's XML tree with PROPORTION_FIXES applied to its collision shapes (pybullet
+    makes the visual shapes from them)."""
     raw = Path(path or data_path() / URDF_RELPATH).read_bytes().rstrip(b"\x00\r\n ")
     root = ET.fromstring(raw)
+    for link in root.findall("link"):
+        fix = PROPORTION_FIXES.get(link.get("name"))
+        col = link.find("collision")
+        if fix is None or col is None:
+            continue
+        radius, length, xyz, rpy = fix
+        org = col.find("origin")
+        org.set("xyz", " ".join(f"{v:.6f}" for v in xyz))
+        org.set("rpy", " ".join(f"{v:.6f}" for v in rpy))
+        geom = col.find("geometry")
+        for child in list(geom):
+            geom.remove(child)
+        ET.SubElement(geom, "capsule", {"length": f"{length:.6f}", "radius": f"{radius:.6f}"})
+    return root
+
+
+@lru_cache(maxsize=1)
+def urdf_path() -> str:
+    """A URDF file of the fixed humanoid for pybullet's loadURDF (written once, atomically,
+    under the temp folder, named by its content's hash)."""
+    from topseg.core.atomic import atomic_write
+
+    text = ET.tostring(_fixed_urdf_root(), encoding="utf-8")
+    digest = hashlib.sha256(text).hexdigest()[:16]
+    path = Path(tempfile.gettempdir()) / f"topseg-humanoid-{digest}.urdf"
+    if not path.is_file() or path.read_bytes() != text:
+        with atomic_write(path) as f:
+            f.write(text)
+    return str(path)
+
+
+@lru_cache(maxsize=1)
+def load_model(path: str | None = None) -> HumanoidModel:
+    """Parse the humanoid URDF with PROPORTION_FIXES (links in file order = pybullet's with
+    URDF_MAINTAIN_LINK_ORDER)."""
+    root = _fixed_urdf_root(path)
     shapes = {}
     for link in root.findall("link"):
         col = link.find("collision")
@@ -668,3 +722,36 @@ def hip_position(p: Pose, scale: float, base_pos, base_q, side: str = "right") -
     """World position (m) of the `side` hip joint of a posed, placed human."""
     pos, _ = link_frames(p, scale, base_pos, base_q)
     return pos[load_model().index[f"{side}_hip"]]
+
+
+def top_view_dimensions(height_m: float) -> dict[str, float]:
+    """What a ceiling camera sees of the upright, arms-down humanoid `height_m` tall (mm):
+    head breadth and length, bideltoid (shoulders and upper arms) and hip breadth, chest
+    breadth and depth, upper-arm, forearm and hand thickness; docs/synthesis.md compares them
+    with ANSUR II."""
+    prims = posed_primitives(
+        identity_pose(), scale_for_height(height_m), (0.0, 0.0, 0.0), base_quat((0, 0, 0, 1), 0.0)
+    )
+    ext = half_extents(prims.kind, prims.size, prims.rot)
+    lo, hi = prims.center - ext, prims.center + ext  # world boxes: x forward, y lateral
+    index = load_model().index
+
+    def span(names, axis):
+        ids = [index[n] for n in names]
+        return 1000.0 * float(hi[ids, axis].max() - lo[ids, axis].min())
+
+    def thick(name):
+        return 2000.0 * float(prims.size[index[name], 0])
+
+    return {
+        "head_breadth": span(["neck"], 1),
+        "head_length": span(["neck"], 0),
+        "bideltoid_breadth": span(["chest", "right_shoulder", "left_shoulder"], 1),
+        "chest_breadth": span(["chest"], 1),
+        "chest_depth": span(["chest"], 0),
+        "hip_breadth": span(["root", "right_hip", "left_hip"], 1),
+        "upper_arm_thickness": thick("right_shoulder"),
+        "forearm_thickness": thick("right_elbow"),
+        "hand_breadth": thick("right_wrist"),
+        "stature": 1000.0 * height_m,
+    }

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount, metres_to_mm
+from topseg.core.camera import PAPER_MOUNT, TopViewMount, metres_to_mm
 from topseg.core.synth.geometry import BOX, CYLINDER, SPHERE
 from topseg.core.synth.noise import GaussianNoise
 from topseg.core.synth.render import Primitives, raycast_m
@@ -102,12 +102,14 @@ def primitives(prims: list[Primitive]) -> Primitives:
     return Primitives(kind, size, center, rot, label)
 
 
-def hit_depth_m(prim: Primitive, mount: TopViewMount = TOP_VIEW) -> np.ndarray:
+def hit_depth_m(prim: Primitive, mount: TopViewMount = PAPER_MOUNT) -> np.ndarray:
     """(H, W) depth in metres at which each pixel's ray first meets `prim` (inf: misses)."""
     return raycast_m(primitives([prim]), mount)[0]
 
 
-def render(prims: list[Primitive], mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
+def render(
+    prims: list[Primitive], mount: TopViewMount = PAPER_MOUNT
+) -> tuple[np.ndarray, np.ndarray]:
     """Exact noise-free render through `render.raycast_m`: (depth in metres float64, labels
     uint8), nearest hit wins. Rays that meet nothing see the floor (depth = camera height,
     label background)."""
@@ -122,13 +124,17 @@ def _spot(
     rng: np.random.Generator, mount: TopViewMount, margin: float, top_m: float = 0.0
 ) -> tuple[float, float]:
     """A floor position whose point `top_m` above it is in view, `margin` m from the edge."""
-    w, d = mount.floor_extent_m()
+    from topseg.core.synth.rooms import view_rect
+
+    (x0, y0), (x1, y1) = view_rect(mount)
     shrink = max(1.0 - 1000.0 * top_m / mount.height_mm, 0.0)  # perspective at that height
-    hx, hy = max(w * shrink / 2 - margin, 0.0), max(d * shrink / 2 - margin, 0.0)
-    return float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
+    mx, my = (x0 + x1) / 2 * shrink, (y0 + y1) / 2 * shrink
+    hx = max((x1 - x0) * shrink / 2 - margin, 0.0)
+    hy = max((y1 - y0) * shrink / 2 - margin, 0.0)
+    return float(rng.uniform(mx - hx, mx + hx)), float(rng.uniform(my - hy, my + hy))
 
 
-def random_object(rng: np.random.Generator, kind: str, mount: TopViewMount = TOP_VIEW):
+def random_object(rng: np.random.Generator, kind: str, mount: TopViewMount = PAPER_MOUNT):
     """The primitives of one object of `kind` (see `KINDS`) at a random pose."""
     yaw = float(rng.uniform(0, np.pi))
     if kind == "table":
@@ -155,7 +161,7 @@ def random_object(rng: np.random.Generator, kind: str, mount: TopViewMount = TOP
 
 
 def random_scene(
-    rng: np.random.Generator, mount: TopViewMount = TOP_VIEW, n_objects: int | None = None
+    rng: np.random.Generator, mount: TopViewMount = PAPER_MOUNT, n_objects: int | None = None
 ) -> list[Primitive]:
     """A few objects (default 3..6, at least one person) dropped anywhere on the floor."""
     n = int(rng.integers(3, 7)) if n_objects is None else n_objects
@@ -165,7 +171,7 @@ def random_scene(
 
 def procedural_frame(
     rng: np.random.Generator,
-    mount: TopViewMount = TOP_VIEW,
+    mount: TopViewMount = PAPER_MOUNT,
     noise_sigma_mm: float = 15.0,
     n_objects: int | None = None,
     missing_fraction: float = 0.0,
@@ -190,7 +196,7 @@ def procedural_frame(
 
 
 def procedural_frames(
-    rng: np.random.Generator, n: int, mount: TopViewMount = TOP_VIEW, **kwargs
+    rng: np.random.Generator, n: int, mount: TopViewMount = PAPER_MOUNT, **kwargs
 ) -> tuple[np.ndarray, np.ndarray]:
     """`n` frames stacked: (N, H, W) uint16 depth and (N, H, W) uint8 labels, a training set.
 

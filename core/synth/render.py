@@ -8,9 +8,11 @@ in parallel; the nearest hit gives the depth (z along the optical axis, rounded 
 centre ray meets first. Its references (a plain numpy caster and pybullet's TinyRenderer)
 live in tests/reference.py.
 
-`Primitives` are flat arrays in the world frame (z up, as pybullet has them). The camera is
-`camera.TopViewMount`: camera x = world x, camera y = -world y, depth = height - world z.
-A pixel (u, v) looks along ((u - cx) / fx, (v - cy) / fy, 1) in the camera frame.
+`Primitives` are flat arrays in the world frame (z up, as pybullet has them). The camera is a
+`camera.TopViewMount` of any height, tilt (pitch, roll) and intrinsics: primitives go into the
+camera frame by the mount's `rotation_world_to_camera()` about its `centre_world_m()`, and a
+pixel (u, v) looks along ((u - cx) / fx, (v - cy) / fy, 1) there; depth is z along the optical
+axis. Straight down, camera x = world x, camera y = -world y, depth = height - world z.
 """
 
 from __future__ import annotations
@@ -21,11 +23,9 @@ import numba
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount, metres_to_mm_scalar
+from topseg.core.camera import TopViewMount, metres_to_mm_scalar
 from topseg.core.synth.geometry import half_extents
 
-#: world -> camera rotation of the top-view mount (x stays, y and z flip)
-_FLIP = np.diag([1.0, -1.0, -1.0])
 NEAR_M = 0.05
 
 
@@ -73,11 +73,18 @@ class Primitives:
         )
 
 
+def camera_pose(mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
+    """(R, c): p_cam = R @ (p_world - c), the mount's rotation and centre (metres, world)."""
+    rot = np.asarray(mount.rotation_world_to_camera(), np.float64).reshape(3, 3)
+    centre = np.asarray(mount.centre_world_m(), np.float64).reshape(3)
+    return rot, centre
+
+
 def to_camera(prims: Primitives, mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
-    """Centres and rotations of the primitives in the camera frame."""
-    h = mount.height_mm / 1000.0
-    center = prims.center @ _FLIP.T + np.array([0.0, 0.0, h])
-    rot = np.einsum("ij,njk->nik", _FLIP, prims.rot)
+    """Centres and rotations of the primitives in the camera frame of `mount` (tilt included)."""
+    r, c = camera_pose(mount)
+    center = (np.asarray(prims.center, np.float64) - c) @ r.T
+    rot = np.einsum("ij,njk->nik", r, prims.rot)
     return center, rot
 
 
@@ -89,7 +96,9 @@ def screen_boxes(center_c: np.ndarray, ext: np.ndarray, mount: TopViewMount) -> 
     """(n, 4) int32 pixel bounds (u0, u1, v0, v1), inclusive, of each primitive; empty = u0 > u1.
 
     The projection of a box's eight corners bounds the projection of anything inside it when
-    the box lies in front of the camera; boxes reaching behind the near plane are dropped.
+    the box lies in front of the camera. A box wholly behind the near plane is dropped; one
+    that straddles it (the floor or a wall seen by a tilted camera: its camera-frame box grows
+    with the tilt) may cover any pixel, so it gets the whole image.
     """
     k = mount.intrinsics
     n = len(center_c)
@@ -99,7 +108,9 @@ def screen_boxes(center_c: np.ndarray, ext: np.ndarray, mount: TopViewMount) -> 
         return out
     lo = center_c - ext
     hi = center_c + ext
-    ok = (lo[:, 2] > NEAR_M) & np.all(np.isfinite(lo), axis=1) & np.all(np.isfinite(hi), axis=1)
+    finite = np.all(np.isfinite(lo), axis=1) & np.all(np.isfinite(hi), axis=1)
+    ok = (lo[:, 2] > NEAR_M) & finite
+    straddle = (lo[:, 2] <= NEAR_M) & (hi[:, 2] > NEAR_M) & finite
     sx = np.stack([lo[:, 0], hi[:, 0]], 1)
     sy = np.stack([lo[:, 1], hi[:, 1]], 1)
     sz = np.stack([lo[:, 2], hi[:, 2]], 1)
@@ -118,6 +129,7 @@ def screen_boxes(center_c: np.ndarray, ext: np.ndarray, mount: TopViewMount) -> 
     out[ok, 1] = u1[ok]
     out[ok, 2] = v0[ok]
     out[ok, 3] = v1[ok]
+    out[straddle] = (0, k.width - 1, 0, k.height - 1)
     return out
 
 
@@ -325,13 +337,13 @@ def _run(prims: Primitives, mount: TopViewMount):
     return depth, depth_mm, lab
 
 
-def raycast_m(prims: Primitives, mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
+def raycast_m(prims: Primitives, mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
     """Depth in metres (float64, inf where nothing is hit) and the label of each pixel's hit."""
     depth, _, lab = _run(prims, mount)
     return depth, lab
 
 
-def raycast(prims: Primitives, mount: TopViewMount = TOP_VIEW) -> tuple[np.ndarray, np.ndarray]:
+def raycast(prims: Primitives, mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
     """(depth uint16 mm, labels uint8) of the primitives seen by `mount`; 0 / NO_DEPTH = no hit."""
     _, depth_mm, lab = _run(prims, mount)
     return depth_mm, lab

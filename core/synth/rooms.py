@@ -1,34 +1,63 @@
 """Room templates: the floor the density function places items on, and the walls around it.
 
 The paper generated its scenes in four rooms of an industrial workspace and an office. Each
-template here is a floor rectangle matched to what the ceiling camera sees (about
-3.9 m x 2.9 m at 3.5 m for Kinect v1): items stand with their centre on it and may reach a
-margin beyond it, so the frame edge can cut them. Walls stand on the sides the room has them,
-and the template has its taste in furniture: how often each class and each object-object
-relation appears.
+template here is a floor rectangle matched to what the ceiling camera sees (`view_rect`: the
+bounding rectangle of the floor the image covers, about 3.9 m x 2.9 m at 3.5 m for a Kinect v1
+looking straight down; shifted and stretched when the camera is tilted): items stand with
+their centre on it and may reach a margin beyond it, so the frame edge can cut them. Walls
+stand on the sides the room has them, and the template has its taste in furniture: how often
+each class and each object-object relation appears.
 
-World frame (camera.TopViewMount): x, y on the floor, z up, origin below the camera.
+World frame (camera.TopViewMount): x, y on the floor, z up, origin below the camera centre.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from topseg.core.camera import TOP_VIEW, TopViewMount
+import numpy as np
+
+from topseg.core.camera import PAPER_MOUNT, TopViewMount
 
 WALL_HEIGHT_M = 2.5
 WALL_THICKNESS_M = 0.15
 #: how far the floor reaches beyond what the camera sees, so items can be cut by the frame
 MARGIN_M = 0.3
+#: a wall's inset is at most this share of the view across it (small views at low ceilings)
+MAX_INSET_SHARE = 0.125
+#: half length of every wall: longer than any view, so one pooled wall body fits every mount
+WALL_HALF_LENGTH_M = 10.0
+
+
+def view_rect(mount: TopViewMount) -> tuple[tuple[float, float], tuple[float, float]]:
+    """(lo, hi) world corners (m) of the bounding rectangle of the floor the image shows.
+
+    The four image corners' rays meet the floor plane z = 0; straight down this is the
+    centred width x depth of `floor_extent_m`, tilted it is a trapezoid's bounding box.
+    """
+    k = mount.intrinsics
+    u = np.array([-0.5, k.width - 0.5, k.width - 0.5, -0.5])
+    v = np.array([-0.5, -0.5, k.height - 0.5, k.height - 0.5])
+    ray_c = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(4)], axis=1)
+    rot = np.asarray(mount.rotation_world_to_camera(), np.float64)
+    centre = np.asarray(mount.centre_world_m(), np.float64)
+    ray_w = ray_c @ rot  # R^T d for each row
+    if np.any(ray_w[:, 2] >= -1e-6):
+        raise ValueError("the camera sees past the horizon: too much tilt for a top view")
+    t = -centre[2] / ray_w[:, 2]
+    xy = centre[:2] + t[:, None] * ray_w[:, :2]
+    lo, hi = xy.min(0), xy.max(0)
+    return (float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1]))
 
 
 @dataclass(frozen=True)
 class RoomTemplate:
     """A room: `walls` names the sides that have one ("north" is +y, "east" is +x).
 
-    `inset` is how far inside the camera's view each wall stands (metres), so the camera sees
-    it. `floor()` is where items' centres go (the view, up to the walls); `bounds()` is what
-    their footprints must stay in (up to the walls, `MARGIN_M` beyond the view elsewhere).
+    `inset` is how far inside the camera's view each wall stands (metres, at most
+    MAX_INSET_SHARE of the view across it), so the camera sees it. `floor()` is where items'
+    centres go (the view, up to the walls); `bounds()` is what their footprints must stay in
+    (up to the walls, `MARGIN_M` beyond the view elsewhere).
     """
 
     name: str
@@ -42,36 +71,37 @@ class RoomTemplate:
     def _edges(
         self, mount: TopViewMount, margin: float
     ) -> tuple[tuple[float, float], tuple[float, float]]:
-        w, d = mount.floor_extent_m()
-        half = {"east": w / 2, "west": w / 2, "north": d / 2, "south": d / 2}
+        (x0, y0), (x1, y1) = view_rect(mount)
+        w, d = x1 - x0, y1 - y0
+        # outward distance of each side's view edge from the origin, and the view across it
+        half = {"east": (x1, w), "west": (-x0, w), "north": (y1, d), "south": (-y0, d)}
         edge = {}
-        for side, h in half.items():
+        for side, (h, across) in half.items():
             if side in self.walls:  # the wall's inner face
-                edge[side] = h - self.inset.get(side, 0.4) - WALL_THICKNESS_M / 2
+                inset = min(self.inset.get(side, 0.4), MAX_INSET_SHARE * across)
+                edge[side] = h - inset - WALL_THICKNESS_M / 2
             else:
                 edge[side] = h + margin
         return (-edge["west"], -edge["south"]), (edge["east"], edge["north"])
 
     def floor(
-        self, mount: TopViewMount = TOP_VIEW
+        self, mount: TopViewMount = PAPER_MOUNT
     ) -> tuple[tuple[float, float], tuple[float, float]]:
         """(lo, hi) corners of where items' centres go: the camera's view, inside the walls."""
         return self._edges(mount, 0.0)
 
     def bounds(
-        self, mount: TopViewMount = TOP_VIEW
+        self, mount: TopViewMount = PAPER_MOUNT
     ) -> tuple[tuple[float, float], tuple[float, float]]:
         """(lo, hi) corners footprints stay within: the walls, or MARGIN_M beyond the view."""
         return self._edges(mount, MARGIN_M)
 
-    def wall_boxes(self, mount: TopViewMount = TOP_VIEW) -> list[tuple[tuple, tuple]]:
-        """Each wall as (centre xyz, half extents xyz), long enough to fill the view."""
+    def wall_boxes(self, mount: TopViewMount = PAPER_MOUNT) -> list[tuple[tuple, tuple]]:
+        """Each wall as (centre xyz, half extents xyz), WALL_HALF_LENGTH_M long either way."""
         (x0, y0), (x1, y1) = self.bounds(mount)
-        w, d = mount.floor_extent_m()
         t = WALL_THICKNESS_M / 2
         hz = WALL_HEIGHT_M / 2
-        span_x = w / 2 + 2 * MARGIN_M + 1.0
-        span_y = d / 2 + 2 * MARGIN_M + 1.0
+        span_x = span_y = WALL_HALF_LENGTH_M
         boxes = []
         for side in self.walls:
             if side == "north":
@@ -84,7 +114,7 @@ class RoomTemplate:
                 boxes.append(((x0 - t, 0.0, hz), (t, span_y, hz)))
         return boxes
 
-    def to_dict(self, mount: TopViewMount = TOP_VIEW) -> dict:
+    def to_dict(self, mount: TopViewMount = PAPER_MOUNT) -> dict:
         """Name, walls, and the floor and bounds corners (m) under `mount`, as JSON-able lists."""
         lo, hi = self.floor(mount)
         blo, bhi = self.bounds(mount)

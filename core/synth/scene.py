@@ -2,8 +2,10 @@
 
 A scene holds the room, the overlap thresholds theta drawn for it, the objects (class, kind,
 variant, size, pose on the floor, what supports them), the human (height, scale, pose and
-place) and the relations that placed them. `to_dict()` is JSON-able and `from_dict()` reads
-it back exactly, so a dataset stores each frame's description beside its pixels.
+place), the relations that placed them and the camera mount the frame is seen from (height,
+tilt, intrinsics, sensor: drawn per frame for training). `to_dict()` is JSON-able and
+`from_dict()` reads it back exactly, so a dataset stores each frame's description (and its
+mount, under "mount") beside its pixels.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from topseg.core.camera import TopViewMount
 from topseg.core.synth import furniture, humanoid
 from topseg.core.synth.geometry import rect_footprint
 
@@ -200,6 +203,8 @@ class Scene:
     #: what footprints must stay within (walls, or a margin past the view); None = the floor
     bounds_lo: tuple[float, float] | None = None
     bounds_hi: tuple[float, float] | None = None
+    #: the camera the scene is seen from (its floor and bounds follow it); None = unrecorded
+    mount: TopViewMount | None = None
 
     @property
     def floor_area(self) -> float:
@@ -238,6 +243,7 @@ class Scene:
             "objects": [o.to_dict() for o in self.objects],
             "human": None if self.human is None else self.human.to_dict(),
             "relations": [r.to_dict() for r in self.relations],
+            "mount": None if self.mount is None else self.mount.to_dict(),
         }
 
     @classmethod
@@ -255,4 +261,5 @@ class Scene:
             [Relation.from_dict(r) for r in d["relations"]],
             tuple(d["bounds_lo"]) if d.get("bounds_lo") is not None else None,
             tuple(d["bounds_hi"]) if d.get("bounds_hi") is not None else None,
+            None if d.get("mount") is None else TopViewMount.from_dict(d["mount"], "scene mount"),
         )

@@ -3,8 +3,9 @@
 Creating pybullet shapes costs ~1 ms a body and leaks memory that `removeBody` does not give
 back (about 100 kB a frame here), so the builder never removes a body. It pools them: one
 humanoid per height on the 1 cm grid (loaded with `globalScaling` the first time that height
-is drawn), one body per furniture (kind, variant, height), the walls of each room and the
-floor. Building a scene moves the bodies it needs into place (poses reset, joints set) and
+is drawn), one body per furniture (kind, variant, height), wall slabs (one per direction and
+copy, each `rooms.WALL_HALF_LENGTH_M` long either way, moved to where the scene's room and
+mount put its walls) and the floor. Building a scene moves the bodies it needs into place (poses reset, joints set) and
 parks the rest far below the floor, out of every camera's view.
 
 `primitives()` reads the active bodies' geometry back from pybullet (shape data cached per
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount
+from topseg.core.camera import PAPER_MOUNT, TopViewMount
 from topseg.core.synth import furniture, humanoid, rooms
 from topseg.core.synth.geometry import BOX, CAPSULE, CYLINDER, SPHERE, quat_to_matrix, yaw_quat
 from topseg.core.synth.render import Primitives
@@ -167,15 +168,15 @@ def _grid(lo: float, hi: float, step: float) -> list[float]:
 class SceneBuilder:
     """Owns the pooled bodies of one pybullet client and poses them for each scene."""
 
-    def __init__(self, client: int, mount: TopViewMount = TOP_VIEW) -> None:
-        import pybullet_data
+    def __init__(self, client: int, mount: TopViewMount = PAPER_MOUNT) -> None:
+        """`mount` places the walls of scenes that record no mount of their own."""
 
         self.client = client
         self.mount = mount
-        self._urdf = os.path.join(pybullet_data.getDataPath(), humanoid.URDF_RELPATH)
+        self._urdf = humanoid.urdf_path()  # pybullet_data's humanoid, proportions fixed
         self._furniture: dict[tuple[str, int, float], list[Body]] = {}
         self._humans: dict[float, Body] = {}
-        self._walls: dict[str, Body | None] = {}
+        self._walls: dict[tuple[str, int], Body] = {}
         self._labels: dict[tuple[int, int], int] = {}
         self.floor = self._make_floor()
         self.active: list[Body] = [self.floor]
@@ -202,18 +203,26 @@ class SceneBuilder:
         )
         return self._remember(body)
 
-    def _walls_of(self, room: str) -> Body | None:
-        if room not in self._walls:
-            from topseg.core.synth.geometry import Part
+    def _wall_body(self, half: tuple, copy: int) -> Body:
+        """A pooled wall slab with half extents `half` (long along x or y), centred on its base."""
+        from topseg.core.synth.geometry import Part
 
-            boxes = rooms.get(room).wall_boxes(self.mount)
-            parts = [Part(BOX, tuple(half), tuple(c)) for c, half in boxes]
-            self._walls[room] = (
-                self._remember(_create_compound(self.client, parts, labels.BACKGROUND))
-                if parts
-                else None
-            )
-        return self._walls[room]
+        key = ("x" if half[0] >= half[1] else "y", copy)
+        if key not in self._walls:
+            body = _create_compound(self.client, [Part(BOX, tuple(half), (0.0, 0.0, 0.0))],
+                                    labels.BACKGROUND)  # fmt: skip
+            self._walls[key] = self._remember(body)
+        return self._walls[key]
+
+    def _walls_of(self, room: str, mount: TopViewMount) -> list[tuple[Body, tuple]]:
+        """The room's walls under `mount`: (pooled slab, centre) pairs."""
+        out, copies = [], {}
+        for centre, half in rooms.get(room).wall_boxes(mount):
+            axis = "x" if half[0] >= half[1] else "y"
+            n = copies.get(axis, 0)
+            copies[axis] = n + 1
+            out.append((self._wall_body(tuple(half), n), tuple(centre)))
+        return out
 
     def _furniture_body(self, kind: str, variant: int, height: float, copy: int) -> Body:
         key = (kind, variant, furniture.quantize_height(height))
@@ -273,10 +282,7 @@ class SceneBuilder:
     def n_bodies(self) -> int:
         """pybullet bodies made so far (floor, furniture and humanoid pools, walls)."""
         return (
-            1
-            + sum(len(v) for v in self._furniture.values())
-            + len(self._humans)
-            + sum(w is not None for w in self._walls.values())
+            1 + sum(len(v) for v in self._furniture.values()) + len(self._humans) + len(self._walls)
         )
 
     # --- building ------------------------------------------------------------------------
@@ -291,12 +297,11 @@ class SceneBuilder:
 
         c = self.client
         wanted: list[Body] = [self.floor]
-        walls = self._walls_of(scene.room)
         copies: dict[tuple, int] = {}
         placements = []
-        if walls is not None:  # wall shapes are placed in world coordinates
-            wanted.append(walls)
-            placements.append((walls, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
+        for wall, centre in self._walls_of(scene.room, scene.mount or self.mount):
+            wanted.append(wall)
+            placements.append((wall, centre, (0.0, 0.0, 0.0, 1.0)))
         for o in scene.objects:
             key = (o.kind, o.variant, furniture.quantize_height(o.height))
             n = copies.get(key, 0)

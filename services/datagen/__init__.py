@@ -1,7 +1,14 @@
 """Render a synthetic dataset on Dask into a Zarr store (see `topseg.core.formats.dataset`).
 
-    topseg datagen --mode modeled --frames 2000 --out data/modeled.zarr --seed 1 --noise gaussian:15
+    topseg datagen --mode modeled --frames 2000 --out data/modeled.zarr --seed 1
+    topseg datagen --mounts paper --noise gaussian:15 --frames 2000 --out data/paper.zarr
     topseg datagen preview data/modeled.zarr
+
+Mounts: by default every frame draws its own camera mount (`--mounts random`: height
+U[2.4, 4.5] m, pitch and roll U[-10, 10] deg, a sensor from `--sensors`, all four by default,
+with its resolution and, with `--noise sensor` (the default then), its own noise family), and
+people walk in and out of view; `--mounts paper` renders every frame from the paper's Kinect v1
+3.5 m straight down (noise gaussian:15 by default), as the paper's experiments do.
 
 The store's folder is created (with its parents) when missing. Frames are rendered on a
 local Dask cluster (`topseg.services.dask_cluster`: one single-threaded worker process per
@@ -54,8 +61,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     parser.add_argument(
         "--noise",
-        default="gaussian:15",
-        help="none | gaussian:<sigma_mm> | kinect (default gaussian:15)",
+        default=None,
+        help="sensor (each frame's sensor's own noise) | none | gaussian:<sigma_mm> | kinect | "
+        "tof | stereo (default: sensor with random mounts, gaussian:15 with the paper's)",
+    )
+    parser.add_argument(
+        "--mounts",
+        choices=("random", "paper"),
+        default=None,
+        help="random: a camera mount drawn per frame (default for the synthesis generator); "
+        "paper: the paper's fixed Kinect v1 mount (default for other generators)",
+    )
+    parser.add_argument(
+        "--sensors",
+        default=None,
+        help="comma-separated sensors random mounts draw from (default: all of "
+        "kinect_v1,kinect_v2,oak_d,realsense_d435)",
     )
     parser.add_argument(
         "--room", default=None, help=f"{' | '.join(ROOMS)} (default: a random one per frame)"
@@ -248,6 +269,27 @@ def make_parent(out: Path) -> None:
         raise TopsegError(f"cannot create the folder {folder}: {exc.strerror}") from None
 
 
+def mount_distribution(args: argparse.Namespace, target: str) -> dict | None:
+    """`--mounts` / `--sensors` -> a MountDistribution dict (None: the paper's fixed mount)."""
+    from topseg.services.datagen.sources import GENERATORS
+
+    kind = getattr(args, "mounts", None) or (
+        "random" if target == GENERATORS["synthesis"] else "paper"
+    )
+    sensors = getattr(args, "sensors", None)
+    if kind == "paper":
+        if sensors:
+            raise TopsegError("--sensors needs --mounts random")
+        return None
+    from topseg.core.synth.synthesis import MountDistribution
+
+    d = MountDistribution()
+    if sensors:
+        names = tuple(s.strip() for s in sensors.split(",") if s.strip())
+        d = MountDistribution(d.height_m, d.tilt_deg, names)
+    return d.to_dict()
+
+
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt
 
@@ -261,7 +303,12 @@ def run(args: argparse.Namespace) -> int:
 
     from topseg.core.formats.dataset import DatasetWriter, make_attrs
     from topseg.core.synth.noise import parse_noise
-    from topseg.services.datagen.sources import generator_config, load_factory, resolve
+    from topseg.services.datagen.sources import (
+        generator_config,
+        load_factory,
+        mount_summary,
+        resolve,
+    )
 
     if args.out is None or args.frames is None:
         raise TopsegError("--out and --frames are required (or use `topseg datagen preview PATH`)")
@@ -271,8 +318,13 @@ def run(args: argparse.Namespace) -> int:
         raise TopsegError("--seed must be >= 0")
     target = resolve(args.generator)
     load_factory(target)  # a bad name fails here, before a store or a cluster exists
-    noise = parse_noise(args.noise).spec
-    generator = {"factory": target, "config": generator_config(target, args.mode, noise, args.room)}
+    mounts = mount_distribution(args, target)
+    noise = args.noise or ("sensor" if mounts is not None else "gaussian:15")
+    noise = noise if noise == "sensor" else parse_noise(noise).spec
+    generator = {
+        "factory": target,
+        "config": generator_config(target, args.mode, noise, args.room, mounts),
+    }
     attrs = make_attrs(
         seed=args.seed,
         mode=args.mode,
@@ -280,6 +332,7 @@ def run(args: argparse.Namespace) -> int:
         room=args.room,
         generator=generator,
         frames=args.frames,
+        mounts=mount_summary(generator),
     )
     make_parent(Path(args.out))
     signal.signal(signal.SIGTERM, _raise_interrupt)

@@ -1,10 +1,12 @@
 """`topseg datagen preview PATH`: a PNG contact sheet of a dataset, to check scenes by eye.
 
-Each tile is one frame: depth on the left (grey, nearer is brighter, no depth dark red) and
-its coloured labels on the right, both downsampled by `--scale`, under a caption with the
-frame index and what its scene holds; a legend of the label colours runs along the bottom.
+Each tile is one frame: depth on the left (grey, nearer is brighter, no depth dark red; the
+floor of the frame's own mount dark) and its coloured labels on the right, both downsampled
+by `--scale`, under a caption with the frame index, its camera (sensor, height, pitch/roll)
+and what its scene holds; a legend of the label colours runs along the bottom. Frames of a
+smaller sensor are drawn at their own size, top-left in the tile.
 
-Layout, in pixels, for frames of H x W at 1/scale (h = H // scale, w = W // scale):
+Layout, in pixels, for frames of at most H x W at 1/scale (h = H // scale, w = W // scale):
 a tile is (2 w + GAP) wide and (h + CAPTION) tall; the sheet is SPACE + cols (tile + SPACE)
 wide and SPACE + rows (tile + SPACE) + LEGEND tall.
 """
@@ -50,8 +52,14 @@ def depth_rgb(depth: np.ndarray, far_mm: float, span_mm: float = 2500.0) -> np.n
 
 
 def caption(index: int, scene: dict) -> str:
-    """A short line about a frame's scene, from whatever keys it has."""
+    """A short line about a frame's scene and camera, from whatever keys it has."""
     parts = [f"#{index}"]
+    mount = scene.get("mount")
+    if isinstance(mount, dict) and "height_mm" in mount:
+        parts.append(
+            f"{mount.get('sensor', '?')} {float(mount['height_mm']) / 1000:.2f}m "
+            f"{float(mount.get('pitch_deg', 0)):+.0f}/{float(mount.get('roll_deg', 0)):+.0f}deg"
+        )
     if isinstance(scene.get("room"), (str, dict)):
         room = scene["room"]
         parts.append(room if isinstance(room, str) else str(room.get("name", "")))
@@ -68,12 +76,14 @@ def caption(index: int, scene: dict) -> str:
 
 
 def contact_sheet(
-    frames: list[tuple[np.ndarray, np.ndarray, str]], cols: int, scale: int, far_mm: float
+    frames: list[tuple], cols: int, scale: int, far_mm: float | None = None
 ) -> np.ndarray:
-    """(depth, labels, caption) triples -> one (rows, cols) RGB sheet (see the module layout)."""
+    """(depth, labels, caption[, far_mm]) tuples -> one (rows, cols) RGB sheet (see the module
+    layout); a frame's own far_mm (its floor depth) wins over the sheet's."""
     from PIL import Image, ImageDraw
 
-    H, W = frames[0][0].shape
+    H = max(f[0].shape[0] for f in frames)
+    W = max(f[0].shape[1] for f in frames)
     h, w = H // scale, W // scale
     tile_w, tile_h = 2 * w + GAP, h + CAPTION
     rows = -(-len(frames) // cols)
@@ -81,16 +91,21 @@ def contact_sheet(
     height = SPACE + rows * (tile_h + SPACE) + LEGEND
     sheet = np.empty((height, width, 3), np.uint8)
     sheet[:] = BACKGROUND_RGB
-    for k, (depth, labels, _) in enumerate(frames):
+    for k, f in enumerate(frames):
+        depth, labels = f[0], f[1]
+        far = f[3] if len(f) > 3 and f[3] is not None else far_mm
         y = SPACE + (k // cols) * (tile_h + SPACE) + CAPTION
         x = SPACE + (k % cols) * (tile_w + SPACE)
-        sheet[y : y + h, x : x + w] = depth_rgb(depth[::scale, ::scale][:h, :w], far_mm)
-        sheet[y : y + h, x + w + GAP : x + 2 * w + GAP] = label_table.colorize(
+        d = depth[::scale, ::scale][:h, :w]
+        fh, fw = d.shape
+        sheet[y : y + fh, x : x + fw] = depth_rgb(d, far if far is not None else 3600.0)
+        sheet[y : y + fh, x + w + GAP : x + w + GAP + fw] = label_table.colorize(
             labels[::scale, ::scale][:h, :w]
         )
     image = Image.fromarray(sheet)
     draw = ImageDraw.Draw(image)
-    for k, (_, _, text) in enumerate(frames):
+    for k, f in enumerate(frames):
+        text = f[2]
         y = SPACE + (k // cols) * (tile_h + SPACE)
         x = SPACE + (k % cols) * (tile_w + SPACE)
         draw.text((x + 2, y + 2), text, fill=(0, 0, 0))
@@ -129,9 +144,12 @@ def run(args: argparse.Namespace) -> int:
     if len(ds) == 0:
         raise DatasetError(f"{ds.path} has no complete frames yet")
     picks = np.unique(np.linspace(0, len(ds) - 1, min(args.count, len(ds))).round().astype(int))
-    frames = [(ds.depth[k], ds.labels[k], caption(int(ds.indices[k]), ds.scene(k))) for k in picks]
-    far_mm = float(ds.attrs.get("camera", {}).get("height_mm", 3500.0)) + 100.0
-    sheet = contact_sheet(frames, min(args.cols, len(frames)), args.scale, far_mm)
+    frames = []
+    for k in picks:
+        depth, labels, mount = ds.frame(int(k))
+        far_mm = mount.depth_of_height(0.0) + 100.0  # the floor on the optical axis, dark
+        frames.append((depth, labels, caption(int(ds.indices[k]), ds.scene(k)), far_mm))
+    sheet = contact_sheet(frames, min(args.cols, len(frames)), args.scale)
     out = Path(args.png) if args.png else default_png(args.path)
     try:
         write_png(sheet, out)

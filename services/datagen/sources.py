@@ -68,18 +68,45 @@ def load_factory(target: str) -> Callable[[dict, int], FrameSource]:
         raise TopsegError(f"cannot load generator {target!r}: {exc}") from exc
 
 
-def generator_config(target: str, mode: str, noise: str, room: str | None) -> dict:
-    """The full, validated config a generator will get, as recorded in the dataset."""
+#: share of freely placed people standing across an open edge of the view (cut by the image
+#: border) in datasets with drawn mounts; the paper's fixed-mount datasets keep 0
+EDGE_SHARE = 0.3
+
+
+def generator_config(
+    target: str, mode: str, noise: str, room: str | None, mounts: dict | None = None
+) -> dict:
+    """The full, validated config a generator will get, as recorded in the dataset.
+
+    `mounts` (a `MountDistribution.to_dict()`) draws each frame's camera mount, and people
+    then walk in and out of view (EDGE_SHARE); None keeps the paper's fixed mount.
+    """
     if target == GENERATORS["synthesis"]:
+        from topseg.core.synth.density import DensityConfig
         from topseg.core.synth.synthesis import SynthesisConfig
 
         try:
-            return SynthesisConfig(mode=mode, noise=noise, room=room).to_dict()
+            density = DensityConfig(human_edge_share=EDGE_SHARE if mounts is not None else 0.0)
+            return SynthesisConfig(
+                mode=mode, noise=noise, room=room, mounts=mounts, density=density
+            ).to_dict()
         except (TypeError, ValueError) as exc:
             raise TopsegError(f"bad synthesis settings: {exc}") from exc
+    if mounts is not None:
+        raise TopsegError(f"generator {target}: drawn mounts need the synthesis generator")
     from topseg.core.synth.noise import parse_noise
 
     return {"mode": mode, "noise": parse_noise(noise).spec, "room": room}
+
+
+def mount_summary(generator: dict) -> dict | None:
+    """What the frames' mounts span for a synthesis generator's config (None: another
+    generator; its frames come from the dataset's camera)."""
+    if generator.get("factory") != GENERATORS["synthesis"]:
+        return None
+    from topseg.core.synth.synthesis import SynthesisConfig
+
+    return SynthesisConfig.from_dict(generator["config"]).mount_summary()
 
 
 class _Synthesis:
@@ -91,7 +118,7 @@ class _Synthesis:
 
     def __call__(self, index: int) -> Frame:
         frame = self._synth.render(frame_seed(self._seed, index))
-        return frame.depth, frame.labels, frame.scene
+        return frame.depth, frame.labels, frame.scene  # the scene carries the frame's mount
 
     def close(self) -> None:
         self._synth.close()

@@ -145,11 +145,14 @@ class DataRecipe:
         from topseg.services.datagen.sources import GENERATORS
 
         r = self.normalised()
-        config = SynthesisConfig(mode=r.mode, noise=r.noise, theta_max=r.theta).to_dict()
-        generator = {"factory": GENERATORS["synthesis"], "config": config}
+        # the paper's fixed mount (mounts=None, camera PAPER_MOUNT), so the experiments stay
+        # comparable with the paper's; new training data draws mounts (`topseg datagen`)
+        synth = SynthesisConfig(mode=r.mode, noise=r.noise, theta_max=r.theta, mounts=None)
+        generator = {"factory": GENERATORS["synthesis"], "config": synth.to_dict()}
         return make_attrs(
-            seed=r.seed, mode=r.mode, noise=r.noise, room=None, generator=generator, frames=frames
-        )
+            seed=r.seed, mode=r.mode, noise=r.noise, room=None, generator=generator, frames=frames,
+            camera=synth.camera.to_dict(), mounts=synth.mount_summary(),
+        )  # fmt: skip
 
 
 def ensure_dataset(
