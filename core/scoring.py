@@ -1,14 +1,16 @@
 """Score a Segmenter on frames with ground truth: forest alone and forest + CRF.
 
 The one scoring loop behind `topseg evaluate`, the experiments' points and training's
-validation split. It takes any iterable of (depth, truth) pairs, so a caller may wrap it in
-a progress bar or feed it a dataset (`dataset_frames`) or a recording's frames.
+validation split. It takes any iterable of (depth, truth, mount) triples (each frame labelled
+through its own mount; a (depth, truth) pair uses the Segmenter's), so a caller may wrap it
+in a progress bar or feed it a dataset (`dataset_frames`) or a recording's frames.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,14 +18,18 @@ from topseg.core import crf
 from topseg.core.metrics import ConfusionAccumulator
 from topseg.core.segmenter import Segmenter
 
+if TYPE_CHECKING:
+    from topseg.core.camera import TopViewMount
+
 
 @dataclass
 class Scores:
     """What `score` gathered: both confusions, summed stage times and the kept examples.
 
-    forest    confusion of the forest's argmax
-    crf       confusion of the Segmenter's labels (the same as `forest` when mode is none)
-    examples  (depth, truth, forest labels, CRF labels) of the first frames, for pictures
+    forest       confusion of the forest's argmax
+    crf          confusion of the Segmenter's labels (the same as `forest` when mode is none)
+    examples     (depth, truth, forest labels, CRF labels) of the first frames, for pictures
+    floor_share  summed floor-gated shares (mean: `floor_share / frames`)
     """
 
     crf_mode: str
@@ -32,6 +38,7 @@ class Scores:
     frames: int = 0
     forest_ms: float = 0.0
     crf_ms: float = 0.0
+    floor_share: float = 0.0
     examples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(
         default_factory=list
     )
@@ -44,16 +51,19 @@ class Scores:
 
 def score(
     segmenter: Segmenter,
-    frames: Iterable[tuple[np.ndarray, np.ndarray]],
+    frames: Iterable[tuple[np.ndarray, np.ndarray, TopViewMount | None]],
     *,
     examples: int = 0,
 ) -> Scores:
-    """Label every (depth, truth) pair of `frames` and add it to both confusions; keep the
-    first `examples` frames for pictures. A frame the Segmenter refuses raises its
-    TopsegError (named `frame I`, I counting from 0)."""
+    """Label every (depth, truth, mount) triple of `frames` (a mount of None, or a (depth,
+    truth) pair, takes the Segmenter's) and add it to both confusions; keep the first
+    `examples` frames for pictures. A frame the Segmenter refuses raises its TopsegError
+    (named `frame I`, I counting from 0)."""
     out = Scores(crf_mode=segmenter.crf_mode)
-    for i, (depth, truth) in enumerate(frames):
-        result = segmenter.label(depth, name=f"frame {i}")
+    for i, item in enumerate(frames):
+        depth, truth = item[0], item[1]
+        mount = item[2] if len(item) > 2 else None
+        result = segmenter.label(depth, name=f"frame {i}", mount=mount)
         final = result.labels
         if segmenter.crf_mode == "none":
             pred = final
@@ -61,6 +71,7 @@ def score(
             pred = crf.segment_argmax(result.proba, np.asarray(depth) > 0)
         out.forest_ms += result.timings.forest_ms
         out.crf_ms += result.timings.crf_ms
+        out.floor_share += result.floor_share
         out.forest.add(truth, pred)
         out.crf.add(truth, final)
         out.frames += 1
@@ -69,7 +80,14 @@ def score(
     return out
 
 
-def dataset_frames(ds, indices: Sequence[int] | range) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """(depth, truth) arrays of the dataset frames at `indices`, read one at a time."""
+def dataset_frames(
+    ds, indices: Sequence[int] | range
+) -> Iterator[tuple[np.ndarray, np.ndarray, TopViewMount]]:
+    """(depth, truth, mount) of the dataset frames at `indices`, read one at a time, each
+    cropped to its mount's camera (a smaller sensor's frame is stored top-left)."""
+    from topseg.core.forest.inputs import dataset_mount
+
     for i in indices:
-        yield np.asarray(ds.depth[i]), np.asarray(ds.labels[i])
+        mount = dataset_mount(ds, i)
+        h, w = mount.intrinsics.shape
+        yield np.asarray(ds.depth[i])[:h, :w], np.asarray(ds.labels[i])[:h, :w], mount

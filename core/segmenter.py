@@ -1,10 +1,16 @@
 """One way from a depth frame to labels: the forest's posteriors, then the CRF.
 
 A `Segmenter` holds a loaded forest, its model header and the settings that shape a run
-(`SegmenterConfig`: the CRF today; a camera mount and speed options are meant to join it
-as further fields). Every caller that labels frames (the worker, `segment`, `evaluate`,
-experiments, the demo, training's validation split, the benches) goes through it, so
-there is one validation of a frame, one argmax and one way to time the two stages.
+(`SegmenterConfig`: the CRF, the camera mount, the stride). Every caller that labels frames
+(the worker, `segment`, `evaluate`, experiments, the demo, training's validation split, the
+benches) goes through it, so there is one validation of a frame, one argmax and one way to
+time the two stages.
+
+A model trained on heights (header `"input": "height"`) reads each frame through its mount
+(`forest.inputs.model_input`: height above the floor, metric offsets, the floor gate), so
+frames of any size and intrinsics are labelled once their mount is known; the floor-gated
+share is in `Segmentation.floor_share`. A model trained before reads depth as it always did
+and is refused frames of another camera (`check_frame`).
 `bundled_model_path` finds the model shipped with topseg, used when no `--model` is named.
 """
 
@@ -22,8 +28,10 @@ from topseg.core import labels as L
 from topseg.core.errors import TopsegError
 
 if TYPE_CHECKING:
-    from topseg.core.camera import Intrinsics
+    from topseg.core.camera import Intrinsics, TopViewMount
     from topseg.core.crf import CRFConfig
+    from topseg.core.forest.features import FeatureConfig
+    from topseg.core.forest.inputs import ModelInput
     from topseg.core.forest.tree import Forest
 
 # The numba modules (camera, forest, crf) are imported where they are used, so that a
@@ -86,14 +94,18 @@ class SegmenterConfig:
     """How a Segmenter runs: the seam where run settings are added as fields.
 
     crf           the CRF settings (mode `none` is the forest's argmax)
-    check_camera  refuse frames that do not come from the model's camera (size, focal
-                  length); off where frames of other sizes are expected (the worker's tests)
+    check_camera  a model trained before heights: refuse frames that do not come from the
+                  model's camera (size, focal length); off where frames of other sizes are
+                  expected (the worker's tests). Height models take any camera.
     stride        forest evaluated at every stride-th pixel of every stride-th row (1 = all)
+    mount         the camera's mount, for frames labelled without one of their own (a
+                  height model needs one or the other)
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
     check_camera: bool = True
     stride: int = 1
+    mount: TopViewMount | None = None
 
     def __post_init__(self) -> None:
         if self.stride < 1:
@@ -113,15 +125,18 @@ class Timings:
 class Segmentation:
     """What `Segmenter.label` returns for one frame.
 
-    labels   (H, W) uint8 class ids, NO_DEPTH (255) where there is no depth
-    proba    (H, W, C) float32 forest posteriors: the Segmenter's reused buffer, valid
-             until its next call (copy it to keep it)
-    timings  per-stage milliseconds
+    labels       (H, W) uint8 class ids, NO_DEPTH (255) where there is no depth
+    proba        (H, W, C) float32 forest posteriors: the Segmenter's reused buffer, valid
+                 until its next call (copy it to keep it)
+    timings      per-stage milliseconds
+    floor_share  share of the pixels with depth the floor gate sent to background without
+                 the forest (0 for a model that reads depth)
     """
 
     labels: np.ndarray
     proba: np.ndarray
     timings: Timings
+    floor_share: float = 0.0
 
 
 class Segmenter:
@@ -154,7 +169,14 @@ class Segmenter:
             model_id or self.header.get("model_id") or (path.name if path else "model")
         )
         self.camera = model_camera(self.header)
+        self.features = model_features(self.header, forest)
+        self.trained_for: dict[str, Any] | None = self.header.get("trained_for")
         self._out: np.ndarray | None = None
+
+    @property
+    def reads_height(self) -> bool:
+        """Whether the model reads heights above the floor (and so needs a mount)."""
+        return self.features is not None
 
     @classmethod
     def from_file(
@@ -184,9 +206,9 @@ class Segmenter:
     def check_frame(
         self, depth: np.ndarray, intrinsics: Intrinsics | None = None, name: str = "frame"
     ) -> None:
-        """The one validation of a frame: the model's camera size and, when the frame says
-        its intrinsics, focal length (features are metric offsets scaled by it). TopsegError
-        naming the frame."""
+        """The validation of a frame for a model that reads depth: the model's camera size
+        and, when the frame says its intrinsics, focal length (its features are offsets
+        scaled for that camera). TopsegError naming the frame."""
         expected = self.camera
         shape = np.shape(depth)
         if shape != expected.shape:
@@ -201,14 +223,77 @@ class Segmenter:
                 f"{expected.fx:.1f} px"
             )
 
-    def posteriors(self, depth: np.ndarray) -> np.ndarray:
-        """The forest stage alone: (H, W, C) float32 posteriors in the reused buffer."""
+    def frame_mount(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        name: str = "frame",
+        mount: TopViewMount | None = None,
+    ) -> TopViewMount:
+        """The mount a height model reads `depth` with: `mount`, else the config's, with the
+        frame's own intrinsics when it says them. TopsegError naming the frame when there is
+        none or the frame's size is not its camera's."""
+        mount = mount if mount is not None else self.config.mount
+        if mount is None:
+            raise TopsegError(
+                f"{name}: the model reads heights above the floor and needs the camera's mount "
+                "(calibrate it with `topseg calibrate` and pass --mount)"
+            )
+        if intrinsics is not None and intrinsics != mount.intrinsics:
+            mount = replace(mount, intrinsics=intrinsics)
+        shape = np.shape(depth)
+        k = mount.intrinsics
+        if shape != k.shape:
+            got = f"{shape[1]}x{shape[0]}" if len(shape) == 2 else f"of shape {shape}"
+            raise TopsegError(
+                f"{name}: frame is {got} but its camera's intrinsics are {k.width}x{k.height}"
+            )
+        return mount
+
+    def model_input(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        name: str = "frame",
+        mount: TopViewMount | None = None,
+    ) -> ModelInput:
+        """What the forest reads of `depth` (validated first; see `label`)."""
+        from topseg.core.forest.inputs import legacy_input, model_input
+
+        if self.features is None:
+            if self.config.check_camera:
+                self.check_frame(depth, intrinsics, name)
+            return legacy_input(depth)
+        try:
+            return model_input(
+                depth, self.frame_mount(depth, intrinsics, name, mount), self.features
+            )
+        except ValueError as exc:
+            raise TopsegError(f"{name}: {exc}") from None
+
+    def outside_trained_for(self, mount: TopViewMount) -> str | None:
+        """Why a camera on `mount` lies outside what the model was trained for (one line),
+        or None when it lies inside (or the model does not say)."""
+        if self.features is None:
+            return _outside_legacy(self.header, mount)
+        return _outside(self.trained_for, mount)
+
+    def posteriors(self, depth: np.ndarray, mount: TopViewMount | None = None) -> np.ndarray:
+        """The forest stage alone: (H, W, C) float32 posteriors in the reused buffer (the
+        frame not checked against a depth model's camera)."""
+        from topseg.core.forest.inputs import legacy_input
+
+        if self.features is None:
+            return self._predict(legacy_input(depth))
+        return self._predict(self.model_input(depth, mount=mount))
+
+    def _predict(self, inp: ModelInput) -> np.ndarray:
         from topseg.core.forest.predict import predict_proba
 
-        shape = (*np.shape(depth), L.NUM_CLASSES)
+        shape = (*inp.shape, L.NUM_CLASSES)
         if self._out is None or self._out.shape != shape:
             self._out = np.empty(shape, np.float32)
-        return predict_proba(self.forest, depth, out=self._out, stride=self.config.stride)
+        return predict_proba(self.forest, inp, out=self._out, stride=self.config.stride)
 
     def smooth(self, proba: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """The CRF stage alone: (H, W) uint8 labels of `proba` under this CRF mode."""
@@ -217,22 +302,116 @@ class Segmenter:
         return segment_crf(proba, depth, self.config.crf)
 
     def label(
-        self, depth: np.ndarray, intrinsics: Intrinsics | None = None, name: str = "frame"
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        name: str = "frame",
+        mount: TopViewMount | None = None,
     ) -> Segmentation:
-        """Labels, posteriors and timings of one uint16 depth frame (validated first when
-        `config.check_camera`; `name` names it in the error)."""
-        if self.config.check_camera:
-            self.check_frame(depth, intrinsics, name)
+        """Labels, posteriors and timings of one uint16 depth frame, validated first (`name`
+        names it in the error). A height model reads it through `mount` (the config's when
+        None) with the frame's `intrinsics` when given; the forest stage's time includes
+        building the model input."""
         t0 = time.perf_counter()
-        proba = self.posteriors(depth)
+        inp = self.model_input(depth, intrinsics, name, mount)
+        proba = self._predict(inp)
         t1 = time.perf_counter()
         labels = self.smooth(proba, depth)
         t2 = time.perf_counter()
         ms = 1000.0
-        return Segmentation(labels, proba, Timings(ms * (t1 - t0), ms * (t2 - t1), ms * (t2 - t0)))
+        return Segmentation(
+            labels,
+            proba,
+            Timings(ms * (t1 - t0), ms * (t2 - t1), ms * (t2 - t0)),
+            inp.floor_share(),
+        )
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels on a small frame, before the
         first real one; the frame is not checked against the model's camera."""
+        from topseg.core.camera import KINECT_V1, TopViewMount
+
         depth = np.full((48, 64), 3000, np.uint16)
-        self.smooth(self.posteriors(depth), depth)
+        mount = None
+        if self.features is not None:
+            # a virtual camera at the model's canonical height (a constant of the model, not
+            # a mount); a floor strip so that the floor gate's path is compiled too
+            mount = TopViewMount(KINECT_V1.scaled_to(64, 48), self.features.canonical_height_mm)
+            depth[:] = int(mount.height_mm * 0.6)
+            depth[:, :8] = int(mount.height_mm)
+        self.smooth(self.posteriors(depth, mount), depth)
+
+
+def model_features(header: dict | None, forest: Forest | None = None) -> FeatureConfig | None:
+    """The FeatureConfig of a model that reads heights (header `"input": "height"`), None for
+    one that reads depth. TopsegError when the header says heights but not its features."""
+    from topseg.core.forest.features import FeatureConfig
+    from topseg.core.forest.inputs import reads_height
+
+    if not reads_height(header):
+        return None
+    d = (header or {}).get("features")
+    if d is None:
+        d = (header or {}).get("recipe", {}).get("config", {}).get("features")
+    if not isinstance(d, dict):
+        raise TopsegError("the model reads heights but its header does not say its features")
+    try:
+        features = FeatureConfig.from_dict(d, source="the model's feature config")
+    except ValueError as exc:
+        raise TopsegError(f"the model's header names unreadable features ({exc})") from None
+    if forest is not None and features.background_mm != forest.background_mm:
+        raise TopsegError("the model's header and forest disagree on background_mm")
+    return features
+
+
+#: slack on the trained height range and tilt before a camera counts as outside them
+HEIGHT_SLACK_MM = 100.0
+TILT_SLACK_DEG = 1.0
+
+
+def _outside(trained_for: dict | None, mount: TopViewMount) -> str | None:
+    """The reason `mount` lies outside a height model's `trained_for`, or None."""
+    if not trained_for:
+        return None
+    reasons = []
+    lo, hi = trained_for.get("height_mm", [None, None])
+    h = mount.height_mm
+    if lo is not None and hi is not None and not lo - HEIGHT_SLACK_MM <= h <= hi + HEIGHT_SLACK_MM:
+        reasons.append(
+            f"camera height {h / 1000:.2f} m is outside the {lo / 1000:.2f}-{hi / 1000:.2f} m "
+            "the model was trained for"
+        )
+    max_tilt = trained_for.get("tilt_deg")
+    if max_tilt is not None and mount.tilt_deg() > max_tilt + TILT_SLACK_DEG:
+        reasons.append(
+            f"camera tilt {mount.tilt_deg():.1f} deg exceeds the model's {max_tilt:.1f} deg"
+        )
+    sensors = trained_for.get("sensors")
+    if sensors and mount.sensor not in sensors:
+        reasons.append(
+            f"sensor {mount.sensor} is not one the model was trained for ({', '.join(sensors)})"
+        )
+    return "; ".join(reasons) or None
+
+
+def _outside_legacy(header: dict, mount: TopViewMount) -> str | None:
+    """The reason `mount` is not the one mount a depth-reading model was trained for."""
+    from topseg.core.camera import TopViewMount
+
+    cam = header.get("dataset", {}).get("attrs", {}).get("camera")
+    try:
+        trained = TopViewMount.from_dict(cam) if cam else None
+    except (KeyError, TypeError, ValueError):
+        trained = None
+    if trained is None:
+        return "the model reads raw depth and does not say the mount it was trained for"
+    if (
+        abs(mount.height_mm - trained.height_mm) > HEIGHT_SLACK_MM
+        or mount.tilt_deg() > TILT_SLACK_DEG
+    ):
+        return (
+            f"the model reads raw depth and was trained for one mount ({trained.height_mm / 1000:.2f} m, "
+            f"straight down); this camera is {mount.height_mm / 1000:.2f} m up, tilted "
+            f"{mount.tilt_deg():.1f} deg"
+        )
+    return None

@@ -1,6 +1,7 @@
 """Score a model on a dataset: the paper's per-class table, JSON, and pictures.
 
-The forest runs on every complete frame of the dataset; the CRF mode (`none`, `exact`,
+The forest runs on every complete frame of the dataset, each read through its own mount
+(`Dataset.mount`; cropped to its camera); the CRF mode (`none`, `exact`,
 `realtime`) smooths its posteriors. Prints the per-class precision / recall / F1 table
 (Table I's layout) with mAP, mAR and avg F1 over ids 1..10, and with `--plots DIR` draws the
 confusion matrix and a few frames (depth, truth, forest, CRF) side by side.
@@ -50,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
         print(metrics.format_table(final_scores, title=f"forest + CRF ({args.crf})"))
     timing = result.ms_per_frame()
     print(f"\nms per frame: forest {timing['forest']:.1f}, crf {timing['crf']:.1f}")
+    if segmenter.reads_height and result.frames:
+        share = result.floor_share / result.frames
+        print(f"floor skipped: {100 * share:.1f} % of the pixels with depth (each frame's mount)")
 
     if args.json_out:
         doc = json.loads(metrics.to_json(final_scores))

@@ -1,14 +1,21 @@
 """Segment depth offline: 16-bit PNGs (mm) or MCAP recordings in, label PNGs and overlays out.
 
 For each input frame NAME it writes `NAME_labels.png` (8-bit label ids, 255 = no depth) and
-`NAME_overlay.png` (depth in grey with the label colours blended on top). Frames must come
-from the camera the model was trained for (its size and focal length): the features are
-metric offsets scaled by the focal length, so another camera is refused rather than
-silently mis-segmented.
+`NAME_overlay.png` (depth in grey with the label colours blended on top).
+
+A model that reads heights above the floor (every model trained since mounts were drawn)
+labels each frame through its camera's mount: `--mount FILE` (from `topseg calibrate`) when
+given, else the mount a recording's messages carry, else one estimated from the input's own
+frames (up to `ESTIMATE_FRAMES` spread over each input named on the command line: a folder
+of PNGs is one camera) and printed. PNGs say no intrinsics: the mount file's are used, else
+those of the supported sensor of that frame size. A model trained before (it reads raw depth)
+takes only frames of its own camera (size and focal length) and needs no mount.
 
 A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a file that is
-not a recording) is skipped with one line on stderr and the others are still segmented; the
-exit status is then 2. A recording cut short or with damaged messages gives what it holds.
+not a recording, frames whose floor cannot be found) is skipped with one line on stderr and
+the others are still segmented; the exit status is then 2. A recording cut short or with
+damaged messages gives what it holds. The share of pixels the floor gate sent to
+background without the forest is printed at the end.
 """
 
 from __future__ import annotations
@@ -19,6 +26,9 @@ import sys
 from pathlib import Path
 
 log = logging.getLogger("topseg.segment")
+
+#: frames (at most) a mount is estimated from, spread over an input
+ESTIMATE_FRAMES = 30
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,6 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
     )
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
+    parser.add_argument(
+        "--mount",
+        type=Path,
+        default=None,
+        help="mount file from `topseg calibrate` (default: the frames' own, else estimated "
+        "from each input's frames)",
+    )
 
 
 def overlay(depth, labels):
@@ -68,30 +85,163 @@ def run(args: argparse.Namespace) -> int:
     """Segment every input; a damaged one is skipped with one line, and exit 2 at the end."""
     from topseg.core.errors import TopsegError
     from topseg.core.segmenter import Segmenter
-    from topseg.drivers.replay import input_frames
 
     segmenter = Segmenter.from_file(args.model, crf=args.crf)
+    given = None
+    if args.mount is not None and segmenter.reads_height:
+        from topseg.core.calibration import read_mount_file
+
+        given = read_mount_file(args.mount)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise TopsegError(f"cannot create {args.out}: {exc.strerror}") from None
-    count = 0
-    inputs = [p for arg in args.inputs for p in _expand(arg)]
+    run_ = _Run(segmenter, args.out, given)
     skipped = 0
-    for source in inputs:
+    for arg in args.inputs:
+        sources = _expand(arg)
         try:
-            for frame in input_frames(source, on_recording=_report_skipped):
-                labels = segmenter.label(frame.depth, frame.intrinsics, name=frame.name).labels
-                save_png(args.out / f"{frame.name}_labels.png", labels)
-                save_png(args.out / f"{frame.name}_overlay.png", overlay(frame.depth, labels))
-                count += 1
-        except TopsegError as exc:  # this input is damaged: say so once, go on with the rest
-            skipped += 1
-            print(f"topseg segment: skipped {exc}", file=sys.stderr)
-    print(f"segmented {count} frames into {args.out}")
+            estimated = None
+            if segmenter.reads_height and given is None:
+                estimated = _estimate(arg, sources)  # None: the frames carry their own
+            for source in sources:
+                try:
+                    run_.segment(source, estimated)
+                except TopsegError as exc:  # this input is damaged: say so, go on
+                    skipped += 1
+                    print(f"topseg segment: skipped {exc}", file=sys.stderr)
+        except TopsegError as exc:  # no mount for this input: none of it is segmented
+            skipped += len(sources)
+            print(f"topseg segment: skipped {arg}: {exc}", file=sys.stderr)
+    print(f"segmented {run_.count} frames into {args.out}")
+    if segmenter.reads_height and run_.count:
+        print(
+            f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
+            "depth went to background without the forest"
+        )
+    inputs = sum(len(_expand(a)) for a in args.inputs)
     if skipped:
-        raise TopsegError(f"{skipped} of {len(inputs)} inputs could not be segmented (see above)")
+        raise TopsegError(f"{skipped} of {inputs} inputs could not be segmented (see above)")
     return 0
+
+
+class _Run:
+    """One `segment` run: the Segmenter, where labels go, the mount given, the counts."""
+
+    def __init__(self, segmenter, out: Path, given) -> None:
+        self.segmenter, self.out, self.given = segmenter, out, given
+        self.count = 0
+        self.floor_share = 0.0
+        self._warned: set = set()
+
+    def segment(self, source: Path, estimated) -> None:
+        """Label every frame of one source and write its PNGs."""
+        from topseg.drivers.replay import input_frames
+
+        for frame in input_frames(source, on_recording=_report_skipped):
+            mount = None
+            if self.segmenter.reads_height:
+                mount = self.given or frame.mount or estimated
+                if mount is None:
+                    mount = _png_mount(frame)
+                self._warn_outside(mount, frame.name)
+            result = self.segmenter.label(frame.depth, frame.intrinsics, frame.name, mount)
+            save_png(self.out / f"{frame.name}_labels.png", result.labels)
+            save_png(self.out / f"{frame.name}_overlay.png", overlay(frame.depth, result.labels))
+            self.count += 1
+            self.floor_share += result.floor_share
+
+    def _warn_outside(self, mount, name: str) -> None:
+        """One warning per mount that lies outside what the model was trained for."""
+        if mount is None or mount in self._warned:
+            return
+        self._warned.add(mount)
+        reason = self.segmenter.outside_trained_for(mount)
+        if reason:
+            print(f"topseg segment: warning: {name}: {reason}", file=sys.stderr)
+
+
+def _png_mount(frame):
+    """No mount for a frame that says none: a one-line error."""
+    from topseg.core.errors import TopsegError
+
+    raise TopsegError(f"{frame.name}: no camera mount for this frame (give --mount)")
+
+
+def sensor_for(shape: tuple[int, int]):
+    """The supported sensor whose frames are this (rows, cols) size, or None."""
+    from topseg.core.sensors import SENSORS
+
+    for sensor in SENSORS:
+        if sensor.intrinsics.shape == tuple(shape):
+            return sensor
+    return None
+
+
+def _spread(items: list, n: int) -> list:
+    """At most `n` of `items`, evenly spread from first to last."""
+    if len(items) <= n:
+        return list(items)
+    import numpy as np
+
+    return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
+
+
+def _estimate_frames(sources: list[Path]) -> tuple[list, object, bool]:
+    """(up to ESTIMATE_FRAMES depth frames spread over `sources`, their intrinsics (None for
+    PNGs), whether every frame carries its own mount)."""
+    from topseg.drivers.replay import input_frames, read_depth_png
+
+    if all(p.suffix.lower() == ".png" for p in sources):
+        frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
+        return frames, None, False
+    kept: list = []
+    step, seen, intrinsics, all_mounted = 1, 0, None, True
+    for source in sources:
+        for frame in input_frames(source):
+            all_mounted &= frame.mount is not None
+            if seen % step == 0:
+                kept.append(frame.depth)
+                intrinsics = intrinsics or frame.intrinsics
+                if len(kept) >= 2 * ESTIMATE_FRAMES:  # keep every other, take half as many
+                    kept, step = kept[::2], step * 2
+            seen += 1
+    return _spread(kept, ESTIMATE_FRAMES), intrinsics, all_mounted
+
+
+def _estimate(arg: Path, sources: list[Path]):
+    """The mount estimated from the frames of one command-line input (printed), or None when
+    its frames all carry their own. TopsegError (one line) when it cannot be estimated."""
+    from dataclasses import replace
+
+    from topseg.core.calibration import estimate_mount
+    from topseg.core.errors import TopsegError
+
+    frames, intrinsics, all_mounted = _estimate_frames(sources)
+    if all_mounted and frames:
+        return None
+    if not frames:
+        raise TopsegError("no frames to estimate the camera's mount from")
+    shape = frames[0].shape
+    frames = [f for f in frames if f.shape == shape]
+    sensor = sensor_for(shape)
+    if intrinsics is None:
+        if sensor is None:
+            raise TopsegError(
+                f"{shape[1]}x{shape[0]} frames that say no intrinsics and match no supported "
+                "sensor; calibrate the camera and give --mount"
+            )
+        intrinsics = sensor.intrinsics
+    estimate = estimate_mount(frames, intrinsics, sensor.name if sensor else "unknown")
+    mount = estimate.mount
+    if sensor is not None and mount.sensor != sensor.name:
+        mount = replace(mount, sensor=sensor.name)
+    print(
+        f"{arg}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
+        f"{mount.pitch_deg:.1f} deg, roll {mount.roll_deg:.1f} deg, floor inliers "
+        f"{100 * estimate.inlier_share:.0f} % ({len(frames)} frames)"
+    )
+    return mount
 
 
 def _report_skipped(reader) -> None:

@@ -6,6 +6,11 @@ writes its tree atomically to `<out>.parts/tree-<t>.npz`. A rerun after an inter
 keeps the finished trees whose recipe matches and trains only the rest. The last step
 scores the forest on a held-out validation split and writes the model with that in its
 header.
+
+The model reads heights above the floor (`core.forest.inputs`): every frame is read through
+its own mount (`Dataset.mount`, or the dataset's camera for datasets made before mounts were
+drawn), and the header says so (`"input": "height"`, the feature config) and what it was
+trained for (`"trained_for"`: heights, tilt, sensors and resolutions of its frames).
 """
 
 from __future__ import annotations
@@ -180,11 +185,14 @@ class FrameSubset:
 
 def recipe(job: TrainJob, fingerprint: str) -> dict:
     """What decides every tree: a part file is reused only when its recipe is the same."""
+    from topseg.core.forest.inputs import HEIGHT_INPUT
+
     return {
         "dataset": fingerprint,
         "seed": job.seed,
         "validation": job.validation,
         "config": job.config.to_dict(),
+        "input": HEIGHT_INPUT,
     }
 
 
@@ -198,6 +206,7 @@ def train_one_tree(
     data: str, train_idx: list[int], recipe_: dict, tree: int, part: str, queue=None
 ) -> str:
     """Dask task: train tree `tree` and write it to `part`; returns the part's path."""
+    from topseg.core.forest.inputs import dataset_mount
     from topseg.core.forest.model_file import save_model
     from topseg.core.forest.train import TrainConfig, train_tree, tree_seed
     from topseg.core.forest.tree import Forest
@@ -217,6 +226,7 @@ def train_one_tree(
         config,
         tree_seed(recipe_["seed"], tree),
         progress,
+        mounts=lambda k: dataset_mount(ds, train_idx[k]),
     )
     header = {"recipe": recipe_, "tree": tree, "seconds": time.perf_counter() - t0}
     save_model(part, Forest.from_trees([result]), header)
@@ -374,20 +384,24 @@ def _dask_trees(job: TrainJob, train_idx, recipe_, todo, parts, advance) -> None
 
 def _write_model(args, ds, val_idx, recipe_, trees, seconds) -> None:
     from topseg import __version__
+    from topseg.core.forest.inputs import header_fields
     from topseg.core.forest.model_file import save_model
+    from topseg.core.forest.train import TrainConfig
     from topseg.core.forest.tree import Forest
     from topseg.core.metrics import to_json
     from topseg.core.scoring import dataset_frames, score
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter import Segmenter
 
     forest = Forest.from_trees(trees)
-    # the forest's argmax through the one Segmenter; no camera check: these are frames of
-    # the dataset the forest was trained on, whatever their size
-    segmenter = Segmenter(forest, config=SegmenterConfig(check_camera=False), crf="none")
+    config = TrainConfig.from_dict(recipe_["config"], source="the train recipe")
+    inputs = header_fields(config.features, trained_for(ds, train_idx_of(ds, val_idx)))
+    # the forest's argmax through the one Segmenter, each frame read through its own mount
+    segmenter = Segmenter(forest, inputs, crf="none")
     frames = dataset_frames(ds, val_idx[: args.max_validation_frames])
     acc = score(segmenter, frames).crf
     validation = json.loads(to_json(acc.scores())) if val_idx else None  # NaN -> null
     header = {
+        **inputs,
         "made_by": f"topseg {__version__} train",
         "recipe": recipe_,
         "dataset": {"path": str(args.data), "frames": len(ds), "attrs": ds.attrs},
@@ -406,6 +420,25 @@ def _write_model(args, ds, val_idx, recipe_, trees, seconds) -> None:
         )
     else:
         print(f"wrote {args.out}: {len(trees)} trees (no validation frames)")
+
+
+def train_idx_of(ds, val_idx: list[int]) -> list[int]:
+    """The frame positions of `ds` not in `val_idx` (what the trees were trained on)."""
+    held = set(val_idx)
+    return [i for i in range(len(ds)) if i not in held]
+
+
+def trained_for(ds, indices: list[int]) -> dict:
+    """What a model trained on frames `indices` of `ds` was trained for (`inputs.trained_for`):
+    the synthesis' mount distribution when the dataset records one, else the range of the
+    frames' own mounts."""
+    from topseg.core.forest.inputs import dataset_mount
+    from topseg.core.forest.inputs import trained_for as describe
+
+    summary = getattr(ds, "mount_summary", None)
+    if isinstance(ds.attrs.get("mounts"), dict) and callable(summary):
+        return summary()
+    return describe([dataset_mount(ds, i) for i in indices] or [dataset_mount(ds, 0)])
 
 
 def _fmt(x: float | None) -> str:

@@ -7,11 +7,15 @@ bit (as stumpy keeps its naive versions in one test module).
 - `raycast_reference`: `render.raycast` (the ray caster) in numpy.
 - `render_tiny`: pybullet's own TinyRenderer, against which the ray caster was matched.
 - `hash_uniform_np`, `kinect_reference`: the Kinect v1 noise model (`noise.KinectNoise`).
+- `field_at_reference`, `concavity_reference`, `tof_reference`, `stereo_reference`: the
+  time-of-flight and stereo noise models (`noise.ToFNoise`, `noise.StereoNoise`).
+- `reference_input`, `model_input_reference`: the forest's input (`forest.inputs`).
 - `probe_reference`, `extract_reference`, `response_reference`: the depth-difference features.
 - `apply_reference`, `predict_reference`: forest inference (`predict.apply`, `predict_proba`).
 - `SplitMix`, `responses_reference`, `gains_reference`, `best_split_reference`: training's
   per-node random stream, criterion and splitter.
 - `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
+- `height_map_reference`: the mount's height above the floor (`TopViewMount.height_map_mm`).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ import numpy as np
 from scipy import ndimage
 
 from topseg.core import labels
-from topseg.core.camera import TOP_VIEW, TopViewMount, check_depth, metres_to_mm
+from topseg.core.camera import PAPER_MOUNT, TopViewMount, check_depth, metres_to_mm
 from topseg.core.crf.realtime import SETTLED_MARGIN
 from topseg.core.forest.tree import Forest
 from topseg.core.synth import noise
@@ -80,7 +84,7 @@ def _np_hit(kind, size, o, d):
 
 
 def raycast_reference(
-    prims: Primitives, mount: TopViewMount = TOP_VIEW
+    prims: Primitives, mount: TopViewMount = PAPER_MOUNT
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ray caster in plain numpy, every primitive against every pixel (no culling)."""
     k = mount.intrinsics
@@ -105,7 +109,7 @@ def raycast_reference(
 # --- pybullet's TinyRenderer: the reference the ray caster was matched against ----------------
 
 
-def camera_matrices(mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: float = 10.0):
+def camera_matrices(mount: TopViewMount = PAPER_MOUNT, near: float = 0.1, far: float = 10.0):
     """pybullet view and projection matrices equivalent to `mount` (square pixels, centred)."""
     import pybullet as p
 
@@ -133,7 +137,7 @@ def camera_matrices(mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: floa
 
 
 def render_tiny(
-    client: int, label_of, mount: TopViewMount = TOP_VIEW, near: float = 0.1, far: float = 10.0
+    client: int, label_of, mount: TopViewMount = PAPER_MOUNT, near: float = 0.1, far: float = 10.0
 ):
     """(depth uint16 mm, labels uint8) from pybullet's TinyRenderer.
 
@@ -274,32 +278,73 @@ def probe_reference(depth, r, c, inv_d, dr, dc, background):
     return z
 
 
-def extract_reference(depth, rows, cols, offsets, background):
+def reference_input(frame):
+    """(values, scale, floor) of a model input, or of a depth frame's legacy input
+    (V = depth, scale = float32(1) / float32(depth), no floor), in plain numpy."""
+    if hasattr(frame, "values"):
+        return frame.values, frame.scale, frame.floor
+    depth = np.asarray(frame)
+    with np.errstate(divide="ignore"):
+        scale = np.where(depth > 0, np.float32(1.0) / depth.astype(np.float32), np.float32(0))
+    return depth, scale.astype(np.float32), np.zeros(depth.shape, bool)
+
+
+def model_input_reference(depth, mount, features, margin):
+    """`inputs.model_input` from first principles, float64: back-project each pixel, rotate
+    it into the world (`mount.camera_to_world`), read its height; `margin(depth)` is the
+    floor gate's margin. Returns (values, scale, floor, heights)."""
+    k = mount.intrinsics
+    v, u = np.indices(k.shape, dtype=np.float64)
+    z = depth.astype(np.float64)
+    cam = np.stack([(u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z], axis=-1) / 1000.0
+    h = mount.camera_to_world(cam)[..., 2] * 1000.0
+    has = depth > 0
+    values = np.clip(
+        np.floor(features.canonical_height_mm - h + 0.5), 1, features.background_mm - 1
+    )
+    values = np.where(has, values, 0).astype(np.uint16)
+    with np.errstate(divide="ignore"):
+        scale = np.where(has, (k.fx / features.reference_focal_px) / z, 0.0)
+    floor = has & (np.where(has, h, np.inf) < margin(depth))
+    return values, scale, floor, np.where(has, h, np.nan)
+
+
+def extract_reference(frame, rows, cols, offsets, background):
     """`features.extract_features`: (n, PC) int16 probe differences at (rows, cols)."""
-    inv_d = np.float32(1.0) / depth[rows, cols].astype(np.float32)
+    values, scale, _ = reference_input(frame)
+    inv_d = scale[rows, cols].astype(np.float32)
     r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
-    u = probe_reference(depth, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
-    v = probe_reference(depth, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
+    u = probe_reference(values, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
+    v = probe_reference(values, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
     return (u - v).astype(np.int16)
 
 
-def response_reference(depth, offsets, weights, background):
-    """One node's response at every pixel with depth (NaN elsewhere), float32 in feature order."""
-    rows, cols = np.nonzero(depth)
-    f = extract_reference(depth, rows, cols, offsets, background)
+def response_reference(frame, offsets, weights, background):
+    """One node's response at every pixel with a value (NaN elsewhere), float32 in feature
+    order."""
+    values, _, _ = reference_input(frame)
+    rows, cols = np.nonzero(values)
+    f = extract_reference(frame, rows, cols, offsets, background)
     acc = np.zeros(rows.size, np.float32)
     for j in range(weights.size):  # float32, feature by feature, like the kernel
         acc = acc + weights[j] * f[:, j].astype(np.float32)
-    out = np.full(depth.shape, np.nan, np.float32)
+    out = np.full(values.shape, np.nan, np.float32)
     out[rows, cols] = acc
     return out
 
 
-def apply_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
-    """(T, n) leaf reached by each pixel with depth (row-major order) in each tree."""
+def walked_pixels(frame):
+    """(rows, cols) of the pixels the forest walks: a value and not floor, row-major."""
+    values, _, floor = reference_input(frame)
+    return np.nonzero((values > 0) & ~floor)
+
+
+def apply_reference(forest: Forest, frame) -> np.ndarray:
+    """(T, n) leaf reached by each walked pixel (`walked_pixels`, row-major) in each tree."""
     bg = forest.background_mm
-    rows, cols = np.nonzero(depth)
-    inv = np.float32(1.0) / depth[rows, cols].astype(np.float32)
+    values, scale, _ = reference_input(frame)
+    rows, cols = walked_pixels(frame)
+    inv = scale[rows, cols].astype(np.float32)
     leaves = []
     for root in forest.roots:
         node = np.full(rows.size, root, np.int64)
@@ -312,22 +357,25 @@ def apply_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
             r, c, s = rows[idx], cols[idx], inv[idx]
             for j in range(forest.features_per_node):
                 off = forest.offsets[nd, j]
-                u = probe_reference(depth, r, c, s, off[:, 0], off[:, 1], bg)
-                v = probe_reference(depth, r, c, s, off[:, 2], off[:, 3], bg)
+                u = probe_reference(values, r, c, s, off[:, 0], off[:, 1], bg)
+                v = probe_reference(values, r, c, s, off[:, 2], off[:, 3], bg)
                 resp = resp + forest.weights[nd, j] * (u - v).astype(np.float32)
             node[idx] = forest.left[nd] + np.where(resp < forest.threshold[nd], 0, 1)
         leaves.append(node)
     return np.array(leaves)
 
 
-def predict_reference(forest: Forest, depth: np.ndarray) -> np.ndarray:
-    """Walk every pixel through every tree with numpy, then average (float32, tree order)."""
-    rows, cols = np.nonzero(depth)
+def predict_reference(forest: Forest, frame) -> np.ndarray:
+    """Walk every walked pixel through every tree with numpy, then average (float32, tree
+    order); zeros without a value, background with probability 1 on the floor."""
+    values, _, floor = reference_input(frame)
+    rows, cols = walked_pixels(frame)
     acc = np.zeros((rows.size, forest.posteriors.shape[1]), np.float32)
-    for node in apply_reference(forest, depth):
+    for node in apply_reference(forest, frame):
         acc += forest.posteriors[forest.leaf[node]]
-    out = np.zeros((*depth.shape, forest.posteriors.shape[1]), np.float32)
+    out = np.zeros((*values.shape, forest.posteriors.shape[1]), np.float32)
     out[rows, cols] = acc * (np.float32(1.0) / np.float32(forest.n_trees))
+    out[(values > 0) & floor, labels.BACKGROUND] = 1.0
     return out
 
 
@@ -444,3 +492,221 @@ def reference_free(amax, pmax, valid, confidence, ring, settled):
             & ~settled
         )
     return free
+
+
+# --- the time-of-flight and stereo noise models (noise.ToFNoise, noise.StereoNoise) ------------
+
+
+def _shift0(a: np.ndarray, dv: int, du: int) -> np.ndarray:
+    """out[v, u] = a[v + dv, u + du], 0 outside the frame."""
+    h, w = a.shape
+    pad = max(abs(dv), abs(du))
+    p = np.pad(a, pad)
+    return p[pad + dv : pad + dv + h, pad + du : pad + du + w]
+
+
+def field_at_reference(field: np.ndarray, cell: float, shape: tuple[int, int]) -> np.ndarray:
+    """`noise._field_at` at every pixel: the coarse normal field, bilinear and renormalised."""
+    v, u = np.indices(shape, dtype=np.float64)
+    x, y = u / cell, v / cell
+    i0, j0 = x.astype(int), y.astype(int)
+    tx, ty = x - i0, y - j0
+    w00, w01, w10, w11 = (1 - tx) * (1 - ty), tx * (1 - ty), (1 - tx) * ty, tx * ty
+    n = (
+        w00 * field[j0, i0]
+        + w01 * field[j0, i0 + 1]
+        + w10 * field[j0 + 1, i0]
+        + w11 * field[j0 + 1, i0 + 1]
+    )
+    return n / np.sqrt(w00 * w00 + w01 * w01 + w10 * w10 + w11 * w11)
+
+
+def concavity_reference(depth: np.ndarray, s: int, jump_mm: float) -> np.ndarray:
+    """`noise._concavity` at every pixel: max over rows and columns of d0/d(-s) + d0/d(+s) - 2
+    where the 2s+1 segment has depth throughout and no neighbour step above `jump_mm`."""
+    d = depth.astype(np.int64)
+    best = np.zeros(d.shape)
+    for dv, du in ((1, 0), (0, 1)):
+        seg = [_shift0(d, k * dv, k * du) for k in range(-s, s + 1)]
+        ok = np.all([a != 0 for a in seg], axis=0)
+        for k in range(len(seg) - 1):
+            ok &= np.abs(seg[k] - seg[k + 1]) <= jump_mm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = d.astype(np.float64) / seg[0] + d.astype(np.float64) / seg[-1] - 2.0
+        best = np.where(ok & (c > best), c, best)
+    return best
+
+
+def tof_reference(
+    model: noise.ToFNoise,
+    depth: np.ndarray,
+    dark: np.ndarray,
+    gauss: np.ndarray,
+    dark_field: np.ndarray,
+    seed: int,
+) -> np.ndarray:
+    """`noise.ToFNoise.run` in plain numpy, given its draws (whole-array)."""
+    depth = check_depth(depth, "noise")
+    h, w = depth.shape
+    d = depth.astype(np.int64)
+    idx = np.arange(h * w, dtype=np.uint64).reshape(h, w) * np.uint64(4)
+    r0, r1, r2, r3 = (hash_uniform_np(seed, idx + np.uint64(k)) for k in range(4))
+    v, u = np.indices((h, w))
+    keep = depth > 0
+    b = model.border_px
+    keep &= (u >= b) & (v >= b) & (u < w - b) & (v < h - b)
+    rx = (u - (w - 1) / 2.0) / (w / 2.0)
+    ry = (v - (h - 1) / 2.0) / (h / 2.0)
+    rr = (rx * rx + ry * ry) / 2.0
+    keep &= ~(rr > model.fov_radius * model.fov_radius)
+    is_dark = dark != 0
+    thr = noise._normal_quantile(model.dark_dropout)
+    keep &= ~(is_dark & (field_at_reference(dark_field, float(model.dark_cell_px), (h, w)) < thr))
+    if model.speckle > 0:
+        keep &= ~(r3 < model.speckle)
+    z = depth * 0.001
+    # the mixed-pixel band
+    lo, hi = d.copy(), d.copy()
+    k = model.flying_px
+    for dv in range(-k, k + 1):
+        for du in range(-k, k + 1):
+            n = _shift0(d, dv, du)
+            lo = np.where((n > 0) & (n < lo), n, lo)
+            hi = np.where((n > 0) & (n > hi), n, hi)
+    jump_mm = 1000.0 * model.jump_m
+    band = (hi - lo) > jump_mm
+    if model.edge_invalid > 0:
+        keep &= ~(band & (r0 < model.edge_invalid))
+    fly = band & (r1 < model.flying)
+    a = 0.2 + 0.6 * r2
+    z = np.where(fly, (lo + a * (hi - lo)) * 0.001, z)
+    if model.multipath_mm > 0:
+        c = concavity_reference(depth, model.multipath_px, jump_mm)
+        f = np.minimum(1.0, (c - model.concave_min) / (model.concave_full - model.concave_min))
+        z = np.where(c > model.concave_min, z + 0.001 * model.multipath_mm * f, z)
+    c0, c1, c2 = model.sigma_c0_mm, model.sigma_c1_mm, model.sigma_c2_mm
+    sigma = (c0 + c1 * z + c2 * z * z) * (1.0 + (model.corner_sigma - 1.0) * rr)
+    sigma = np.where(is_dark, sigma * model.dark_sigma, sigma)
+    z = z + 0.001 * sigma * gauss
+    keep &= (z >= model.min_range_m) & (z <= model.max_range_m)
+    out = metres_to_mm(np.where(keep, z, 0.0))
+    out[~keep] = 0
+    return out
+
+
+def stereo_reference(
+    model: noise.StereoNoise,
+    depth: np.ndarray,
+    field: np.ndarray,
+    speckle_field: np.ndarray,
+    seed: int,
+) -> np.ndarray:
+    """`noise.StereoNoise.run` in plain numpy, given its draws (whole-array)."""
+    depth = check_depth(depth, "noise")
+    h, w = depth.shape
+    d = depth.astype(np.int64)
+    valid = depth > 0
+    fb = model.fb
+    # occlusion in the second imager: as the Kinect's projector shadow
+    z0 = depth.astype(np.float64) * 0.001
+    with np.errstate(divide="ignore"):
+        up = np.where(valid, np.arange(w)[None, :] - fb / z0, np.inf)
+    right_min = np.minimum.accumulate(up[:, ::-1], axis=1)[:, ::-1]
+    right_min = np.concatenate([right_min[:, 1:], np.full((h, 1), np.inf)], axis=1)
+    occluded = valid & (up > right_min + 1e-9)
+    idx = np.arange(h * w, dtype=np.uint64).reshape(h, w) * np.uint64(4)
+    r0 = hash_uniform_np(seed, idx)
+    v, u = np.indices((h, w))
+    keep = valid.copy()
+    b = model.border_px
+    keep &= (u >= b) & (v >= b) & (u < w - b) & (v < h - b)
+    # edge fattening: the first ring with a nearer surface decides
+    src = d.copy()
+    fattened = np.zeros((h, w), bool)
+    decided = np.zeros((h, w), bool)
+    jump_mm = 1000.0 * model.jump_m
+    for r in range(1, model.fatten_px + 1):
+        m = np.zeros((h, w), np.int64)
+        for dv in range(-r, r + 1):
+            for du in range(-r, r + 1):
+                if max(abs(dv), abs(du)) != r:
+                    continue
+                n = _shift0(d, dv, du)
+                m = np.where((n > 0) & ((m == 0) | (n < m)), n, m)
+        here = ~decided & (m > 0) & (d - m > jump_mm)
+        take = here & (r0 < model.fatten**r)
+        src = np.where(take, m, src)
+        fattened |= take
+        decided |= here
+    keep &= ~(occluded & ~fattened)
+    with np.errstate(divide="ignore"):
+        disp = fb / (src * 0.001)
+    keep &= ~(u < disp)
+    thr = noise._normal_quantile(model.speckle)
+    shape = (h, w)
+    keep &= ~(field_at_reference(speckle_field, float(model.speckle_cell_px), shape) < thr)
+    disp = disp + model.disparity_sigma_px * field_at_reference(
+        field, float(model.noise_cell_px), shape
+    )
+    disp = np.floor(disp * model.subpixel + 0.5) / model.subpixel
+    keep &= disp > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = fb / disp
+    keep &= (z >= model.min_range_m) & (z <= model.max_range_m)
+    out = metres_to_mm(np.where(keep, z, 0.0))
+    out[~keep] = 0
+    return out
+
+
+# --- the mount's height map (camera.TopViewMount.height_map_mm) -----------------------------
+
+
+def height_map_reference(depth: np.ndarray, mount: TopViewMount) -> np.ndarray:
+    """Height above the floor (mm, float64, NaN without depth), from scipy's rotations.
+
+    World up in camera coordinates is R @ (0, 0, 1) with R = Rx(pitch) Ry(roll) diag(1,-1,-1);
+    a pixel's height is the camera's height plus up . X for its back-projected point X (mm).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from topseg.core.camera import backproject
+
+    tilt = Rotation.from_euler("XY", [mount.pitch_deg, mount.roll_deg], degrees=True)
+    r = tilt.as_matrix() @ np.diag([1.0, -1.0, -1.0])
+    up = r @ np.array([0.0, 0.0, 1.0])
+    x_mm = backproject(depth, mount.intrinsics).astype(np.float64) * 1000.0
+    return mount.height_mm + x_mm @ up
+
+
+# --- the ray caster for a tilted camera, in the world frame (render.raycast) ------------------
+
+
+def raycast_world_reference(
+    prims: Primitives, mount: TopViewMount
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ray caster cast in the world frame: each pixel's ray leaves the camera centre along
+    the world direction of ((u - cx) / fx, (v - cy) / fy, 1), turned by scipy's rotation of
+    (pitch, roll); depth = distance along the ray x the cosine to the optical axis. Shares no
+    code with `render.to_camera`, so it checks the tilt independently."""
+    from scipy.spatial.transform import Rotation
+
+    k = mount.intrinsics
+    tilt = Rotation.from_euler("XY", [mount.pitch_deg, mount.roll_deg], degrees=True)
+    r = tilt.as_matrix() @ np.diag([1.0, -1.0, -1.0])  # world -> camera
+    centre = np.array([0.0, 0.0, mount.height_mm / 1000.0])
+    prims = front_to_back(prims, mount)
+    v, u = np.indices(k.shape, dtype=np.float64)
+    ray = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
+    norm = np.linalg.norm(ray, axis=-1)
+    w_world = (ray / norm[..., None]) @ r  # R^T w per pixel
+    depth = np.full(k.shape, np.inf)
+    lab = np.full(k.shape, labels.NO_DEPTH, np.uint8)
+    for i in range(len(prims)):
+        rot = prims.rot[i]
+        o = rot.T @ (centre - prims.center[i])
+        d = w_world @ rot
+        z = _np_hit(int(prims.kind[i]), prims.size[i], o, d) / norm
+        closer = z < depth
+        depth[closer] = z[closer]
+        lab[closer] = prims.label[i]
+    return depth, lab

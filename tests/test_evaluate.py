@@ -82,3 +82,43 @@ def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
     assert "mean (1-10)" in r.stdout
     assert (out / "confusion.png").stat().st_size > 10_000
     assert (out / "frames.png").stat().st_size > 10_000
+
+
+def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
+    from topseg.core.forest.inputs import dataset_mount, header_fields, model_input, trained_for
+
+    ds = D.open_dataset(data)
+    config = TrainConfig(
+        n_trees=1,
+        max_depth=6,
+        frames_per_tree=6,
+        pixels_per_frame=300,
+        n_candidates=10,
+        n_thresholds=10,
+    )
+    mounts = [dataset_mount(ds, i) for i in range(len(ds))]
+    model = forest.train_forest(ds.depth, ds.labels, config, seed=1, mounts=mounts)
+    forest.save_model(
+        tmp_path / "h.npz", model, header_fields(config.features, trained_for(mounts))
+    )
+    r = subprocess.run(
+        [sys.executable, "-m", "topseg.services.cli", "evaluate", "--model",
+         str(tmp_path / "h.npz"), "--data", str(data), "--crf", "none", "--frames", "3",
+         "--json", str(tmp_path / "s.json")],
+        capture_output=True, text=True, timeout=300, check=True,
+    )  # fmt: skip
+    assert "floor skipped:" in r.stdout
+    cm = np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64)
+    for i in range(3):
+        m = mounts[i]
+        h, w = m.intrinsics.shape
+        depth = np.asarray(ds.depth[i])[:h, :w]
+        truth = np.asarray(ds.labels[i])[:h, :w].ravel()
+        pred = forest.predict_labels(model, model_input(depth, m, config.features)).ravel()
+        keep = truth != NO_DEPTH
+        pred = np.where(pred[keep] == NO_DEPTH, 0, pred[keep])
+        cm += np.bincount(truth[keep] * NUM_CLASSES + pred, minlength=NUM_CLASSES**2).reshape(
+            cm.shape
+        )
+    doc = json.loads((tmp_path / "s.json").read_text())
+    np.testing.assert_array_equal(np.array(doc["confusion"]), cm)

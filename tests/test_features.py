@@ -116,3 +116,31 @@ def test_bad_input_is_refused():
 def test_config_round_trip():
     c = FeatureConfig(n_features=75, patch_px=32)
     assert FeatureConfig.from_dict(c.to_dict()) == c
+
+
+def test_old_feature_configs_load_with_the_new_defaults():
+    old = {k: v for k, v in FeatureConfig().to_dict().items()}
+    del old["canonical_height_mm"], old["reference_focal_px"]
+    c = FeatureConfig.from_dict(old)
+    assert c.reference_focal_px == 570.3 and 0 < c.canonical_height_mm < c.background_mm
+    with pytest.raises(ValueError, match="canonical_height_mm"):
+        FeatureConfig(canonical_height_mm=20000)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_features_of_a_model_input_match_reference(seed):
+    """Probe values and per-pixel scales of a height model's input, not depth."""
+    from topseg.core.forest.inputs import ModelInput
+
+    rng = np.random.default_rng(seed + 7)
+    depth = random_depth(rng)
+    values = np.where(depth > 0, rng.integers(1, 9999, depth.shape), 0).astype(np.uint16)
+    scale = np.where(depth > 0, rng.uniform(1e-4, 1e-3, depth.shape), 0).astype(np.float32)
+    inp = ModelInput(values, scale, np.zeros(depth.shape, bool))
+    offsets = features.sample_offsets(FeatureConfig(n_features=30), rng)
+    rows, cols = np.nonzero(values)
+    got = features.extract_features(inp, rows, cols, offsets, 10000)
+    np.testing.assert_array_equal(got, extract_reference(inp, rows, cols, offsets, 10000))
+    w = features.random_unit_vectors(rng, 1, 2)[0]
+    got = features.node_response_image(inp, offsets[:2], w, 10000)
+    np.testing.assert_array_equal(got, response_reference(inp, offsets[:2], w, 10000))

@@ -1,13 +1,19 @@
 """Forest inference: the numba kernels against a plain numpy traversal on random forests."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from reference import apply_reference, predict_reference
 
 from topseg.core import labels
 from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
+from topseg.core.forest.inputs import ModelInput
 from topseg.core.forest.predict import apply
 from topseg.core.forest.tree import node_depths
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data"
 
 
 def random_forest(seed, k, depths=(3, 6, 5), scale=300.0):
@@ -102,3 +108,58 @@ def test_reused_output_and_bad_input():
         predict_proba(forest, depth, out=np.empty((3, 3, 11), np.float32))
     with pytest.raises(ValueError, match="stride"):
         predict_proba(forest, depth, stride=0)
+
+
+def random_input(seed, shape=(29, 41)):
+    """A model input with random values, scales and floor gate."""
+    rng = np.random.default_rng(seed)
+    depth = random_depth(seed, shape)
+    values = np.where(depth > 0, rng.integers(1, 9999, size=shape), 0).astype(np.uint16)
+    scale = np.where(depth > 0, rng.uniform(1 / 4000, 1 / 1500, size=shape), 0).astype(np.float32)
+    floor = (depth > 0) & (rng.random(shape) < 0.3)
+    return ModelInput(values, scale, floor)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_predict_on_a_model_input_matches_reference(k):
+    forest = random_forest(40 + k, k)
+    inp = random_input(50 + k)
+    got = predict_proba(forest, inp)
+    np.testing.assert_array_equal(got, predict_reference(forest, inp))
+    floor = inp.floor
+    assert np.all(got[floor, labels.BACKGROUND] == 1) and np.all(got[floor].sum(axis=1) == 1)
+    leaves = apply(forest, inp)
+    walked = (inp.values > 0) & ~floor
+    np.testing.assert_array_equal(leaves[:, walked], apply_reference(forest, inp))
+    assert np.all(leaves[:, ~walked] == -1)
+    lab = predict_labels(forest, inp)
+    assert np.all(lab[floor] == labels.BACKGROUND) and np.all(lab[inp.values == 0] == 255)
+
+
+def test_stride_on_a_model_input_keeps_the_floor_gate():
+    forest = random_forest(60, 2)
+    inp = random_input(61, (31, 45))
+    full = predict_proba(forest, inp)
+    fast = predict_proba(forest, inp, stride=2)
+    np.testing.assert_array_equal(fast[::2, ::2], full[::2, ::2])
+    assert np.all(fast[inp.floor, labels.BACKGROUND] == 1)
+    assert np.all(fast[inp.values == 0] == 0)
+
+
+def test_legacy_path_is_bit_identical_to_before():
+    """The bundled model on demo.mcap frames gives exactly what the code before height inputs
+    gave (tests/data/legacy_posteriors.npz, saved from that code)."""
+    from topseg.core.forest.inputs import legacy_input
+    from topseg.core.segmenter import Segmenter
+
+    fx = np.load(DATA / "legacy_posteriors.npz", allow_pickle=False)
+    seg = Segmenter.from_file(ROOT / "models" / "default.npz", crf="realtime")
+    assert not seg.reads_height
+    r0, r1, c0, c1 = fx["crop"]
+    for depth, proba, lab in zip(fx["depth"], fx["proba_crop"], fx["labels"], strict=True):
+        np.testing.assert_array_equal(predict_proba(seg.forest, depth)[r0:r1, c0:c1], proba)
+        inp = legacy_input(depth)
+        np.testing.assert_array_equal(predict_proba(seg.forest, inp)[r0:r1, c0:c1], proba)
+        result = seg.label(depth)
+        np.testing.assert_array_equal(result.labels, lab)
+        assert result.floor_share == 0.0

@@ -182,3 +182,19 @@ def test_save_is_atomic_and_header_is_checked(tmp_path, forest):
     _, header = load_model(path)
     assert header["run"] == 1  # the failed saves left the old file intact
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
+
+
+def test_a_height_models_header_round_trips(tmp_path):
+    from topseg.core.camera import KINECT_V1, TopViewMount
+    from topseg.core.forest import FeatureConfig
+    from topseg.core.forest.inputs import header_fields, trained_for
+    from topseg.core.segmenter import Segmenter
+
+    forest = Forest.from_trees([random_tree(np.random.default_rng(0), 3, 2, 1e5)])
+    features = FeatureConfig(n_features=50, canonical_height_mm=4500.0, reference_focal_px=500.0)
+    tf = trained_for([TopViewMount(KINECT_V1, 2400.0), TopViewMount(KINECT_V1, 4500.0, 9.0)])
+    save_model(tmp_path / "h.npz", forest, header_fields(features, tf))
+    _, header = load_model(tmp_path / "h.npz")
+    assert header["input"] == "height" and header["trained_for"] == tf
+    seg = Segmenter.from_file(tmp_path / "h.npz")
+    assert seg.reads_height and seg.features == features and seg.trained_for == tf

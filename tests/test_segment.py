@@ -8,7 +8,8 @@ import pytest
 from PIL import Image
 
 from topseg.core import forest
-from topseg.core.camera import KINECT_V1
+from topseg.core.camera import KINECT_V1, TopViewMount, metres_to_mm
+from topseg.core.forest.inputs import header_fields, model_input, trained_for
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import recording, wire
 from topseg.core.synth import procedural
@@ -82,3 +83,103 @@ def test_bad_pngs_are_refused_with_one_line(model, tmp_path, make, message):
     assert r.returncode == 2
     assert message in r.stderr
     assert "Traceback" not in r.stderr
+
+
+# --- a height model: the mount from --mount, from the recording, or estimated ----------------
+
+MOUNT = TopViewMount(KINECT_V1, 3200.0, 2.0, -1.0)
+
+
+def floor_scene(rng, mount, n=3):
+    """Procedural frames seen from a tilted `mount` (the floor as a primitive)."""
+    floor = procedural.Box(0.0, 0.0, 40.0, 40.0, 0.0, 0.001, 0)
+    out = []
+    for _ in range(n):
+        prims = procedural.random_scene(rng, mount, 3)
+        depth_m, lab = procedural.render([*prims, floor], mount)
+        out.append((metres_to_mm(depth_m), lab))
+    return out
+
+
+@pytest.fixture(scope="module")
+def height_model(tmp_path_factory):
+    rng = np.random.default_rng(4)
+    frames = floor_scene(rng, MOUNT, 4)
+    cfg = TrainConfig(
+        n_trees=1,
+        max_depth=6,
+        frames_per_tree=4,
+        pixels_per_frame=300,
+        n_candidates=10,
+        n_thresholds=10,
+    )
+    trained = forest.train_forest(
+        np.stack([d for d, _ in frames]),
+        np.stack([lab for _, lab in frames]),
+        cfg,
+        seed=0,
+        mounts=[MOUNT] * 4,
+    )
+    path = tmp_path_factory.mktemp("seg") / "h.npz"
+    forest.save_model(path, trained, header_fields(cfg.features, trained_for([MOUNT])))
+    return path, trained, cfg.features
+
+
+def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path):
+    path, trained, features = height_model
+    frames = floor_scene(np.random.default_rng(5), MOUNT, 3)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, (depth, _) in enumerate(frames):
+        Image.fromarray(depth).save(folder / f"f{i}.png")
+    r = segment(folder, "--model", path, "--out", tmp_path / "out", "--crf", "none")
+    assert r.returncode == 0, r.stderr
+    assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" in r.stdout
+    assert "segmented 3 frames" in r.stdout and "floor skipped:" in r.stdout
+    assert "warning" not in r.stderr
+    depth = frames[0][0]
+    got = np.asarray(Image.open(tmp_path / "out" / "f0_labels.png"))
+    # labelled through (nearly) the true mount: the same labels but at the gate's edge
+    expected = forest.predict_labels(trained, model_input(depth, MOUNT, features))
+    assert (got == expected).mean() > 0.995
+
+
+def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_model, tmp_path):
+    from topseg.core.calibration import estimate_mount
+    from topseg.core.formats.mount_file import write_mount_file
+
+    path, trained, features = height_model
+    frames = floor_scene(np.random.default_rng(6), MOUNT, 2)
+    depth = frames[0][0]
+    est = estimate_mount([d for d, _ in frames], KINECT_V1, "kinect_v1")
+    write_mount_file(tmp_path / "mount.json", est)
+    Image.fromarray(depth).save(tmp_path / "f.png")
+    r = segment(
+        tmp_path / "f.png", "--mount", tmp_path / "mount.json", "--model", path,
+        "--out", tmp_path / "a", "--crf", "none",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "estimated" not in r.stdout
+    expected = forest.predict_labels(trained, model_input(depth, est.mount, features))
+    np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "a" / "f_labels.png")), expected)
+    # a recording whose messages carry the mount: used as it is, nothing estimated
+    rec = tmp_path / "r.mcap"
+    w = recording.RecordingWriter(rec)
+    w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, KINECT_V1, 3, mount=MOUNT)))
+    w.close()
+    r = segment(rec, "--model", path, "--out", tmp_path / "b", "--crf", "none")
+    assert r.returncode == 0, r.stderr
+    assert "estimated" not in r.stdout
+    expected = forest.predict_labels(trained, model_input(depth, MOUNT, features))
+    got = np.asarray(Image.open(tmp_path / "b" / "r_000003_labels.png"))
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_height_model_skips_an_input_without_a_floor(height_model, tmp_path):
+    path = height_model[0]
+    rng = np.random.default_rng(7)
+    Image.fromarray(rng.integers(500, 4000, (480, 640)).astype(np.uint16)).save(tmp_path / "n.png")
+    r = segment(tmp_path / "n.png", "--model", path, "--out", tmp_path / "out")
+    assert r.returncode == 2
+    assert "skipped" in r.stderr and "Traceback" not in r.stderr
+    assert len([ln for ln in r.stderr.splitlines() if "skipped" in ln]) == 1

@@ -9,7 +9,7 @@ import pytest
 from topseg.core import crf, forest
 from topseg.core import labels as L
 from topseg.core import segmenter as S
-from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
 from topseg.core.scoring import score
@@ -102,7 +102,9 @@ def test_frames_of_another_camera_are_refused_by_name(bundled):
 
 
 def test_model_camera_from_the_header():
-    header = {"dataset": {"attrs": {"camera": TopViewMount(SMALL).to_dict()}}}
+    header = {
+        "dataset": {"attrs": {"camera": TopViewMount(SMALL, PAPER_MOUNT.height_mm).to_dict()}}
+    }
     assert S.model_camera(header) == SMALL
     assert S.model_camera({}) == KINECT_V1
     with pytest.raises(TopsegError, match="unreadable camera"):
@@ -123,7 +125,9 @@ def test_score_equals_the_confusion_computed_by_hand():
     rng = np.random.default_rng(1)
     trees = [forest.random_tree(rng, 5, 2, 40 * 2500.0, 300.0) for _ in range(2)]
     model = forest.Forest.from_trees(trees)
-    header = {"dataset": {"attrs": {"camera": TopViewMount(SMALL).to_dict()}}}
+    header = {
+        "dataset": {"attrs": {"camera": TopViewMount(SMALL, PAPER_MOUNT.height_mm).to_dict()}}
+    }
     frames = []
     for _ in range(4):
         depth = rng.integers(1500, 4000, size=SMALL.shape).astype(np.uint16)
@@ -152,3 +156,56 @@ def test_score_equals_the_confusion_computed_by_hand():
     np.testing.assert_array_equal(none.forest.confusion, result.forest.confusion)
     with pytest.raises(TopsegError, match="frame 0"):
         score(Segmenter(model, crf="none"), frames)  # Kinect v1 expected: 640x480
+
+
+def height_segmenter(**config):
+    from topseg.core.forest.inputs import header_fields, trained_for
+
+    rng = np.random.default_rng(3)
+    model = forest.Forest.from_trees([forest.random_tree(rng, 5, 2, 40 * 2500.0, 300.0)])
+    header = header_fields(forest.FeatureConfig(), trained_for([TopViewMount(SMALL, 3000.0)]))
+    return Segmenter(model, header, SegmenterConfig(**config), crf="none")
+
+
+def test_a_height_model_takes_frames_of_any_camera_with_their_mount():
+    from topseg.core.forest.inputs import model_input
+
+    seg = height_segmenter()
+    assert seg.reads_height and seg.trained_for["height_mm"] == [3000.0, 3000.0]
+    for k in (SMALL, KINECT_V1.scaled_to(64, 40), Intrinsics(51, 42, 36.5, 36.5, 25, 21)):
+        mount = TopViewMount(k, 3000.0, 0.0, 4.0)
+        depth = np.full(k.shape, 2000, np.uint16)
+        # the floor in the first columns: depth of the plane below a tilted camera
+        h = mount.height_map_mm(np.full(k.shape, 3000, np.uint16))
+        depth[:, :5] = np.round(3000 * 3000 / (3000 - h[:, :5])).astype(np.uint16)
+        got = seg.label(depth, name="any", mount=mount)
+        want = forest.predict_proba(seg.forest, model_input(depth, mount, seg.features))
+        np.testing.assert_array_equal(got.proba, want)
+        assert 0 < got.floor_share < 0.5
+        assert np.all(got.labels[:, :3] == L.BACKGROUND)
+    # the frame's own intrinsics win over the mount's
+    other = TopViewMount(KINECT_V1, 3000.0)
+    depth = np.full(SMALL.shape, 2000, np.uint16)
+    assert seg.label(depth, SMALL, mount=other).labels.shape == SMALL.shape
+    with pytest.raises(TopsegError, match=r"cam3: .* needs the camera's mount"):
+        seg.label(depth, name="cam3")
+    with pytest.raises(
+        TopsegError, match="f2: frame is 40x30 but its camera's intrinsics are 640x480"
+    ):
+        seg.label(depth, name="f2", mount=other)
+    # the config's mount, when the frame comes without one
+    withmount = height_segmenter(mount=TopViewMount(SMALL, 3000.0))
+    assert withmount.label(depth).labels.shape == SMALL.shape
+    withmount.warm_up()
+    height_segmenter().warm_up()
+
+
+def test_a_height_model_header_must_say_its_features():
+    model = forest.Forest.from_trees([forest.random_tree(np.random.default_rng(0), 2, 2, 1e5)])
+    with pytest.raises(TopsegError, match="features"):
+        Segmenter(model, {"input": "height"})
+
+
+def test_a_depth_model_says_when_a_mount_is_not_its_own(bundled):
+    assert bundled.outside_trained_for(PAPER_MOUNT) is None
+    assert "raw depth" in bundled.outside_trained_for(TopViewMount(KINECT_V1, 3300.0))

@@ -65,8 +65,14 @@ def test_dask_training_equals_serial_and_in_process(data, tmp_path):
         n_thresholds=20,
         features=FeatureConfig(n_features=40),
     )
+    from topseg.core.forest.inputs import dataset_mount
+
     c = forest.train_forest(
-        FrameSubset(ds.depth, train_idx), FrameSubset(ds.labels, train_idx), config, seed=3
+        FrameSubset(ds.depth, train_idx),
+        FrameSubset(ds.labels, train_idx),
+        config,
+        seed=3,
+        mounts=lambda k: dataset_mount(ds, train_idx[k]),
     )
     for name, arr in c.arrays().items():
         np.testing.assert_array_equal(arr, a.arrays()[name], err_msg=name)
@@ -75,6 +81,12 @@ def test_dask_training_equals_serial_and_in_process(data, tmp_path):
     assert val["frames"] == len(val_idx) == 1
     assert 0.0 <= val["scores"]["mAR"] <= 1.0
     assert ha["recipe"]["config"]["max_depth"] == 8
+    # a height model, saying what it was trained for
+    assert ha["input"] == "height" and ha["features"]["n_features"] == 40
+    mounts = [dataset_mount(ds, i) for i in train_idx]
+    tf = ha["trained_for"]
+    assert tf["height_mm"] == [min(m.height_mm for m in mounts), max(m.height_mm for m in mounts)]
+    assert tf["sensors"] and tf["resolutions"]
 
 
 def test_resume_keeps_finished_trees_and_discards_damaged_ones(data, tmp_path):

@@ -1,16 +1,19 @@
 """Shotton depth-difference features and the two feature response functions.
 
 A feature is a pair of offsets (u, v), each (row, col) in pixel*millimetres. At a pixel s
-with depth d(s) (mm) it reads
+it reads
 
-    f(s) = p(s + u / d(s)) - p(s + v / d(s))
+    f(s) = p(s + u * S(s)) - p(s + v * S(s))
 
-where p(q) is the depth at probe q, the probe position is rounded to the nearest pixel
-(floor(x + 0.5)), and a probe outside the image or on a no-depth pixel reads the large
-constant `background_mm` (so does any depth above it: probes are clamped to it, which keeps
-every response inside int16). Dividing by d(s) makes the feature depth invariant: the
-offsets span the same metric distance at any depth, and `patch_px` pixels at
-`reference_depth_mm`.
+where p(q) is the model input's probe value at q and S(s) the pixel's offset scale
+(`inputs.ModelInput`: for a height model p is C - height above the floor and
+S = (fx / reference_focal_px) / d(s); for a legacy model p is depth and S = 1 / d(s)). The
+probe position is rounded to the nearest pixel (floor(x + 0.5)), and a probe outside the
+image or on a no-depth pixel reads the large constant `background_mm` (so does any value
+above it: probes are clamped to it, which keeps every response inside int16). Dividing by
+d(s) makes the feature depth invariant and the focal-length ratio sensor invariant: the
+offsets span the same metric distance at any depth and on any camera, `patch_px` pixels at
+`reference_depth_mm` on a camera of the reference focal length.
 
 Response functions (Criminisi & Shotton's decision-forest framework):
 - axis-aligned: one feature against a threshold;
@@ -28,7 +31,7 @@ from dataclasses import asdict, dataclass
 import numba
 import numpy as np
 
-from topseg.core.camera import check_depth
+from topseg.core.forest.inputs import ModelInput, as_input, check_input
 
 
 @dataclass(frozen=True)
@@ -46,7 +49,14 @@ class FeatureConfig:
         its height above the floor for a fixed top-view mount. Not in the paper (0 keeps
         its pure depth differences, which cannot tell a table's flat interior from the
         floor); 0.2 lifts procedural-scene pixel accuracy from ~0.86 to ~0.97
-        (tests/test_forest_learn.py). It gives up depth invariance for those features.
+        (tests/test_forest_learn.py). It gives up depth invariance for those features; a
+        height model (`inputs.model_input`) reads height above the floor there instead.
+    canonical_height_mm: C, a height model's normalisation constant (not a mount): probes
+        read C - height, the depth a virtual camera C mm above the floor, looking straight
+        down, would see (`inputs.model_input`).
+    reference_focal_px: the focal length (px) the offsets are defined at: on a camera of
+        focal length fx an offset moves a probe fx / reference_focal_px as far (the default
+        is Kinect v1's, so offsets keep their old meaning there).
     """
 
     n_features: int = 300
@@ -54,6 +64,8 @@ class FeatureConfig:
     reference_depth_mm: float = 2500.0
     background_mm: int = 10000
     absolute_fraction: float = 0.0
+    canonical_height_mm: float = 4000.0
+    reference_focal_px: float = 570.3
 
     def __post_init__(self) -> None:
         if self.n_features < 1:
@@ -64,6 +76,12 @@ class FeatureConfig:
             raise ValueError(f"reference_depth_mm must be > 0, got {self.reference_depth_mm}")
         if not 0.0 <= self.absolute_fraction <= 1.0:
             raise ValueError(f"absolute_fraction must be in [0, 1], got {self.absolute_fraction}")
+        if not 0 < self.canonical_height_mm < self.background_mm:
+            raise ValueError(
+                f"canonical_height_mm must be in (0, background_mm), got {self.canonical_height_mm}"
+            )
+        if self.reference_focal_px <= 0:
+            raise ValueError(f"reference_focal_px must be > 0, got {self.reference_focal_px}")
         if not 0 < self.background_mm <= 16000:
             # clamped probes differ by at most background_mm, which must fit in int16
             raise ValueError(f"background_mm must be in (0, 16000], got {self.background_mm}")
@@ -105,59 +123,54 @@ def sample_offsets(config: FeatureConfig, rng: np.random.Generator) -> np.ndarra
 
 
 @numba.njit(cache=True, inline="always")
-def probe(depth, r, c, inv_d, dr, dc, background):
-    """Depth read at the probe (r, c) + round((dr, dc) * inv_d), or `background`.
+def probe(values, r, c, inv_d, dr, dc, background):
+    """Value read at the probe (r, c) + round((dr, dc) * inv_d), or `background`.
 
-    All arithmetic is float32 (`inv_d` = float32(1) / float32(d(s))), identical in every
-    kernel and in the numpy references.
+    `values` is the model input's probe image (`inputs.ModelInput.values`: depth for a
+    legacy model) and `inv_d` the pixel's offset scale (`ModelInput.scale[r, c]`). All
+    arithmetic is float32, identical in every kernel and in the numpy references.
     """
     pr = r + np.int64(np.floor(dr * inv_d + np.float32(0.5)))
     pc = c + np.int64(np.floor(dc * inv_d + np.float32(0.5)))
-    if pr < 0 or pc < 0 or pr >= depth.shape[0] or pc >= depth.shape[1]:
+    if pr < 0 or pc < 0 or pr >= values.shape[0] or pc >= values.shape[1]:
         return background
-    z = np.int32(depth[pr, pc])
+    z = np.int32(values[pr, pc])
     if z == 0 or z > background:
         return background
     return z
 
 
 @numba.njit(cache=True, inline="always")
-def inverse_depth(d):
-    """float32(1) / float32(d): the scale every probe of a pixel uses."""
-    return np.float32(1.0) / np.float32(d)
-
-
-@numba.njit(cache=True, inline="always")
-def pair_feature(depth, r, c, inv_d, offset, background):
+def pair_feature(values, r, c, inv_d, offset, background):
     """f(s) for one offset row (u_row, u_col, v_row, v_col) at pixel (r, c)."""
-    return probe(depth, r, c, inv_d, offset[0], offset[1], background) - probe(
-        depth, r, c, inv_d, offset[2], offset[3], background
+    return probe(values, r, c, inv_d, offset[0], offset[1], background) - probe(
+        values, r, c, inv_d, offset[2], offset[3], background
     )
 
 
 @numba.njit(cache=True, inline="always")
-def response_at(depth, r, c, inv_d, offsets, weights, background):
+def response_at(values, r, c, inv_d, offsets, weights, background):
     """sum_j w_j f_j(s) in float32: the response of one node at pixel (r, c).
 
-    `offsets` is (k, 4), `weights` (k,); `inv_d` = `inverse_depth(d(s))`.
+    `offsets` is (k, 4), `weights` (k,); `inv_d` is the pixel's offset scale.
     """
     acc = np.float32(0.0)
     for j in range(offsets.shape[0]):
-        acc += weights[j] * np.float32(pair_feature(depth, r, c, inv_d, offsets[j], background))
+        acc += weights[j] * np.float32(pair_feature(values, r, c, inv_d, offsets[j], background))
     return acc
 
 
 @numba.njit(cache=True, parallel=True)
-def _extract(depth, rows, cols, offsets, background, out):
+def _extract(values, scale, rows, cols, offsets, background, out):
     for i in numba.prange(rows.shape[0]):
         r, c = rows[i], cols[i]
-        inv_d = inverse_depth(depth[r, c])
+        inv_d = scale[r, c]
         for f in range(offsets.shape[0]):
-            out[i, f] = pair_feature(depth, r, c, inv_d, offsets[f], background)
+            out[i, f] = pair_feature(values, r, c, inv_d, offsets[f], background)
 
 
 def extract_features(
-    depth: np.ndarray,
+    frame: np.ndarray | ModelInput,
     rows: np.ndarray,
     cols: np.ndarray,
     offsets: np.ndarray,
@@ -166,10 +179,13 @@ def extract_features(
 ) -> np.ndarray:
     """The (n, PC) int16 feature matrix of pixels (rows[i], cols[i]) of one frame.
 
-    Every pixel must have depth (> 0); training samples only such pixels. `out`, if given,
-    is an (n, PC) int16 array (e.g. a slice of a larger matrix) filled in place.
+    `frame` is a model input (`inputs.model_input`), or a depth frame read as its legacy
+    input (V = depth, scale = 1/depth). Every pixel must have a value (> 0); training
+    samples only such pixels. `out`, if given, is an (n, PC) int16 array (e.g. a slice of a
+    larger matrix) filled in place.
     """
-    depth = check_depth(depth, "features")
+    inp = check_input(as_input(frame), "features")
+    values = inp.values
     rows = np.asarray(rows, np.int64)
     cols = np.asarray(cols, np.int64)
     offsets = np.ascontiguousarray(offsets, np.float32)
@@ -178,46 +194,45 @@ def extract_features(
     if rows.size and (
         rows.min() < 0
         or cols.min() < 0
-        or rows.max() >= depth.shape[0]
-        or cols.max() >= depth.shape[1]
+        or rows.max() >= values.shape[0]
+        or cols.max() >= values.shape[1]
     ):
         raise ValueError("sample pixels outside the frame")
-    if rows.size and np.any(depth[rows, cols] == 0):
+    if rows.size and np.any(values[rows, cols] == 0):
         raise ValueError("sample pixels must have depth (> 0)")
     if out is None:
         out = np.empty((rows.size, offsets.shape[0]), np.int16)
     elif out.shape != (rows.size, offsets.shape[0]) or out.dtype != np.int16:
         raise ValueError(f"out must be int16 {(rows.size, offsets.shape[0])}, got {out.shape}")
-    _extract(depth, rows, cols, offsets, np.int32(background_mm), out)
+    _extract(values, inp.scale, rows, cols, offsets, np.int32(background_mm), out)
     return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _node_response_image(depth, offsets, weights, background, out):
-    for r in numba.prange(depth.shape[0]):
-        for c in range(depth.shape[1]):
-            d = depth[r, c]
-            if d == 0:
+def _node_response_image(values, scale, offsets, weights, background, out):
+    for r in numba.prange(values.shape[0]):
+        for c in range(values.shape[1]):
+            if values[r, c] == 0:
                 out[r, c] = np.nan
             else:
-                inv_d = inverse_depth(d)
-                out[r, c] = response_at(depth, r, c, inv_d, offsets, weights, background)
+                out[r, c] = response_at(values, r, c, scale[r, c], offsets, weights, background)
 
 
 def node_response_image(
-    depth: np.ndarray, offsets: np.ndarray, weights: np.ndarray, background_mm: int
+    frame: np.ndarray | ModelInput, offsets: np.ndarray, weights: np.ndarray, background_mm: int
 ) -> np.ndarray:
     """(H, W) float32 response of one node (k offsets, k weights) at every pixel; NaN: no depth.
 
-    For inspecting a split and for tests; inference walks the trees without it.
+    `frame` as for `extract_features`. For inspecting a split and for tests; inference walks
+    the trees without it.
     """
-    depth = check_depth(depth, "features")
+    inp = check_input(as_input(frame), "features")
     offsets = np.ascontiguousarray(np.atleast_2d(offsets), np.float32)
     weights = np.ascontiguousarray(np.atleast_1d(weights), np.float32)
     if offsets.shape != (weights.shape[0], 4):
         raise ValueError(f"offsets must be (k, 4) for k weights, got {offsets.shape}")
-    out = np.empty(depth.shape, np.float32)
-    _node_response_image(depth, offsets, weights, np.int32(background_mm), out)
+    out = np.empty(inp.values.shape, np.float32)
+    _node_response_image(inp.values, inp.scale, offsets, weights, np.int32(background_mm), out)
     return out
 
 

@@ -1,5 +1,9 @@
 """Forest inference: walk every tree at every pixel with depth, average the leaf posteriors.
 
+The forest reads a model input (`inputs.ModelInput`: probe values, per-pixel offset scale,
+floor gate); a plain depth frame is read as its legacy input, as models trained before
+heights expect.
+
 One numba kernel body, compiled once per number k of features per node, parallel over rows.
 Within a row the trees are walked level by level for all pixels at once (a pixel's walk is a chain of dependent loads; many independent walks side
 by side let the CPU overlap them and let LLVM vectorise the step with gathers). For that the
@@ -8,9 +12,11 @@ kernel uses a packed copy of the node arrays (`InferenceTable`): one float32 row
 infinite threshold, so one more step never moves a pixel that has arrived; a row stops when
 a whole level moved nothing.
 
-Pixels without depth (0) are walked too (their probes read the pixel itself) but their
-posterior row is set to all zeros (not a distribution); the argmax (`crf.segment_argmax`)
-gives them NO_DEPTH. A node sends a pixel left when its response < threshold (see `features`).
+Only pixels with depth that the floor gate lets through are walked (a row's pixels to walk
+are gathered first). Pixels without depth get an all-zero posterior row (not a
+distribution), which the argmax (`crf.segment_argmax`) turns into NO_DEPTH; floor-gated
+pixels get background with probability 1. A node sends a pixel left when its response <
+threshold (see `features`).
 """
 
 from __future__ import annotations
@@ -22,9 +28,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from topseg.core.camera import check_depth
-from topseg.core.forest.features import inverse_depth, response_at
+from topseg.core.forest.features import response_at
+from topseg.core.forest.inputs import ModelInput, as_input, check_input
 from topseg.core.forest.tree import Forest
+from topseg.core.labels import BACKGROUND
 
 _i32 = np.int32
 _f32 = np.float32
@@ -102,13 +109,19 @@ def _step(padded, r, c, inv_d, nodes, step, n, k, h, w):
 
 
 @numba.njit(cache=True, inline="always")
-def _row_inverse_depth(depth, r, stride, n_cols):
-    """inverse_depth of the evaluated pixels of row r; 0 where there is no depth."""
+def _row_pixels(values, scale, floor, r, stride, n_cols):
+    """The evaluated pixels of row r to walk (a value and not floor): their columns and
+    offset scales, and how many there are."""
+    cols = np.empty(n_cols, np.int32)
     inv = np.empty(n_cols, np.float32)
+    m = 0
     for j in range(n_cols):
-        d = depth[r, j * stride]
-        inv[j] = np.float32(1.0) / np.float32(d) if d > 0 else np.float32(0.0)
-    return inv
+        c = j * stride
+        if values[r, c] > 0 and not floor[r, c]:
+            cols[m] = c
+            inv[m] = scale[r, c]
+            m += 1
+    return cols[:m], inv[:m]
 
 
 @numba.njit(cache=True, inline="always")
@@ -120,12 +133,19 @@ def _accumulate(acc, cur, leaf, posteriors):
 
 
 @numba.njit(cache=True, inline="always")
-def _write_row(out, r, stride, inv, acc, n_trees):
+def _write_row(out, values, floor, r, stride, n_cols, cols, acc, n_trees):
+    """Row r's evaluated pixels: zeros without a value, background for the floor, the tree
+    average for the walked ones."""
+    for j in range(n_cols):
+        c = j * stride
+        for q in range(out.shape[2]):
+            out[r, c, q] = np.float32(0.0)
+        if values[r, c] > 0 and floor[r, c]:
+            out[r, c, BACKGROUND] = np.float32(1.0)
     scale = np.float32(1.0) / np.float32(n_trees)
-    for j in range(inv.shape[0]):
-        has_depth = inv[j] > 0
+    for j in range(cols.shape[0]):
         for q in range(acc.shape[1]):
-            out[r, j * stride, q] = acc[j, q] * scale if has_depth else np.float32(0.0)
+            out[r, cols[j], q] = acc[j, q] * scale
 
 
 @functools.cache
@@ -138,91 +158,104 @@ def _kernel(k: int):
     """
 
     @numba.njit(cache=True, parallel=True)
-    def predict(depth, nodes, step, leaf, posteriors, roots, background, stride, out):
+    def predict(
+        values, scale, floor, nodes, step, leaf, posteriors, roots, background, stride, out
+    ):
         """Posteriors of the evaluated pixels. Within a row the trees are walked one level
-        at a time for all pixels; `cur` is local and the level loop plain so that it
+        at a time for all pixels to walk; `cur` is local and the level loop plain so that it
         vectorises."""
-        h, w = _i32(depth.shape[0]), _i32(depth.shape[1])
-        padded = _padded(depth, background)
-        n_rows = (depth.shape[0] + stride - 1) // stride
-        n_cols = (depth.shape[1] + stride - 1) // stride
+        h, w = _i32(values.shape[0]), _i32(values.shape[1])
+        padded = _padded(values, background)
+        n_rows = (values.shape[0] + stride - 1) // stride
+        n_cols = (values.shape[1] + stride - 1) // stride
         for i in numba.prange(n_rows):
             r = _i32(i * stride)
-            inv = _row_inverse_depth(depth, r, stride, n_cols)
-            cur = np.empty(n_cols, np.int32)
-            acc = np.zeros((n_cols, posteriors.shape[1]), np.float32)
+            cols, inv = _row_pixels(values, scale, floor, r, stride, n_cols)
+            m = cols.shape[0]
+            cur = np.empty(m, np.int32)
+            acc = np.zeros((m, posteriors.shape[1]), np.float32)
             for t in range(roots.shape[0]):
-                for j in range(n_cols):
+                for j in range(m):
                     cur[j] = roots[t]
                 while True:
                     moving = 0
-                    for j in range(n_cols):
+                    for j in range(m):
                         n = cur[j]
-                        nxt = _step(padded, r, _i32(j * stride), inv[j], nodes, step, n, k, h, w)
+                        nxt = _step(padded, r, cols[j], inv[j], nodes, step, n, k, h, w)
                         moving += _i32(nxt != n)
                         cur[j] = nxt
                     if moving == 0:
                         break
                 _accumulate(acc, cur, leaf, posteriors)
-            _write_row(out, r, stride, inv, acc, roots.shape[0])
+            _write_row(out, values, floor, r, stride, n_cols, cols, acc, roots.shape[0])
 
     return predict
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_strided(depth, stride, out):
+def _fill_strided(values, floor, stride, out):
     """Copy each evaluated pixel's posterior to the stride x stride block it stands for;
-    pixels without depth get zeros."""
-    h, w = depth.shape
+    pixels without a value get zeros, floor pixels background."""
+    h, w = values.shape
     for r in numba.prange(h):
         r0 = r - r % stride
         for c in range(w):
             c0 = c - c % stride
-            if depth[r, c] == 0:
+            if values[r, c] == 0:
                 out[r, c, :] = 0.0
+            elif floor[r, c]:
+                out[r, c, :] = 0.0
+                out[r, c, BACKGROUND] = 1.0
             elif r != r0 or c != c0:
                 out[r, c, :] = out[r0, c0, :]
 
 
 @numba.njit(cache=True, parallel=True)
-def _apply(depth, offsets, weights, threshold, left, roots, background, out):
-    for r in numba.prange(depth.shape[0]):
-        for c in range(depth.shape[1]):
-            d = depth[r, c]
+def _apply(values, scale, floor, offsets, weights, threshold, left, roots, background, out):
+    for r in numba.prange(values.shape[0]):
+        for c in range(values.shape[1]):
+            walk = values[r, c] > 0 and not floor[r, c]
             for t in range(roots.shape[0]):
                 node = roots[t]
-                if d > 0:
-                    inv_d = inverse_depth(d)
+                if walk:
+                    inv_d = scale[r, c]
                     while left[node] >= 0:
                         resp = response_at(
-                            depth, r, c, inv_d, offsets[node], weights[node], background
+                            values, r, c, inv_d, offsets[node], weights[node], background
                         )
                         node = left[node] + (0 if resp < threshold[node] else 1)
-                out[t, r, c] = node if d > 0 else -1
+                out[t, r, c] = node if walk else -1
 
 
 def predict_proba(
-    forest: Forest, depth: np.ndarray, out: np.ndarray | None = None, stride: int = 1
+    forest: Forest,
+    frame: np.ndarray | ModelInput,
+    out: np.ndarray | None = None,
+    stride: int = 1,
 ) -> np.ndarray:
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
-    Rows of pixels without depth are all zero. `out` may be a preallocated C-contiguous
+    `frame` is a model input (`inputs.model_input`) or a depth frame, read as its legacy
+    input (what models trained before heights expect). Rows of pixels without depth are all
+    zero, floor-gated pixels are background. `out` may be a preallocated C-contiguous
     (H, W, NUM_CLASSES) float32 array to fill (a worker reuses one per frame).
     `stride` > 1 walks the trees only at every stride-th pixel of every stride-th row and
     copies the result over each stride x stride block: a faster, blockier approximation
     (the posteriors at the evaluated pixels are exact).
     """
-    depth = check_depth(depth, "forest inference")
+    inp = check_input(as_input(frame), "forest inference")
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
-    shape = (*depth.shape, forest.posteriors.shape[1])
+    shape = (*inp.shape, forest.posteriors.shape[1])
     if out is None:
         out = np.empty(shape, np.float32)
     elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
     table = inference_table(forest)
     _kernel(table.k)(
-        depth,
+        inp.values,
+        inp.scale,
+        inp.floor,
         table.nodes,
         table.step,
         forest.leaf,
@@ -233,19 +266,22 @@ def predict_proba(
         out,
     )
     if stride > 1:
-        _fill_strided(depth, stride, out)
+        _fill_strided(inp.values, inp.floor, stride, out)
     return out
 
 
-def apply(forest: Forest, depth: np.ndarray) -> np.ndarray:
-    """(T, H, W) int32: the leaf node each pixel reaches in each tree; -1 without depth.
+def apply(forest: Forest, frame: np.ndarray | ModelInput) -> np.ndarray:
+    """(T, H, W) int32: the leaf node each pixel reaches in each tree; -1 where the forest is
+    not walked (no depth, or the floor gate).
 
     A plain per-pixel walk (not the fast kernel): for inspection, path statistics and tests.
     """
-    depth = check_depth(depth, "forest inference")
-    out = np.empty((forest.n_trees, *depth.shape), np.int32)
+    inp = check_input(as_input(frame), "forest inference")
+    out = np.empty((forest.n_trees, *inp.shape), np.int32)
     _apply(
-        depth,
+        inp.values,
+        inp.scale,
+        inp.floor,
         forest.offsets,
         forest.weights,
         forest.threshold,
@@ -257,10 +293,10 @@ def apply(forest: Forest, depth: np.ndarray) -> np.ndarray:
     return out
 
 
-def predict_labels(forest: Forest, depth: np.ndarray, stride: int = 1) -> np.ndarray:
+def predict_labels(forest: Forest, frame: np.ndarray | ModelInput, stride: int = 1) -> np.ndarray:
     """(H, W) uint8 most probable label per pixel; NO_DEPTH where depth == 0 (through the
     one argmax, `crf.segment_argmax`, that the CRF's mode `none` is)."""
     from topseg.core.crf.argmax import segment_argmax
 
-    depth = np.asarray(depth)
-    return segment_argmax(predict_proba(forest, depth, stride=stride), depth > 0)
+    inp = as_input(frame)
+    return segment_argmax(predict_proba(forest, inp, stride=stride), inp.values > 0)

@@ -63,7 +63,15 @@ def _quick_forest(rng: np.random.Generator):
         n_candidates=40,
         n_thresholds=40,
     )
-    return forest.train_forest(depth, labels, config, seed=int(rng.integers(2**31)))
+    seed = int(rng.integers(2**31))
+    return forest.train_forest(depth, labels, config, seed=seed, mounts=[_mount()] * len(depth))
+
+
+def _mount():
+    """The mount the procedural frames are rendered from by default (the paper's)."""
+    from topseg.core.camera import PAPER_MOUNT
+
+    return PAPER_MOUNT
 
 
 def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
@@ -77,15 +85,18 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray
             depth, truth = synthetic_scene(rng)
             out.append((forest_like_posteriors(truth, rng), depth))
         return out, "stand-in forest-like posteriors on synthetic scenes (bench/crf_standin)"
+    from topseg.core.forest import FeatureConfig
+    from topseg.core.forest.inputs import header_fields
     from topseg.core.segmenter import Segmenter, SegmenterConfig
     from topseg.core.synth import procedural
 
-    config = SegmenterConfig(check_camera=False)  # the model's camera need not be these frames'
+    # the model's camera need not be these frames'; a height model reads them through theirs
+    config = SegmenterConfig(check_camera=False, mount=_mount())
     if args.model is not None:
         segmenter = Segmenter.from_file(args.model, config)
         source = f"forest {args.model} on procedural frames"
     else:
-        segmenter = Segmenter(_quick_forest(rng), config=config)
+        segmenter = Segmenter(_quick_forest(rng), header_fields(FeatureConfig()), config)
         source = "small forest (3 trees, depth 16, 60 frames) trained here, on procedural frames"
     out = []
     for _ in range(args.frames):

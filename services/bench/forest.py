@@ -55,9 +55,17 @@ def _forest(args, rng, procedural, forest_mod):
     depth, truth = procedural.procedural_frames(rng, args.train_frames)
     config = forest_mod.TrainConfig(n_trees=args.trees, max_depth=args.depth, split=args.split)
     t0 = time.perf_counter()
-    model = forest_mod.train_forest(depth, truth, config, seed=args.seed)
+    mounts = [_mount(procedural)] * len(depth)
+    model = forest_mod.train_forest(depth, truth, config, seed=args.seed, mounts=mounts)
     seconds = time.perf_counter() - t0
     return model, f"trained on {args.train_frames} procedural frames in {seconds:.0f} s"
+
+
+def _mount(procedural):
+    """The mount `procedural` renders frames from by default (the paper's)."""
+    from topseg.core.camera import PAPER_MOUNT
+
+    return PAPER_MOUNT
 
 
 def _time_frames(predict, frames, repeats):
@@ -90,13 +98,18 @@ def measure(args: argparse.Namespace) -> dict:
     if args.threads:
         numba.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)
+    from topseg.core.forest.inputs import header_fields
+
     model, kind = _forest(args, rng, procedural, forest_mod)
+    header = forest_mod.load_model(args.model)[1] if args.model else None
+    if header is None and args.forest == "trained":
+        header = header_fields(forest_mod.FeatureConfig())  # trained on heights above
     test_depth, test_truth = procedural.procedural_frames(rng, args.frames)
     frames = list(test_depth)
     # the forest stage alone (`posteriors`, into the Segmenter's reused buffer); no camera
     # check: a model file's camera need not be the procedural frames'
-    config = SegmenterConfig(check_camera=False)
-    segmenter = Segmenter(model, config=config, crf="none")
+    config = SegmenterConfig(check_camera=False, mount=_mount(procedural))
+    segmenter = Segmenter(model, header, config, crf="none")
     wall, cpu = _time_frames(segmenter.posteriors, frames, args.repeats)
     figures: dict = {
         "forest": kind,
@@ -109,13 +122,13 @@ def measure(args: argparse.Namespace) -> dict:
         "forest_ms_per_frame": round(wall, 2),
         "forest_cpu_ms_per_frame": round(cpu, 2),
     }
-    leaves = apply(model, frames[0])
+    leaves = apply(model, segmenter.model_input(frames[0]))
     walked = node_depths(model.left, model.roots)[leaves[leaves >= 0]]
     figures["mean_levels_walked"] = round(float(walked.mean()), 2)
     figures["node_visits_per_frame"] = int(walked.sum())
     figures["ns_per_node_visit_cpu"] = round(1e6 * cpu / max(int(walked.sum()), 1), 2)
     if args.stride > 1:
-        strided = Segmenter(model, config=replace(config, stride=args.stride), crf="none")
+        strided = Segmenter(model, header, replace(config, stride=args.stride), crf="none")
         s_wall, _ = _time_frames(strided.posteriors, frames, args.repeats)
         figures[f"forest_ms_per_frame_stride{args.stride}"] = round(s_wall, 2)
     if args.forest == "trained" and not args.model:

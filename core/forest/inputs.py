@@ -1,0 +1,208 @@
+"""What the forest reads: a frame's depth turned into probe values, offset scales and a floor gate.
+
+The forest never reads raw depth. For a frame with depth D (mm) seen from mount M, a model
+trained on heights (header `"input": "height"`) reads
+
+- probe values `V = clip(round(C - h), 1, background_mm - 1)` (uint16; 0 where D == 0), with
+  `h = M.height_map_mm(D)` each pixel's height above the floor and C the model's
+  `canonical_height_mm`: the depth a virtual camera C mm above the floor, looking straight
+  down, would read. Probe differences are then height differences and an "absolute" feature
+  reads height above the floor, whatever the real camera's height and tilt;
+- offset scales `S = (fx / reference_focal_px) / D` (float32, 1/mm): a feature's offset u
+  (pixel*mm at the reference focal length) moves a probe by round(u * S(s)) pixels, so the
+  offsets span the same metric distance on any sensor, at any resolution and any range;
+- a floor gate: pixels with depth whose height is below `floor_margin_mm(D, sensor)` (a few
+  sigma of the sensor's depth noise at that range, at least `MIN_FLOOR_MARGIN_MM`) are
+  background without walking the forest. They stay probe targets (the floor is context).
+
+Models trained before this (no `"input"` in the header) read the legacy input: V = D,
+S = float32(1) / float32(D), no gate: exactly what the kernels computed from depth before.
+`model_input` and `legacy_input` are the only two builders; training and inference both call
+them (`input_for` picks by header).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from topseg.core.camera import check_depth
+from topseg.core.errors import TopsegError
+
+if TYPE_CHECKING:
+    from topseg.core.camera import TopViewMount
+    from topseg.core.forest.features import FeatureConfig
+
+#: the header value of models that read heights (`model_input`)
+HEIGHT_INPUT = "height"
+#: the floor gate's smallest margin (mm): below this height a pixel is floor on any sensor
+MIN_FLOOR_MARGIN_MM = 40.0
+#: the floor gate's largest margin (mm): a noisy stereo camera far away (3 sigma is 250 mm
+#: for a D435 at 4.5 m) must not gate away feet, low plants and seat cushions
+MAX_FLOOR_MARGIN_MM = 150.0
+#: sigmas of the sensor's depth noise the floor gate allows
+FLOOR_SIGMAS = 3.0
+#: Kinect-like axial noise, sigma_z = KINECT_SIGMA_COEFF * z^2 (z and sigma in metres;
+#: Khoshelham & Elberink 2012, docs/research/sensor-noise-sources.md), for unknown sensors
+KINECT_SIGMA_COEFF = 1.4e-3
+
+
+@dataclass(frozen=True)
+class ModelInput:
+    """What the forest reads of one frame.
+
+    values  (H, W) uint16 probe values (virtual depth in mm, see the module); 0: no depth
+    scale   (H, W) float32 offset scale per pixel (1/mm); 0 where there is no depth
+    floor   (H, W) bool: pixels the floor gate sends to background without the forest
+    """
+
+    values: np.ndarray
+    scale: np.ndarray
+    floor: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) of the frame."""
+        return self.values.shape
+
+    def floor_share(self) -> float:
+        """Share of the pixels with depth that the floor gate skipped (0 with no depth)."""
+        n = int(np.count_nonzero(self.values))
+        return float(np.count_nonzero(self.floor)) / n if n else 0.0
+
+
+def depth_sigma_mm(depth_mm: np.ndarray, sensor: str = "kinect_v1") -> np.ndarray:
+    """The sensor's axial depth noise (1 sigma, mm) at each depth (mm), float32.
+
+    The sensor model's (`core.sensors`, `SensorModel.sigma_mm`) when it knows the sensor;
+    else the Kinect v1 structured-light law 1.4e-3 z^2 (z in metres).
+    """
+    z = np.asarray(depth_mm, np.float32)
+    try:
+        from topseg.core.sensors import get_sensor
+
+        return np.asarray(get_sensor(sensor).sigma_mm(z * np.float32(1e-3)), np.float32)
+    except (ImportError, AttributeError, TopsegError):
+        return np.float32(KINECT_SIGMA_COEFF * 1e-3) * z * z  # (1.4e-3 / m) * z_mm^2
+
+
+def floor_margin_mm(depth_mm: np.ndarray, sensor: str = "kinect_v1") -> np.ndarray:
+    """Height (mm) below which a pixel at this depth is floor: FLOOR_SIGMAS sigma of the
+    sensor's depth noise at that range, within [MIN_FLOOR_MARGIN_MM, MAX_FLOOR_MARGIN_MM];
+    float32."""
+    sigma = depth_sigma_mm(depth_mm, sensor)
+    margin = np.float32(FLOOR_SIGMAS) * sigma
+    return np.clip(margin, np.float32(MIN_FLOOR_MARGIN_MM), np.float32(MAX_FLOOR_MARGIN_MM))
+
+
+@functools.lru_cache(maxsize=16)
+def _margin_table(sensor: str) -> np.ndarray:
+    """`floor_margin_mm` of every uint16 depth, for one sensor (a frame is one lookup)."""
+    table = floor_margin_mm(np.arange(65536, dtype=np.float32), sensor)
+    table.flags.writeable = False
+    return table
+
+
+def height_map_mm(mount: TopViewMount, depth_mm: np.ndarray) -> np.ndarray:
+    """(H, W) float32 height above the floor of each pixel's point (NaN without depth):
+    `mount.height_map_mm` (height_mm + n . X, n the floor's up-normal in camera coords)."""
+    return mount.height_map_mm(depth_mm)
+
+
+def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
+    """The input of a height model (see the module) for a uint16 depth frame from `mount`.
+
+    The frame must have the mount's intrinsics' shape; ValueError otherwise.
+    """
+    depth = check_depth(depth, "model input")
+    k = mount.intrinsics
+    if depth.shape != k.shape:
+        raise ValueError(
+            f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
+            f"{k.width}x{k.height}"
+        )
+    has = depth > 0
+    h = height_map_mm(mount, depth)
+    bg = int(features.background_mm)
+    v = np.float32(features.canonical_height_mm) - np.where(has, h, np.float32(0.0))
+    values = np.clip(np.floor(v + np.float32(0.5)), 1, bg - 1).astype(np.uint16)
+    values[~has] = 0
+    d = depth.astype(np.float32)
+    with np.errstate(divide="ignore"):
+        scale = np.float32(k.fx / features.reference_focal_px) / d
+    scale[~has] = 0.0
+    floor = has & (np.where(has, h, np.float32(np.inf)) < _margin_table(mount.sensor)[depth])
+    return ModelInput(values, scale.astype(np.float32, copy=False), floor)
+
+
+def legacy_input(depth: np.ndarray) -> ModelInput:
+    """The input of a model trained before heights: V = D, S = float32(1) / float32(D) (as the
+    kernels computed it from depth), 0 where D == 0, and no floor gate."""
+    depth = check_depth(depth, "model input")
+    d = depth.astype(np.float32)
+    with np.errstate(divide="ignore"):
+        scale = np.float32(1.0) / d
+    scale[depth == 0] = 0.0
+    return ModelInput(depth, scale, np.zeros(depth.shape, bool))
+
+
+def reads_height(header: dict[str, Any] | None) -> bool:
+    """Whether a model header says the model reads heights (`model_input`), not depth."""
+    return (header or {}).get("input") == HEIGHT_INPUT
+
+
+def as_input(x: np.ndarray | ModelInput) -> ModelInput:
+    """A ModelInput as is; a depth frame as its legacy input (for callers of depth kernels)."""
+    return x if isinstance(x, ModelInput) else legacy_input(x)
+
+
+def check_input(x: ModelInput, user: str = "forest") -> ModelInput:
+    """`x` with C-contiguous uint16 values, float32 scale and bool floor of one shape."""
+    values = check_depth(x.values, user)
+    scale = np.ascontiguousarray(x.scale, np.float32)
+    floor = np.ascontiguousarray(x.floor, np.bool_)
+    if scale.shape != values.shape or floor.shape != values.shape:
+        raise ValueError(
+            f"{user}: values {values.shape}, scale {scale.shape} and floor {floor.shape} differ"
+        )
+    return ModelInput(values, scale, floor)
+
+
+def header_fields(features: FeatureConfig, trained_for: dict | None = None) -> dict[str, Any]:
+    """What a height model's header says about its input: `input`, `features` and, when
+    known, `trained_for` (the mounts and sensors of its training frames)."""
+    out: dict[str, Any] = {"input": HEIGHT_INPUT, "features": features.to_dict()}
+    if trained_for is not None:
+        out["trained_for"] = trained_for
+    return out
+
+
+def trained_for(mounts: list[TopViewMount]) -> dict[str, Any]:
+    """The range a set of training mounts covers: `height_mm` [lo, hi], `tilt_deg` (max),
+    `sensors` and `resolutions` ([w, h], sorted)."""
+    if not mounts:
+        raise ValueError("no mounts to describe")
+    heights = [float(m.height_mm) for m in mounts]
+    tilts = [float(m.tilt_deg()) if hasattr(m, "tilt_deg") else 0.0 for m in mounts]
+    return {
+        "height_mm": [round(min(heights), 1), round(max(heights), 1)],
+        "tilt_deg": round(max(tilts), 2),
+        "sensors": sorted({getattr(m, "sensor", "kinect_v1") for m in mounts}),
+        "resolutions": [
+            list(r) for r in sorted({(m.intrinsics.width, m.intrinsics.height) for m in mounts})
+        ],
+    }
+
+
+def dataset_mount(ds: Any, k: int) -> TopViewMount:
+    """The mount of the k-th frame of a dataset: `ds.mount(k)` where the dataset stores one
+    per frame, else its `camera` attribute (datasets made before mounts were drawn)."""
+    from topseg.core.camera import TopViewMount
+
+    per_frame = getattr(ds, "mount", None)
+    if callable(per_frame):
+        return per_frame(k)
+    return TopViewMount.from_dict(ds.attrs["camera"], source="the dataset's camera")
