@@ -30,7 +30,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from topseg.core.camera import Intrinsics
+from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 
@@ -83,6 +83,8 @@ class Source(abc.ABC):
     description: str = ""
     #: camera of the frames; None until the first frame where a source cannot know earlier
     intrinsics: Intrinsics | None = None
+    #: where the camera hangs, when the source knows it (a recording's frames carry it)
+    mount: TopViewMount | None = None
     #: the rate frames come at, when known
     nominal_fps: float | None = None
     #: True when frames() ends on its own (a replay without --loop)
@@ -101,6 +103,7 @@ class Source(abc.ABC):
         return {
             "source": self.description,
             "intrinsics": None if k is None else k.to_dict(),
+            "mount": None if self.mount is None else self.mount.to_dict(),
             "fps": self.nominal_fps,
             "finite": self.finite,
         }

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from topseg.core.camera import KINECT_V1, Intrinsics
+from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount
 from topseg.core.formats import recording, wire
 from topseg.core.formats.wire import MAX_SIDE, DepthFrame, LabelFrame, WireError
 from topseg.drivers import fakenect_dump
@@ -41,7 +41,8 @@ DEPTH_PNG_MODES = ("I;16", "I;16B", "I;16L", "I")
 class ReplayFrame:
     """One recorded frame: a name for the files made from it, depth (uint16 mm), the camera
     when the file says it (None for a PNG), the recorded time in seconds (None without
-    timing), the truth labels when recorded and the recorded `seq` (None for a PNG)."""
+    timing), the truth labels when recorded, the recorded `seq` (None for a PNG) and the
+    camera's mount when the recorded message carried one (None otherwise)."""
 
     name: str
     depth: np.ndarray
@@ -49,6 +50,7 @@ class ReplayFrame:
     media_s: float | None = None
     truth: np.ndarray | None = None
     seq: int | None = None
+    mount: TopViewMount | None = None
 
 
 # -- readers: the one place recorded depth is read and validated (the replay driver and
@@ -145,7 +147,12 @@ class RecordingFrames:
                     yield emit(held)
                 name = f"{self.path.stem}_{frame.seq:06d}"
                 held = ReplayFrame(
-                    name, frame.depth, frame.intrinsics, msg.log_time_ns / 1e9, seq=frame.seq
+                    name,
+                    frame.depth,
+                    frame.intrinsics,
+                    msg.log_time_ns / 1e9,
+                    seq=frame.seq,
+                    mount=frame.mount,
                 )
             elif msg.key == truth_key:
                 try:
@@ -268,8 +275,8 @@ class ReplaySource(Source):
                 last = t
                 pacer.wait(offset + t)
                 stamp = time.time_ns()
-                self.intrinsics = item.intrinsics
-                depth = DepthFrame(item.depth, item.intrinsics, seq, stamp, "")
+                self.intrinsics, self.mount = item.intrinsics, item.mount
+                depth = DepthFrame(item.depth, item.intrinsics, seq, stamp, "", item.mount)
                 truth = None if item.truth is None else LabelFrame(item.truth, seq, stamp, "")
                 yield SourceFrame(depth, truth)
                 seq += 1

@@ -4,7 +4,12 @@ Reads frames from a source (`replay:PATH`, `freenect[:index]`, `openni2[:uri]`,
 `oak[:device-id]`, `synthetic`) and publishes them as wire messages on
 `topseg/<cell>/<camera>/depth`, with ground truth on `.../truth` when the source has it.
 It holds the liveliness token `.../alive/driver` while running and answers `.../info`
-queries with JSON (source, camera intrinsics, fps, frames published, reconnects).
+queries with JSON (source, camera intrinsics, mount, fps, frames published, reconnects).
+
+`--mount FILE` (a mount file from `topseg calibrate`) puts the camera's mount on every
+depth message and in `info`; the mount's intrinsics must be for frames of the source's
+size. Without it, a mount the source knows (a recording made with one) is passed on, and
+the worker estimates one itself from frames that carry none.
 
 When the source fails, drops out or stalls, the driver closes it and opens it again with
 exponential backoff, logging each attempt. A finite source (a replay without `--loop`)
@@ -50,6 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--camera", default=DEFAULT_CAMERA, help="camera name (default: %(default)s)"
     )
     parser.add_argument(
+        "--mount",
+        metavar="FILE",
+        help="the camera's mount file from `topseg calibrate`: sent with every frame "
+        "(default: none; a recording's own mount is passed on, else the worker estimates one)",
+    )
+    parser.add_argument(
         "--fps", type=float, help="replay pace (default: as recorded) or cap for a live sensor"
     )
     parser.add_argument("--loop", action="store_true", help="replay: start again at the end")
@@ -90,6 +101,8 @@ class DriverState:
             "source": args.source,
             "fps": args.fps,
             "intrinsics": None,
+            "mount": None,
+            "mount_file": getattr(args, "mount", None),
             "frames": 0,
             "truth_frames": 0,
             "reconnects": 0,
@@ -121,6 +134,35 @@ def _wait_for_subscriber(publisher, key: str, svc: ServiceLifecycle) -> None:
         svc.wait(0.05)
 
 
+def read_mount(path: str):
+    """The mount in a mount file (`topseg calibrate --out`); ConfigError (one line) when the
+    file is missing or is not one."""
+    from topseg.core.formats.mount_file import read_mount_file
+
+    return read_mount_file(path)
+
+
+def check_mount_fits(mount, intrinsics, path: str) -> None:
+    """TopsegError (one line) unless the mount file is for frames of the source's size; a
+    warning when the focal lengths differ by more than 1 %."""
+    from topseg.core.errors import TopsegError
+
+    m = mount.intrinsics
+    if m.shape != intrinsics.shape:
+        raise TopsegError(
+            f"mount file {path} is for {m.width}x{m.height} frames but the source sends "
+            f"{intrinsics.width}x{intrinsics.height}; calibrate this source "
+            "(topseg calibrate --source ...)"
+        )
+    if abs(m.fx - intrinsics.fx) > 0.01 * intrinsics.fx:
+        log.warning(
+            "mount file %s was made with focal length %.1f px, the source says %.1f px",
+            path,
+            m.fx,
+            intrinsics.fx,
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     """Publish the source's frames until it ends or a signal comes; 0 either way."""
     import zenoh
@@ -135,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     spec = parse_spec(args.source)
+    mount = None if args.mount is None else read_mount(args.mount)  # fails before Zenoh
     if args.congestion == "auto":
         args.congestion = "drop" if args.realtime else "block"
     options = SourceOptions(
@@ -159,6 +202,16 @@ def run(args: argparse.Namespace) -> int:
         )
 
     congestion = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
+    if mount is not None:
+        log.info(
+            "mount from %s: %.0f mm above the floor, pitch %.1f, roll %.1f deg, %s",
+            args.mount,
+            mount.height_mm,
+            mount.pitch_deg,
+            mount.roll_deg,
+            mount.sensor,
+        )
+    fitted = None  # the frame size the mount was last checked against
     with ServiceLifecycle("driver", args, status=status_text) as svc:
         session = svc.session
         publish = dict(congestion_control=congestion[args.congestion], express=True)
@@ -177,6 +230,10 @@ def run(args: argparse.Namespace) -> int:
             fields["reconnects"] = max(0, reconnecting.opens - 1)
             fields["last_error"] = reconnecting.last_error
             fields.pop("finite", None)
+            if mount is not None:
+                if source.intrinsics is not None:
+                    check_mount_fits(mount, source.intrinsics, args.mount)
+                fields["mount"] = mount.to_dict()
             state.update(**fields)
             log.info("publishing %s on %s", source.description, keys["depth"])
             svc.ready(f"publishing {args.cell}/{args.camera} from {args.source}")
@@ -207,7 +264,13 @@ def run(args: argparse.Namespace) -> int:
             except StopIteration:
                 log.info("%s ended after %d frames", spec, seq)
                 break
-            depth = dataclasses.replace(frame.depth, seq=seq, frame_id=args.camera)
+            if mount is not None and frame.depth.depth.shape != fitted:
+                check_mount_fits(mount, frame.depth.intrinsics, args.mount)
+                fitted = frame.depth.depth.shape
+            frame_mount = mount if mount is not None else frame.depth.mount
+            depth = dataclasses.replace(
+                frame.depth, seq=seq, frame_id=args.camera, mount=frame_mount
+            )
             depth_pub.put(wire.encode_depth(depth))
             if frame.truth is not None:
                 truth = dataclasses.replace(frame.truth, seq=seq, frame_id=args.camera)
@@ -219,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
                 frames=seq,
                 truth_frames=truth_count,
                 intrinsics=depth.intrinsics.to_dict(),
+                mount=None if frame_mount is None else frame_mount.to_dict(),
                 fps=args.fps or getattr(reconnecting.source, "nominal_fps", None),
             )
     return 0

@@ -9,7 +9,9 @@ of `--timeout` seconds:
   difference gives the driver's measured fps);
 - worker: alive (`.../alive/worker`), fps, end-to-end latency p50/p99 (depth stamp to labels
   published, from the worker's stats messages in the window), processed / dropped / rejected
-  counts since the worker started, and the model in use.
+  counts since the worker started, the model in use, the share of pixels skipped as floor
+  and the camera's mount (height, tilt, and whether it came from the frames or the worker's
+  estimate; "MOVED" when the worker saw the camera move).
 
 Liveliness comes from a `get` at the end of the window plus a subscriber for the window, so
 a service that goes away during the window shows as DOWN. A service killed outright is seen
@@ -26,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import threading
 import time
@@ -112,6 +115,11 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         out["fps"] = done / span_s  # measured over the window, not the worker's own estimate
     out["latency_ms"] = {"p50": percentile(latency, 50), "p99": percentile(latency, 99)}
     out["processing_ms"] = {"p50": percentile(total, 50), "p99": percentile(total, 99)}
+    shares = [s["floor_share"] for s in stats if "floor_share" in s]
+    if shares:
+        out["floor_share"] = sum(shares) / len(shares)
+    if "mount" in last:
+        out["mount"] = last["mount"]
     for name in ("processed", "dropped", "rejected"):
         out[name] = last["counts"].get(name, 0)
         out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))
@@ -164,13 +172,31 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}" if value >= 10 else f"{value:.1f}"
 
 
+def mount_cell(mount: dict | None) -> str:
+    """'3.31 m 2.1deg est' / '... frame', with ' MOVED' once the worker saw the camera move."""
+    if not mount:
+        return "-"
+    tilt = math.degrees(
+        math.acos(
+            min(
+                1.0,
+                math.cos(math.radians(mount["pitch_deg"]))
+                * math.cos(math.radians(mount["roll_deg"])),
+            )
+        )
+    )
+    source = "est" if mount["source"] == "estimated" else mount["source"]
+    moved = f" MOVED x{mount['moved']}" if mount.get("moved") else ""
+    return f"{mount['height_mm'] / 1000:.2f}m {tilt:.1f}deg {source}{moved}"
+
+
 def format_table(rep: dict) -> str:
     """The report as a table for people: one row per camera, DOWN in capitals."""
     if not rep["cameras"]:
         return f"no topseg service answered in {rep['window_s']:.1f} s (is Zenoh reachable?)"
     head = (
         "CAMERA", "DRIVER", "WORKER", "FPS", "LATENCY p50/p99 ms",
-        "PROCESSED", "DROPPED", "REJECTED", "MODEL", "SOURCE", "RECONNECTS",
+        "PROCESSED", "DROPPED", "REJECTED", "FLOOR", "MOUNT", "MODEL", "SOURCE", "RECONNECTS",
     )  # fmt: skip
     lines = [head]
     for row in rep["cameras"]:
@@ -190,6 +216,8 @@ def format_table(rep: dict) -> str:
                 str(w.get("processed", "-")),
                 str(w.get("dropped", "-")),
                 str(w.get("rejected", "-")),
+                f"{100 * w['floor_share']:.0f}%" if "floor_share" in w else "-",
+                mount_cell(w.get("mount")),
                 str(w.get("model") or "-"),
                 str(d.get("source") or "-"),
                 str(d.get("reconnects", "-")),

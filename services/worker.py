@@ -4,8 +4,19 @@ For every camera it serves (all of `topseg/*/*/depth`, or the `--cameras` given)
 runs the forest and the CRF on the newest depth frame and publishes
 
 - labels on `topseg/<cell>/<camera>/labels` (the depth frame's `seq`, `stamp_ns`, `frame_id`);
-- stats on `.../stats`: ms per stage (receive = copy + decode, forest, crf, publish, total),
-  latency (depth stamp to labels published), fps, and the counts processed / dropped / rejected.
+- stats on `.../stats`: ms per stage (receive = copy + decode, mount = estimating or checking
+  the mount, forest, crf, publish, total),
+  latency (depth stamp to labels published), fps, the counts processed / dropped / rejected,
+  the share of pixels the floor gate skipped (`floor_share`) and the mount in use (`mount`:
+  height, pitch, roll, sensor, source "frame" | "estimated", times the camera was seen to move).
+
+Each frame is labelled with its camera's mount (`services/worker_mount.py`): the one the
+frames carry (`topseg driver --mount`), or, when they carry none, one the worker estimates
+from the camera's first frames (those frames wait for it, a second at most) and logs. The
+mount is checked again every `--mount-check` seconds against an estimate from the newest
+frames; a camera that moved is logged as a warning ("camera cell/cam0 moved: height 3.31 ->
+3.12 m ..."), counted in the stats and labelled with the new estimate. A camera whose mount
+lies outside what the model was trained for is warned about once.
 
 Only the newest frame is kept: one `zenoh.handlers.RingChannel(1)` per camera, so a slow
 worker skips frames and its memory never grows. Skipped frames are counted from gaps in
@@ -29,6 +40,8 @@ from typing import TYPE_CHECKING, Any
 
 from topseg.services import zenoh_session
 from topseg.services.lifecycle import ServiceLifecycle
+from topseg.services.worker_mount import MountWatch, MountWatchConfig
+from topseg.services.worker_mount import warm_up as mount_warm_up
 
 if TYPE_CHECKING:
     from topseg.core.segmenter import Segmenter
@@ -57,6 +70,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         metavar="CELL/CAMERA",
         help="serve only these cameras (default: every camera seen on topseg/*/*/depth)",
+    )
+    parser.add_argument(
+        "--mount-check",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="re-estimate each camera's mount from its newest frames this often, to catch a "
+        "camera that was bumped; 0 = never (default: %(default)s s)",
+    )
+    parser.add_argument(
+        "--sensor",
+        metavar="NAME",
+        help="sensor named in mounts the worker estimates (default: guessed from the frames' "
+        "size and focal length)",
     )
     parser.add_argument(
         "--lossless",
@@ -95,6 +122,8 @@ class CameraState:
     last_seq: int | None = None
     last_time: float | None = None
     fps: float = 0.0
+    watch: MountWatch | None = None
+    warned_outside: bool = False
 
     def note_seq(self, seq: int) -> None:
         """Count the frames skipped between the last labelled seq and this one."""
@@ -125,6 +154,7 @@ class Worker:
         import zenoh
 
         self.args, self.session, self.segmenter = args, session, segmenter
+        self.mount_config = mount_config(args)
         self.cameras: dict[tuple[str, str], CameraState] = {}
         self.depth_keys: dict[str, tuple[str, str]] = {}  # the doorbell's cache of served keys
         self.bell = threading.Condition()
@@ -186,6 +216,7 @@ class Worker:
         from topseg.core.formats import wire
 
         state = CameraState(cell, camera)
+        state.watch = MountWatch(f"{cell}/{camera}", self.mount_config)
         publish = dict(congestion_control=self.congestion, express=True)
         state.labels_pub = self.session.declare_publisher(wire.labels_key(cell, camera), **publish)
         state.stats_pub = self.session.declare_publisher(wire.stats_key(cell, camera), **publish)
@@ -215,7 +246,7 @@ class Worker:
         for cell, camera in sorted(new):
             if (cell, camera) not in self.cameras:
                 self.serve(cell, camera, own_subscriber=True)
-        busy = False
+        busy = self.handle_due()
         if self.shared_sub is not None:
             sample = self.shared_sub.handler.try_recv()
             if sample is not None:
@@ -237,7 +268,19 @@ class Worker:
         while not svc.stopping:
             svc.beat()  # watchdog ping from the serving loop, STATUS= every few s
             if not self.handle_ready():
-                self.wait(svc.tick)
+                due = [s.watch.seconds_to_due() for s in self.cameras.values()]
+                due = [d for d in due if d is not None]
+                self.wait(min([svc.tick, *due]))
+
+    def handle_due(self) -> bool:
+        """Label the frames that waited for a first mount estimate whose time is up."""
+        busy = False
+        for state in list(self.cameras.values()):
+            if state.watch.due():
+                t0 = time.perf_counter()
+                self.label_all(state, state.watch.flush(), t0, t0)
+                busy = True
+        return busy
 
     def handle(self, sample, state: CameraState | None) -> None:
         """Decode, label and publish one depth message; count and drop what is not one."""
@@ -258,28 +301,68 @@ class Worker:
             self.reject(state, f"bad depth message: {exc}")
             return
         t1 = time.perf_counter()
+        released = state.watch.take(frame)  # may estimate or re-check the mount
+        self.label_all(state, released, t0, t1)
+
+    def label_all(self, state: CameraState, frames: list, t0: float, t1: float) -> None:
+        """Label what the camera's mount watch released (`t0`: the message was taken, `t1`:
+        decoded; now the mount is settled): all of it with --lossless, else only the newest
+        (the others count as dropped)."""
+        if frames and not self.args.lossless:
+            frames = frames[-1:]
+        for frame in frames:
+            self.label_one(state, frame, t0, t1, time.perf_counter())
+            t0 = t1 = time.perf_counter()
+
+    def label_one(self, state: CameraState, frame, t0: float, t1: float, tm: float) -> None:
+        """Label one decoded frame with the camera's mount and publish labels and stats
+        (`t0` taken, `t1` decoded, `tm` mount settled: perf_counter seconds)."""
+        from topseg.core.formats import wire
+
+        mount = state.watch.mount
+        if mount is not None and not state.warned_outside:
+            why = self.segmenter.outside_trained_for(mount)
+            if why:
+                state.warned_outside = True
+                log.warning(
+                    "camera %s/%s lies outside what model %s was trained for: %s; its labels "
+                    "may be poor",
+                    state.cell,
+                    state.camera,
+                    self.segmenter.model_id,
+                    why,
+                )
         try:
-            result = self.segmenter.label(frame.depth)
+            result = self.segmenter.label(
+                frame.depth, frame.intrinsics, f"frame {frame.seq}", mount=mount
+            )
         except Exception as exc:  # a well-formed frame the forest or CRF cannot take
             self.reject(state, f"cannot label frame {frame.seq}: {type(exc).__name__}: {exc}")
             return
-        t2 = time.perf_counter()
+        t3 = time.perf_counter()
         out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
         state.labels_pub.put(wire.encode_labels(out))
-        t3 = time.perf_counter()
+        t4 = time.perf_counter()
         state.note_seq(frame.seq)
         state.counts["processed"] += 1
-        state.note_done(t3)
+        state.note_done(t4)
         timings = {
             "receive": 1000 * (t1 - t0),
+            "mount": 1000 * (tm - t1),
             "forest": result.timings.forest_ms,
             "crf": result.timings.crf_ms,
-            "publish": 1000 * (t3 - t2),
-            "total": 1000 * (t3 - t0),
+            "publish": 1000 * (t4 - t3),
+            "total": 1000 * (t4 - t0),
         }
         if frame.stamp_ns:  # end to end: capture (driver host clock) -> labels published
             timings["latency"] = max(0.0, (time.time_ns() - frame.stamp_ns) / 1e6)
-        self.publish_stats(state, timings, seq=frame.seq, frame_id=frame.frame_id)
+        self.publish_stats(
+            state,
+            timings,
+            seq=frame.seq,
+            frame_id=frame.frame_id,
+            floor_share=min(1.0, max(0.0, float(result.floor_share))),
+        )
 
     def reject(self, state: CameraState, why: str) -> None:
         """Count a message that could not be labelled, log it (sparingly), publish the counts."""
@@ -302,6 +385,9 @@ class Worker:
             "counts": dict(state.counts),
             **extra,
         }
+        mount = state.watch.stats() if state.watch is not None else None
+        if mount is not None:
+            stats["mount"] = mount
         state.stats_pub.put(wire.encode_stats(stats))
 
     def close(self) -> None:
@@ -332,6 +418,21 @@ def status_line(worker: Worker) -> str:
     return "serving " + "; ".join(parts)
 
 
+def mount_config(args: argparse.Namespace) -> MountWatchConfig:
+    """The mount estimate's settings from the worker's options; TopsegError when bad."""
+    from topseg.core.errors import TopsegError
+
+    check = getattr(args, "mount_check", 30.0)
+    if not check >= 0:
+        raise TopsegError(f"--mount-check must be >= 0 s, got {check}")
+    sensor = getattr(args, "sensor", None)
+    if sensor is not None:
+        from topseg.core.sensors import get_sensor
+
+        get_sensor(sensor)  # an unknown name fails here, in one line
+    return MountWatchConfig(recheck_s=check, sensor=sensor)
+
+
 def load_segmenter(model: str | None, crf_mode: str) -> Segmenter:
     """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`.
 
@@ -347,10 +448,12 @@ def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; a bad camera name, Zenoh config or model fails first (2)."""
     for text in args.cameras or ():
         parse_camera(text)  # bad names fail before anything is loaded
+    mount_config(args)  # so do a bad --mount-check or --sensor
     svc = ServiceLifecycle("worker", args)  # so does a bad Zenoh config
     segmenter = load_segmenter(args.model, args.crf)  # ModelFileError: one line, exit 2
     t0 = time.perf_counter()
     segmenter.warm_up()
+    mount_warm_up()
     log.info("model %s loaded and compiled in %.1f s", segmenter.model_id, time.perf_counter() - t0)
 
     with svc:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from netutil import free_port, wait_for
 
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.formats.recording import RecordingWriter
 from topseg.core.synth.procedural import procedural_frame
@@ -26,7 +26,7 @@ K = KINECT_V1.scaled_to(160, 120)
 def frames_and_truth(n=N):
     """n labelled procedural top-view frames, the same every call."""
     rng = np.random.default_rng(0)
-    return [procedural_frame(rng, TopViewMount(K)) for _ in range(n)]
+    return [procedural_frame(rng, TopViewMount(K, PAPER_MOUNT.height_mm)) for _ in range(n)]
 
 
 @pytest.fixture(scope="module")
@@ -244,3 +244,91 @@ def test_default_config_rendezvous_outlives_the_port_holder():
         for s in (a, b, c):
             if s is not None and not s.is_closed():
                 s.close()
+
+
+# ---------------------------------------------------------------------------- the mount
+
+TILTED = TopViewMount(K, 3120.0, 4.5, -1.25, "kinect_v1")
+
+
+def write_mount_file(path, mount):
+    """A mount file as `topseg calibrate --out` writes it (its `mount` is what matters here)."""
+    path.write_text(json.dumps({"topseg_mount": 1, "mount": mount.to_dict()}))
+    return path
+
+
+def test_driver_with_a_mount_file_sends_it_with_every_frame_and_in_info(
+    listen, recording, tmp_path
+):
+    import msgpack
+
+    mount_file = write_mount_file(tmp_path / "mount-cam0.json", TILTED)
+    port, cell = free_port(), "svc7"
+    listener = listen(port, cell)
+    proc = start_driver(
+        port, cell, "--source", f"replay:{recording}", "--loop", "--mount", str(mount_file)
+    )
+    try:
+        wait_for(lambda: len(listener.depth) >= N, what=f"{N} depth frames")
+        info = listener.info()[0]
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    assert info["mount"] == TILTED.to_dict() and info["mount_file"] == str(mount_file)
+    assert "mount from" in err and "3120 mm" in err
+    for b in listener.depth:
+        msg = msgpack.unpackb(b)  # read apart from topseg's decoder: the documented map
+        assert msg["v"] == 2
+        assert msg["mount"] == {
+            "intrinsics": {"width": 160, "height": 120, "fx": K.fx, "fy": K.fy, "cx": K.cx,
+                           "cy": K.cy},
+            "height_mm": 3120.0, "pitch_deg": 4.5, "roll_deg": -1.25, "sensor": "kinect_v1",
+        }  # fmt: skip
+        assert wire.decode_depth(b).mount == TILTED
+
+
+def test_a_replay_keeps_the_recorded_mounts_and_a_mount_file_overrides_them(listen, tmp_path):
+    rec = tmp_path / "mounted.mcap"
+    mounts = [TopViewMount(K, 2900.0 + 10 * i, 1.0, 0.5, "kinect_v1") for i in range(N)]
+    with RecordingWriter(rec) as w:
+        for i, ((depth, _), m) in enumerate(zip(frames_and_truth(), mounts, strict=True)):
+            t = 1_000_000_000 + i * 20_000_000
+            w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t, "", m)), t)
+    port, cell = free_port(), "svc8"
+    listener = listen(port, cell)
+    proc = start_driver(port, cell, "--source", f"replay:{rec}", "--as-fast-as-possible")
+    assert proc.wait(timeout=30) == 0, proc.stderr.read()
+    wait_for(lambda: len(listener.depth) == N, 5, "all frames")
+    assert [wire.decode_depth(b).mount for b in listener.depth] == mounts
+
+    listener.depth.clear()
+    mount_file = write_mount_file(tmp_path / "m.json", TILTED)
+    proc = start_driver(
+        port, cell, "--source", f"replay:{rec}", "--as-fast-as-possible", "--mount", mount_file
+    )
+    assert proc.wait(timeout=30) == 0, proc.stderr.read()
+    wait_for(lambda: len(listener.depth) == N, 5, "all frames again")
+    assert all(wire.decode_depth(b).mount == TILTED for b in listener.depth)
+
+
+@pytest.mark.parametrize("damage", ["size", "missing", "not-json", "not-a-mount"])
+def test_a_mount_file_that_does_not_fit_exits_2_with_one_line(recording, tmp_path, damage):
+    path = tmp_path / "mount.json"
+    if damage == "size":
+        write_mount_file(path, TopViewMount(KINECT_V1, 3100.0))
+    elif damage == "not-json":
+        path.write_text("{not json")
+    elif damage == "not-a-mount":
+        path.write_text(json.dumps({"topseg_mount": 1, "mount": {"height_mm": "high"}}))
+    proc = start_driver(
+        free_port(), "svc9", "--source", f"replay:{recording}", "--loop", "--mount", path
+    )
+    _, err = proc.communicate(timeout=60)
+    lines = err.strip().splitlines()
+    assert proc.returncode == 2, err
+    assert lines[-1].startswith("topseg driver: error:") and str(path) in lines[-1], err
+    assert "Traceback" not in err
+    if damage == "size":
+        assert "is for 640x480 frames but the source sends 160x120" in lines[-1]

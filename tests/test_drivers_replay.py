@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from topseg.core.camera import KINECT_V1, TOP_VIEW, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.recording import RecordingWriter
@@ -17,7 +17,7 @@ from topseg.drivers.fakenect_dump import quantisation_step_mm, write_dump
 FAST = SourceOptions(realtime=False)
 
 
-SMALL = TopViewMount(KINECT_V1.scaled_to(160, 120))
+SMALL = TopViewMount(KINECT_V1.scaled_to(160, 120), PAPER_MOUNT.height_mm)
 
 
 def scene(rng, mount=SMALL):
@@ -133,7 +133,7 @@ def test_png_folder_refuses_8_bit(tmp_path):
 
 def test_fakenect_dump_replay(tmp_path):
     rng = np.random.default_rng(3)
-    originals = [scene(rng, TOP_VIEW)[0] for _ in range(3)]
+    originals = [scene(rng, PAPER_MOUNT)[0] for _ in range(3)]
     write_dump(tmp_path / "dump", originals)
     with open_source(f"replay:{tmp_path / 'dump'}", FAST) as src:
         got = [f.depth.depth for f in src.frames()]
@@ -194,3 +194,23 @@ def test_input_frames_names_what_segment_writes(tmp_path, frames):
     ]:
         with pytest.raises(TopsegError, match=message):
             list(input_frames(path))
+
+
+def test_recorded_mounts_reach_the_frames_of_replay_and_segment(tmp_path):
+    """A recording made with a mount (v2 messages) hands it to every reader of its frames."""
+    from topseg.drivers.replay import input_frames
+
+    k = SMALL.intrinsics
+    mounts = [TopViewMount(k, 3000.0 + 100 * i, 2.0, -1.0, "kinect_v2") for i in range(3)]
+    rec = tmp_path / "mounted.mcap"
+    with RecordingWriter(rec) as w:
+        for i, m in enumerate(mounts):
+            depth = np.full(k.shape, 2500 + i, np.uint16)
+            frame = wire.DepthFrame(depth, k, i, 10**9 + i, "cam0", m if i != 1 else None)
+            w.write(wire.depth_key(), wire.encode_depth(frame), 10**9 + i)
+    expected = [mounts[0], None, mounts[2]]
+    assert [f.mount for f in input_frames(rec)] == expected  # `topseg segment`'s reader
+    with open_source(f"replay:{rec}", FAST) as src:
+        got = [f.depth.mount for f in src.frames()]
+        assert src.info()["mount"] == mounts[2].to_dict()
+    assert got == expected

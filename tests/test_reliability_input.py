@@ -19,7 +19,7 @@ from netutil import Services, Tap, free_port, wait_for
 from PIL import Image
 
 from topseg.core import forest
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import recording, wire
 from topseg.core.formats.wire import WireError
 from topseg.core.synth.procedural import procedural_frame
@@ -32,12 +32,20 @@ FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCh
 
 
 def good_depth(seq=0, rng=None, k=K):
-    depth, _ = procedural_frame(rng or np.random.default_rng(seq), TopViewMount(k))
+    depth, _ = procedural_frame(
+        rng or np.random.default_rng(seq), TopViewMount(k, PAPER_MOUNT.height_mm)
+    )
     return wire.encode_depth(wire.DepthFrame(depth, k, seq, 1000 + seq, "cam0"))
 
 
 GOOD = good_depth()
 FULL = good_depth(k=KINECT_V1)
+#: a version-2 message with a (tilted) mount: the mount map is damaged like any other field
+MOUNTED = wire.encode_depth(
+    wire.DepthFrame(
+        wire.decode_depth(GOOD).depth, K, 1, 1001, "cam0", TopViewMount(K, 3150.0, 3.5, -2.0)
+    )
+)
 
 
 def decode_bounded(decode, data: bytes):
@@ -56,10 +64,15 @@ def decode_bounded(decode, data: bytes):
 @given(st.data())
 @FUZZ
 def test_flipped_bytes_of_valid_messages(data):
-    msg = bytearray(data.draw(st.sampled_from([GOOD, FULL])))
+    msg = bytearray(data.draw(st.sampled_from([GOOD, FULL, MOUNTED])))
     for _ in range(data.draw(st.integers(1, 8))):
-        # most damage lands in the header: the first 200 bytes hold every field but data
-        i = data.draw(st.integers(0, min(len(msg), 200) - 1) | st.integers(0, len(msg) - 1))
+        # most damage lands in the fields: the first 200 bytes hold those before the data, the
+        # last 250 those after it (the intrinsics and the mount)
+        i = data.draw(
+            st.integers(0, 199)
+            | st.integers(len(msg) - 250, len(msg) - 1)
+            | st.integers(0, len(msg) - 1)
+        )
         msg[i] = data.draw(st.integers(0, 255))
     decode_bounded(wire.decode_depth, bytes(msg))
     decode_bounded(wire.decode_labels, bytes(msg))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from netutil import Services, free_port, wait_for
 
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.formats.recording import RecordingWriter
 from topseg.core.synth.procedural import procedural_frame
@@ -33,7 +33,7 @@ def recording(tmp_path_factory):
     rng = np.random.default_rng(7)
     with RecordingWriter(path) as w:
         for i in range(FPS):
-            depth, _ = procedural_frame(rng, TopViewMount(K))
+            depth, _ = procedural_frame(rng, TopViewMount(K, PAPER_MOUNT.height_mm))
             t = 10**18 + i * 10**9 // FPS
             w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t)), t)
     return path

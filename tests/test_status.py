@@ -118,3 +118,31 @@ def test_the_one_percentile_is_numpys_inverted_cdf():
             assert percentile(list(values), q) == expected
     assert percentile([], 50) is None
     assert status.percentile is percentile
+
+
+def test_report_and_table_show_floor_share_and_the_mount_in_use():
+    seen = status.Observed(window_s=2.0)
+    seen.alive = {("c", "k", "driver"), ("c", "k", "worker")}
+    mount = {
+        "height_mm": 3120.0, "pitch_deg": 3.0, "roll_deg": 4.0, "sensor": "kinect_v2",
+        "source": "estimated", "moved": 1,
+    }  # fmt: skip
+    seen.stats[("c", "k")] = [
+        {
+            "stamp_ns": i * 100_000_000,
+            "timings_ms": {},
+            "floor_share": share,
+            "mount": mount,
+            "counts": {"processed": i, "dropped": 0, "rejected": 0},
+        }
+        for i, share in enumerate((0.6, 0.7))
+    ]
+    rep = status.report(seen)
+    w = rep["cameras"][0]["worker"]
+    assert w["floor_share"] == pytest.approx(0.65) and w["mount"] == mount
+    json.dumps(rep)  # --json keeps working
+    table = status.format_table(rep)
+    head, row = table.splitlines()[:2]
+    assert "FLOOR" in head and "MOUNT" in head
+    assert "65%" in row and "3.12m 5.0deg est MOVED x1" in row  # tilt of pitch 3, roll 4
+    assert status.mount_cell({**mount, "source": "frame", "moved": 0}) == "3.12m 5.0deg frame"

@@ -48,7 +48,8 @@ def test_full_size_depth_round_trip_and_layout():
     # the raw layout is the documented one: little-endian, row-major
     msg = msgpack.unpackb(data)
     assert msg["data"] == depth.astype("<u2").tobytes()
-    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 1)
+    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 2)
+    assert "mount" not in msg  # no mount known, none sent
     assert not back.depth.flags.writeable  # a view of the message, not a copy
 
 
@@ -98,7 +99,7 @@ def test_stats_round_trip():
         "counts": {"processed": 100, "dropped": 3, "rejected": 1},
     }
     back = wire.decode_stats(wire.encode_stats(stats))
-    assert back == {"v": 1, **stats}
+    assert back == {"v": 2, **stats}
 
 
 # ----------------------------------------------------------------------------- rejections
@@ -128,7 +129,8 @@ def test_unknown_label_ids_are_refused_both_ways():
         ("data", b"\0" * 7, "bytes"),
         ("data", "text", "binary"),
         ("encoding", "8UC1", "encoding"),
-        ("v", 2, "version"),
+        ("v", 3, "newer"),
+        ("v", 0, "version"),
         ("v", True, "version"),
         ("seq", -1, "seq"),
         ("seq", 1.5, "seq"),
@@ -230,17 +232,30 @@ def test_any_value_in_any_depth_field(field, value, seed):
 
 
 @given(
-    st.sampled_from(["stamp_ns", "seq", "role", "fps", "timings_ms", "counts", "model_id", "zzz"]),
+    st.sampled_from(
+        [
+            "stamp_ns",
+            "seq",
+            "role",
+            "fps",
+            "timings_ms",
+            "counts",
+            "model_id",
+            "zzz",
+            "floor_share",
+            "mount",
+        ]
+    ),
     msgpack_values,
 )
 @FUZZ
 def test_any_value_in_any_stats_field(field, value):
-    msg = {"v": 1, "stamp_ns": 1, "timings_ms": {"a": 1.0}, "counts": {"b": 2}, field: value}
+    msg = {"v": 2, "stamp_ns": 1, "timings_ms": {"a": 1.0}, "counts": {"b": 2}, field: value}
     try:
         out = wire.decode_stats(msgpack.packb(msg))
     except WireError:
         return
-    assert set(out) <= wire._STATS_REQUIRED | wire._STATS_OPTIONAL
+    assert set(out) <= wire._STATS_REQUIRED | wire._STATS_OPTIONAL | wire._STATS_OPTIONAL_V2
 
 
 @given(st.integers(1, 5000), st.integers(1, 5000), st.integers(0, 64))
@@ -313,3 +328,154 @@ def test_intrinsics_survive_exactly():
     k = Intrinsics(33, 20, 31.123456789, 29.5, 16.25, -3.5)
     f = DepthFrame(np.ones((20, 33), np.uint16), k)
     assert wire.decode_depth(wire.encode_depth(f)).intrinsics == k
+
+
+# ----------------------------------------------------------------------------- the mount (v2)
+
+
+def a_mount(k=None, height=3312.5, pitch=4.25, roll=-1.5, sensor="kinect_v2"):
+    """A tilted mount for frames of intrinsics `k` (small ones by default)."""
+    from topseg.core.camera import TopViewMount
+
+    return TopViewMount(k or KINECT_V1.scaled_to(9, 6), height, pitch, roll, sensor)
+
+
+def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
+    rng = np.random.default_rng(10)
+    f = small_depth(rng)
+    m = a_mount(f.intrinsics)
+    framed = DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", m)
+    data = wire.encode_depth(framed)
+    msg = msgpack.unpackb(data)
+    assert msg["v"] == 2 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
+    back = wire.decode_depth(data)
+    assert_same_depth(framed, back)
+    assert back.mount == m
+    assert wire.decode_depth(wire.encode_depth(f)).mount is None
+
+
+def test_version_1_depth_messages_still_decode():
+    msg = _depth_map(np.random.default_rng(11))
+    msg["v"] = 1
+    frame = wire.decode_depth(msgpack.packb(msg))
+    assert frame.mount is None
+    msg["mount"] = a_mount().to_dict()  # version 1 had no mount
+    with pytest.raises(WireError, match="unknown"):
+        wire.decode_depth(msgpack.packb(msg))
+
+
+def test_an_old_reader_refuses_a_new_message_and_a_new_reader_says_upgrade(monkeypatch):
+    rng = np.random.default_rng(12)
+    f = small_depth(rng)
+    data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=a_mount(f.intrinsics)))
+    stats = wire.encode_stats({"stamp_ns": 1, "timings_ms": {}, "counts": {}, "floor_share": 0.5})
+    # what a version-1 topseg is: one readable version; it names the version and refuses
+    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1,))
+    for decode, payload in ((wire.decode_depth, data), (wire.decode_stats, stats)):
+        with pytest.raises(WireError, match=r"schema version 2 is newer .*upgrade topseg"):
+            decode(payload)
+    monkeypatch.undo()
+    msg = msgpack.unpackb(data)
+    msg["v"] = 3
+    with pytest.raises(WireError) as err:
+        wire.decode_depth(msgpack.packb(msg))
+    assert str(err.value) == (
+        "schema version 3 is newer than this topseg reads (1, 2): upgrade topseg on this host"
+    )
+
+
+def _mount_msg(**change):
+    rng = np.random.default_rng(13)
+    f = small_depth(rng)
+    msg = msgpack.unpackb(wire.encode_depth(DepthFrame(f.depth, f.intrinsics)))
+    mount = a_mount(f.intrinsics).to_dict()
+    for path, value in change.items():
+        *outer, last = path.split("__")
+        target = mount
+        for name in outer:
+            target = target[name]
+        if value is KeyError:
+            target.pop(last, None)
+        else:
+            target[last] = value
+    msg["mount"] = mount
+    return msgpack.packb(msg)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"height_mm": 0.0}, "height_mm"),
+        ({"height_mm": float("inf")}, "finite"),
+        ({"height_mm": "3300"}, "number"),
+        ({"height_mm": KeyError}, "missing"),
+        ({"pitch_deg": 120.0}, "pitch_deg"),
+        ({"roll_deg": float("nan")}, "finite"),
+        ({"sensor": ""}, "sensor"),
+        ({"sensor": 7}, "sensor"),
+        ({"sensor": "s" * 300}, "sensor"),
+        ({"colour": "red"}, "unknown"),
+        ({"intrinsics": [1, 2]}, "map"),
+        ({"intrinsics__width": 10}, "mount is for 10x6"),
+        ({"intrinsics__fx": -1.0}, "focal"),
+        ({"intrinsics__cy": 1e9}, "principal"),
+        ({"intrinsics__cx": KeyError}, "missing"),
+    ],
+)
+def test_bad_mount_field_is_named(change, match):
+    with pytest.raises(WireError, match=match):
+        wire.decode_depth(_mount_msg(**change))
+
+
+def test_a_mount_of_another_size_is_refused_when_framed():
+    with pytest.raises(WireError, match="mount is for"):
+        DepthFrame(np.zeros((6, 9), np.uint16), KINECT_V1.scaled_to(9, 6), mount=a_mount(KINECT_V1))
+    with pytest.raises(WireError, match="TopViewMount"):
+        DepthFrame(np.zeros((6, 9), np.uint16), KINECT_V1.scaled_to(9, 6), mount={"h": 1})
+
+
+@given(
+    st.sampled_from(sorted(wire._MOUNT_FIELDS | {"zz"})),
+    msgpack_values,
+    st.sampled_from(sorted(wire._INTRINSICS_FIELDS)),
+    msgpack_values,
+)
+@FUZZ
+def test_any_value_in_any_mount_field(field, value, kfield, kvalue):
+    msg = msgpack.unpackb(_mount_msg())
+    msg["mount"][field] = value
+    try:
+        frame = wire.decode_depth(msgpack.packb(msg))
+    except WireError:
+        pass
+    else:  # accepted: a coherent frame and mount
+        assert frame.mount is not None and frame.mount.intrinsics.shape == frame.depth.shape
+    msg = msgpack.unpackb(_mount_msg())
+    msg["mount"]["intrinsics"][kfield] = kvalue
+    try:
+        frame = wire.decode_depth(msgpack.packb(msg))
+    except WireError:
+        return
+    assert frame.mount.intrinsics.shape == frame.depth.shape
+
+
+def test_stats_carry_floor_share_and_the_mount_in_use():
+    mount = {
+        "height_mm": 3120.0, "pitch_deg": 2.0, "roll_deg": -0.5, "sensor": "kinect_v1",
+        "source": "estimated", "moved": 1,
+    }  # fmt: skip
+    stats = {"stamp_ns": 5, "timings_ms": {}, "counts": {}, "floor_share": 0.62, "mount": mount}
+    assert wire.decode_stats(wire.encode_stats(stats)) == {"v": 2, **stats}
+    for bad, match in (
+        ({"floor_share": 1.5}, "floor_share"),
+        ({"mount": {**mount, "source": "guess"}}, "source"),
+        ({"mount": {**mount, "moved": -1}}, "moved"),
+        ({"mount": {**mount, "height_mm": 1e9}}, "height_mm"),
+        ({"mount": {"height_mm": 3000.0}}, "missing"),
+    ):
+        with pytest.raises(WireError, match=match):
+            wire.encode_stats({**stats, **bad})
+    old = {"v": 1, "stamp_ns": 5, "timings_ms": {}, "counts": {}}
+    assert wire.decode_stats(msgpack.packb(old)) == old  # version 1 stats still read
+    with pytest.raises(WireError, match="unknown"):  # ... and had no floor_share
+        wire.decode_stats(msgpack.packb({**old, "floor_share": 0.5}))

@@ -13,13 +13,13 @@ import zenoh
 from netutil import free_port, wait_for
 
 from topseg.core import crf, forest, metrics
-from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
-MOUNT = TopViewMount(K)
+MOUNT = TopViewMount(K, PAPER_MOUNT.height_mm)
 
 
 def frames(seed, n):
@@ -136,7 +136,9 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     last = peer.stats[-1]
     assert last["counts"] == {"processed": 6, "dropped": 2, "rejected": 0}
     assert last["role"] == "worker" and last["model_id"] == model_path.name
-    assert set(last["timings_ms"]) == {"receive", "forest", "crf", "publish", "total", "latency"}
+    assert set(last["timings_ms"]) == {
+        "receive", "mount", "forest", "crf", "publish", "total", "latency"
+    }  # fmt: skip
     assert last["timings_ms"]["total"] >= last["timings_ms"]["forest"] > 0
     assert last["seq"] == 7 and last["fps"] > 0
 
@@ -155,7 +157,7 @@ def garbage(rng):
     yield msgpack.packb({**good, "fx": float("nan")})
     yield msgpack.packb({**good, "seq": -1})
     yield msgpack.packb({k: v for k, v in good.items() if k != "encoding"})
-    yield msgpack.packb({**good, "v": 2})
+    yield msgpack.packb({**good, "v": 3})  # a newer version than this worker reads
     yield msgpack.packb({**good, "data": "text"})
 
 
@@ -310,3 +312,103 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     assert [wire.decode_labels(b).seq for b in peer.labels] == list(range(n))
     wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == n, 10, "stats")
     assert peer.stats[-1]["counts"] == {"processed": n, "dropped": 0, "rejected": 0}
+
+
+# ---------------------------------------------------------------------------- the mount
+
+
+def floor_frames(seed, n, height_mm):
+    """n procedural frames from a camera `height_mm` up, each with enough floor to calibrate."""
+    from topseg.core.calibration import CalibrationError, estimate_mount
+
+    rng, out = np.random.default_rng(seed), []
+    mount = TopViewMount(K, height_mm)
+    while len(out) < n:
+        depth, _ = procedural_frame(rng, mount, n_objects=3)
+        try:
+            estimate_mount([depth], K, "kinect_v1")
+        except CalibrationError:
+            continue
+        out.append(depth)
+    return out
+
+
+@pytest.fixture(scope="module")
+def one_mount_model(model_path, tmp_path_factory):
+    """The tiny forest with a header saying it was trained for one mount: 3.5 m, straight down."""
+    model, _ = forest.load_model(model_path)
+    path = tmp_path_factory.mktemp("model") / "one-mount.npz"
+    camera = TopViewMount(K, PAPER_MOUNT.height_mm).to_dict()
+    forest.save_model(path, model, {"dataset": {"attrs": {"camera": camera}}})
+    return path
+
+
+def test_worker_estimates_a_mount_reports_a_bumped_camera_and_warns_once(peers, one_mount_model):
+    port, cell = free_port(), "wk6"
+    peer = peers(port, cell)
+    proc = start_worker(
+        port, one_mount_model, "--lossless", "--crf", "none", "--cameras", f"{cell}/cam0",
+        "--mount-check", "0.5",
+    )  # fmt: skip
+    try:
+        wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
+        first = floor_frames(7, 10, 3000.0)
+        for seq, depth in enumerate(first):  # no mount on the frames: the worker estimates one
+            peer.put_depth(depth, seq)
+        wait_for(lambda: len(peer.labels) == 10, 60, "labels for the first frames")
+        wait_for(lambda: len(peer.stats) >= 10, 10, "their stats")
+        estimated = peer.stats[-1]["mount"]
+        time.sleep(0.6)  # the re-check is due: the camera is "bumped" 40 cm lower
+        bumped = floor_frames(8, 8, 3400.0)
+        for seq, depth in enumerate(bumped, start=10):
+            peer.put_depth(depth, seq)
+            time.sleep(0.15)
+        wait_for(lambda: len(peer.labels) == 18, 60, "labels for the bumped frames")
+        wait_for(lambda: peer.stats[-1]["mount"]["moved"] == 1, 10, "the move in the stats")
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    assert estimated["source"] == "estimated" and estimated["moved"] == 0
+    assert abs(estimated["height_mm"] - 3000.0) < 20 and abs(estimated["pitch_deg"]) < 0.5
+    assert f"camera {cell}/cam0: estimated mount from 10 frames: height 3.00 m" in err
+    assert f"camera {cell}/cam0 moved: height 3.00 -> 3.40 m" in err
+    last = peer.stats[-1]
+    assert last["mount"]["source"] == "estimated" and abs(last["mount"]["height_mm"] - 3400) < 20
+    assert 0.0 <= last["floor_share"] <= 1.0
+    # the model was trained for 3.5 m only: said once for this camera, clearly
+    assert err.count(f"camera {cell}/cam0 lies outside what model one-mount.npz") == 1, err
+    assert "this camera is 3.00 m up" in err
+
+
+def test_worker_labels_with_the_frames_mount_and_reports_when_it_changes(peers, model_path):
+    port, cell = free_port(), "wk7"
+    peer = peers(port, cell)
+    proc = start_worker(
+        port, model_path, "--lossless", "--crf", "none", "--cameras", f"{cell}/cam0"
+    )
+    before, after = TopViewMount(K, 3100.0, 2.0, -1.0), TopViewMount(K, 2700.0, 2.0, -1.0)
+    (depth, _), (depth2, _) = frames(9, 2)
+    try:
+        wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
+        for seq in range(3):
+            peer.pub.put(wire.encode_depth(wire.DepthFrame(depth, K, seq, 1, "cam0", before)))
+        wait_for(lambda: len(peer.labels) == 3, 60, "labels at once: no estimate to wait for")
+        for seq in range(3, 5):
+            peer.pub.put(wire.encode_depth(wire.DepthFrame(depth2, K, seq, 1, "cam0", after)))
+        wait_for(lambda: len(peer.stats) >= 5, 30, "stats for every frame")
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    mounts = [s["mount"] for s in peer.stats]
+    assert mounts[0] == {
+        "height_mm": 3100.0, "pitch_deg": 2.0, "roll_deg": -1.0, "sensor": "kinect_v1",
+        "source": "frame", "moved": 0,
+    }  # fmt: skip
+    assert mounts[-1]["height_mm"] == 2700.0 and mounts[-1]["moved"] == 1
+    assert f"camera {cell}/cam0: mount from the frames: height 3.10 m" in err
+    assert f"camera {cell}/cam0: the frames' mount changed: height 3.10 -> 2.70 m" in err
+    assert "estimated mount" not in err

@@ -10,6 +10,13 @@ A depth or label message is one msgpack map::
     encoding  "16UC1" (depth, millimetres, 0 = no depth) or "8UC1" (labels)
     data      raw little-endian pixels, row-major, exactly width*height*bytes-per-pixel bytes
     fx, fy, cx, cy  pinhole intrinsics in pixels (depth only)
+    mount     optional (depth only, version 2 on): where the camera hangs, as
+              `TopViewMount.to_dict()`: {intrinsics: {width, height, fx, fy, cx, cy},
+              height_mm, pitch_deg, roll_deg, sensor}; its size is the frame's
+
+Version 2 added `mount` and the worker's `floor_share` and `mount` stats. A reader accepts
+every version in `READABLE_VERSIONS` and refuses a newer one with a line that says to
+upgrade; a version-1 reader refuses version-2 messages ("schema version 2 is not 1").
 
 Labels carry the `seq` and `stamp_ns` of the depth frame they were computed from, and only
 valid label ids (`topseg.core.labels`). A stats message (`encode_stats`) is a small
@@ -32,10 +39,13 @@ import msgpack
 import numpy as np
 
 from topseg.core import labels as label_table
-from topseg.core.camera import KINECT_V1, Intrinsics
+from topseg.core.camera import KINECT_V1, MAX_MOUNT_TILT_DEG, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 
-SCHEMA_VERSION = 1
+#: The version every message is written with.
+SCHEMA_VERSION = 2
+#: The versions this reader decodes (1: no mount, no mount stats).
+READABLE_VERSIONS = (1, 2)
 MAX_SIDE = 4096
 MAX_FRAME_ID = 256
 DEPTH_ENCODING = "16UC1"
@@ -54,7 +64,14 @@ _NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
 
 _FRAME_FIELDS = ("v", "seq", "stamp_ns", "frame_id", "width", "height", "encoding", "data")
 _DEPTH_FIELDS = frozenset((*_FRAME_FIELDS, "fx", "fy", "cx", "cy"))
+_DEPTH_OPTIONAL = frozenset(("mount",))
 _LABEL_FIELDS = frozenset(_FRAME_FIELDS)
+#: The fields of a mount map (`TopViewMount.to_dict()`); the last three default.
+_MOUNT_FIELDS = frozenset(("intrinsics", "height_mm", "pitch_deg", "roll_deg", "sensor"))
+_MOUNT_REQUIRED = frozenset(("intrinsics", "height_mm"))
+_INTRINSICS_FIELDS = frozenset(("width", "height", "fx", "fy", "cx", "cy"))
+#: Bounds of a mount on the wire: sanity, not what a model supports (the worker judges that).
+MOUNT_HEIGHT_MM = (100.0, 50_000.0)
 
 _VALID_LABEL = np.zeros(256, bool)
 _VALID_LABEL[[lab.id for lab in label_table.LABELS]] = True
@@ -70,13 +87,15 @@ class WireError(TopsegError):
 
 @dataclass(frozen=True, eq=False)
 class DepthFrame:
-    """A depth image in millimetres (uint16, 0 = no depth) with its camera and time."""
+    """A depth image in millimetres (uint16, 0 = no depth) with its camera and time, and
+    where the camera hangs when the sender knows it (`mount`, None when it does not)."""
 
     depth: np.ndarray
     intrinsics: Intrinsics = KINECT_V1
     seq: int = 0
     stamp_ns: int = 0
     frame_id: str = ""
+    mount: TopViewMount | None = None
 
     def __post_init__(self) -> None:
         _check_image(self.depth, np.uint16, "depth")
@@ -86,6 +105,19 @@ class DepthFrame:
                 f"{self.intrinsics.shape} (height, width)"
             )
         _check_header(self.seq, self.stamp_ns, self.frame_id)
+        if self.mount is not None:
+            if not isinstance(self.mount, TopViewMount):
+                raise WireError(f"mount must be a TopViewMount, got {type(self.mount).__name__}")
+            check_mount_size(self.mount, self.depth.shape)
+
+
+def check_mount_size(mount: TopViewMount, shape: tuple[int, int]) -> None:
+    """WireError unless `mount`'s intrinsics describe frames of `shape` (rows, cols)."""
+    k = mount.intrinsics
+    if k.shape != tuple(shape):
+        raise WireError(
+            f"the mount is for {k.width}x{k.height} frames, this frame is {shape[1]}x{shape[0]}"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,13 +196,21 @@ def _frame_map(seq: int, stamp_ns: int, frame_id: str, img: np.ndarray, encoding
 
 
 def encode_depth(frame: DepthFrame) -> bytes:
-    """A depth frame as one msgpack message."""
+    """A depth frame as one msgpack message (with its mount when it has one)."""
     if not isinstance(frame, DepthFrame):
         raise WireError(f"encode_depth takes a DepthFrame, got {type(frame).__name__}")
     msg = _frame_map(frame.seq, frame.stamp_ns, frame.frame_id, frame.depth, DEPTH_ENCODING)
     k = frame.intrinsics
     msg.update(fx=float(k.fx), fy=float(k.fy), cx=float(k.cx), cy=float(k.cy))
+    if frame.mount is not None:
+        msg["mount"] = mount_map(frame.mount)
     return _pack(msg)
+
+
+def mount_map(mount: TopViewMount) -> dict:
+    """`mount.to_dict()` checked and with plain Python numbers: what goes on the wire (and
+    into stats and the driver's `info`). WireError when a value is out of bounds."""
+    return check_mount_map(mount.to_dict())
 
 
 def encode_labels(frame: LabelFrame) -> bytes:
@@ -217,14 +257,95 @@ def _unpack(data: Any) -> dict:
     return obj
 
 
-def _check_fields(msg: dict, expected: frozenset[str], what: str) -> None:
-    keys = set(msg)
-    if keys != expected:
-        missing, extra = sorted(expected - keys), sorted(map(_short, keys - expected))
+def _check_version(v: Any) -> int:
+    """The message's schema version, if this reader reads it; WireError saying what to do."""
+    if type(v) is not int:
+        raise WireError(f"schema version {_short(v)} is not an integer")
+    if v not in READABLE_VERSIONS:
+        newest = max(READABLE_VERSIONS)
+        if v > newest:
+            raise WireError(
+                f"schema version {v} is newer than this topseg reads "
+                f"({', '.join(map(str, READABLE_VERSIONS))}): upgrade topseg on this host"
+            )
+        raise WireError(f"schema version {v} is not one this topseg reads ({newest})")
+    return v
+
+
+def _check_fields(
+    msg: dict, expected: frozenset[str], what: str, optional: frozenset[str] = frozenset()
+) -> int:
+    keys, v = set(msg), 0
+    if "v" in keys:  # the version first: a newer message's new fields are not "unknown"
+        v = _check_version(msg["v"])
+        if v < 2:
+            optional = frozenset()
+    if not expected <= keys or not keys <= expected | optional:
+        missing = sorted(expected - keys)
+        extra = sorted(map(_short, keys - expected - optional))
         parts = [f"missing {missing}" if missing else "", f"unknown {extra}" if extra else ""]
         raise WireError(f"{what} message fields: " + "; ".join(p for p in parts if p))
-    if msg["v"] != SCHEMA_VERSION or type(msg["v"]) is not int:
-        raise WireError(f"schema version {_short(msg['v'])} is not {SCHEMA_VERSION}")
+    return v
+
+
+def _fields(table: Any, what: str, allowed: frozenset[str], required: frozenset[str]) -> dict:
+    if not isinstance(table, Mapping):
+        raise WireError(f"{what} must be a map, got {type(table).__name__}")
+    keys = set(table)
+    if not required <= keys or not keys <= allowed:
+        missing = sorted(required - keys)
+        extra = sorted(map(_short, keys - allowed))
+        raise WireError(f"{what} fields: missing {missing}, unknown {extra}")
+    return dict(table)
+
+
+def _intrinsics_in(name: str, msg: Mapping, w: int, h: int) -> Intrinsics:
+    fx, fy = _float(f"{name}fx", msg["fx"]), _float(f"{name}fy", msg["fy"])
+    cx, cy = _float(f"{name}cx", msg["cx"]), _float(f"{name}cy", msg["cy"])
+    if not (0 < fx <= 100 * MAX_SIDE and 0 < fy <= 100 * MAX_SIDE):
+        raise WireError(f"focal lengths {name}fx={fx} fy={fy} must be in (0, {100 * MAX_SIDE}]")
+    if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
+        raise WireError(f"principal point {name}({cx}, {cy}) is far outside the {w}x{h} image")
+    return Intrinsics(w, h, fx, fy, cx, cy)
+
+
+def check_mount_map(d: Any) -> dict:
+    """A mount map (`TopViewMount.to_dict()`'s form) checked field by field and returned with
+    plain Python values; WireError naming the first bad field."""
+    d = _fields(d, "mount", _MOUNT_FIELDS, _MOUNT_REQUIRED)
+    kd = _fields(d["intrinsics"], "mount.intrinsics", _INTRINSICS_FIELDS, _INTRINSICS_FIELDS)
+    w = _int_in("mount.intrinsics.width", kd["width"], 1, MAX_SIDE)
+    h = _int_in("mount.intrinsics.height", kd["height"], 1, MAX_SIDE)
+    k = _intrinsics_in("mount.intrinsics.", kd, w, h)
+    lo, hi = MOUNT_HEIGHT_MM
+    height = _float("mount.height_mm", d["height_mm"])
+    if not lo <= height <= hi:
+        raise WireError(f"mount.height_mm={height} is outside {lo:g}..{hi:g} mm")
+    out: dict[str, Any] = {"intrinsics": k.to_dict(), "height_mm": height}
+    for name in ("pitch_deg", "roll_deg"):
+        if name in d:
+            angle = _float(f"mount.{name}", d[name])
+            if not -MAX_MOUNT_TILT_DEG <= angle <= MAX_MOUNT_TILT_DEG:
+                raise WireError(f"mount.{name}={angle} is outside +-{MAX_MOUNT_TILT_DEG:g} degrees")
+            out[name] = angle
+    if "sensor" in d:
+        if not isinstance(d["sensor"], str) or not _NAME.fullmatch(d["sensor"]):
+            raise WireError(
+                f"mount.sensor {_short(d['sensor'])} must be 1-64 letters, digits, '_', '.', '-'"
+            )
+        out["sensor"] = d["sensor"]
+    return out
+
+
+def mount_from_map(d: Any) -> TopViewMount:
+    """A checked mount map -> TopViewMount; WireError when it is not one."""
+    from topseg.core.config import from_dict
+
+    d = check_mount_map(d)
+    try:
+        return from_dict(TopViewMount, d, "mount", required=("intrinsics", "height_mm"))
+    except (TopsegError, ValueError, TypeError) as exc:
+        raise WireError(f"mount: {exc}") from None
 
 
 def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, int, int, str]:
@@ -248,19 +369,18 @@ def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, 
 
 
 def decode_depth(data: bytes) -> DepthFrame:
-    """Bytes -> DepthFrame, or WireError naming what is wrong."""
+    """Bytes -> DepthFrame (version 1 or 2; `mount` None when the message has none), or
+    WireError naming what is wrong."""
     msg = _unpack(data)
-    _check_fields(msg, _DEPTH_FIELDS, "depth")
+    _check_fields(msg, _DEPTH_FIELDS, "depth", _DEPTH_OPTIONAL)
     depth, seq, stamp, frame_id = _frame_from_map(msg, DEPTH_ENCODING, np.uint16)
     h, w = depth.shape
-    fx, fy = _float("fx", msg["fx"]), _float("fy", msg["fy"])
-    cx, cy = _float("cx", msg["cx"]), _float("cy", msg["cy"])
-    if not (0 < fx <= 100 * MAX_SIDE and 0 < fy <= 100 * MAX_SIDE):
-        raise WireError(f"focal lengths fx={fx} fy={fy} must be in (0, {100 * MAX_SIDE}]")
-    if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
-        raise WireError(f"principal point ({cx}, {cy}) is far outside the {w}x{h} image")
-    k = Intrinsics(w, h, fx, fy, cx, cy)
-    return DepthFrame(depth, k, seq, stamp, frame_id)
+    k = _intrinsics_in("", msg, w, h)
+    mount = None
+    if "mount" in msg:
+        mount = mount_from_map(msg["mount"])
+        check_mount_size(mount, depth.shape)
+    return DepthFrame(depth, k, seq, stamp, frame_id, mount)
 
 
 def decode_labels(data: bytes) -> LabelFrame:
@@ -276,18 +396,24 @@ def decode_labels(data: bytes) -> LabelFrame:
 
 _STATS_REQUIRED = frozenset(("v", "stamp_ns", "timings_ms", "counts"))
 _STATS_OPTIONAL = frozenset(("seq", "role", "model_id", "fps", "frame_id"))
+#: Stats fields from version 2 on: the share of pixels skipped as floor, the mount in use.
+_STATS_OPTIONAL_V2 = frozenset(("floor_share", "mount"))
+#: Where the mount in use came from: the frames, or the worker's own estimate.
+MOUNT_SOURCES = ("frame", "estimated")
+_STATS_MOUNT_FIELDS = frozenset(("height_mm", "pitch_deg", "roll_deg", "sensor", "source", "moved"))
 _MAX_ENTRIES = 64
 
 
 def _check_stats(msg: Mapping) -> dict:
     keys = set(msg)
-    if not _STATS_REQUIRED <= keys or not keys <= _STATS_REQUIRED | _STATS_OPTIONAL:
+    optional = _STATS_OPTIONAL
+    if "v" in keys and _check_version(msg["v"]) >= 2:
+        optional = optional | _STATS_OPTIONAL_V2
+    if not _STATS_REQUIRED <= keys or not keys <= _STATS_REQUIRED | optional:
         missing = sorted(_STATS_REQUIRED - keys)
-        extra = sorted(map(_short, keys - _STATS_REQUIRED - _STATS_OPTIONAL))
+        extra = sorted(map(_short, keys - _STATS_REQUIRED - optional))
         raise WireError(f"stats message fields: missing {missing}, unknown {extra}")
-    if msg["v"] != SCHEMA_VERSION or type(msg["v"]) is not int:
-        raise WireError(f"schema version {_short(msg['v'])} is not {SCHEMA_VERSION}")
-    out: dict[str, Any] = {"v": SCHEMA_VERSION}
+    out: dict[str, Any] = {"v": msg["v"]}
     out["stamp_ns"] = _int_in("stamp_ns", msg["stamp_ns"], 0, _MAX_STAMP)
     if "seq" in msg:
         out["seq"] = _int_in("seq", msg["seq"], 0, _MAX_STAMP)
@@ -302,6 +428,34 @@ def _check_stats(msg: Mapping) -> dict:
             raise WireError(f"fps must be >= 0, got {out['fps']}")
     out["timings_ms"] = _named_numbers(msg["timings_ms"], "timings_ms", _nonneg_float)
     out["counts"] = _named_numbers(msg["counts"], "counts", _count)
+    if "floor_share" in msg:
+        out["floor_share"] = _float("floor_share", msg["floor_share"])
+        if not 0.0 <= out["floor_share"] <= 1.0:
+            raise WireError(f"floor_share must be in 0..1, got {out['floor_share']}")
+    if "mount" in msg:
+        out["mount"] = _check_stats_mount(msg["mount"])
+    return out
+
+
+def _check_stats_mount(table: Any) -> dict:
+    """The worker's mount in use: height, tilt, sensor, where it came from, moves seen."""
+    d = _fields(table, "stats mount", _STATS_MOUNT_FIELDS, _STATS_MOUNT_FIELDS)
+    out: dict[str, Any] = {}
+    lo, hi = MOUNT_HEIGHT_MM
+    out["height_mm"] = _float("mount.height_mm", d["height_mm"])
+    if not lo <= out["height_mm"] <= hi:
+        raise WireError(f"mount.height_mm={out['height_mm']} is outside {lo:g}..{hi:g} mm")
+    for name in ("pitch_deg", "roll_deg"):
+        out[name] = _float(f"mount.{name}", d[name])
+        if abs(out[name]) > MAX_MOUNT_TILT_DEG:
+            raise WireError(f"mount.{name}={out[name]} is outside +-{MAX_MOUNT_TILT_DEG:g} degrees")
+    if not isinstance(d["sensor"], str) or not _NAME.fullmatch(d["sensor"]):
+        raise WireError(f"mount.sensor {_short(d['sensor'])} is not a sensor name")
+    out["sensor"] = d["sensor"]
+    if d["source"] not in MOUNT_SOURCES:
+        raise WireError(f"mount.source {_short(d['source'])} is not one of {MOUNT_SOURCES}")
+    out["source"] = d["source"]
+    out["moved"] = _count("mount.moved", d["moved"])
     return out
 
 
@@ -331,13 +485,16 @@ def encode_stats(stats: Mapping[str, Any]) -> bytes:
     """A stats map -> msgpack bytes.
 
     Required: `stamp_ns`, `timings_ms` ({stage: ms}), `counts` ({name: int}, e.g. processed,
-    dropped, rejected). Optional: `seq`, `role`, `model_id`, `fps`, `frame_id`. `v` is added.
+    dropped, rejected). Optional: `seq`, `role`, `model_id`, `fps`, `frame_id`, `floor_share`
+    (share of the frame's pixels skipped as floor, 0..1) and `mount` (the mount in use:
+    height_mm, pitch_deg, roll_deg, sensor, source "frame" | "estimated", and `moved`: how
+    often the camera was seen to move). `v` is added.
     """
     return _pack(_check_stats({"v": SCHEMA_VERSION, **stats}))
 
 
 def decode_stats(data: bytes) -> dict:
-    """Bytes -> a validated, JSON-able stats dict, or WireError."""
+    """Bytes -> a validated, JSON-able stats dict (version 1 or 2), or WireError."""
     return _check_stats(_unpack(data))
 
 
