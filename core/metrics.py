@@ -116,6 +116,34 @@ def percentile(values, q: float) -> float | None:
     return ordered[rank - 1]
 
 
+def person_scores(confusion: np.ndarray) -> dict:
+    """What a safety function downstream asks of a frame, from a (C, C) truth x prediction
+    confusion: is a pixel a person (any body part) or not, whatever the part.
+
+    person_precision, person_recall, person_f1 of "any body part" against the rest, and
+    furniture_on_person: the share of person pixels labelled as furniture (NaN when undefined).
+    """
+    c = np.asarray(confusion, np.float64)
+    person = np.zeros(c.shape[0], bool)
+    person[list(L.HUMAN_IDS)] = True
+    furniture = np.zeros(c.shape[0], bool)
+    furniture[list(L.OBJECT_IDS)] = True
+    tp = c[np.ix_(person, person)].sum()
+    fp = c[np.ix_(~person, person)].sum()
+    fn = c[np.ix_(person, ~person)].sum()
+    precision = tp / (tp + fp) if tp + fp else math.nan
+    recall = tp / (tp + fn) if tp + fn else math.nan
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall else math.nan
+    on_person = c[person].sum()
+    furn = c[np.ix_(person, furniture)].sum() / on_person if on_person else math.nan
+    return {
+        "person_precision": float(precision),
+        "person_recall": float(recall),
+        "person_f1": float(f1),
+        "furniture_on_person": float(furn),
+    }
+
+
 def _fmt(x: float) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"
 

@@ -143,3 +143,23 @@ def test_table_and_json():
     assert data["mode"] == "realtime"
     assert data["per_class"]["plant"]["recall"] is None
     assert data["mAR"] == pytest.approx(s["mAR"])
+
+
+def test_person_scores_pool_every_body_part_against_the_rest():
+    from topseg.core import labels as L
+    from topseg.core.metrics import person_scores
+
+    c = np.zeros((L.NUM_CLASSES, L.NUM_CLASSES), np.int64)
+    c[L.HEAD, L.BODY] = 30  # a wrong part is still a person pixel
+    c[L.HEAD, L.HEAD] = 50
+    c[L.LEGS, L.TABLE] = 10  # person labelled furniture
+    c[L.LEGS, L.BACKGROUND] = 10
+    c[L.BACKGROUND, L.HAND] = 20  # floor labelled person
+    c[L.CHAIR, L.CHAIR] = 99
+    s = person_scores(c)
+    tp, fp, fn = 80, 20, 20
+    assert s["person_precision"] == pytest.approx(tp / (tp + fp))
+    assert s["person_recall"] == pytest.approx(tp / (tp + fn))
+    assert s["person_f1"] == pytest.approx(2 * tp / (2 * tp + fp + fn))
+    assert s["furniture_on_person"] == pytest.approx(10 / 100)
+    assert np.isnan(person_scores(np.zeros_like(c))["person_f1"])

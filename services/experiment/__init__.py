@@ -1,6 +1,7 @@
 """`topseg experiment`: the paper's experiments (Sharma et al. 2016, Fig. 4 and Table I).
 
     topseg experiment noise|features|frames|overlap|table [--scale tiny|quick|paper] --out DIR
+    topseg experiment mounts [--model M] [--baseline OLD] --out DIR   (experiment/mounts.py)
 
 Every point trains a forest on a synthetic training set and scores it on one held-out test
 set: modeled scenes from other seeds, with the Kinect noise model. Training sets are modeled
@@ -23,7 +24,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-EXPERIMENTS = ("noise", "features", "frames", "overlap", "table")
+EXPERIMENTS = ("noise", "features", "frames", "overlap", "table", "mounts")
 
 # the paper's x values
 NOISE_SIGMAS = (0, 5, 10, 15, 30, 50, 100)
@@ -64,6 +65,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="(default realtime)",
     )
     parser.add_argument("--test-frames", type=int, help="test set size (default: the scale's)")
+    from topseg.core.segmenter import MODEL_HELP
+
+    parser.add_argument("--model", type=Path, help=f"mounts: the model scored; {MODEL_HELP}")
+    parser.add_argument(
+        "--baseline", type=Path, help="mounts: a second model scored on the same frames"
+    )
+    parser.add_argument(
+        "--sensors",
+        default="kinect_v1,kinect_v2,oak_d,realsense_d435",
+        help="mounts: comma-separated sensors (default: every supported one)",
+    )
     parser.add_argument(
         "--report-only",
         action="store_true",
@@ -151,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
     scale = runs.SCALES[args.scale]
     test_frames = args.test_frames or scale.test_frames
     out = args.out.absolute()
+    if args.experiment == "mounts":
+        return _run_mounts(args, test_frames, out)
     cache = (args.data_cache or out.parent / "data-cache").absolute()
     out.mkdir(parents=True, exist_ok=True)
     points = points_of(args.experiment, scale, args.seed)
@@ -165,6 +179,27 @@ def run(args: argparse.Namespace) -> int:
         return _run_points(args, scale, test_frames, out, cache, points)
     finally:
         signal.signal(signal.SIGTERM, old_handler)
+
+
+def _run_mounts(args, frames: int, out: Path) -> int:
+    """One model (and a baseline) across the issue's mounts and sensors: a table, no training."""
+    from topseg.core.sensors import get_sensor
+    from topseg.services.experiment import mounts
+
+    sensors = [get_sensor(s.strip()).name for s in args.sensors.split(",") if s.strip()]
+    print(
+        f"topseg experiment mounts: {len(sensors)} sensors x {len(mounts.MOUNTS)} mounts, "
+        f"{frames} held-out modeled frames a cell; results {out}",
+        flush=True,
+    )
+    report = mounts.run_mounts(args.model, args.baseline, sensors, frames, out)
+    v = report["verdict"]
+    print(
+        f"reference cell {v['reference_f1']:.3f}; largest gap {v['largest_gap']:.3f} "
+        f"(<= {mounts.MAX_GAP}: {v['all_within_gap']}); lowest cell {v['lowest_f1']:.3f} "
+        f"(>= {mounts.MIN_F1}: {v['none_below_floor']}); wrote {out / 'mounts.md'}"
+    )
+    return 0
 
 
 def _run_points(args, scale, test_frames: int, out: Path, cache: Path, points) -> int:
