@@ -187,8 +187,11 @@ def run_pipeline(
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
     "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
     "exit_codes", "logs"}. `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
-    one until SIGINT/SIGTERM reaches this process). Raises TopsegError when a child fails
-    to start.
+    one until SIGINT/SIGTERM reaches this process). `lossless` makes the whole path lossless:
+    the driver publishes with BLOCK congestion control (a real-time replay uses DROP, which
+    under load dropped a frame on the worker's link while this process's copy arrived), the
+    worker labels every frame (FIFO), and the drain waits for every frame seen. Raises
+    TopsegError when a child fails to start.
     """
     from topseg.core.formats import wire
     from topseg.core.metrics import ConfusionAccumulator, percentile
@@ -239,6 +242,8 @@ def run_pipeline(
             driver += ["--fps", str(fps)]
         if duration_s is not None and spec.kind == "replay":
             driver.append("--loop")
+        if lossless:  # lossless end to end: a real-time driver would DROP under load
+            driver += ["--congestion", "block"]
         kids.start("driver", _cli(*driver, *zenoh))
         drv = kids.procs["driver"]
         while col.first_label_s is None and not stop.is_set():
