@@ -147,13 +147,14 @@ def test_stride_on_a_model_input_keeps_the_floor_gate():
 
 
 def test_legacy_path_is_bit_identical_to_before():
-    """The bundled model on demo.mcap frames gives exactly what the code before height inputs
-    gave (tests/data/legacy_posteriors.npz, saved from that code)."""
+    """A raw-depth model on demo.mcap frames gives exactly what the code before height inputs
+    gave: tests/data/legacy_model.npz and legacy_posteriors.npz were both made by that code
+    (06e0f6e): the model trained on demo frames, its posteriors and realtime-CRF labels."""
     from topseg.core.forest.inputs import legacy_input
     from topseg.core.segmenter import Segmenter
 
     fx = np.load(DATA / "legacy_posteriors.npz", allow_pickle=False)
-    seg = Segmenter.from_file(ROOT / "models" / "default.npz", crf="realtime")
+    seg = Segmenter.from_file(DATA / "legacy_model.npz", crf="realtime")
     assert not seg.reads_height
     r0, r1, c0, c1 = fx["crop"]
     for depth, proba, lab in zip(fx["depth"], fx["proba_crop"], fx["labels"], strict=True):

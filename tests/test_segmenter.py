@@ -47,11 +47,23 @@ def bundled():
     return Segmenter.from_file(None, crf="realtime")
 
 
+@pytest.fixture(scope="module")
+def legacy():
+    """A raw-depth model trained by the code before height inputs (tests/data/legacy_model.npz)."""
+    return Segmenter.from_file(REPO / "tests" / "data" / "legacy_model.npz", crf="realtime")
+
+
 def test_from_file_none_is_the_bundled_model(bundled):
     assert bundled.path == REPO / "models" / "default.npz" == S.bundled_model_path()
     assert bundled.crf_mode == "realtime"
     assert bundled.model_id  # the header's model_id, else the file name
-    assert bundled.camera.shape == (480, 640)
+    # the bundled model reads height above the floor and was trained across mounts and sensors
+    assert bundled.reads_height
+    trained = bundled.trained_for
+    assert {"kinect_v1", "kinect_v2", "oak_d", "realsense_d435"} <= set(trained["sensors"])
+    assert trained["height_mm"][0] <= 2500 and trained["height_mm"][1] >= 4500
+    with pytest.raises(TopsegError, match=r"cam3: .*needs the camera's mount"):
+        bundled.label(np.full((480, 640), 3000, np.uint16), name="cam3")
 
 
 def test_no_bundled_model_is_one_line(monkeypatch, tmp_path):
@@ -63,9 +75,9 @@ def test_no_bundled_model_is_one_line(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("mode", ["none", "realtime"])
-def test_labels_are_those_of_the_forest_then_crf_path(bundled, mode):
-    seg = Segmenter(bundled.forest, bundled.header, crf=mode)
-    model, _ = forest.load_model(bundled.path)
+def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
+    seg = Segmenter(legacy.forest, legacy.header, crf=mode)
+    model, _ = forest.load_model(legacy.path)
     for depth, _ in demo_frames(3):
         got = seg.label(depth, name="demo")
         proba = forest.predict_proba(model, depth)
@@ -89,16 +101,17 @@ def test_the_one_argmax_agrees_with_numpy_on_ties_and_no_depth():
         np.testing.assert_array_equal(got, numpy_argmax(proba, depth))
 
 
-def test_frames_of_another_camera_are_refused_by_name(bundled):
+def test_frames_of_another_camera_are_refused_by_name(legacy):
+    """A raw-depth model knows one camera: frames of another are refused, not mislabelled."""
     with pytest.raises(TopsegError, match=r"cam7: frame is 320x240 but .* 640x480"):
-        bundled.label(np.zeros((240, 320), np.uint16), name="cam7")
+        legacy.label(np.zeros((240, 320), np.uint16), name="cam7")
     wide = Intrinsics(640, 480, 400.0, 400.0, 319.5, 239.5)
     with pytest.raises(TopsegError, match=r"f9: focal length 400\.0 px"):
-        bundled.label(np.zeros((480, 640), np.uint16), wide, name="f9")
+        legacy.label(np.zeros((480, 640), np.uint16), wide, name="f9")
     # the check can be left out; warm_up compiles on a small frame whatever the camera
-    loose = Segmenter(bundled.forest, config=SegmenterConfig(check_camera=False))
+    loose = Segmenter(legacy.forest, config=SegmenterConfig(check_camera=False))
     assert loose.label(np.full((24, 32), 2000, np.uint16)).labels.shape == (24, 32)
-    bundled.warm_up()
+    legacy.warm_up()
 
 
 def test_model_camera_from_the_header():
@@ -206,6 +219,9 @@ def test_a_height_model_header_must_say_its_features():
         Segmenter(model, {"input": "height"})
 
 
-def test_a_depth_model_says_when_a_mount_is_not_its_own(bundled):
-    assert bundled.outside_trained_for(PAPER_MOUNT) is None
-    assert "raw depth" in bundled.outside_trained_for(TopViewMount(KINECT_V1, 3300.0))
+def test_a_depth_model_says_when_a_mount_is_not_its_own(legacy):
+    assert "does not say" in legacy.outside_trained_for(PAPER_MOUNT)  # no camera in its header
+    header = {"dataset": {"attrs": {"camera": PAPER_MOUNT.to_dict()}}}
+    known = Segmenter(legacy.forest, header)
+    assert known.outside_trained_for(PAPER_MOUNT) is None
+    assert "raw depth" in known.outside_trained_for(TopViewMount(KINECT_V1, 3300.0))

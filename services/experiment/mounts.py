@@ -230,6 +230,7 @@ def figure(report: dict, path: Path) -> None:
 
     names = list(report["cells"])
     fig, axes = plt.subplots(1, len(names), figsize=(6.5 * len(names), 3.6), squeeze=False)
+    fig.subplots_adjust(left=0.1, right=0.86, wspace=0.45)
     labels = [f"{h:.1f} m\n{t:.0f} deg" for h, t in report["mounts"]]
     for ax, name in zip(axes[0], names, strict=True):
         cells = report["cells"][name]
@@ -242,7 +243,8 @@ def figure(report: dict, path: Path) -> None:
                     color="white" if v < 0.6 else "black", fontsize=9)  # fmt: skip
         ax.set_xticks(range(len(labels)), labels, fontsize=8)
         ax.set_yticks(range(len(report["sensors"])), report["sensors"], fontsize=8)
-        ax.set_title(f"{name}: {Path(report['models'][name]['path']).name}", fontsize=9)
+        model = report["models"][name]
+        ax.set_title(f"{name}: {model.get('label') or model['path']}", fontsize=9)
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="avg F1 (realtime CRF)")
     with _atomic(path) as f:
         fig.savefig(f, format="png", dpi=110)
