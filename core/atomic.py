@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import BinaryIO
 
@@ -36,4 +36,32 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_all(files: dict[Path, bytes]) -> None:
+    """Write several files all or none: each to a temporary beside it (fsynced), then the
+    renames; on any error every temporary and every file already renamed is removed. An
+    OSError names the target it was writing (`filename`), not a temporary."""
+    done: list[Path] = []
+    tmps: list[tuple[str, Path]] = []
+    target = next(iter(files), Path("."))
+    try:
+        for target, data in files.items():
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            tmps.append((tmp, target))
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())
+        for tmp, target in tmps:
+            os.replace(tmp, target)
+            done.append(target)
+    except BaseException as exc:
+        for path in [*(Path(t) for t, _ in tmps), *done]:
+            with suppress(OSError):
+                path.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from exc
         raise

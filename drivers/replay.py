@@ -41,8 +41,9 @@ DEPTH_PNG_MODES = ("I;16", "I;16B", "I;16L", "I")
 class ReplayFrame:
     """One recorded frame: a name for the files made from it, depth (uint16 mm), the camera
     when the file says it (None for a PNG), the recorded time in seconds (None without
-    timing), the truth labels when recorded, the recorded `seq` (None for a PNG) and the
-    camera's mount when the recorded message carried one (None otherwise)."""
+    timing), the truth labels when recorded, the recorded `seq` (None for a PNG), the
+    camera's mount when the recorded message carried one (None otherwise) and the recorded
+    depth key (None for a PNG)."""
 
     name: str
     depth: np.ndarray
@@ -51,6 +52,7 @@ class ReplayFrame:
     truth: np.ndarray | None = None
     seq: int | None = None
     mount: TopViewMount | None = None
+    key: str | None = None
 
 
 # -- readers: the one place recorded depth is read and validated (the replay driver and
@@ -105,13 +107,16 @@ class RecordingFrames:
     names it), with the same camera's truth paired by `seq` when it has one.
 
     Messages that do not decode are skipped, logged and counted in `rejected`; other
-    depth channels seen are in `others`. Frames are named `STEM_SEQ` (seq 6 digits).
-    Iterating again reads the file again.
+    depth channels seen are in `others`. Frames are named `STEM_SEQ` (seq 6 digits), or
+    `STEM_TAG_SEQ` with a `tag` (the camera, when a recording holds several); a seq seen
+    before in this channel (a driver restarted within the recording) gets `-N` for its Nth
+    occurrence, so no two frames share a name. Iterating again reads the file again.
     """
 
-    def __init__(self, path: Path, key: str | None = None) -> None:
+    def __init__(self, path: Path, key: str | None = None, tag: str | None = None) -> None:
         self.path = path
         self.key = key
+        self.tag = tag
         self.depth_key: str | None = key
         self.rejected = 0
         self.others: set[str] = set()
@@ -121,6 +126,8 @@ class RecordingFrames:
         truth_key = None if depth_key is None else _truth_of(depth_key)
         held: ReplayFrame | None = None
         truths: OrderedDict[int, np.ndarray] = OrderedDict()
+        seen: dict[int, int] = {}  # seq -> how often it came (a restart repeats seqs)
+        stem = self.path.stem if self.tag is None else f"{self.path.stem}_{self.tag}"
 
         def emit(item: ReplayFrame) -> ReplayFrame:
             truth = truths.pop(item.seq, None)
@@ -145,7 +152,8 @@ class RecordingFrames:
                     continue
                 if held is not None:
                     yield emit(held)
-                name = f"{self.path.stem}_{frame.seq:06d}"
+                n = seen[frame.seq] = seen.get(frame.seq, 0) + 1
+                name = f"{stem}_{frame.seq:06d}" + (f"-{n}" if n > 1 else "")
                 held = ReplayFrame(
                     name,
                     frame.depth,
@@ -153,6 +161,7 @@ class RecordingFrames:
                     msg.log_time_ns / 1e9,
                     seq=frame.seq,
                     mount=frame.mount,
+                    key=depth_key,
                 )
             elif msg.key == truth_key:
                 try:
@@ -183,13 +192,29 @@ def _truth_of(depth_key: str) -> str:
     return depth_key.rsplit("/", 1)[0] + "/truth"
 
 
+def depth_channels(path: Path) -> dict[str, int]:
+    """{depth key: messages on it} of a recording, in the order the channels first appear."""
+    counts: dict[str, int] = {}
+    for msg in recording.read_messages(path):
+        if msg.key.rsplit("/", 1)[-1] == "depth":
+            counts[msg.key] = counts.get(msg.key, 0) + 1
+    return counts
+
+
+def camera_tag(depth_key: str) -> str:
+    """`topseg/<cell>/<camera>/depth` -> `<cell>-<camera>` (for file names)."""
+    parts = depth_key.split("/")
+    return "-".join(parts[1:-1]) if len(parts) >= 4 else depth_key.replace("/", "-")
+
+
 def input_frames(
     path: Path, on_recording: Callable[[RecordingFrames], None] | None = None
 ) -> Iterator[ReplayFrame]:
     """Every frame a file or folder holds, named for output files: a 16-bit PNG, a folder of
-    them, or an MCAP recording (its first depth channel). SourceError when `path` is none of
-    these or holds no frame. `on_recording` is handed the reader of a recording once it has
-    been read (to report what it skipped)."""
+    them, or an MCAP recording (every depth channel in turn; with more than one, names carry
+    `<cell>-<camera>`). SourceError when `path` is none of these or holds no frame.
+    `on_recording` is handed the reader of each channel once it has been read (to report
+    what it skipped)."""
     if path.is_dir():
         pngs = png_files(path)
         if not pngs:
@@ -198,13 +223,17 @@ def input_frames(
     elif path.suffix.lower() == ".png":
         yield from png_frames([path])
     elif path.suffix.lower() == ".mcap":
-        reader = RecordingFrames(path)
+        channels = depth_channels(path)
+        if not channels:
+            raise SourceError(f"{path} holds no depth channel")
         count = 0
-        for frame in reader:
-            count += 1
-            yield frame
-        if on_recording is not None:
-            on_recording(reader)
+        for key in channels:
+            reader = RecordingFrames(path, key, camera_tag(key) if len(channels) > 1 else None)
+            for frame in reader:
+                count += 1
+                yield frame
+            if on_recording is not None:
+                on_recording(reader)
         if not count:
             raise SourceError(f"{path}: no readable depth frame in this recording")
     elif not path.exists():

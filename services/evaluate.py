@@ -38,6 +38,10 @@ def run(args: argparse.Namespace) -> int:
 
     segmenter = Segmenter.from_file(args.model, crf=args.crf)
     ds = open_dataset(args.data)
+    if args.json_out:  # before the scoring: a folder we cannot write costs no work
+        _check_writable(args.json_out.parent, args.json_out)
+    if args.plots:
+        _check_writable(args.plots, args.plots / "confusion.png")
     n = len(ds) if args.frames is None else min(args.frames, len(ds))
     frames = tqdm(
         dataset_frames(ds, range(n)), total=n, desc="evaluate", unit="frame", disable=None
@@ -65,17 +69,45 @@ def run(args: argparse.Namespace) -> int:
             ms_per_frame=timing,
             confusion=result.crf.confusion.tolist(),
         )
-        _write_text(args.json_out, json.dumps(doc, indent=2))
+        _writing(args.json_out, lambda: _write_text(args.json_out, json.dumps(doc, indent=2)))
     if args.plots:
         from topseg.services.plots import confusion_figure, frames_figure
 
-        args.plots.mkdir(parents=True, exist_ok=True)
-        confusion_figure(
-            result.crf.confusion, args.plots / "confusion.png", title=f"CRF: {args.crf}"
+        confusion, frames_png = args.plots / "confusion.png", args.plots / "frames.png"
+        _writing(
+            confusion,
+            lambda: confusion_figure(result.crf.confusion, confusion, title=f"CRF: {args.crf}"),
         )
-        frames_figure(result.examples, args.plots / "frames.png", crf_name=args.crf)
-        print(f"wrote {args.plots / 'confusion.png'} and {args.plots / 'frames.png'}")
+        _writing(frames_png, lambda: frames_figure(result.examples, frames_png, crf_name=args.crf))
+        print(f"wrote {confusion} and {frames_png}")
     return 0
+
+
+def _check_writable(folder: Path, target: Path) -> None:
+    """TopsegError (one line naming `target`) unless a file can be made in `folder`."""
+    import tempfile
+
+    from topseg.core.errors import TopsegError
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise TopsegError(f"cannot write {target}: {exc.strerror or exc}") from None
+
+
+def _writing(path: Path, write) -> None:
+    """Run `write()`; an OSError becomes one line naming `path` (the scores were printed)."""
+    from topseg.core.errors import TopsegError
+
+    try:
+        write()
+    except OSError as exc:
+        raise TopsegError(
+            f"cannot write {path}: {exc.strerror or exc}; the scores above are complete, "
+            "nothing partial was left there"
+        ) from None
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -45,7 +45,7 @@ def confusion_figure(confusion: np.ndarray, path: Path, title: str = "") -> None
     ax.set_title(title or "confusion matrix, rows normalised")
     fig.colorbar(im, ax=ax, fraction=0.046)
     fig.tight_layout()
-    fig.savefig(path)
+    _save(fig, path)
     plt.close(fig)
 
 
@@ -68,5 +68,13 @@ def frames_figure(examples, path: Path, crf_name: str = "crf") -> None:
     for ax in axes.ravel():
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(path)
+    _save(fig, path)
     plt.close(fig)
+
+
+def _save(fig, path: Path) -> None:
+    """Atomic: the figure replaces `path` whole or not at all."""
+    from topseg.core.atomic import atomic_write
+
+    with atomic_write(path) as f:
+        fig.savefig(f, format=Path(path).suffix.lstrip(".") or "png")

@@ -1,13 +1,19 @@
 """Segment depth offline: 16-bit PNGs (mm) or MCAP recordings in, label PNGs and overlays out.
 
 For each input frame NAME it writes `NAME_labels.png` (8-bit label ids, 255 = no depth) and
-`NAME_overlay.png` (depth in grey with the label colours blended on top).
+`NAME_overlay.png` (depth in grey with the label colours blended on top), both or neither
+(temporaries, then renames). NAME is the PNG's stem (`<folder>-<stem>` when stems collide
+among the inputs) or `<recording stem>_<seq>` for each depth channel of a recording
+(`<stem>_<cell>-<camera>_<seq>` when it holds several cameras; `-N` on a seq seen again, as
+after a driver restart). An output name already written in this run is refused with one line.
+A write that fails stops the run: one line naming the path, how many frames were written,
+exit 2. The end prints how many frames of each camera went where.
 
 A model that reads heights above the floor (every model trained since mounts were drawn)
 labels each frame through its camera's mount: `--mount FILE` (from `topseg calibrate`) when
 given, else the mount a recording's messages carry, else one estimated from the input's own
-frames (up to `ESTIMATE_FRAMES` spread over each input named on the command line: a folder
-of PNGs is one camera) and printed. PNGs say no intrinsics: the mount file's are used, else
+frames (up to `ESTIMATE_FRAMES` spread over each camera: a folder of PNGs is one, and so is
+each depth channel of a recording) and printed. PNGs say no intrinsics: the mount file's are used, else
 those of the supported sensor of that frame size. A model trained before (it reads raw depth)
 takes only frames of its own camera (size and focal length) and needs no mount.
 
@@ -96,60 +102,126 @@ def run(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise TopsegError(f"cannot create {args.out}: {exc.strerror}") from None
-    run_ = _Run(segmenter, args.out, given)
+    inputs = [(arg, _expand(arg)) for arg in args.inputs]
+    all_sources = [s for _, sources in inputs for s in sources]
+    run_ = _Run(segmenter, args.out, given, _png_names(all_sources), _count_frames(all_sources))
     skipped = 0
-    for arg in args.inputs:
-        sources = _expand(arg)
-        try:
-            estimated = None
-            if segmenter.reads_height and given is None:
-                estimated = _estimate(arg, sources)  # None: the frames carry their own
-            for source in sources:
-                try:
-                    run_.segment(source, estimated)
-                except TopsegError as exc:  # this input is damaged: say so, go on
-                    skipped += 1
-                    print(f"topseg segment: skipped {exc}", file=sys.stderr)
-        except TopsegError as exc:  # no mount for this input: none of it is segmented
-            skipped += len(sources)
-            print(f"topseg segment: skipped {arg}: {exc}", file=sys.stderr)
-    print(f"segmented {run_.count} frames into {args.out}")
+    try:
+        for arg, sources in inputs:
+            try:
+                estimates: dict = {}
+                if segmenter.reads_height and given is None:
+                    estimates = _estimates(arg, sources)
+                for key, est in estimates.items():
+                    if isinstance(est, TopsegError):  # this camera: no mount, not segmented
+                        skipped += 1
+                        camera = "" if key is None else f" {key}"
+                        print(f"topseg segment: skipped {arg}{camera}: {est}", file=sys.stderr)
+                for source in sources:
+                    try:
+                        run_.segment(arg, source, estimates)
+                    except _WriteFailed:
+                        raise
+                    except TopsegError as exc:  # this input is damaged: say so, go on
+                        skipped += 1
+                        print(f"topseg segment: skipped {exc}", file=sys.stderr)
+            except _WriteFailed:
+                raise
+            except TopsegError as exc:  # no mount for this input: none of it is segmented
+                skipped += len(sources)
+                print(f"topseg segment: skipped {arg}: {exc}", file=sys.stderr)
+    except _WriteFailed as exc:
+        run_.summary()
+        raise TopsegError(
+            f"cannot write {exc.path}: {exc.reason}; {run_.count} of {run_.total} frames "
+            f"written to {args.out} (each with its overlay)"
+        ) from None
+    run_.summary()
     if segmenter.reads_height and run_.count:
         print(
             f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
             "depth went to background without the forest"
         )
-    inputs = sum(len(_expand(a)) for a in args.inputs)
+    if run_.refused:
+        raise TopsegError(
+            f"{run_.refused} frames not written: their output names were taken (see above)"
+        )
     if skipped:
-        raise TopsegError(f"{skipped} of {inputs} inputs could not be segmented (see above)")
+        raise TopsegError(
+            f"{skipped} of {len(all_sources)} inputs could not be segmented (see above)"
+        )
     return 0
+
+
+class _WriteFailed(Exception):
+    """An output file could not be written (the run stops there)."""
+
+    def __init__(self, path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = path, reason
 
 
 class _Run:
     """One `segment` run: the Segmenter, where labels go, the mount given, the counts."""
 
-    def __init__(self, segmenter, out: Path, given) -> None:
+    def __init__(self, segmenter, out: Path, given, names: dict, total: int) -> None:
         self.segmenter, self.out, self.given = segmenter, out, given
+        self.names, self.total = names, total
         self.count = 0
+        self.refused = 0
         self.floor_share = 0.0
         self._warned: set = set()
+        self.written: dict[str, str] = {}  # output name -> the input it was written from
+        self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
 
-    def segment(self, source: Path, estimated) -> None:
-        """Label every frame of one source and write its PNGs."""
+    def segment(self, arg: Path, source: Path, estimates: dict) -> None:
+        """Label every frame of one source and write its PNGs (both of a frame or neither)."""
+        from topseg.core.atomic import atomic_write_all
+        from topseg.core.errors import TopsegError
         from topseg.drivers.replay import input_frames
 
         for frame in input_frames(source, on_recording=_report_skipped):
+            what = f"{source}" if frame.key is None else f"{source} {frame.key} seq {frame.seq}"
             mount = None
             if self.segmenter.reads_height:
-                mount = self.given or frame.mount or estimated
+                mount = self.given or frame.mount or estimates.get(frame.key)
+                if isinstance(mount, TopsegError):
+                    continue  # said once for the camera
                 if mount is None:
                     mount = _png_mount(frame)
                 self._warn_outside(mount, frame.name)
+            name = self.names.get(source, frame.name)
+            if name in self.written:
+                self.refused += 1
+                print(
+                    f"topseg segment: error: {what} not written: {name}_labels.png was written "
+                    f"from {self.written[name]} in this run",
+                    file=sys.stderr,
+                )
+                continue
             result = self.segmenter.label(frame.depth, frame.intrinsics, frame.name, mount)
-            save_png(self.out / f"{frame.name}_labels.png", result.labels)
-            save_png(self.out / f"{frame.name}_overlay.png", overlay(frame.depth, result.labels))
+            files = {
+                self.out / f"{name}_labels.png": _png_bytes(result.labels),
+                self.out / f"{name}_overlay.png": _png_bytes(overlay(frame.depth, result.labels)),
+            }
+            try:
+                atomic_write_all(files)
+            except OSError as exc:
+                raise _WriteFailed(exc.filename or self.out, exc.strerror or str(exc)) from None
+            self.written[name] = what
+            camera = f"{arg}" if frame.key is None else f"{source} {frame.key}"
+            entry = self.where.setdefault(camera, [0, name, name])
+            entry[0] += 1
+            entry[2] = name
             self.count += 1
             self.floor_share += result.floor_share
+
+    def summary(self) -> None:
+        """How many frames went where, per camera (a folder of PNGs is one camera)."""
+        print(f"segmented {self.count} frames into {self.out}")
+        for camera, (n, first, last) in self.where.items():
+            names = first if n == 1 else f"{first} .. {last}"
+            print(f"  {camera}: {n} frame{'s' if n != 1 else ''} -> {names}")
 
     def _warn_outside(self, mount, name: str) -> None:
         """One warning per mount that lies outside what the model was trained for."""
@@ -159,6 +231,44 @@ class _Run:
         reason = self.segmenter.outside_trained_for(mount)
         if reason:
             print(f"topseg segment: warning: {name}: {reason}", file=sys.stderr)
+
+
+def _png_bytes(array) -> bytes:
+    """An array encoded as PNG."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(array).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _png_names(sources: list[Path]) -> dict[Path, str]:
+    """Output names of the PNG inputs whose stems collide: `<parent folder>-<stem>`."""
+    from collections import Counter
+
+    pngs = [p for p in sources if p.suffix.lower() == ".png"]
+    stems = Counter(p.stem for p in pngs)
+    return {p: f"{p.resolve().parent.name}-{p.stem}" for p in pngs if stems[p.stem] > 1}
+
+
+def _count_frames(sources: list[Path]) -> int:
+    """Frames the inputs hold, as far as a quick look tells (a PNG is one; a recording's
+    depth messages)."""
+    from topseg.core.errors import TopsegError
+    from topseg.drivers.replay import depth_channels
+
+    total = 0
+    for source in sources:
+        if source.suffix.lower() == ".mcap":
+            try:
+                total += sum(depth_channels(source).values())
+            except TopsegError:
+                pass
+        elif source.suffix.lower() == ".png":
+            total += 1
+    return total
 
 
 def _png_mount(frame):
@@ -187,37 +297,56 @@ def _spread(items: list, n: int) -> list:
     return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
 
 
-def _estimate_frames(sources: list[Path]) -> tuple[list, object, bool]:
-    """(up to ESTIMATE_FRAMES depth frames spread over `sources`, their intrinsics (None for
-    PNGs), whether every frame carries its own mount)."""
-    from topseg.drivers.replay import input_frames, read_depth_png
-
-    if all(p.suffix.lower() == ".png" for p in sources):
-        frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
-        return frames, None, False
+def _recording_sample(frames) -> tuple[list, object, bool]:
+    """(up to ESTIMATE_FRAMES depth frames spread over one camera's frames, their intrinsics,
+    whether every frame carries its own mount)."""
     kept: list = []
     step, seen, intrinsics, all_mounted = 1, 0, None, True
-    for source in sources:
-        for frame in input_frames(source):
-            all_mounted &= frame.mount is not None
-            if seen % step == 0:
-                kept.append(frame.depth)
-                intrinsics = intrinsics or frame.intrinsics
-                if len(kept) >= 2 * ESTIMATE_FRAMES:  # keep every other, take half as many
-                    kept, step = kept[::2], step * 2
-            seen += 1
+    for frame in frames:
+        all_mounted &= frame.mount is not None
+        if seen % step == 0:
+            kept.append(frame.depth)
+            intrinsics = intrinsics or frame.intrinsics
+            if len(kept) >= 2 * ESTIMATE_FRAMES:  # keep every other, take half as many
+                kept, step = kept[::2], step * 2
+        seen += 1
     return _spread(kept, ESTIMATE_FRAMES), intrinsics, all_mounted
 
 
-def _estimate(arg: Path, sources: list[Path]):
-    """The mount estimated from the frames of one command-line input (printed), or None when
-    its frames all carry their own. TopsegError (one line) when it cannot be estimated."""
+def _estimates(arg: Path, sources: list[Path]) -> dict:
+    """{depth key (None for PNGs): the mount estimated from that camera's frames (printed),
+    None when its frames all carry their own, or the TopsegError saying why there is none}.
+    A folder of PNGs is one camera; each depth channel of a recording is one. TopsegError
+    when an input cannot be read at all."""
+    from topseg.core.errors import TopsegError
+    from topseg.drivers.replay import RecordingFrames, depth_channels, input_frames, read_depth_png
+
+    if all(p.suffix.lower() == ".png" for p in sources):
+        frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
+        return {None: _estimate(str(arg), frames, None, False)}
+    out: dict = {}
+    for source in sources:
+        if source.suffix.lower() != ".mcap":
+            next(iter(input_frames(source)))  # says what is wrong with it
+            continue
+        channels = depth_channels(source)
+        for key in channels:
+            label = f"{arg}" if len(channels) == 1 else f"{arg} {key}"
+            try:
+                out[key] = _estimate(label, *_recording_sample(RecordingFrames(source, key)))
+            except TopsegError as exc:
+                out[key] = exc
+    return out
+
+
+def _estimate(label: str, frames: list, intrinsics, all_mounted: bool):
+    """The mount estimated from one camera's frames (printed), or None when its frames all
+    carry their own. TopsegError (one line) when it cannot be estimated."""
     from dataclasses import replace
 
     from topseg.core.calibration import estimate_mount
     from topseg.core.errors import TopsegError
 
-    frames, intrinsics, all_mounted = _estimate_frames(sources)
     if all_mounted and frames:
         return None
     if not frames:
@@ -237,7 +366,7 @@ def _estimate(arg: Path, sources: list[Path]):
     if sensor is not None and mount.sensor != sensor.name:
         mount = replace(mount, sensor=sensor.name)
     print(
-        f"{arg}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
+        f"{label}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
         f"{mount.pitch_deg:.1f} deg, roll {mount.roll_deg:.1f} deg, floor inliers "
         f"{100 * estimate.inlier_share:.0f} % ({len(frames)} frames)"
     )

@@ -285,7 +285,9 @@ def train_on(
     try:
         parts_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise TopsegError(f"cannot create {parts_dir}: {exc.strerror}") from exc
+        raise TopsegError(
+            f"cannot write {job.out}: cannot create {parts_dir}: {exc.strerror}"
+        ) from None
     parts = [parts_dir / f"tree-{t}.npz" for t in range(job.trees)]
     trees = {
         t: tree for t, p in enumerate(parts) if (tree := _finished_part(p, recipe_)) is not None
@@ -296,17 +298,33 @@ def train_on(
 
     t0 = time.perf_counter()
     if todo:
-        _train_trees(job, train_idx, recipe_, todo, parts)
+        try:
+            _train_trees(job, train_idx, recipe_, todo, parts)
+        except OSError as exc:  # a tree part could not be written (full disk, folder gone)
+            done = sum(_finished_part(p, recipe_) is not None for p in parts)
+            raise TopsegError(
+                f"cannot write {exc.filename or parts_dir}: {exc.strerror or exc}; {done} of "
+                f"{job.trees} trees are kept in {parts_dir}: rerun the same command to resume"
+            ) from None
         for t in todo:
             trees[t] = _finished_part(parts[t], recipe_)
             if trees[t] is None:
                 raise TopsegError(f"tree {t} did not come back whole from {parts[t]}")
     seconds = time.perf_counter() - t0
-    _write_model(job, ds, val_idx, recipe_, [trees[t] for t in range(job.trees)], seconds)
+    try:
+        _write_model(job, ds, val_idx, recipe_, [trees[t] for t in range(job.trees)], seconds)
+    except OSError as exc:
+        raise TopsegError(
+            f"cannot write {job.out}: {exc.strerror or exc}; all {job.trees} trees are kept in "
+            f"{parts_dir}: rerun the same command to write the model"
+        ) from None
     # the parts, and the temp files of part writes a kill -9 cut short (atomic_write's)
-    for p in [*parts, *parts_dir.glob(".tree-*.npz.*.tmp")]:
-        p.unlink(missing_ok=True)
-    parts_dir.rmdir()
+    try:
+        for p in [*parts, *parts_dir.glob(".tree-*.npz.*.tmp")]:
+            p.unlink(missing_ok=True)
+        parts_dir.rmdir()
+    except OSError as exc:  # the model is written; leftovers are only clutter
+        log.warning("could not remove %s: %s", parts_dir, exc.strerror or exc)
     return seconds
 
 
