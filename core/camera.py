@@ -14,6 +14,9 @@ from dataclasses import asdict, dataclass
 import numba
 import numpy as np
 
+#: the widest or tallest frame a camera may have, px (a sanity bound on intrinsics read from files)
+MAX_CAMERA_SIDE = 16384
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -27,10 +30,15 @@ class Intrinsics:
     cy: float = 239.5
 
     def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
-        if self.fx <= 0 or self.fy <= 0:
+        if not (0 < self.width <= MAX_CAMERA_SIDE and 0 < self.height <= MAX_CAMERA_SIDE):
+            raise ValueError(
+                f"camera size must be positive and at most {MAX_CAMERA_SIDE} px a side, "
+                f"got {self.width}x{self.height}"
+            )
+        if not all(np.isfinite(v) and v > 0 for v in (self.fx, self.fy)):
             raise ValueError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
+        if not (np.isfinite(self.cx) and np.isfinite(self.cy)):
+            raise ValueError(f"the principal point must be finite, got ({self.cx}, {self.cy})")
 
     @property
     def shape(self) -> tuple[int, int]:

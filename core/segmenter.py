@@ -73,12 +73,16 @@ def model_camera(header: dict | None) -> Intrinsics:
     """The intrinsics the model was trained for (Kinect v1 when the header does not say)."""
     from topseg.core.camera import KINECT_V1, TopViewMount
 
-    cam = (header or {}).get("dataset", {}).get("attrs", {}).get("camera")
-    if not cam:
+    dataset = (header or {}).get("dataset", {})
+    attrs = dataset.get("attrs", {}) if isinstance(dataset, dict) else None
+    if not isinstance(attrs, dict):
+        raise TopsegError("the model's header names an unreadable dataset (not a table)")
+    cam = attrs.get("camera")
+    if cam is None or cam == {}:
         return KINECT_V1
     try:
-        return TopViewMount.from_dict(cam).intrinsics
-    except (KeyError, TypeError, ValueError) as exc:
+        return TopViewMount.from_dict(cam, source="the model's camera").intrinsics
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise TopsegError(f"the model's header names an unreadable camera ({exc})") from None
 
 

@@ -68,6 +68,15 @@ class FeatureConfig:
     reference_focal_px: float = 570.3
 
     def __post_init__(self) -> None:
+        for name in ("reference_depth_mm", "absolute_fraction", "canonical_height_mm"):
+            if not np.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be a finite number, got {getattr(self, name)}")
+        if not np.isfinite(self.reference_focal_px):
+            raise ValueError(f"reference_focal_px must be > 0, got {self.reference_focal_px}")
+        if not 1 <= self.n_features <= 1_000_000:
+            raise ValueError(f"n_features must be in [1, 1000000], got {self.n_features}")
+        if not 2 <= self.patch_px <= 4096:
+            raise ValueError(f"patch_px must be in [2, 4096], got {self.patch_px}")
         if self.n_features < 1:
             raise ValueError(f"n_features must be >= 1, got {self.n_features}")
         if self.patch_px < 2:

@@ -87,8 +87,10 @@ def validate_arrays(arrays: dict[str, np.ndarray], roots: np.ndarray) -> None:
     n_leaves = posteriors.shape[0]
     if np.any(leaf[is_leaf] < 0) or np.any(leaf[is_leaf] >= n_leaves):
         raise ValueError(f"a leaf index is outside the {n_leaves} posterior rows")
-    if not np.all(np.isfinite(posteriors)) or np.any(posteriors < 0):
-        raise ValueError("posteriors must be finite and non-negative")
+    if not np.all(np.isfinite(posteriors)) or np.any(posteriors < 0) or np.any(posteriors > 1):
+        raise ValueError("posteriors must be class probabilities in [0, 1]")
+    if np.any(posteriors.sum(axis=1, dtype=np.float64) <= 0):
+        raise ValueError("a leaf's posterior row is all zeros (it would vote for no class)")
 
 
 @dataclass(frozen=True, eq=False)
