@@ -20,6 +20,7 @@ import os
 from pathlib import Path
 
 from topseg.core.errors import TopsegError
+from topseg.services.cli_types import positive_int
 
 log = logging.getLogger("topseg.calibrate")
 
@@ -33,7 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--source", required=True, help="replay:FILE, freenect, openni2, oak or synthetic[:...]"
     )
     parser.add_argument(
-        "--frames", type=int, default=60, help="frames to fit over (default 60, ~2 s at 30 fps)"
+        "--frames",
+        type=positive_int,
+        default=60,
+        help="frames to fit over (default 60, ~2 s at 30 fps)",
     )
     parser.add_argument(
         "--sensor",

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import re
 import sys
 import warnings
 
@@ -44,6 +45,22 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
 }
 
+
+class UsageError(TopsegError):
+    """A command line argparse refuses (a bad option value, a missing argument)."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """A subcommand's parser: a bad command line is one error line naming the option and exit
+    2 (`main`), not usage text; `--help` still prints the usage."""
+
+    def error(self, message: str):  # type: ignore[override]
+        """Raise UsageError(message) instead of printing usage and exiting; a value refused
+        by a `cli_types` check reads `--fps must be in [0.1, 1000], got 1e-300`."""
+        m = re.fullmatch(r"argument ([^:/\s]+)(?:/\S+)?: (must .*)", message, re.S)
+        raise UsageError(f"{m[1]} {m[2]}" if m else message)
+
+
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 
 
@@ -71,7 +88,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "-v", "--verbose", action="count", default=1, help="more log output (-vv for debug)"
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
     for name, (module_name, help_text) in COMMANDS.items():
         if name != chosen:

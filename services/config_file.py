@@ -199,7 +199,9 @@ def scalar(action: argparse.Action, value: Any) -> Any:
     else:
         try:
             value = kind(value if isinstance(value, str) else str(value))
-        except (TypeError, ValueError, argparse.ArgumentTypeError) as exc:
+        except argparse.ArgumentTypeError as exc:  # a `cli_types` check: its own words
+            raise ValueError(str(exc)) from None
+        except (TypeError, ValueError) as exc:
             raise ValueError(f"invalid value {value!r} ({exc})") from None
     if action.choices is not None and value not in action.choices:
         choices = ", ".join(repr(c) for c in action.choices)

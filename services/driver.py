@@ -35,6 +35,7 @@ import time
 
 from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
 from topseg.services import zenoh_session
+from topseg.services.cli_types import finite
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.driver")
@@ -61,7 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: none; a recording's own mount is passed on, else the worker estimates one)",
     )
     parser.add_argument(
-        "--fps", type=float, help="replay pace (default: as recorded) or cap for a live sensor"
+        "--fps",
+        type=finite(0.1, 1000),
+        help="replay pace (default: as recorded) or cap for a live sensor",
     )
     parser.add_argument("--loop", action="store_true", help="replay: start again at the end")
     parser.add_argument(
@@ -79,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--frame-timeout",
-        type=float,
+        type=finite(0.01, 3600),
         default=2.0,
         metavar="S",
         help="a live sensor silent this long is reopened (default: %(default)s s)",

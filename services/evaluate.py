@@ -13,6 +13,8 @@ import argparse
 import json
 from pathlib import Path
 
+from topseg.services.cli_types import non_negative_int, positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the bundled model), --data, --crf and what to write."""
@@ -21,10 +23,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
-    parser.add_argument("--frames", type=int, default=None, help="score only the first N frames")
+    parser.add_argument(
+        "--frames", type=positive_int, default=None, help="score only the first N frames"
+    )
     parser.add_argument("--json", type=Path, dest="json_out", help="write the scores as JSON here")
     parser.add_argument("--plots", type=Path, help="write confusion.png and frames.png here")
-    parser.add_argument("--examples", type=int, default=4, help="frames drawn in frames.png")
+    parser.add_argument(
+        "--examples", type=non_negative_int, default=4, help="frames drawn in frames.png"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

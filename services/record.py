@@ -21,6 +21,7 @@ import time
 
 from topseg.core.errors import TopsegError
 from topseg.services import zenoh_session
+from topseg.services.cli_types import finite, positive_int
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.record")
@@ -31,8 +32,10 @@ DEFAULT_KEYS = ("topseg/*/*/depth", "topseg/*/*/labels", "topseg/*/*/truth")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The recorder's options: the file, when to stop, the keys, the queue and Zenoh."""
     parser.add_argument("--out", required=True, metavar="FILE.mcap", help="the recording to write")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    parser.add_argument("--count", type=int, metavar="N", help="stop after N messages")
+    parser.add_argument(
+        "--duration", type=finite(0.001, 1e8), metavar="S", help="stop after S seconds"
+    )
+    parser.add_argument("--count", type=positive_int, metavar="N", help="stop after N messages")
     parser.add_argument(
         "--keys",
         nargs="+",
@@ -42,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--queue",
-        type=int,
+        type=positive_int,
         default=256,
         metavar="N",
         help="messages waiting to be written, at most",

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 from collections import Counter
 from typing import Any
 
@@ -66,7 +67,11 @@ def router_config(config_file: str | None, port: int | None, listen: list[str] |
         endpoint = f"tcp/127.0.0.1:{zenoh_session.rendezvous_port(port)}"
         config.insert_json5("listen/endpoints", json.dumps([endpoint]))
     if listen:
-        config.insert_json5("listen/endpoints", json.dumps(listen))
+        try:
+            config.insert_json5("listen/endpoints", json.dumps(listen))
+        except Exception as exc:  # zenoh reports a bad endpoint as ZError
+            reason = re.sub(r"^line \d+, column \d+: ", "", zenoh_session.error_line(exc))
+            raise TopsegError(f"--listen {' '.join(listen)}: {reason}") from None
     return config
 
 

@@ -37,6 +37,7 @@ from typing import Any
 
 from topseg.core.metrics import percentile
 from topseg.services import zenoh_session
+from topseg.services.cli_types import finite
 
 log = logging.getLogger("topseg.status")
 
@@ -49,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
         "--timeout",
-        type=float,
+        type=finite(0.1, 3600),
         default=3.0,
         metavar="S",
         help="listen this long for stats and tokens, plus up to 1 s for the final queries "

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from topseg.services.cli_types import finite, int_range, non_negative_int, positive_int
+
 if TYPE_CHECKING:
     from topseg.core.forest.train import TrainConfig
 
@@ -38,32 +40,43 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", required=True, type=Path, help="model file to write")
     g = parser.add_argument_group("forest (defaults: the paper's)")
-    g.add_argument("--trees", type=int, default=5)
-    g.add_argument("--depth", type=int, default=19, help="maximum tree depth")
-    g.add_argument("--features", type=int, default=300, help="feature pool per tree (PC)")
-    g.add_argument("--responses", type=int, default=100, help="candidate responses per node (R)")
-    g.add_argument("--thresholds", type=int, default=100, help="thresholds per candidate (K)")
-    g.add_argument("--frames-per-tree", type=int, default=1600, help="bagged frames per tree (F)")
-    g.add_argument("--pixels-per-frame", type=int, default=2000)
+    g.add_argument("--trees", type=positive_int, default=5)
+    g.add_argument("--depth", type=int_range(0, 30), default=19, help="maximum tree depth")
+    g.add_argument(
+        "--features", type=int_range(1, 1_000_000), default=300, help="feature pool per tree (PC)"
+    )
+    g.add_argument(
+        "--responses", type=positive_int, default=100, help="candidate responses per node (R)"
+    )
+    g.add_argument(
+        "--thresholds", type=positive_int, default=100, help="thresholds per candidate (K)"
+    )
+    g.add_argument(
+        "--frames-per-tree", type=positive_int, default=1600, help="bagged frames per tree (F)"
+    )
+    g.add_argument("--pixels-per-frame", type=positive_int, default=2000)
     g.add_argument("--split", choices=("linear", "axis"), default="linear")
     g.add_argument(
         "--absolute-fraction",
-        type=float,
+        type=finite(0, 1),
         default=0.0,
         help="share of the pool comparing a probe with a fixed depth (not in the paper; 0)",
     )
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--seed", type=non_negative_int, default=0)
     g.add_argument(
         "--validation",
-        type=float,
+        type=finite(0, 1),
         default=0.1,
         help="fraction of frames held out for the header's metrics",
     )
-    g.add_argument("--max-validation-frames", type=int, default=64)
+    g.add_argument("--max-validation-frames", type=non_negative_int, default=64)
     d = parser.add_argument_group("cluster")
     d.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:port)")
     d.add_argument(
-        "--workers", type=int, default=None, help="local workers (default: min(trees, cores))"
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="local workers (default: min(trees, cores))",
     )
     d.add_argument("--serial", action="store_true", help="train in this process, no Dask")
 

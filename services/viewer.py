@@ -25,6 +25,7 @@ from collections import OrderedDict
 from typing import Any
 
 from topseg.services import zenoh_session
+from topseg.services.cli_types import finite
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.viewer")
@@ -42,7 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sink.add_argument("--web", action="store_true", help="serve the web viewer (gRPC + HTTP)")
     sink.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording instead")
     parser.add_argument(
-        "--duration", type=float, metavar="S", help="stop after this many seconds (default: never)"
+        "--duration",
+        type=finite(0.001, 1e8),
+        metavar="S",
+        help="stop after this many seconds (default: never)",
     )
     parser.add_argument(
         "--stride",

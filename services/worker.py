@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from topseg.services import zenoh_session
+from topseg.services.cli_types import finite
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.worker_mount import warm_up as mount_warm_up
@@ -73,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--mount-check",
-        type=float,
+        type=finite(0, 1e6),
         default=30.0,
         metavar="S",
         help="re-estimate each camera's mount from its newest frames this often, to catch a "

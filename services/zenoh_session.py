@@ -91,7 +91,7 @@ def default_config_json(port: int | None = None) -> dict[str, Any]:
 def error_line(exc: BaseException) -> str:
     """Zenoh's error text on one line, without its Rust source paths (for the one-line error
     on stderr and systemd's STATUS=): its config parse errors span several lines."""
-    text = re.sub(r" at \S+\.rs:\d+\.?", "", str(exc))
+    text = re.sub(r"\s*\(?(?:at\s+)?[\w./\\-]+\.rs:\d+(?::\d+)?\)?\.?", "", str(exc))
     m = re.search(r'msg: "(.*?)", location: Some\(Location \{ line: (\d+), column: (\d+)', text)
     if m:
         return f"line {m[2]}, column {m[3]}: {m[1]}"

@@ -1,0 +1,58 @@
+"""Argparse `type=` helpers that refuse a bad number up front: finite, in range, positive.
+
+`topseg`'s subcommand parsers turn the ArgumentTypeError into one line naming the option
+(`cli.OneLineParser`), e.g. `topseg driver: error: argument --fps: must be in [0.1, 1000],
+got 1e-300`, exit 2: never a crash or a day-long sleep later.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def _fmt(x: float) -> str:
+    """A bound as the operator typed it: 1000, not 1000.0."""
+    return f"{x:g}"
+
+
+def finite(lo: float = -math.inf, hi: float = math.inf) -> Callable[[str], float]:
+    """A `type=` for a finite float in [lo, hi] (NaN and inf always refused)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be in [{_fmt(lo)}, {_fmt(hi)}], got {text}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def int_range(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """A `type=` for an integer >= lo (and <= hi when given)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            bound = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+#: a `type=` for an integer >= 1
+positive_int = int_range(1)
+#: a `type=` for an integer >= 0
+non_negative_int = int_range(0)
