@@ -84,6 +84,7 @@ class Observed:
     info_start: dict = field(default_factory=dict)  # (cell, camera) -> (monotonic, info)
     info_end: dict = field(default_factory=dict)
     window_s: float = 0.0
+    incomplete: list = field(default_factory=list)  # queries cut off at their deadline
 
 
 def _driver_report(alive: bool, start: tuple | None, end: tuple | None) -> dict:
@@ -161,7 +162,10 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
             }
         )
     ok = bool(rows) and all(r["ok"] for r in rows)
-    return {"window_s": round(seen.window_s, 3), "ok": ok, "cameras": rows}
+    rep = {"window_s": round(seen.window_s, 3), "ok": ok, "cameras": rows}
+    if seen.incomplete:
+        rep["incomplete"] = list(seen.incomplete)
+    return rep
 
 
 def exit_status(rep: dict) -> int:
@@ -235,6 +239,8 @@ def format_table(rep: dict) -> str:
             out.append(
                 f"{row['cell']}/{row['camera']}: driver's last error: {row['driver']['last_error']}"
             )
+    for what in rep.get("incomplete", ()):
+        out.append(f"warning: the query for {what} did not end in time; cameras may be missing")
     verdict = "all cameras up" if rep["ok"] else "PROBLEM: some service is DOWN"
     out.append(f"{verdict} (window {rep['window_s']:.1f} s)")
     return "\n".join(out)
@@ -253,6 +259,45 @@ def _camera_of(key: str) -> tuple[str, str] | None:
     return parts.cell, parts.camera
 
 
+class Replies:
+    """The replies to one `get`, gathered by a callback into a list.
+
+    Not a channel: Zenoh's default reply channel holds 256 replies, and a liveliness `get`
+    answered from the session's own table (every token it already knows of) fills it inside
+    the `get` call itself, before anyone can read: with more than 256 tokens `status` hung
+    there forever. A callback never blocks Zenoh, and `wait` gives up at its deadline.
+    """
+
+    #: How long past the query's own timeout `wait` waits for Zenoh to end the query.
+    GRACE_S = 0.5
+
+    def __init__(self, get, key: str, timeout: float) -> None:
+        import zenoh
+
+        self.lock = threading.Lock()
+        self.items: list = []  # (monotonic, reply) of the ok replies
+        self.done = threading.Event()
+        self.deadline = time.monotonic() + timeout + self.GRACE_S
+        get(key, zenoh.handlers.Callback(self._on_reply, self.done.set), timeout=timeout)
+
+    def _on_reply(self, reply) -> None:
+        if reply.ok is None:
+            return
+        with self.lock:
+            self.items.append((time.monotonic(), reply))
+
+    @property
+    def complete(self) -> bool:
+        """Whether Zenoh ended the query (else `wait` gave up at its deadline)."""
+        return self.done.is_set()
+
+    def wait(self) -> list:
+        """The replies once the query ended, or those in by the deadline."""
+        self.done.wait(max(0.0, self.deadline - time.monotonic()))
+        with self.lock:
+            return list(self.items)
+
+
 class Listener:
     """Subscribers for tokens and stats on one session; `window()` collects one Observed."""
 
@@ -262,6 +307,7 @@ class Listener:
         self.tokens: set = set()
         self.went_down: set = set()
         self.stats: dict = {}
+        self.incomplete: list[str] = []  # queries of this window cut off at their deadline
         self.alive_key = f"topseg/{cell}/*/alive/*"
         self._subs = [
             session.liveliness().declare_subscriber(self.alive_key, self._on_token, history=True),
@@ -299,13 +345,11 @@ class Listener:
     def info(self, timeout: float):
         """Ask every driver's info queryable; the returned callable collects the replies as
         {(cell, camera): (monotonic, info dict)} (so other queries can go out meanwhile)."""
-        replies = self.session.get(f"topseg/{self.cell}/*/info", timeout=timeout)
+        got = Replies(self.session.get, f"topseg/{self.cell}/*/info", timeout)
 
         def collect() -> dict:
             out = {}
-            for reply in replies:
-                if reply.ok is None:
-                    continue
+            for when, reply in got.wait():
                 try:
                     info = json.loads(reply.ok.payload.to_bytes())
                 except ValueError:
@@ -317,7 +361,9 @@ class Listener:
                 if camera is None:
                     camera = _camera_of(f"topseg/{info.get('cell')}/{info.get('camera')}/info")
                 if camera is not None:
-                    out[camera] = (time.monotonic(), info)
+                    out[camera] = (when, info)
+            if not got.complete:
+                self.incomplete.append("driver info")
             return out
 
         return collect
@@ -326,18 +372,18 @@ class Listener:
         """Ask for the live tokens; the returned callable collects {(cell, camera, role)}."""
         from topseg.core.formats import wire
 
-        replies = self.session.liveliness().get(self.alive_key, timeout=timeout)
+        got = Replies(self.session.liveliness().get, self.alive_key, timeout)
 
         def collect() -> set:
             out = set()
-            for reply in replies:
-                if reply.ok is None:
-                    continue
+            for _, reply in got.wait():
                 try:
                     parts = wire.parse_key(str(reply.ok.key_expr))
                 except wire.WireError:
                     continue
                 out.add((parts.cell, parts.camera, parts.role))
+            if not got.complete:
+                self.incomplete.append("liveliness tokens")
             return out
 
         return collect
@@ -348,6 +394,7 @@ class Listener:
         t0 = time.monotonic()
         with self.lock:
             self.stats, self.went_down = {}, set()
+        self.incomplete = []
         query_s = max(0.2, min(1.0, seconds / 3))
         start = self.info(query_s)()
         stop.wait(max(0.0, seconds - (time.monotonic() - t0)))
@@ -362,6 +409,7 @@ class Listener:
                 stats={k: list(v) for k, v in self.stats.items()},
                 info_start=start,
                 info_end=end,
+                incomplete=sorted(set(self.incomplete)),
                 window_s=time.monotonic() - t0,
             )
         return seen

@@ -146,3 +146,52 @@ def test_report_and_table_show_floor_share_and_the_mount_in_use():
     assert "FLOOR" in head and "MOUNT" in head
     assert "65%" in row and "3.12m 5.0deg est MOVED x1" in row  # tilt of pitch 3, roll 4
     assert status.mount_cell({**mount, "source": "frame", "moved": 0}) == "3.12m 5.0deg frame"
+
+
+TOKENS = """
+import sys, time
+from topseg.services.zenoh_session import open_session
+port, n = int(sys.argv[1]), int(sys.argv[2])
+s = open_session(port=port)
+toks = [s.liveliness().declare_token(f"topseg/flood/cam{i}/alive/worker") for i in range(n)]
+print("ready", flush=True)
+time.sleep(120)
+"""
+
+
+def test_status_returns_within_its_timeout_and_lists_300_tokens():
+    """More than 256 tokens once filled the liveliness get's reply channel inside the get call
+    (answered from the session's own table) and status hung forever at 0 % CPU."""
+    import time
+
+    port = free_port()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", TOKENS, str(port), "300"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout.readline().strip() == "ready"
+        cmd = [sys.executable, "-m", "topseg.services.cli", "status", "--zenoh-port", str(port)]
+        t0 = time.monotonic()
+        done = subprocess.run(
+            [*cmd, "--timeout", "2", "--json", "--cell", "flood"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        took = time.monotonic() - t0
+    finally:
+        holder.kill()
+        holder.wait()
+    assert done.returncode == 1, done.stderr  # no drivers: every camera is DOWN
+    rep = json.loads(done.stdout)
+    assert len(rep["cameras"]) == 300 and "incomplete" not in rep
+    assert all(c["worker"]["alive"] and not c["driver"]["alive"] for c in rep["cameras"])
+    assert took < 2 + 1 + 1.5 + 5, took  # window, final queries and grace, process start
+
+
+def test_a_query_cut_off_at_its_deadline_is_said():
+    seen = status.Observed(window_s=1.0, incomplete=["liveliness tokens"])
+    seen.alive = {("c", "k", "driver"), ("c", "k", "worker")}
+    rep = status.report(seen)
+    assert rep["incomplete"] == ["liveliness tokens"]
+    assert "query for liveliness tokens did not end in time" in status.format_table(rep)
