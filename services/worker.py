@@ -25,6 +25,13 @@ do not decode (or that the forest cannot take) are dropped, counted as `rejected
 they never stop the worker. Without `--cameras`, a camera is served from its first depth
 message on (that message only announces it; the ring subscriber takes the next one).
 
+A flood of camera names is bounded: without `--cameras` at most `--max-cameras` discovered
+cameras are served at once; names beyond it are ignored, counted (in the status line) and
+warned about at most every 10 s. A discovered camera that sent no depth for `--forget-after`
+seconds is released (its publishers, token and subscriber undeclared, its state dropped;
+logged), so names that came once do not cost memory and threads forever; it is served
+again from its next message. Cameras named with `--cameras` are never limited or forgotten.
+
 It holds `topseg/<cell>/<camera>/alive/worker` for each camera it serves and stops cleanly on
 SIGTERM/SIGINT. A missing or damaged model file stops it before it joins Zenoh (exit 2).
 """
@@ -33,13 +40,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from topseg.services import zenoh_session
-from topseg.services.cli_types import finite
+from topseg.services.cli_types import finite, int_range
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.worker_mount import warm_up as mount_warm_up
@@ -51,6 +59,10 @@ log = logging.getLogger("topseg.worker")
 
 #: FIFO depth in --lossless mode: a full FIFO holds Zenoh back (the publisher waits).
 LOSSLESS_QUEUE = 64
+#: At most one "camera limit reached" warning this often (s).
+LIMIT_WARN_S = 10.0
+#: Distinct ignored camera names remembered for counting (beyond it, messages still count).
+MAX_IGNORED_NAMES = 4096
 #: Smoothing of the fps estimate (weight of the newest interval).
 FPS_ALPHA = 0.2
 
@@ -71,6 +83,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         metavar="CELL/CAMERA",
         help="serve only these cameras (default: every camera seen on topseg/*/*/depth)",
+    )
+    parser.add_argument(
+        "--max-cameras",
+        type=int_range(1, 100000),
+        default=32,
+        metavar="N",
+        help="without --cameras, serve at most this many discovered cameras at once; names "
+        "beyond it are ignored and counted (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--forget-after",
+        type=finite(0, 1e9),
+        default=60.0,
+        metavar="S",
+        help="release a discovered camera that sent no depth for this long; 0 = never "
+        "(default: %(default)s s)",
     )
     parser.add_argument(
         "--mount-check",
@@ -125,6 +153,8 @@ class CameraState:
     fps: float = 0.0
     watch: MountWatch | None = None
     warned_outside: bool = False
+    discovered: bool = False  # served because its depth came (not named by --cameras)
+    last_seen: float = field(default_factory=time.monotonic)  # last depth message taken
 
     def note_seq(self, seq: int) -> None:
         """Count the frames skipped between the last labelled seq and this one."""
@@ -163,6 +193,13 @@ class Worker:
         self.announced: set[tuple[str, str]] = set()  # new cameras, for the main loop to serve
         self.shared_sub = None  # --lossless without --cameras: one FIFO on the wildcard
         self.doorbells: list[Any] = []
+        self.max_cameras = getattr(args, "max_cameras", 32)
+        self.forget_after = getattr(args, "forget_after", 60.0)
+        self.ignored: set[tuple[str, str]] = set()  # names beyond --max-cameras
+        self.ignored_messages = 0
+        self.last_limit_warning = -math.inf
+        self.next_sweep = time.monotonic()
+        self.forgotten = 0
         self.congestion = (
             zenoh.CongestionControl.BLOCK if args.lossless else zenoh.CongestionControl.DROP
         )
@@ -193,8 +230,8 @@ class Worker:
             new = (parts.cell, parts.camera)
         with self.bell:
             self.rung = True
-            if new is not None:
-                self.announced.add(new)
+            if new is not None and len(self.announced) < self.max_cameras + MAX_IGNORED_NAMES:
+                self.announced.add(new)  # bounded: the main loop refuses and counts the excess
             self.bell.notify()
 
     def wake(self) -> None:
@@ -210,13 +247,69 @@ class Worker:
                 self.bell.wait(timeout)
             self.rung = False
 
+    def discovered_count(self) -> int:
+        """How many cameras are served because their depth came."""
+        return sum(1 for s in self.cameras.values() if s.discovered)
+
+    def admit(self, cell: str, camera: str) -> bool:
+        """Whether a newly seen camera may be served (--max-cameras); counts and warns (at
+        most every LIMIT_WARN_S) about the ones that may not."""
+        if self.discovered_count() < self.max_cameras:
+            return True
+        self.ignored_messages += 1
+        if len(self.ignored) < MAX_IGNORED_NAMES:
+            self.ignored.add((cell, camera))
+        now = time.monotonic()
+        if now - self.last_limit_warning >= LIMIT_WARN_S:
+            self.last_limit_warning = now
+            log.warning(
+                "camera limit reached (--max-cameras %d): ignoring %s/%s; %d camera names "
+                "ignored so far",
+                self.max_cameras,
+                cell,
+                camera,
+                len(self.ignored),
+            )
+        return False
+
+    def forget_idle(self) -> None:
+        """Release the discovered cameras that sent no depth for --forget-after seconds
+        (checked at most a few times a second)."""
+        now = time.monotonic()
+        if not self.forget_after > 0 or now < self.next_sweep:
+            return
+        self.next_sweep = now + min(1.0, self.forget_after / 4)
+        for state in list(self.cameras.values()):
+            idle = now - state.last_seen
+            if state.discovered and idle > self.forget_after:
+                self.release(state)
+                self.forgotten += 1
+                log.info(
+                    "released %s/%s: no depth for %.0f s (counts %s)",
+                    state.cell,
+                    state.camera,
+                    idle,
+                    state.counts,
+                )
+
+    def release(self, state: CameraState) -> None:
+        """Stop serving one camera: undeclare its token, subscriber and publishers."""
+        from topseg.core.formats import wire
+
+        self.cameras.pop((state.cell, state.camera), None)
+        self.depth_keys.pop(wire.depth_key(state.cell, state.camera), None)
+        for entity in (state.token, state.subscriber, state.labels_pub, state.stats_pub):
+            if entity is not None:
+                entity.undeclare()
+        state.token = state.subscriber = state.labels_pub = state.stats_pub = None
+
     def serve(self, cell: str, camera: str, own_subscriber: bool) -> CameraState:
         """Start serving one camera: publishers, liveliness token, maybe its own subscriber."""
         import zenoh
 
         from topseg.core.formats import wire
 
-        state = CameraState(cell, camera)
+        state = CameraState(cell, camera, discovered=not self.args.cameras)
         state.watch = MountWatch(f"{cell}/{camera}", self.mount_config)
         publish = dict(congestion_control=self.congestion, express=True)
         state.labels_pub = self.session.declare_publisher(wire.labels_key(cell, camera), **publish)
@@ -245,8 +338,9 @@ class Worker:
         with self.bell:
             new, self.announced = self.announced, set()
         for cell, camera in sorted(new):
-            if (cell, camera) not in self.cameras:
+            if (cell, camera) not in self.cameras and self.admit(cell, camera):
                 self.serve(cell, camera, own_subscriber=True)
+        self.forget_idle()
         busy = self.handle_due()
         if self.shared_sub is not None:
             sample = self.shared_sub.handler.try_recv()
@@ -271,6 +365,8 @@ class Worker:
             if not self.handle_ready():
                 due = [s.watch.seconds_to_due() for s in self.cameras.values()]
                 due = [d for d in due if d is not None]
+                if self.forget_after > 0 and self.discovered_count():
+                    due.append(max(0.0, self.next_sweep - time.monotonic()))
                 self.wait(min([svc.tick, *due]))
 
     def handle_due(self) -> bool:
@@ -295,7 +391,10 @@ class Worker:
                 return
             state = self.cameras.get((parts.cell, parts.camera))
             if state is None:
+                if not self.admit(parts.cell, parts.camera):
+                    return
                 state = self.serve(parts.cell, parts.camera, own_subscriber=False)
+        state.last_seen = time.monotonic()
         try:
             frame = wire.decode_depth(sample.payload.to_bytes())
         except wire.WireError as exc:
@@ -395,10 +494,8 @@ class Worker:
         """Undeclare the doorbells, subscribers and liveliness tokens."""
         for bell in self.doorbells:
             bell.undeclare()
-        for state in self.cameras.values():
-            state.token.undeclare()
-            if state.subscriber is not None:
-                state.subscriber.undeclare()
+        for state in list(self.cameras.values()):
+            self.release(state)
         if self.shared_sub is not None:
             self.shared_sub.undeclare()
 
@@ -408,13 +505,17 @@ def status_line(worker: Worker) -> str:
     if not worker.cameras:
         return f"model {worker.segmenter.model_id}: waiting for depth frames"
     now, parts = time.perf_counter(), []
-    for s in worker.cameras.values():
+    for s in list(worker.cameras.values()):  # another thread asks; the dict may change
         c = s.counts
         idle = s.last_time is None or now - s.last_time > 2.0
         rate = "idle" if idle else f"{s.fps:.1f} fps"
         parts.append(
             f"{s.cell}/{s.camera}: {rate}, {c['processed']} labelled, "
             f"{c['dropped']} dropped, {c['rejected']} rejected"
+        )
+    if worker.ignored:
+        parts.append(
+            f"{len(worker.ignored)} camera names ignored (--max-cameras {worker.max_cameras})"
         )
     return "serving " + "; ".join(parts)
 
@@ -465,4 +566,13 @@ def run(args: argparse.Namespace) -> int:
         worker.serve_until_stopped(svc)
         for state in worker.cameras.values():
             log.info("%s/%s: %s", state.cell, state.camera, state.counts)
+        if worker.ignored:
+            log.warning(
+                "%d camera names were ignored (--max-cameras %d; %d depth messages); %d idle "
+                "cameras released",
+                len(worker.ignored),
+                worker.max_cameras,
+                worker.ignored_messages,
+                worker.forgotten,
+            )
     return 0

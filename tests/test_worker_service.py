@@ -412,3 +412,49 @@ def test_worker_labels_with_the_frames_mount_and_reports_when_it_changes(peers, 
     assert f"camera {cell}/cam0: mount from the frames: height 3.10 m" in err
     assert f"camera {cell}/cam0: the frames' mount changed: height 3.10 -> 2.70 m" in err
     assert "estimated mount" not in err
+
+
+def test_a_flood_of_camera_names_is_bounded_counted_and_released_when_idle(model_path):
+    """120 bogus names on the wildcard: at most --max-cameras served, the rest counted and
+    warned about once, the served ones released after --forget-after, a new name served."""
+    port = free_port()
+    session = open_session(port=port)
+    tokens: set = set()
+
+    def on_token(sample):
+        (tokens.discard if str(sample.kind).endswith("DELETE") else tokens.add)(
+            str(sample.key_expr)
+        )
+
+    session.liveliness().declare_subscriber("topseg/flood/*/alive/worker", on_token, history=True)
+    proc = start_worker(
+        port, model_path, "--crf", "none", "--max-cameras", "5", "--forget-after", "2"
+    )
+    try:
+        probe = session.declare_publisher("topseg/flood/probe/depth")
+        wait_for(lambda: probe.put(b"x") or tokens, 120, "the worker to serve a first name")
+        pubs = [session.declare_publisher(f"topseg/flood/cam{i}/depth") for i in range(120)]
+        peak = len(tokens)
+        for _ in range(8):  # every name several times, as a flood would
+            for pub in pubs:
+                pub.put(b"not depth")
+            peak = max(peak, len(tokens))
+            time.sleep(0.1)
+        assert 1 <= peak <= 5 and len(tokens) <= 5, tokens
+        # nothing more comes: every served camera is released after 2 s idle
+        wait_for(lambda: not tokens, 20, "the idle cameras to be released")
+        late = session.declare_publisher("topseg/flood/late/depth")
+        wait_for(lambda: late.put(b"x") or tokens, 20, "a new name to be served again")
+        assert tokens == {"topseg/flood/late/alive/worker"}
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        session.close()
+    assert rc == 0, err
+    assert err.count("camera limit reached (--max-cameras 5)") == 1, err  # rate-limited
+    released = [line for line in err.splitlines() if "released flood/" in line]
+    assert len(released) >= 5, err
+    ignored = next(line for line in err.splitlines() if "camera names were ignored" in line)
+    n = int(ignored.split("camera names were ignored")[0].split()[-1])
+    assert 115 <= n <= 121, ignored  # 120 + probe, less the at most 5 served
