@@ -85,6 +85,11 @@ def default_config_json(port: int | None = None) -> dict[str, Any]:
             "period_max_ms": 1000,
             "period_increase_factor": 2,
         },
+        # no implicit shared memory: Zenoh would put every message over 3 KB (every depth
+        # frame) in a 16 MB pool and take a buffer back from a reader that has not confirmed
+        # it for ~0.2 s, so a paused worker (SIGSTOP, a debugger, a cgroup freeze) later
+        # read other frames' bytes (docs/reliability.md); loopback TCP is fast enough
+        "transport/shared_memory/transport_optimization/enabled": False,
     }
 
 

@@ -458,3 +458,59 @@ def test_a_flood_of_camera_names_is_bounded_counted_and_released_when_idle(model
     ignored = next(line for line in err.splitlines() if "camera names were ignored" in line)
     n = int(ignored.split("camera names were ignored")[0].split()[-1])
     assert 115 <= n <= 121, ignored  # 120 + probe, less the at most 5 served
+
+
+# ------------------------------------------------------------------ a paused process
+
+
+def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_every_frame(
+    tmp_path, model_path
+):
+    """Zenoh puts messages over a few KB into shared memory, and its publisher takes back
+    the buffers of a reader that confirms nothing for ~0.2 s: a worker stopped with SIGSTOP
+    (Ctrl-Z, a debugger, a cgroup freeze) read overwritten frames after SIGCONT and rejected
+    well-formed ones as garbage. topseg's default config keeps depth out of shared memory."""
+    from netutil import Services
+
+    from topseg.core.formats.recording import RecordingWriter
+
+    n, fps = 150, 30  # 5 s of 640x480 frames; the worker is stopped 2 s of them
+    mount = TopViewMount(KINECT_V1, PAPER_MOUNT.height_mm)
+    rng = np.random.default_rng(9)
+    scenes = [procedural_frame(rng, mount)[0] for _ in range(3)]
+    rec = tmp_path / "vga.mcap"
+    with RecordingWriter(rec) as w:
+        for i in range(n):
+            t = 10**9 + i * 10**9 // fps
+            frame = wire.DepthFrame(scenes[i % 3], KINECT_V1, i, t)
+            w.write(wire.depth_key(), wire.encode_depth(frame), t)
+    port, cell = free_port(), "wkp"
+    run = Services()
+    try:
+        worker = run("worker", "--model", model_path, "--lossless", "--crf", "none",
+                     "--cameras", f"{cell}/cam0", "--zenoh-port", port)  # fmt: skip
+        tap = run.tap(port, cell)
+        worker.wait_line("worker ready", 120)
+        driver = run("driver", "--cell", cell, "--source", f"replay:{rec}", "--fps", fps,
+                     "--congestion", "block", "--zenoh-port", port)  # fmt: skip
+        wait_for(lambda: any(seq >= 10 for _, seq, *_ in list(tap.labels)), 60, "labels")
+        worker.proc.send_signal(signal.SIGSTOP)
+        time.sleep(2.0)
+        worker.proc.send_signal(signal.SIGCONT)
+        assert driver.proc.wait(60) == 0, driver.err
+        try:
+            wait_for(lambda: any(s == n - 1 for _, s, *_ in list(tap.labels)), 90, "the last")
+        except AssertionError:
+            got = [s for _, s, *_ in tap.labels]
+            raise AssertionError(f"labels {got}\n{worker.err}\n{driver.err}") from None
+        wait_for(lambda: tap.stats and tap.stats[-1].get("seq") == n - 1, 10, "the last stats")
+        assert worker.stop() == 0, worker.err
+    finally:
+        run.close()
+    seqs = [seq for _, seq, *_ in tap.labels]
+    first = seqs[0]  # frames sent before the driver's route to the worker existed are not its
+    assert first < 10, seqs
+    assert seqs == list(range(first, n)), f"labels {seqs}\n{worker.err}"
+    counts = tap.stats[-1]["counts"]
+    assert counts == {"processed": n - first, "dropped": 0, "rejected": 0}, worker.err
+    assert "not a msgpack" not in worker.err
