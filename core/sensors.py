@@ -116,6 +116,19 @@ _BY_NAME = {s.name: s for s in SENSORS}
 NAMES: tuple[str, ...] = tuple(_BY_NAME)
 
 
+def nearest_sensor(width: int, height: int, fx: float | None = None) -> SensorModel:
+    """The supported sensor nearest to frames of `width` x `height` px: one of the same size
+    first, then (when `fx` is known) the nearest field of view (focal length over width,
+    which resampling keeps); without `fx`, the first of the same size in SENSORS order."""
+
+    def distance(s: SensorModel) -> tuple:
+        k = s.intrinsics
+        fov = 0.0 if fx is None else abs(k.fx / k.width - fx / width)
+        return ((k.width, k.height) != (width, height), fov)
+
+    return min(SENSORS, key=distance)
+
+
 def get_sensor(name: str) -> SensorModel:
     """The sensor called `name`; a one-line ConfigError listing the known names if none."""
     try:

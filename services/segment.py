@@ -280,12 +280,10 @@ def _png_mount(frame):
 
 def sensor_for(shape: tuple[int, int]):
     """The supported sensor whose frames are this (rows, cols) size, or None."""
-    from topseg.core.sensors import SENSORS
+    from topseg.core.sensors import nearest_sensor
 
-    for sensor in SENSORS:
-        if sensor.intrinsics.shape == tuple(shape):
-            return sensor
-    return None
+    sensor = nearest_sensor(shape[1], shape[0])
+    return sensor if sensor.intrinsics.shape == tuple(shape) else None
 
 
 def _spread(items: list, n: int) -> list:

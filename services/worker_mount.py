@@ -64,21 +64,6 @@ class MountWatchConfig:
             raise TopsegError("mount check intervals must be >= 0 s")
 
 
-def guess_sensor(k: Intrinsics) -> str:
-    """The registered sensor nearest to intrinsics `k`: the same size first, then the nearest
-    field of view (focal length over width, which resampling keeps)."""
-    from topseg.core.sensors import SENSORS
-
-    def distance(s) -> tuple:
-        sk = s.intrinsics
-        return (
-            (sk.width, sk.height) != (k.width, k.height),
-            abs(sk.fx / sk.width - k.fx / k.width),
-        )
-
-    return min(SENSORS, key=distance).name
-
-
 def mount_text(m: TopViewMount) -> str:
     """'height 3.31 m, pitch +1.2, roll -0.4 deg, kinect_v1' for logs."""
     return (
@@ -274,7 +259,10 @@ class MountWatch:
             self.next_check = None if every <= 0 else now + every
 
     def _try_estimate(self, depths: list, k: Intrinsics, what: str):
-        sensor = self.config.sensor or (self.mount.sensor if self.mount else guess_sensor(k))
+        from topseg.core.sensors import nearest_sensor
+
+        guessed = nearest_sensor(k.width, k.height, k.fx).name
+        sensor = self.config.sensor or (self.mount.sensor if self.mount else guessed)
         t0 = time.perf_counter()
         try:
             est = self.estimate(depths, k, sensor)

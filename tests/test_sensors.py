@@ -50,3 +50,13 @@ def test_unknown_sensor_is_one_line_naming_the_known_ones():
         sensors.get_sensor(None)
     with pytest.raises(ConfigError, match="family"):
         sensors.SensorModel("x", "sonar", sensors.KINECT_V1.intrinsics, "none", 0.1, 1.0)
+
+
+def test_nearest_sensor_by_size_then_field_of_view():
+    from topseg.core.sensors import KINECT_V1, KINECT_V2, REALSENSE_D435, nearest_sensor
+
+    assert nearest_sensor(640, 480) is KINECT_V1  # same size, no focal length: the first listed
+    assert nearest_sensor(512, 424) is KINECT_V2
+    d435 = REALSENSE_D435.intrinsics
+    assert nearest_sensor(640, 480, d435.fx) is REALSENSE_D435  # same size: the field of view
+    assert nearest_sensor(320, 240, d435.fx / 2) is REALSENSE_D435  # resampled: the field of view

@@ -10,7 +10,8 @@ import pytest
 from topseg.core.calibration import CalibrationError
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats.wire import DepthFrame
-from topseg.services.worker_mount import MountWatch, MountWatchConfig, guess_sensor
+from topseg.core.sensors import nearest_sensor
+from topseg.services.worker_mount import MountWatch, MountWatchConfig
 
 K = KINECT_V1.scaled_to(16, 12)
 
@@ -49,7 +50,7 @@ def test_first_frames_wait_for_the_estimate_then_are_all_released(caplog):
         released = watch.take(frame(2), now=0.2)
     assert [f.seq for f in released] == [0, 1, 2] and floor.calls == [3]
     assert watch.mount.height_mm == 3000.0 and watch.source == "estimated"
-    assert watch.mount.sensor == guess_sensor(K) == "kinect_v1"
+    assert watch.mount.sensor == nearest_sensor(K.width, K.height, K.fx).name == "kinect_v1"
     assert "camera c/cam0: estimated mount from 3 frames: height 3.00 m" in caplog.text
     assert [f.seq for f in watch.take(frame(3), now=0.3)] == [3]  # no waiting any more
     assert watch.stats() == {
@@ -125,4 +126,5 @@ def test_guess_sensor_by_size_and_focal_length():
     from topseg.core.sensors import SENSORS
 
     for s in SENSORS:
-        assert guess_sensor(s.intrinsics) == s.name
+        k = s.intrinsics
+        assert nearest_sensor(k.width, k.height, k.fx).name == s.name
