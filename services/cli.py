@@ -29,7 +29,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "topseg.services.segment",
         "segment depth PNGs or recordings offline into label PNGs",
     ),
-    "experiment": ("topseg.services.experiment", "the paper's experiments: Fig. 4 curves, Table I"),
+    "experiment": (
+        "topseg.services.experiment",
+        "the paper's experiments (Fig. 4, Table I); one model across mounts and sensors",
+    ),
     "bench": ("topseg.services.bench", "measure speed and memory of a stage"),
     "driver": ("topseg.services.driver", "publish one camera's depth frames on Zenoh"),
     "record": ("topseg.services.record", "record Zenoh topseg messages to an MCAP file"),
@@ -124,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
         # an interrupt can leave zarr's async reads half done; their "coroutine was never
         # awaited" warnings at exit would bury this line, which is the whole story
         warnings.simplefilter("ignore")
+        # ... and asyncio logs the pending tasks it destroys at exit ("Task was destroyed but
+        # it is pending!") through its logger, not as warnings
+        logging.getLogger("asyncio").setLevel(logging.CRITICAL + 1)
         print("topseg: interrupted", file=sys.stderr)
         return 130
     except TopsegError as exc:
