@@ -1,0 +1,149 @@
+"""ROS 2 messages of topseg's streams, serialised as CDR: depth, labels, camera info, the mount.
+
+One place builds the ROS 2 view of a frame, so that MCAP recordings (`recording.py`) and the
+live rmw_zenoh bridge publish the very same bytes. Serialisation and the message definitions
+come from `rosbags` (a maintained, ROS-free implementation of ROS 2's type system and CDR):
+its typestore holds the definitions of the ROS 2 releases, computes their REP-2016 RIHS01
+type hashes and writes the concatenated `ros2msg` schema text that MCAP's ROS 2 profile uses.
+
+Types follow ROS 2 Jazzy (the LTS with type hashes that rmw_zenoh ships for); the four types
+used here have the same RIHS01 hash in Iron, Jazzy, Kilted and Lyrical (checked in tests).
+
+Frames (REP 103 / REP 105 conventions):
+- `FLOOR_FRAME`: x, y on the floor, z up, origin on the floor below the camera centre
+  (`TopViewMount`'s world frame).
+- `<camera>_optical_frame`: x right, y down, z forward, the camera's optical frame.
+The mount is the static transform FLOOR_FRAME -> optical frame.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
+
+from topseg.core.camera import Intrinsics, TopViewMount
+
+#: the ROS 2 release whose message definitions and type hashes topseg speaks
+ROS_DISTRO = "jazzy"
+FLOOR_FRAME = "topseg_floor"
+
+IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+#: the types topseg publishes, in the order a reader is told about them
+MESSAGE_TYPES = (IMAGE, CAMERA_INFO, TF_MESSAGE)
+
+DEPTH_ENCODING = "16UC1"  # millimetres, 0 = no reading (REP 118)
+LABEL_ENCODING = "mono8"  # label ids of core/labels.py
+
+
+@cache
+def typestore():
+    """The rosbags typestore of `ROS_DISTRO` (built once)."""
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def type_hash(typename: str) -> str:
+    """The REP-2016 type hash of a ROS 2 type, `RIHS01_<64 hex>`."""
+    return typestore().hash_rihs01(typename)
+
+
+def schema_text(typename: str) -> str:
+    """The `ros2msg` schema of a type: its definition followed by its dependencies' (MCAP)."""
+    return typestore().generate_msgdef(typename, ros_version=2)[0]
+
+
+def dds_type_name(typename: str) -> str:
+    """The DDS name of a ROS 2 type, `sensor_msgs::msg::dds_::Image_` (rmw_zenoh key parts)."""
+    package, kind, name = typename.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def optical_frame(camera: str) -> str:
+    """The optical frame id of a camera's images."""
+    return f"{camera}_optical_frame"
+
+
+def _types():
+    return typestore().types
+
+
+def _stamp(stamp_ns: int):
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return _types()["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+def _header(stamp_ns: int, frame_id: str):
+    return _types()["std_msgs/msg/Header"](stamp=_stamp(stamp_ns), frame_id=frame_id)
+
+
+def _serialise(message, typename: str) -> bytes:
+    return bytes(typestore().serialize_cdr(message, typename))
+
+
+def image_message(image: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
+    """A `sensor_msgs/Image` as CDR: uint16 -> `16UC1` (mm), uint8 -> `mono8` (label ids)."""
+    if image.ndim != 2 or image.dtype.kind != "u" or image.itemsize not in (1, 2):
+        raise ValueError(
+            f"an image must be 2-D uint16 depth or uint8 labels, got {image.dtype} {image.shape}"
+        )
+    encoding = DEPTH_ENCODING if image.itemsize == 2 else LABEL_ENCODING
+    image = np.ascontiguousarray(image, dtype=image.dtype.newbyteorder("<"))
+    rows, cols = image.shape
+    message = _types()[IMAGE](
+        header=_header(stamp_ns, frame_id),
+        height=rows,
+        width=cols,
+        encoding=encoding,
+        is_bigendian=0,
+        step=cols * image.itemsize,
+        data=image.view(np.uint8).reshape(-1),
+    )
+    return _serialise(message, IMAGE)
+
+
+def camera_info_message(k: Intrinsics, stamp_ns: int, frame_id: str) -> bytes:
+    """A `sensor_msgs/CameraInfo` as CDR: the pinhole of `k`, no distortion (`plumb_bob`, 0s)."""
+    types = _types()
+    kmat = np.array([k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0])
+    pmat = np.array([k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+    message = types[CAMERA_INFO](
+        header=_header(stamp_ns, frame_id),
+        height=k.height,
+        width=k.width,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=kmat,
+        r=np.eye(3).reshape(-1),
+        p=pmat,
+        binning_x=0,
+        binning_y=0,
+        roi=types["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
+    return _serialise(message, CAMERA_INFO)
+
+
+def mount_pose(mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's pose in the floor frame: translation (m) and quaternion (x, y, z, w)."""
+    camera_axes_in_floor = mount.rotation_world_to_camera().T
+    return mount.centre_world_m(), Rotation.from_matrix(camera_axes_in_floor).as_quat()
+
+
+def mount_transform_message(mount: TopViewMount, stamp_ns: int, camera: str) -> bytes:
+    """A `tf2_msgs/TFMessage` as CDR: the static transform FLOOR_FRAME -> the optical frame."""
+    types = _types()
+    (tx, ty, tz), (qx, qy, qz, qw) = mount_pose(mount)
+    transform = types["geometry_msgs/msg/TransformStamped"](
+        header=_header(stamp_ns, FLOOR_FRAME),
+        child_frame_id=optical_frame(camera),
+        transform=types["geometry_msgs/msg/Transform"](
+            translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
+            rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+        ),
+    )
+    return _serialise(types[TF_MESSAGE](transforms=[transform]), TF_MESSAGE)
