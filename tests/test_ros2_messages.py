@@ -104,3 +104,7 @@ def test_type_hashes_match_rep_2016_and_every_release_with_hashes():
 def test_dds_type_names():
     assert ros2.dds_type_name(ros2.IMAGE) == "sensor_msgs::msg::dds_::Image_"
     assert ros2.dds_type_name(ros2.TF_MESSAGE) == "tf2_msgs::msg::dds_::TFMessage_"
+
+
+def test_ros2_topic_mirrors_the_zenoh_key():
+    assert ros2.ros2_topic("cell1", "cam0", "depth") == "/topseg/cell1/cam0/depth"

@@ -62,6 +62,15 @@ def dds_type_name(typename: str) -> str:
     return f"{package}::{kind}::dds_::{name}_"
 
 
+def ros2_topic(cell: str, camera: str, stream: str) -> str:
+    """The ROS 2 topic of a camera's stream: `/topseg/<cell>/<camera>/<stream>`.
+
+    Recordings and the live bridge use the same names, mirroring the Zenoh keys
+    `topseg/<cell>/<camera>/<stream>` (`core/formats/wire.py`).
+    """
+    return f"/topseg/{cell}/{camera}/{stream}"
+
+
 def optical_frame(camera: str) -> str:
     """The optical frame id of a camera's images."""
     return f"{camera}_optical_frame"
