@@ -101,19 +101,21 @@ class SegmenterConfig:
     check_camera  a model trained before heights: refuse frames that do not come from the
                   model's camera (size, focal length); off where frames of other sizes are
                   expected (the worker's tests). Height models take any camera.
-    stride        forest evaluated at every stride-th pixel of every stride-th row (1 = all)
+    stride        forest walked at every stride-th pixel of every stride-th row, the rest
+                  upsampled by height (1 = every pixel); None: from each frame's mount, the
+                  grid `forest.predict.grid_stride` spaces GRID_SPACING_MM apart on the floor
     mount         the camera's mount, for frames labelled without one of their own (a
                   height model needs one or the other)
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
     check_camera: bool = True
-    stride: int = 1
+    stride: int | None = None
     mount: TopViewMount | None = None
 
     def __post_init__(self) -> None:
-        if self.stride < 1:
-            raise TopsegError(f"stride must be >= 1, got {self.stride}")
+        if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
+            raise TopsegError(f"stride must be >= 1 (or None: from the mount), got {self.stride}")
 
 
 @dataclass(frozen=True)
@@ -288,16 +290,35 @@ class Segmenter:
         from topseg.core.forest.inputs import legacy_input
 
         if self.features is None:
-            return self._predict(legacy_input(depth))
-        return self._predict(self.model_input(depth, mount=mount))
+            return self._predict(legacy_input(depth), self.stride_for(depth))
+        return self._predict(
+            self.model_input(depth, mount=mount), self.stride_for(depth, mount=mount)
+        )
 
-    def _predict(self, inp: ModelInput) -> np.ndarray:
+    def stride_for(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        name: str = "frame",
+        mount: TopViewMount | None = None,
+    ) -> int:
+        """The forest's stride on this frame: the config's, else from the frame's mount
+        (`grid_stride`); 1 for a model that reads depth (it has no mount to measure by)."""
+        from topseg.core.forest.predict import grid_stride
+
+        if self.config.stride is not None:
+            return self.config.stride
+        if self.features is None:
+            return 1
+        return grid_stride(self.frame_mount(depth, intrinsics, name, mount))
+
+    def _predict(self, inp: ModelInput, stride: int) -> np.ndarray:
         from topseg.core.forest.predict import predict_proba
 
         shape = (*inp.shape, L.NUM_CLASSES)
         if self._out is None or self._out.shape != shape:
             self._out = np.empty(shape, np.float32)
-        return predict_proba(self.forest, inp, out=self._out, stride=self.config.stride)
+        return predict_proba(self.forest, inp, out=self._out, stride=stride)
 
     def smooth(self, proba: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """The CRF stage alone: (H, W) uint8 labels of `proba` under this CRF mode."""
@@ -318,7 +339,7 @@ class Segmenter:
         building the model input."""
         t0 = time.perf_counter()
         inp = self.model_input(depth, intrinsics, name, mount)
-        proba = self._predict(inp)
+        proba = self._predict(inp, self.stride_for(depth, intrinsics, name, mount))
         t1 = time.perf_counter()
         labels = self.smooth(proba, depth)
         t2 = time.perf_counter()

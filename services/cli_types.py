@@ -56,3 +56,25 @@ def int_range(lo: int, hi: int | None = None) -> Callable[[str], int]:
 positive_int = int_range(1)
 #: a `type=` for an integer >= 0
 non_negative_int = int_range(0)
+
+
+def stride(text: str) -> int | None:
+    """A `type=` for the forest's `--stride`: `auto` (None: from each frame's mount) or >= 1."""
+    if text == "auto":
+        return None
+    return positive_int(text)
+
+
+stride.__name__ = "stride"
+
+
+def add_stride_argument(parser: argparse.ArgumentParser) -> None:
+    """`--stride auto|N`: where the forest walks (SegmenterConfig.stride)."""
+    parser.add_argument(
+        "--stride",
+        type=stride,
+        default=None,
+        metavar="auto|N",
+        help="walk the forest at every N-th pixel of every N-th row and upsample the rest by "
+        "height; auto (default) spaces walked pixels ~25 mm apart on the floor; 1: every pixel",
+    )

@@ -13,7 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from topseg.services.cli_types import non_negative_int, positive_int
+from topseg.services.cli_types import add_stride_argument, non_negative_int, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,6 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
+    add_stride_argument(parser)
     parser.add_argument(
         "--frames", type=positive_int, default=None, help="score only the first N frames"
     )
@@ -40,9 +41,9 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core import metrics
     from topseg.core.formats.dataset import open_dataset
     from topseg.core.scoring import dataset_frames, score
-    from topseg.core.segmenter import Segmenter
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    segmenter = Segmenter.from_file(args.model, crf=args.crf)
+    segmenter = Segmenter.from_file(args.model, SegmenterConfig(stride=args.stride), crf=args.crf)
     ds = open_dataset(args.data)
     if args.json_out:  # before the scoring: a folder we cannot write costs no work
         _check_writable(args.json_out.parent, args.json_out)

@@ -31,6 +31,8 @@ import logging
 import sys
 from pathlib import Path
 
+from topseg.services.cli_types import add_stride_argument
+
 log = logging.getLogger("topseg.segment")
 
 #: frames (at most) a mount is estimated from, spread over an input
@@ -49,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
     )
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
+    add_stride_argument(parser)
     parser.add_argument(
         "--mount",
         type=Path,
@@ -90,9 +93,9 @@ def save_png(path: Path, array) -> None:
 def run(args: argparse.Namespace) -> int:
     """Segment every input; a damaged one is skipped with one line, and exit 2 at the end."""
     from topseg.core.errors import TopsegError
-    from topseg.core.segmenter import Segmenter
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    segmenter = Segmenter.from_file(args.model, crf=args.crf)
+    segmenter = Segmenter.from_file(args.model, SegmenterConfig(stride=args.stride), crf=args.crf)
     given = None
     if args.mount is not None and segmenter.reads_height:
         from topseg.core.calibration import read_mount_file

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from topseg.services import zenoh_session
-from topseg.services.cli_types import finite, int_range
+from topseg.services.cli_types import add_stride_argument, finite, int_range
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.worker_mount import warm_up as mount_warm_up
@@ -78,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="realtime",
         help="CRF smoothing after the forest (default: %(default)s)",
     )
+    add_stride_argument(parser)
     parser.add_argument(
         "--cameras",
         nargs="+",
@@ -535,15 +536,17 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
     return MountWatchConfig(recheck_s=check, sensor=sensor)
 
 
-def load_segmenter(model: str | None, crf_mode: str) -> Segmenter:
-    """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`.
+def load_segmenter(model: str | None, crf_mode: str, stride: int | None = None) -> Segmenter:
+    """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`
+    and the forest's `stride` (None: from each frame's mount).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).
     """
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    return Segmenter.from_file(model, SegmenterConfig(check_camera=False), crf=crf_mode)
+    config = SegmenterConfig(check_camera=False, stride=stride)
+    return Segmenter.from_file(model, config, crf=crf_mode)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -552,7 +555,9 @@ def run(args: argparse.Namespace) -> int:
         parse_camera(text)  # bad names fail before anything is loaded
     mount_config(args)  # so do a bad --mount-check or --sensor
     svc = ServiceLifecycle("worker", args)  # so does a bad Zenoh config
-    segmenter = load_segmenter(args.model, args.crf)  # ModelFileError: one line, exit 2
+    segmenter = load_segmenter(
+        args.model, args.crf, args.stride
+    )  # ModelFileError: one line, exit 2
     t0 = time.perf_counter()
     segmenter.warm_up()
     mount_warm_up()

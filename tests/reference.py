@@ -379,6 +379,49 @@ def predict_reference(forest: Forest, frame) -> np.ndarray:
     return out
 
 
+def upsample_reference(grid_proba, values, floor, stride, sigma_mm) -> np.ndarray:
+    """`predict._upsample` in numpy (float64): each pixel between grid points averages the
+    posteriors of its (up to four) surrounding grid pixels with a value, weighted by
+    (s - |dr|)(s - |dc|) exp(-((v_grid - v) / sigma)^2); the nearest in value where every
+    weight underflows. Grid pixels keep `grid_proba`; zeros without a value, background on
+    the floor."""
+    h, w = values.shape
+    out = np.zeros(grid_proba.shape, np.float64)
+    last_r, last_c = (h - 1) - (h - 1) % stride, (w - 1) - (w - 1) % stride
+    for r in range(h):
+        for c in range(w):
+            r0, c0 = r - r % stride, c - c % stride
+            if r == r0 and c == c0:
+                out[r, c] = grid_proba[r, c]
+                continue
+            if values[r, c] == 0:
+                continue
+            if floor[r, c]:
+                out[r, c, labels.BACKGROUND] = 1.0
+                continue
+            grid = {
+                (gr, gc)
+                for gr in (r0, min(r0 + stride, last_r))
+                for gc in (c0, min(c0 + stride, last_c))
+            }
+            grid = [g for g in sorted(grid) if values[g] > 0]
+            weights = np.array(
+                [
+                    (stride - abs(r - gr))
+                    * (stride - abs(c - gc))
+                    * np.exp(-(((float(values[gr, gc]) - float(values[r, c])) / sigma_mm) ** 2))
+                    for gr, gc in grid
+                ]
+            )
+            if weights.sum() > 1e-30:
+                out[r, c] = sum(wt * grid_proba[g] for wt, g in zip(weights, grid, strict=True))
+                out[r, c] /= weights.sum()
+            elif grid:
+                near = min(grid, key=lambda g: abs(float(values[g]) - float(values[r, c])))
+                out[r, c] = grid_proba[near]
+    return out
+
+
 # --- forest training: the node stream, the criterion, the splitter ---------------------------
 
 MASK = (1 << 64) - 1

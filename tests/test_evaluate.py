@@ -86,6 +86,7 @@ def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
 
 def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
     from topseg.core.forest.inputs import dataset_mount, header_fields, model_input, trained_for
+    from topseg.core.forest.predict import grid_stride
 
     ds = D.open_dataset(data)
     config = TrainConfig(
@@ -114,7 +115,8 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
         h, w = m.intrinsics.shape
         depth = np.asarray(ds.depth[i])[:h, :w]
         truth = np.asarray(ds.labels[i])[:h, :w].ravel()
-        pred = forest.predict_labels(model, model_input(depth, m, config.features)).ravel()
+        inp = model_input(depth, m, config.features)  # walked on the mount's grid, as default
+        pred = forest.predict_labels(model, inp, stride=grid_stride(m)).ravel()
         keep = truth != NO_DEPTH
         pred = np.where(pred[keep] == NO_DEPTH, 0, pred[keep])
         cm += np.bincount(truth[keep] * NUM_CLASSES + pred, minlength=NUM_CLASSES**2).reshape(

@@ -4,12 +4,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from reference import apply_reference, predict_reference
+from reference import apply_reference, predict_reference, upsample_reference
 
 from topseg.core import labels
 from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
-from topseg.core.forest.inputs import ModelInput
-from topseg.core.forest.predict import apply
+from topseg.core.forest.inputs import ModelInput, as_input
+from topseg.core.forest.predict import UPSAMPLE_SIGMA_MM, _upsample, apply
 from topseg.core.forest.tree import node_depths
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,18 +71,35 @@ def test_posterior_is_the_mean_of_leaf_distributions():
     assert (p1[:, None, :] == single.posteriors[None]).all(axis=2).any(axis=1).all()
 
 
-def test_stride_evaluates_a_grid_and_fills_blocks():
+@pytest.mark.parametrize("shape", [(31, 45), (32, 44)])
+def test_stride_walks_a_grid_and_upsamples_by_height(shape):
     forest = random_forest(9, 2)
-    depth = random_depth(10, (31, 45))
+    depth = random_depth(10, shape)
     full = predict_proba(forest, depth)
-    for s in (2, 3):
+    inp = as_input(depth)
+    for s in (2, 3, 4):
         fast = predict_proba(forest, depth, stride=s)
         np.testing.assert_array_equal(fast[::s, ::s], full[::s, ::s])
-        r, c = np.indices(depth.shape)
-        src = fast[r - r % s, c - c % s]
-        has = depth > 0
-        np.testing.assert_array_equal(fast[has], src[has])
-        assert np.all(fast[~has] == 0)
+        want = upsample_reference(full, inp.values, inp.floor, s, UPSAMPLE_SIGMA_MM)
+        np.testing.assert_allclose(fast, want, rtol=2e-5, atol=1e-6)
+        assert np.all(fast[depth == 0] == 0)
+        informed = want.sum(axis=2) > 0  # some grid neighbour has depth
+        assert informed[depth > 0].mean() > 0.9
+        np.testing.assert_allclose(fast[informed].sum(axis=1), 1.0, rtol=1e-5)
+
+
+def test_upsampling_keeps_a_height_edge():
+    """A step in height between grid columns: pixels take the posterior of their own side."""
+    values = np.full((9, 9), 2000, np.uint16)
+    values[:, 5:] = 3000  # grid columns 0, 4 | 8: the edge falls between columns 4 and 8
+    floor = np.zeros(values.shape, bool)
+    proba = np.zeros((9, 9, labels.NUM_CLASSES), np.float32)
+    proba[:, :5, 1] = 1.0
+    proba[:, 5:, 7] = 1.0
+    grid = np.zeros_like(proba)
+    grid[::4, ::4] = proba[::4, ::4]
+    _upsample(values, floor, 4, np.float32(UPSAMPLE_SIGMA_MM), grid)
+    np.testing.assert_array_equal(grid.argmax(axis=2), proba.argmax(axis=2))
 
 
 def test_labels_and_no_depth():

@@ -10,6 +10,7 @@ from PIL import Image
 from topseg.core import forest
 from topseg.core.camera import KINECT_V1, TopViewMount, metres_to_mm
 from topseg.core.forest.inputs import header_fields, model_input, trained_for
+from topseg.core.forest.predict import grid_stride
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import recording, wire
 from topseg.core.synth import procedural
@@ -125,6 +126,11 @@ def height_model(tmp_path_factory):
     return path, trained, cfg.features
 
 
+def test_segment_refuses_a_bad_stride(tmp_path):
+    r = segment(tmp_path, "--stride", "0", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "--stride" in r.stderr and "Traceback" not in r.stderr
+
+
 def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path):
     path, trained, features = height_model
     frames = floor_scene(np.random.default_rng(5), MOUNT, 3)
@@ -132,7 +138,9 @@ def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path
     folder.mkdir()
     for i, (depth, _) in enumerate(frames):
         Image.fromarray(depth).save(folder / f"f{i}.png")
-    r = segment(folder, "--model", path, "--out", tmp_path / "out", "--crf", "none")
+    r = segment(
+        folder, "--model", path, "--out", tmp_path / "out", "--crf", "none", "--stride", "1"
+    )
     assert r.returncode == 0, r.stderr
     assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" in r.stdout
     assert "segmented 3 frames" in r.stdout and "floor skipped:" in r.stdout
@@ -156,7 +164,7 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     Image.fromarray(depth).save(tmp_path / "f.png")
     r = segment(
         tmp_path / "f.png", "--mount", tmp_path / "mount.json", "--model", path,
-        "--out", tmp_path / "a", "--crf", "none",
+        "--out", tmp_path / "a", "--crf", "none", "--stride", "1",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "estimated" not in r.stdout
@@ -167,10 +175,11 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     w = recording.RecordingWriter(rec)
     w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, KINECT_V1, 3, mount=MOUNT)))
     w.close()
-    r = segment(rec, "--model", path, "--out", tmp_path / "b", "--crf", "none")
+    r = segment(rec, "--model", path, "--out", tmp_path / "b", "--crf", "none")  # stride auto
     assert r.returncode == 0, r.stderr
     assert "estimated" not in r.stdout
-    expected = forest.predict_labels(trained, model_input(depth, MOUNT, features))
+    inp = model_input(depth, MOUNT, features)
+    expected = forest.predict_labels(trained, inp, stride=grid_stride(MOUNT))
     got = np.asarray(Image.open(tmp_path / "b" / "r_000003_labels.png"))
     np.testing.assert_array_equal(got, expected)
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from topseg.core.camera import TopViewMount
 from topseg.core.forest.features import response_at
 from topseg.core.forest.inputs import ModelInput, as_input, check_input
 from topseg.core.forest.tree import Forest
@@ -192,22 +193,103 @@ def _kernel(k: int):
     return predict
 
 
+#: the floor distance (mm) between walked pixels that `grid_stride` aims for: 4 px for the
+#: Kinect v1 at 3.5 m, where strides 1-4 were measured (docs/performance.md)
+GRID_SPACING_MM = 25.0
+#: the coarsest grid `grid_stride` picks, px
+MAX_STRIDE = 8
+
+
+def grid_stride(mount: TopViewMount) -> int:
+    """The stride whose grid spaces walked pixels about GRID_SPACING_MM apart on the floor
+    straight below `mount` (a pixel there spans height / fx mm), between 1 and MAX_STRIDE."""
+    floor_px_mm = mount.height_mm / mount.intrinsics.fx
+    return int(min(MAX_STRIDE, max(1, round(GRID_SPACING_MM / floor_px_mm))))
+
+
+#: the height scale (mm) of the edge-aware upsampling: a grid neighbour whose probe value
+#: differs by this much counts exp(-1) as much as one at the pixel's own height
+UPSAMPLE_SIGMA_MM = 40.0
+
+
+@numba.njit(cache=True, inline="always")
+def _grid_neighbour(out, values, r, c, gr, gc, s, v, inv_sigma, acc, n_classes):
+    """Add grid pixel (gr, gc)'s posterior to `acc`, weighted bilinearly by its distance to
+    (r, c) and by how close its probe value is to `v`; its weight (0 without depth)."""
+    g = values[gr, gc]
+    if g == 0:
+        return np.float32(0.0)
+    spatial = np.float32(s - abs(r - gr)) * np.float32(s - abs(c - gc))
+    dv = (np.float32(g) - v) * inv_sigma
+    weight = spatial * np.exp(-dv * dv)
+    for q in range(n_classes):
+        acc[q] += weight * out[gr, gc, q]
+    return weight
+
+
 @numba.njit(cache=True, parallel=True)
-def _fill_strided(values, floor, stride, out):
-    """Copy each evaluated pixel's posterior to the stride x stride block it stands for;
-    pixels without a value get zeros, floor pixels background."""
+def _upsample(values, floor, stride, sigma_mm, out):
+    """Posteriors between the grid points of a strided walk (joint bilateral upsampling,
+    Kopf et al. 2007): each pixel with a value averages the posteriors of the up to four
+    grid pixels around it, weighted bilinearly and by exp(-(dv / sigma)^2) of the probe
+    value difference, so an edge in height is an edge in the posteriors. Where every
+    neighbour's weight underflows, the neighbour closest in value wins; where none of them
+    has a value, zeros (no posterior, as without depth). Pixels without a value get zeros,
+    floor pixels background; grid pixels keep their walked posteriors."""
     h, w = values.shape
+    n_classes = out.shape[2]
+    inv_sigma = np.float32(1.0 / sigma_mm)
+    last_r = (h - 1) - (h - 1) % stride
+    last_c = (w - 1) - (w - 1) % stride
     for r in numba.prange(h):
+        acc = np.empty(n_classes, np.float32)
         r0 = r - r % stride
+        r1 = min(r0 + stride, last_r)
         for c in range(w):
             c0 = c - c % stride
-            if values[r, c] == 0:
-                out[r, c, :] = 0.0
-            elif floor[r, c]:
-                out[r, c, :] = 0.0
-                out[r, c, BACKGROUND] = 1.0
-            elif r != r0 or c != c0:
-                out[r, c, :] = out[r0, c0, :]
+            if r == r0 and c == c0:
+                continue
+            for q in range(n_classes):
+                out[r, c, q] = np.float32(0.0)
+            v = values[r, c]
+            if v == 0:
+                continue
+            if floor[r, c]:
+                out[r, c, BACKGROUND] = np.float32(1.0)
+                continue
+            c1 = min(c0 + stride, last_c)
+            for q in range(n_classes):
+                acc[q] = np.float32(0.0)
+            vf = np.float32(v)
+            total = _grid_neighbour(
+                out, values, r, c, r0, c0, stride, vf, inv_sigma, acc, n_classes
+            )
+            if c1 != c0:
+                total += _grid_neighbour(
+                    out, values, r, c, r0, c1, stride, vf, inv_sigma, acc, n_classes
+                )
+            if r1 != r0:
+                total += _grid_neighbour(
+                    out, values, r, c, r1, c0, stride, vf, inv_sigma, acc, n_classes
+                )
+                if c1 != c0:
+                    total += _grid_neighbour(
+                        out, values, r, c, r1, c1, stride, vf, inv_sigma, acc, n_classes
+                    )
+            if total > np.float32(1e-30):
+                for q in range(n_classes):
+                    out[r, c, q] = acc[q] / total
+                continue
+            best_r, best_c, best = -1, -1, np.float32(np.inf)
+            for gr in (r0, r1):
+                for gc in (c0, c1):
+                    if values[gr, gc] > 0:
+                        d = abs(np.float32(values[gr, gc]) - vf)
+                        if d < best:
+                            best_r, best_c, best = gr, gc, d
+            if best_r >= 0:
+                for q in range(n_classes):
+                    out[r, c, q] = out[best_r, best_c, q]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -240,8 +322,8 @@ def predict_proba(
     zero, floor-gated pixels are background. `out` may be a preallocated C-contiguous
     (H, W, NUM_CLASSES) float32 array to fill (a worker reuses one per frame).
     `stride` > 1 walks the trees only at every stride-th pixel of every stride-th row and
-    copies the result over each stride x stride block: a faster, blockier approximation
-    (the posteriors at the evaluated pixels are exact).
+    fills the pixels between by edge-aware upsampling (`_upsample`): stride**2 times fewer
+    walks; the posteriors at the grid pixels are exact.
     """
     inp = check_input(as_input(frame), "forest inference")
     if stride < 1:
@@ -266,7 +348,7 @@ def predict_proba(
         out,
     )
     if stride > 1:
-        _fill_strided(inp.values, inp.floor, stride, out)
+        _upsample(inp.values, inp.floor, stride, np.float32(UPSAMPLE_SIGMA_MM), out)
     return out
 
 
