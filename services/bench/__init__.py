@@ -15,7 +15,10 @@ import sys
 
 #: benchmark -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
-    "forest": ("topseg.services.bench.forest", "forest inference ms per 640x480 frame (T=5, D=19)"),
+    "forest": (
+        "topseg.services.bench.forest",
+        "forest inference ms per frame: the bundled model on rendered frames, full and grid",
+    ),
     "datagen": (
         "topseg.services.bench.datagen",
         "datagen end to end on local Dask: frames/s, write cost",

@@ -10,9 +10,11 @@ realtime's energy comes to exact's:
   the smoothing exact achieves that realtime also achieves (a stricter measure: the
   unaries of the floor alone make the ratio close to 1).
 
-Unaries come from a forest on procedural top-view frames: the model given with --model,
-or else a small forest trained here on the spot (seeded, ~20 s). `--unaries synthetic`
-uses the stand-in forest-like posteriors of `bench.crf_standin` instead. Timings
+Unaries are the bundled model's posteriors (or --model's), as the Segmenter makes them by
+default (on its grid, upsampled by height), on rendered modeled scenes with the sensor's own
+noise (`bench/frames.py`; `--frames-from procedural` for procedural top views).
+`--unaries quick-forest` uses a small forest trained here on procedural frames (seeded,
+~20 s), `--unaries synthetic` the stand-in forest-like posteriors of `bench.crf_standin`. Timings
 are per-frame medians of --repeat runs, wall clock (*_ms_*) and this process's CPU time
 (*_cpu_ms_*: both solvers are single-threaded, so on an idle machine the two agree); the
 load average is reported beside them, since other processes on a 2-core machine inflate
@@ -28,6 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from topseg.services.bench import frames as bench_frames
+from topseg.services.cli_types import add_stride_argument
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Frames, repeats, where the unaries come from and CRF setting overrides."""
@@ -36,11 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--unaries",
-        choices=("forest", "synthetic"),
-        default="forest",
-        help="forest posteriors on procedural frames, or the synthetic stand-in",
+        choices=("model", "quick-forest", "synthetic"),
+        default="model",
+        help="the model's posteriors (default), a small forest trained here, or the stand-in",
     )
-    parser.add_argument("--model", type=Path, help="topseg model file (default: train a small one)")
+    parser.add_argument("--model", type=Path, help="topseg model file (default: the bundled one)")
+    add_stride_argument(parser)
+    bench_frames.add_arguments(parser)
     parser.add_argument("--smoothness", type=float, default=None, help="Potts weight (nats)")
     parser.add_argument("--confidence", type=float, default=None)
     parser.add_argument("--ring", type=int, default=None)
@@ -64,14 +71,8 @@ def _quick_forest(rng: np.random.Generator):
         n_thresholds=40,
     )
     seed = int(rng.integers(2**31))
-    return forest.train_forest(depth, labels, config, seed=seed, mounts=[_mount()] * len(depth))
-
-
-def _mount():
-    """The mount the procedural frames are rendered from by default (the paper's)."""
-    from topseg.core.camera import PAPER_MOUNT
-
-    return PAPER_MOUNT
+    mounts = [bench_frames.bench_mount()] * len(depth)
+    return forest.train_forest(depth, labels, config, seed=seed, mounts=mounts)
 
 
 def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
@@ -88,21 +89,22 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray
     from topseg.core.forest import FeatureConfig
     from topseg.core.forest.inputs import header_fields
     from topseg.core.segmenter import Segmenter, SegmenterConfig
-    from topseg.core.synth import procedural
 
     # the model's camera need not be these frames'; a height model reads them through theirs
-    config = SegmenterConfig(check_camera=False, mount=_mount())
-    if args.model is not None:
-        segmenter = Segmenter.from_file(args.model, config)
-        source = f"forest {args.model} on procedural frames"
-    else:
+    config = SegmenterConfig(
+        check_camera=False, mount=bench_frames.bench_mount(), stride=args.stride
+    )
+    if args.unaries == "quick-forest":
         segmenter = Segmenter(_quick_forest(rng), header_fields(FeatureConfig()), config)
-        source = "small forest (3 trees, depth 16, 60 frames) trained here, on procedural frames"
-    out = []
-    for _ in range(args.frames):
-        depth, _ = procedural.procedural_frame(rng)
-        out.append((segmenter.posteriors(depth).copy(), depth))  # the buffer is reused
-    return out, source
+        source = "small forest (3 trees, depth 16, 60 frames) trained here"
+    else:
+        segmenter = Segmenter.from_file(args.model, config)
+        source = f"{'model ' + str(args.model) if args.model else 'the bundled model'}"
+    pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1)
+    stride = segmenter.stride_for(pairs[0][0])
+    # the buffer is reused: copy
+    out = [(segmenter.posteriors(depth).copy(), depth) for depth, _ in pairs]
+    return out, f"{source} (stride {stride}) on {what}"
 
 
 def measure(args: argparse.Namespace) -> dict:

@@ -1,0 +1,40 @@
+"""`topseg bench forest` end to end: a small random forest on procedural frames (fast), and the
+default (the bundled model on rendered frames) in `make test-all`."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from topseg.services.cli import main
+
+
+def _figures(capsys, *args: str) -> dict:
+    assert main(["-q", "bench", "forest", "--json", "--repeats", "1", *args]) == 0
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def test_random_forest_on_procedural_frames_at_two_strides(capsys):
+    figures = _figures(
+        capsys, "--forest", "random", "--trees", "2", "--depth", "8", "--frames", "2",
+        "--frames-from", "procedural", "--stride", "2",
+    )  # fmt: skip
+    assert figures["trees"] == 2 and figures["depth"] == 8
+    assert "procedural" in figures["frames"]
+    # every walked pixel of a full random tree walks all 8 levels; stride 2 walks ~1/4 of them
+    assert figures["mean_levels_walked"] == 8.0
+    full, grid = figures["node_visits_per_frame_stride1"], figures["node_visits_per_frame_stride2"]
+    assert 0.2 < grid / full < 0.3
+    assert (
+        figures["forest_ms_per_frame_stride1"] > 0 and "avg_f1_forest_only_stride1" not in figures
+    )
+
+
+@pytest.mark.slow
+def test_default_times_the_bundled_model_on_rendered_frames(capsys):
+    figures = _figures(capsys, "--frames", "2")
+    assert figures["forest"].startswith("bundled model")
+    assert "rendered modeled scenes" in figures["frames"]
+    assert figures["node_visits_per_frame_stride4"] < figures["node_visits_per_frame_stride1"] / 10
+    assert 0 < figures["avg_f1_forest_only_stride4"] <= 1
