@@ -180,13 +180,14 @@ def run_pipeline(
     web: bool = False,
     port: int | None = None,
     logs_dir: Path | None = None,
+    stride: int | None = None,
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
     `model` None is the bundled model (`core.segmenter.bundled_model_path`).
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
     "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
-    "exit_codes", "logs"}. `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
+    "exit_codes", "logs"}. `stride` is the worker's (None: auto). `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
     one until SIGINT/SIGTERM reaches this process). `lossless` makes the whole path lossless:
     the driver publishes with BLOCK congestion control (a real-time replay uses DROP, which
     under load dropped a frame on the worker's link while this process's copy arrived), the
@@ -227,6 +228,7 @@ def run_pipeline(
     codes: dict[str, int | None] = {}
     try:
         worker = ["worker", "--model", str(model), "--crf", crf, "--cameras", f"{CELL}/{CAMERA}"]
+        worker += ["--stride", "auto" if stride is None else str(stride)]
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
             kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))
