@@ -77,6 +77,20 @@ def test_mount_transform_maps_camera_points_to_the_floor_frame(pitch, roll):
     )
 
 
+def test_mount_transforms_message_names_every_camera():
+    mounts = {
+        "cam0": TopViewMount(Intrinsics(), 3100.0, 5.0, 0.0, "kinect_v2"),
+        "cam1": TopViewMount(Intrinsics(), 2800.0, 0.0, 3.0, "kinect_v2"),
+    }
+    msg = _decode(ros2.TF_MESSAGE, ros2.mount_transforms_message(mounts, 9))
+    assert [tf.child_frame_id for tf in msg.transforms] == [
+        "cam0_optical_frame",
+        "cam1_optical_frame",
+    ]
+    heights = [tf.transform.translation.z for tf in msg.transforms]
+    np.testing.assert_allclose(heights, [m.centre_world_m()[2] for m in mounts.values()])
+
+
 def _quaternion_matrix(x, y, z, w):
     """Rotation matrix of a unit quaternion, written out (independent of scipy)."""
     return np.array(

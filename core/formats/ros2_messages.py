@@ -18,6 +18,7 @@ The mount is the static transform FLOOR_FRAME -> optical frame.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import cache
 
 import numpy as np
@@ -145,14 +146,25 @@ def mount_pose(mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
 
 def mount_transform_message(mount: TopViewMount, stamp_ns: int, camera: str) -> bytes:
     """A `tf2_msgs/TFMessage` as CDR: the static transform FLOOR_FRAME -> the optical frame."""
+    return mount_transforms_message({camera: mount}, stamp_ns)
+
+
+def mount_transforms_message(mounts: Mapping[str, TopViewMount], stamp_ns: int) -> bytes:
+    """A `tf2_msgs/TFMessage` as CDR with one static transform FLOOR_FRAME -> optical frame
+    per camera of `mounts` ({camera: mount}): `/tf_static` keeps only its last message, so
+    that message names every camera (as tf2_ros' StaticTransformBroadcaster does)."""
     types = _types()
-    (tx, ty, tz), (qx, qy, qz, qw) = mount_pose(mount)
-    transform = types["geometry_msgs/msg/TransformStamped"](
-        header=_header(stamp_ns, FLOOR_FRAME),
-        child_frame_id=optical_frame(camera),
-        transform=types["geometry_msgs/msg/Transform"](
-            translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
-            rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
-        ),
-    )
-    return _serialise(types[TF_MESSAGE](transforms=[transform]), TF_MESSAGE)
+    transforms = []
+    for camera, mount in mounts.items():
+        (tx, ty, tz), (qx, qy, qz, qw) = mount_pose(mount)
+        transforms.append(
+            types["geometry_msgs/msg/TransformStamped"](
+                header=_header(stamp_ns, FLOOR_FRAME),
+                child_frame_id=optical_frame(camera),
+                transform=types["geometry_msgs/msg/Transform"](
+                    translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
+                    rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+                ),
+            )
+        )
+    return _serialise(types[TF_MESSAGE](transforms=transforms), TF_MESSAGE)
