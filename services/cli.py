@@ -41,6 +41,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "worker": ("topseg.services.worker", "label depth on Zenoh: forest + CRF, labels, stats"),
     "viewer": ("topseg.services.viewer", "show depth, labels, points and stats in Rerun"),
     "router": ("topseg.services.router", "run a Zenoh router (for several machines, see deploy/)"),
+    "bridge": (
+        "topseg.services.bridge_ros2",
+        "publish depth, labels, camera info and mounts to ROS 2 (rmw_zenoh)",
+    ),
     "status": ("topseg.services.status", "each camera's driver and worker: alive, fps, latency"),
     "calibrate": (
         "topseg.services.calibrate",
