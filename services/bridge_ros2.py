@@ -214,12 +214,14 @@ class Bridge:
             self.ignored += 1
             return None
         if self.wanted is None and len(self.cameras) >= self.max_cameras:
-            return self._refuse(name, f"camera limit reached (--max-cameras {self.max_cameras})")
+            return self._refuse(
+                name, "limit", f"camera limit reached (--max-cameras {self.max_cameras})"
+            )
         try:
             for stream in ("depth", "labels", "camera_info"):
                 rz.check_topic_name(ros2.ros2_topic(cell, camera, stream))
         except rz.Ros2NameError as exc:
-            return self._refuse(name, str(exc))
+            return self._refuse(name, "name", str(exc))
         topic = lambda stream: ros2.ros2_topic(cell, camera, stream)  # noqa: E731
         found = CameraTopics(
             depth=self._publisher(topic("depth"), ros2.IMAGE, rz.DEFAULT_QOS),
@@ -234,12 +236,13 @@ class Bridge:
         )
         return found
 
-    def _refuse(self, name: tuple[str, str], why: str) -> None:
+    def _refuse(self, name: tuple[str, str], why: str, reason: str) -> None:
+        """Count a camera that is not bridged; warn (per `why`, rate-limited) and remember it."""
         self.ignored += 1
         if len(self.refused) < MAX_REFUSED_NAMES:
             self.refused.add(name)
         self._warn(
-            "refused", "ignoring camera %s/%s: %s (%d messages ignored)", *name, why, self.ignored
+            why, "ignoring camera %s/%s: %s (%d messages ignored)", *name, reason, self.ignored
         )
         return None
 
