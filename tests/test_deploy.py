@@ -29,6 +29,7 @@ UNIT_INSTANCES = {
     "topseg-worker@.service": ["kinect", "oak", "demo", "worker"],
     "topseg-viewer.service": [""],
     "topseg-router.service": [""],
+    "topseg-bridge-ros2.service": [""],
 }
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze") or (
     "/usr/bin/systemd-analyze" if Path("/usr/bin/systemd-analyze").exists() else None
@@ -191,6 +192,8 @@ def test_units_start_with_the_example_configs(name, instance):
         assert args.web and not args.save
     elif command == "router":
         assert args.zenoh_config == "/etc/topseg/zenoh/router.json5"
+    elif command == "bridge":
+        assert args.target == "ros2" and args.domain == 0
 
 
 def test_example_configs_are_all_used():
@@ -389,7 +392,7 @@ def test_installed_units_verify_in_the_root(tmp_path, checkout, wheel):
     install(checkout, root, wheel)
     shutil.copytree("/usr/lib/systemd/system", root / "usr/lib/systemd/system", symlinks=True)
     units = ["topseg-driver@kinect.service", "topseg-worker@kinect.service"]
-    units += ["topseg-viewer.service", "topseg-router.service"]
+    units += ["topseg-viewer.service", "topseg-router.service", "topseg-bridge-ros2.service"]
     result = subprocess.run(
         [SYSTEMD_ANALYZE, "verify", f"--root={root}", *units],
         capture_output=True,
