@@ -34,7 +34,6 @@ import logging
 import os
 import queue
 import time
-from dataclasses import dataclass
 from typing import Any
 
 from topseg.core.errors import TopsegError
@@ -51,6 +50,12 @@ MAX_DOMAIN = 232
 #: Period (s) of the sporadic heartbeat of a reliable transient-local publisher (rmw_zenoh's
 #: SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD, 500 ms)
 HEARTBEAT_S = 0.5
+#: A camera's ROS 2 topics: /topseg/<cell>/<camera>/<stream> and their message types
+CAMERA_STREAMS = {
+    "depth": "sensor_msgs/msg/Image",
+    "labels": "sensor_msgs/msg/Image",
+    "camera_info": "sensor_msgs/msg/CameraInfo",
+}
 #: Distinct refused camera names remembered (beyond it, messages still count)
 MAX_REFUSED_NAMES = 4096
 #: At most one "ignoring" warning this often (s)
@@ -156,19 +161,6 @@ def declare_publisher(session: Any, key: str, qos) -> Any:
     return ext.declare_advanced_publisher(session, key, **options)
 
 
-@dataclass
-class CameraTopics:
-    """The ROS 2 publishers of one camera."""
-
-    depth: Ros2Publisher
-    labels: Ros2Publisher
-    camera_info: Ros2Publisher
-
-    def all(self) -> tuple[Ros2Publisher, ...]:
-        """Every publisher of the camera."""
-        return (self.depth, self.labels, self.camera_info)
-
-
 class Bridge:
     """The ROS 2 node `/topseg_bridge`: converts topseg messages and publishes them."""
 
@@ -180,7 +172,7 @@ class Bridge:
         self.node = rz.Node(domain, str(session.info.zid()), 0, NODE_NAME)
         self.node_token = session.liveliness().declare_token(self.node.token())
         self.next_entity_id = 1
-        self.cameras: dict[tuple[str, str], CameraTopics] = {}
+        self.cameras: dict[tuple[str, str], dict[str, Ros2Publisher]] = {}
         self.mounts: dict[str, Any] = {}  # camera name -> its TopViewMount (frame ids)
         self.tf_static: Ros2Publisher | None = None
         self.refused: set[tuple[str, str]] = set()
@@ -198,9 +190,9 @@ class Bridge:
             self._last_warning[what] = now
             log.warning(message, *args)
 
-    def topics(self, cell: str, camera: str) -> CameraTopics | None:
-        """The camera's publishers, declared on its first message; None for a camera that is
-        not bridged (not in --cameras, over --max-cameras, or a name ROS 2 refuses)."""
+    def topics(self, cell: str, camera: str) -> dict[str, Ros2Publisher] | None:
+        """The camera's publishers by stream, declared on its first message; None for a camera
+        that is not bridged (not in --cameras, over --max-cameras, or a name ROS 2 refuses)."""
         from topseg.core.formats import rmw_zenoh as rz
         from topseg.core.formats import ros2_messages as ros2
 
@@ -218,20 +210,17 @@ class Bridge:
                 name, "limit", f"camera limit reached (--max-cameras {self.max_cameras})"
             )
         try:
-            for stream in ("depth", "labels", "camera_info"):
-                rz.check_topic_name(ros2.ros2_topic(cell, camera, stream))
+            rz.check_topic_name(ros2.ros2_topic(cell, camera, "depth"))
         except rz.Ros2NameError as exc:
             return self._refuse(name, "name", str(exc))
-        topic = lambda stream: ros2.ros2_topic(cell, camera, stream)  # noqa: E731
-        found = CameraTopics(
-            depth=self._publisher(topic("depth"), ros2.IMAGE, rz.DEFAULT_QOS),
-            labels=self._publisher(topic("labels"), ros2.IMAGE, rz.DEFAULT_QOS),
-            camera_info=self._publisher(topic("camera_info"), ros2.CAMERA_INFO, rz.DEFAULT_QOS),
-        )
+        found = {
+            stream: self._publisher(ros2.ros2_topic(cell, camera, stream), typename, rz.DEFAULT_QOS)
+            for stream, typename in CAMERA_STREAMS.items()
+        }
         self.cameras[name] = found
         log.info(
-            "publishing %s/{depth,labels,camera_info} on ROS 2 domain %d",
-            topic("")[:-1],
+            "publishing %s on ROS 2 domain %d",
+            ", ".join(p.topic for p in found.values()),
             self.node.domain,
         )
         return found
@@ -270,23 +259,24 @@ class Bridge:
         else:
             self.publish_labels(parts.camera, topics, message)
 
-    def publish_depth(self, camera: str, topics: CameraTopics, frame) -> None:
+    def publish_depth(self, camera: str, topics: dict[str, Ros2Publisher], frame) -> None:
         """The depth image, its camera info, and /tf_static when the mount is new."""
         from topseg.core.formats import ros2_messages as ros2
 
         frame_id = ros2.optical_frame(camera)
-        topics.depth.put(ros2.image_message(frame.depth, frame.stamp_ns, frame_id))
-        topics.camera_info.put(ros2.camera_info_message(frame.intrinsics, frame.stamp_ns, frame_id))
+        topics["depth"].put(ros2.image_message(frame.depth, frame.stamp_ns, frame_id))
+        info = ros2.camera_info_message(frame.intrinsics, frame.stamp_ns, frame_id)
+        topics["camera_info"].put(info)
         self.published += 2
         if frame.mount is not None and self.mounts.get(camera) != frame.mount:
             self.mounts[camera] = frame.mount
             self.publish_mounts(frame.stamp_ns)
 
-    def publish_labels(self, camera: str, topics: CameraTopics, frame) -> None:
+    def publish_labels(self, camera: str, topics: dict[str, Ros2Publisher], frame) -> None:
         """The label image (mono8), stamped like the depth frame it came from."""
         from topseg.core.formats import ros2_messages as ros2
 
-        topics.labels.put(
+        topics["labels"].put(
             ros2.image_message(frame.labels, frame.stamp_ns, ros2.optical_frame(camera))
         )
         self.published += 1
@@ -305,17 +295,30 @@ class Bridge:
     def close(self) -> None:
         """Leave the ROS graph: every publisher, then the node."""
         for topics in self.cameras.values():
-            for pub in topics.all():
+            for pub in topics.values():
                 pub.undeclare()
         if self.tf_static is not None:
             self.tf_static.undeclare()
         self.node_token.undeclare()
 
 
-def _wanted(cameras: list[str] | None) -> set[tuple[str, str]] | None:
+def wanted_cameras(entries: list[str] | None) -> set[tuple[str, str]] | None:
+    """The --cameras entries as (cell, camera), each one ROS 2 can name; None for all."""
+    from topseg.core.formats import rmw_zenoh as rz
+    from topseg.core.formats import ros2_messages as ros2
     from topseg.services.worker import parse_camera
 
-    return None if not cameras else {parse_camera(c) for c in cameras}
+    if not entries:
+        return None
+    wanted = set()
+    for entry in entries:
+        cell, camera = parse_camera(entry)
+        try:
+            rz.check_topic_name(ros2.ros2_topic(cell, camera, "depth"))
+        except rz.Ros2NameError as exc:
+            raise TopsegError(f"--cameras entry {entry!r}: {exc}") from None
+        wanted.add((cell, camera))
+    return wanted
 
 
 def run(args: argparse.Namespace) -> int:
@@ -323,7 +326,7 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.formats import wire
 
     domain = ros_domain(args.domain)
-    wanted = _wanted(args.cameras)
+    wanted = wanted_cameras(args.cameras)
     svc = ServiceLifecycle("bridge", args)
     inbox: queue.Queue = queue.Queue(maxsize=args.queue)
     dropped = 0

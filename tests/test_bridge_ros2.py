@@ -316,8 +316,18 @@ def test_other_domain_garbage_and_camera_limits(run, sessions):
     assert "camera limit reached (--max-cameras 2)" in err
 
 
-def test_bad_domain_is_one_line(run):
-    bad = run("bridge", "ros2", "--domain", "300")
+@pytest.mark.parametrize(
+    "args, error",
+    [
+        (["--domain", "300"], "--domain must be"),
+        (
+            ["--cameras", "c1/9lives"],
+            "--cameras entry 'c1/9lives': '/topseg/c1/9lives/depth' is not",
+        ),
+    ],
+)
+def test_bad_options_are_one_line(run, args, error):
+    bad = run("bridge", "ros2", *args, "--zenoh-port", free_port())
     assert bad.proc.wait(60) == 2
     bad._reader.join(5)
-    assert bad.err.strip().splitlines()[-1].startswith("topseg bridge: error: --domain must be")
+    assert bad.err.strip().splitlines()[-1].startswith(f"topseg bridge: error: {error}"), bad.err
