@@ -13,6 +13,7 @@ import re
 import struct
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,6 +43,7 @@ DDS = {
 #: rmw_zenoh's QoS text: reliable keep-last 10 volatile; reliable keep-last 1 transient local
 QOS_DEFAULT, QOS_STATIC = "::,10:,:,:,,", ":1:,1:,:,:,,"
 K = KINECT_V1.scaled_to(160, 120)
+MODEL = Path(__file__).resolve().parent.parent / "models" / "default.npz"
 
 
 def data_key(domain: int, topic: str, typename: str) -> str:
@@ -257,6 +259,47 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
     assert bridge.stop() == 0
     assert "0 rejected" in bridge.err
     wait_for(lambda: not ros.tokens(), 30, "the bridge's tokens to go")
+
+
+@pytest.mark.slow  # the worker compiles and loads its model: ~40 s on 2 busy cores
+def test_worker_labels_reach_a_ros2_reader_bit_exact(run, sessions):
+    """driver -> worker -> bridge: the worker's label images, unchanged, as mono8 Images."""
+    port, cell = free_port(), "rb3"
+    ros = RosSide(port, 0)
+    sessions.append(ros)
+    wire_labels: dict[int, np.ndarray] = {}  # the worker's label images by stamp
+
+    def on_wire_labels(sample):
+        frame = wire.decode_labels(sample.payload.to_bytes())
+        wire_labels[frame.stamp_ns] = frame.labels
+
+    ros.session.declare_subscriber(wire.labels_key(cell, "cam0"), on_wire_labels)
+    bridge = run("bridge", "ros2", "--cameras", f"{cell}/cam0", "--zenoh-port", port)
+    worker = run("worker", "--model", MODEL, "--cameras", f"{cell}/cam0", "--zenoh-port", port)
+    bridge.wait_line("bridge ready", 60)
+    worker.wait_line("worker ready", 120)
+    driver = run(
+        "driver", "--cell", cell, "--source", "synthetic", "--fps", "5", "--zenoh-port", port
+    )
+    driver.wait_line("publishing", 120)
+    topic = ros2.ros2_topic(cell, "cam0", "labels")
+
+    def matched():
+        found = 0
+        for payload, _ in ros.on(topic, ros2.IMAGE):
+            msg = decode(ros2.IMAGE, payload)
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            labels = wire_labels.get(stamp)
+            if labels is not None:
+                assert (msg.encoding, msg.header.frame_id) == ("mono8", "cam0_optical_frame")
+                got = np.frombuffer(bytes(msg.data), np.uint8).reshape(labels.shape)
+                np.testing.assert_array_equal(got, labels)
+                found += 1
+        return found >= 3
+
+    wait_for(matched, 120, "3 ROS label images equal to the worker's")
+    for service in (driver, worker, bridge):
+        assert service.stop() == 0
 
 
 def test_other_domain_garbage_and_camera_limits(run, sessions):
