@@ -374,3 +374,17 @@ def test_bad_options_are_one_line(run, args, error):
     assert bad.proc.wait(60) == 2
     bad._reader.join(5)
     assert bad.err.strip().splitlines()[-1].startswith(f"topseg bridge: error: {error}"), bad.err
+
+
+def test_domain_comes_from_the_option_then_ros_domain_id(monkeypatch):
+    from topseg.core.errors import TopsegError
+    from topseg.services.bridge_ros2 import ros_domain
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "5")
+    assert (ros_domain(9), ros_domain(None)) == (9, 5)
+    monkeypatch.setenv("ROS_DOMAIN_ID", "")
+    assert ros_domain(None) == 0
+    for bad in ("-1", "233", "five"):
+        monkeypatch.setenv("ROS_DOMAIN_ID", bad)
+        with pytest.raises(TopsegError, match="is not a ROS 2 domain id"):
+            ros_domain(None)
