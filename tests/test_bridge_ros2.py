@@ -222,13 +222,13 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
         },
     )
 
-    # attachments: sequence numbers 1, 2, ... per publisher, the source time, the GID of the
+    # attachments: increasing sequence numbers per publisher, the source time, the GID of the
     # publisher's token (XXH3-128, as rmw_zenoh derives it)
     t_end = time.time_ns()
     for name, typename in ((topic["depth"], ros2.IMAGE), (topic["camera_info"], ros2.CAMERA_INFO)):
         atts = [parse_attachment(a) for _, a in ros.on(name, typename)]
         seqs = [s for s, _, _ in atts]
-        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and seqs[0] >= 1
+        assert seqs[0] >= 1 and seqs == sorted(set(seqs))  # increasing; DROP may skip one
         assert all(0 < t_end - ts < 600e9 for _, ts, _ in atts)
         assert {g for _, _, g in atts} == {entity_gid(publishers[name])}
 
@@ -339,6 +339,7 @@ def test_other_domain_garbage_and_camera_limits(run, sessions):
     wait_for(lambda: len(images("a")) == 2, 60, "camera a after the garbage")
 
     assert bridge.alive()
+    assert [parse_attachment(att)[0] for _, att in images("a")] == [1, 2]  # one per message
     seen = decode(ros2.IMAGE, images("a")[1][0])
     assert np.all(np.frombuffer(bytes(seen.data), "<u2") == 1005)
     assert all(k.startswith(f"{domain}/topseg/{cell}/") for k in ros.keys())
