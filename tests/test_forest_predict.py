@@ -9,7 +9,7 @@ from reference import apply_reference, predict_reference, upsample_reference
 from topseg.core import labels
 from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
 from topseg.core.forest.inputs import ModelInput, as_input
-from topseg.core.forest.predict import UPSAMPLE_SIGMA_MM, _upsample, apply
+from topseg.core.forest.predict import UPSAMPLE_SIGMA_MM, _upsample, apply, height_weights
 from topseg.core.forest.tree import node_depths
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,7 +98,7 @@ def test_upsampling_keeps_a_height_edge():
     proba[:, 5:, 7] = 1.0
     grid = np.zeros_like(proba)
     grid[::4, ::4] = proba[::4, ::4]
-    _upsample(values, floor, 4, np.float32(UPSAMPLE_SIGMA_MM), grid)
+    _upsample(values, floor, 4, height_weights(), grid)
     np.testing.assert_array_equal(grid.argmax(axis=2), proba.argmax(axis=2))
 
 

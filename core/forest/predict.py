@@ -210,86 +210,91 @@ def grid_stride(mount: TopViewMount) -> int:
 #: the height scale (mm) of the edge-aware upsampling: a grid neighbour whose probe value
 #: differs by this much counts exp(-1) as much as one at the pixel's own height
 UPSAMPLE_SIGMA_MM = 40.0
+#: probe values differing by this much or more weigh nothing (exp(-(512 / 40)^2) underflows
+#: float32 long before)
+_WEIGHT_TABLE_SIZE = 512
+
+
+@functools.cache
+def height_weights(sigma_mm: float = UPSAMPLE_SIGMA_MM) -> np.ndarray:
+    """(512,) float32 exp(-(d / sigma)^2) for integer probe-value differences d (mm): the
+    range weights of `_upsample`, a table lookup instead of four exps a pixel."""
+    d = np.arange(_WEIGHT_TABLE_SIZE, dtype=np.float32) / np.float32(sigma_mm)
+    table = np.exp(-(d * d)).astype(np.float32)
+    table.flags.writeable = False
+    return table
 
 
 @numba.njit(cache=True, inline="always")
-def _grid_neighbour(out, values, r, c, gr, gc, s, v, inv_sigma, acc, n_classes):
-    """Add grid pixel (gr, gc)'s posterior to `acc`, weighted bilinearly by its distance to
-    (r, c) and by how close its probe value is to `v`; its weight (0 without depth)."""
+def _range_weight(values, gr, gc, v, spatial, table):
+    """Grid pixel (gr, gc)'s weight for a pixel of probe value v: 0 without a value."""
     g = values[gr, gc]
     if g == 0:
         return np.float32(0.0)
-    spatial = np.float32(s - abs(r - gr)) * np.float32(s - abs(c - gc))
-    dv = (np.float32(g) - v) * inv_sigma
-    weight = spatial * np.exp(-dv * dv)
-    for q in range(n_classes):
-        acc[q] += weight * out[gr, gc, q]
-    return weight
+    d = abs(np.int32(g) - v)
+    if d >= table.shape[0]:
+        return np.float32(0.0)
+    return spatial * table[d]
 
 
 @numba.njit(cache=True, parallel=True)
-def _upsample(values, floor, stride, sigma_mm, out):
+def _upsample(values, floor, stride, table, out):
     """Posteriors between the grid points of a strided walk (joint bilateral upsampling,
     Kopf et al. 2007): each pixel with a value averages the posteriors of the up to four
-    grid pixels around it, weighted bilinearly and by exp(-(dv / sigma)^2) of the probe
-    value difference, so an edge in height is an edge in the posteriors. Where every
-    neighbour's weight underflows, the neighbour closest in value wins; where none of them
-    has a value, zeros (no posterior, as without depth). Pixels without a value get zeros,
-    floor pixels background; grid pixels keep their walked posteriors."""
+    grid pixels around it, weighted bilinearly and by `table[|dv|]` (`height_weights`:
+    exp(-(dv / sigma)^2) of the probe value difference), so an edge in height is an edge
+    in the posteriors. Where every neighbour's weight underflows, the neighbour closest in
+    value wins; where none of them has a value, zeros (no posterior, as without depth).
+    Pixels without a value get zeros, floor pixels background; grid pixels keep their
+    walked posteriors."""
     h, w = values.shape
     n_classes = out.shape[2]
-    inv_sigma = np.float32(1.0 / sigma_mm)
     last_r = (h - 1) - (h - 1) % stride
     last_c = (w - 1) - (w - 1) % stride
     for r in numba.prange(h):
-        acc = np.empty(n_classes, np.float32)
         r0 = r - r % stride
         r1 = min(r0 + stride, last_r)
+        wr0 = np.float32(stride - (r - r0))
+        wr1 = np.float32(stride - (r1 - r)) if r1 != r0 else np.float32(0.0)
         for c in range(w):
             c0 = c - c % stride
             if r == r0 and c == c0:
                 continue
-            for q in range(n_classes):
-                out[r, c, q] = np.float32(0.0)
-            v = values[r, c]
-            if v == 0:
-                continue
-            if floor[r, c]:
-                out[r, c, BACKGROUND] = np.float32(1.0)
+            v = np.int32(values[r, c])
+            if v == 0 or floor[r, c]:
+                for q in range(n_classes):
+                    out[r, c, q] = np.float32(0.0)
+                if v != 0:
+                    out[r, c, BACKGROUND] = np.float32(1.0)
                 continue
             c1 = min(c0 + stride, last_c)
-            for q in range(n_classes):
-                acc[q] = np.float32(0.0)
-            vf = np.float32(v)
-            total = _grid_neighbour(
-                out, values, r, c, r0, c0, stride, vf, inv_sigma, acc, n_classes
-            )
-            if c1 != c0:
-                total += _grid_neighbour(
-                    out, values, r, c, r0, c1, stride, vf, inv_sigma, acc, n_classes
-                )
-            if r1 != r0:
-                total += _grid_neighbour(
-                    out, values, r, c, r1, c0, stride, vf, inv_sigma, acc, n_classes
-                )
-                if c1 != c0:
-                    total += _grid_neighbour(
-                        out, values, r, c, r1, c1, stride, vf, inv_sigma, acc, n_classes
-                    )
+            wc0 = np.float32(stride - (c - c0))
+            wc1 = np.float32(stride - (c1 - c)) if c1 != c0 else np.float32(0.0)
+            w00 = _range_weight(values, r0, c0, v, wr0 * wc0, table)
+            w01 = _range_weight(values, r0, c1, v, wr0 * wc1, table)
+            w10 = _range_weight(values, r1, c0, v, wr1 * wc0, table)
+            w11 = _range_weight(values, r1, c1, v, wr1 * wc1, table)
+            total = w00 + w01 + w10 + w11
             if total > np.float32(1e-30):
+                inv = np.float32(1.0) / total
+                w00, w01, w10, w11 = w00 * inv, w01 * inv, w10 * inv, w11 * inv
                 for q in range(n_classes):
-                    out[r, c, q] = acc[q] / total
+                    out[r, c, q] = (
+                        w00 * out[r0, c0, q]
+                        + w01 * out[r0, c1, q]
+                        + w10 * out[r1, c0, q]
+                        + w11 * out[r1, c1, q]
+                    )
                 continue
-            best_r, best_c, best = -1, -1, np.float32(np.inf)
+            best_r, best_c, best = -1, -1, np.int32(1 << 30)
             for gr in (r0, r1):
                 for gc in (c0, c1):
                     if values[gr, gc] > 0:
-                        d = abs(np.float32(values[gr, gc]) - vf)
+                        d = abs(np.int32(values[gr, gc]) - v)
                         if d < best:
                             best_r, best_c, best = gr, gc, d
-            if best_r >= 0:
-                for q in range(n_classes):
-                    out[r, c, q] = out[best_r, best_c, q]
+            for q in range(n_classes):
+                out[r, c, q] = out[best_r, best_c, q] if best_r >= 0 else np.float32(0.0)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -348,7 +353,7 @@ def predict_proba(
         out,
     )
     if stride > 1:
-        _upsample(inp.values, inp.floor, stride, np.float32(UPSAMPLE_SIGMA_MM), out)
+        _upsample(inp.values, inp.floor, stride, height_weights(), out)
     return out
 
 
