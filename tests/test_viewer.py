@@ -1,4 +1,5 @@
-"""`topseg viewer --save` as a real process on loopback Zenoh; the .rrd is read back."""
+"""`topseg viewer --save` as a real process on loopback Zenoh; the .rrd (data and blueprint)
+is read back."""
 
 import os
 import signal
@@ -13,42 +14,23 @@ import pytest
 import zenoh
 from netutil import free_port, wait_for
 
-from topseg.core import labels
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
-from topseg.services.viewer import point_cloud
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
+MOUNT = TopViewMount(K, PAPER_MOUNT.height_mm, pitch_deg=10.0)
 RERUN = Path(sys.executable).with_name("rerun")
 
 
-def rrd_print(path) -> str:
+def rrd_print(path, verbosity="-v") -> str:
     out = subprocess.run(
-        [str(RERUN), "rrd", "print", "--verbose", str(path)],
+        [str(RERUN), "rrd", "print", verbosity, str(path)],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     return out.stdout
-
-
-def test_point_cloud_matches_backprojection_of_kept_pixels():
-    rng = np.random.default_rng(0)
-    depth, truth = procedural_frame(
-        rng, TopViewMount(K, PAPER_MOUNT.height_mm), missing_fraction=0.1
-    )
-    frame = wire.DepthFrame(depth, K)
-    xyz, ids = point_cloud(frame, truth, 4)
-    sub = depth[::4, ::4]
-    assert len(xyz) == len(ids) == int((sub > 0).sum())
-    np.testing.assert_array_equal(ids, truth[::4, ::4][sub > 0])
-    v, u = np.nonzero(sub > 0)
-    z = sub[sub > 0] / 1000.0
-    np.testing.assert_allclose(xyz[:, 2], z, rtol=1e-6)
-    np.testing.assert_allclose(xyz[:, 0], (4 * u - K.cx) * z / K.fx, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(xyz[:, 1], (4 * v - K.cy) * z / K.fy, rtol=1e-5, atol=1e-6)
-    assert labels.NO_DEPTH not in ids
 
 
 @pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not installed")
@@ -84,10 +66,11 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
         def send_round(first_seq):
             for seq in range(first_seq, first_seq + 3):
                 for cell, cam in cams:
-                    depth, truth = procedural_frame(rng, TopViewMount(K, PAPER_MOUNT.height_mm))
+                    mount = MOUNT if cam == "cam0" else None  # cam1: mount unknown
+                    depth, truth = procedural_frame(rng, MOUNT)
                     stamp = 10**18 + seq * 10**8
                     pubs[cell, cam, "depth"].put(
-                        wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp))
+                        wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp, mount=mount))
                     )
                     pubs[cell, cam, "labels"].put(
                         wire.encode_labels(wire.LabelFrame(truth, seq, stamp))
@@ -125,20 +108,32 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
     assert proc.returncode == 0, err
     assert " rejected)" in err
     text = rrd_print(rrd)
-    assert "AnnotationContext" in text
+    for entity, archetype in [
+        ("/", "AnnotationContext"),
+        ("/world", "ViewCoordinates"),
+        ("/legend", "Points2D"),
+        ("/world/vw1/cam0/camera", "Transform3D"),  # cam0's mount
+    ]:
+        assert f"- {entity} - " in text and f"{entity}@{archetype}" in text, entity
     for cell, cam in cams:
-        base = f"/{cell}/{cam}"
         for entity, archetype in [
-            ("/image", "Pinhole"),
-            ("/image/depth", "DepthImage"),
-            ("/image/labels", "SegmentationImage"),
-            ("/points", "Points3D"),
-            ("/stats/ms/forest", "Scalars"),
-            ("/stats/fps", "Scalars"),
-            ("/stats/count/processed", "Scalars"),
+            (f"/world/{cell}/{cam}/camera/image", "Pinhole"),
+            (f"/world/{cell}/{cam}/camera/image/depth", "DepthImage"),
+            (f"/world/{cell}/{cam}/camera/image/labels", "SegmentationImage"),
+            (f"/world/{cell}/{cam}/points", "Points3D"),
+            (f"/{cell}/{cam}/stats/ms/forest", "Scalars"),
+            (f"/{cell}/{cam}/stats/fps", "Scalars"),
+            (f"/{cell}/{cam}/stats/count/processed", "Scalars"),
         ]:
-            assert base + entity in text, f"{base + entity} missing from the recording"
-            assert archetype in text, f"no {archetype} in the recording"
+            assert f"{entity}@{archetype}" in text, (
+                f"{entity} {archetype} missing from the recording"
+            )
+    # the blueprint went into the file with the data, extended to both cameras
+    layout = rrd_print(rrd, "-vvv")
+    assert "Blueprint" in layout and "LineGrid3D:spacing" in layout
+    for cell, cam in cams:
+        for view in ("depth", "labels", "ms per stage", "fps"):
+            assert f"{cell}/{cam} {view}" in layout, f"no {cell}/{cam} {view} view in the blueprint"
 
 
 def test_viewer_stops_after_duration_and_writes_a_valid_rrd(tmp_path):
@@ -149,7 +144,8 @@ def test_viewer_stops_after_duration_and_writes_a_valid_rrd(tmp_path):
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert "AnnotationContext" in rrd_print(rrd)
+    text = rrd_print(rrd)
+    assert "/@AnnotationContext" in text and "/legend@Points2D" in text
 
 
 def test_viewer_refuses_bad_options_with_one_line(tmp_path):

@@ -1,0 +1,103 @@
+"""The Foxglove layout of one camera's viewer topics (`docs/foxglove/topseg-layout.json`).
+
+Panel configurations come from the Foxglove SDK's layout classes (`foxglove.layouts`:
+`ImageConfig`, `ThreeDeeConfig`, ...). They are wrapped in the layout file the Foxglove app
+imports ("Layouts > Import from file..."): `configById` (panel id `<type>!<name>` -> its
+config), `layout` (a mosaic tree: `first`, `second`, `direction`, `splitPercentage`),
+`globalVariables`, `userNodes`, `playbackConfig`. The SDK's own `Layout.to_json()` format is
+read by its notebook and playground viewers, not (yet) by the app, hence the wrapper.
+
+    python -m topseg.services.foxglove_layout [--cell C] [--camera K] > layout.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from topseg.core.formats import ros2_messages, wire
+from topseg.services.viewer_foxglove import topic
+
+#: depth shown from black (0 mm) to white (this many mm) in the depth panel
+DEPTH_DISPLAY_MAX_MM = 5000
+
+
+def _config(part) -> dict:
+    """A foxglove.layouts config object as the plain dict the app stores."""
+    return json.loads(part.to_json())
+
+
+def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> dict:
+    """The layout of a camera: depth and label-colour images over the labelled 3-D cloud in
+    the floor frame (with a grid)."""
+    import foxglove.layouts as fl
+
+    calibration = topic(cell, camera, "camera_info")
+    depth = fl.ImageConfig(
+        image_mode=fl.ImageModeConfig(
+            image_topic=topic(cell, camera, "depth"),
+            calibration_topic=calibration,
+            min_value=0,
+            max_value=DEPTH_DISPLAY_MAX_MM,
+        )
+    )
+    label_colours = fl.ImageConfig(
+        image_mode=fl.ImageModeConfig(
+            image_topic=topic(cell, camera, "labels_color"), calibration_topic=calibration
+        )
+    )
+    scene = fl.ThreeDeeConfig(
+        follow_tf=ros2_messages.FLOOR_FRAME,
+        topics={
+            topic(cell, camera, "points"): fl.BaseRendererPointCloudTopicSettings(
+                visible=True, color_mode="rgba-fields", point_size=3
+            )
+        },
+        layers={"grid": fl.BaseRendererGridLayerSettings()},
+    )
+    panels = {
+        "Image!depth": depth,
+        "Image!labels": label_colours,
+        "3D!floor": scene,
+    }
+    return {
+        "configById": {name: _config(config) for name, config in panels.items()},
+        "globalVariables": {},
+        "userNodes": {},
+        "playbackConfig": {"speed": 1},
+        "layout": {
+            "direction": "column",
+            "splitPercentage": 40,
+            "first": {
+                "direction": "row",
+                "splitPercentage": 50,
+                "first": "Image!depth",
+                "second": "Image!labels",
+            },
+            "second": "3D!floor",
+        },
+    }
+
+
+def layout_topics(data: dict) -> set[str]:
+    """The topics a layout's panels read (image, calibration and 3-D topics)."""
+    found = set()
+    for config in data["configById"].values():
+        mode = config.get("imageMode", {})
+        found.update(mode[key] for key in ("imageTopic", "calibrationTopic") if key in mode)
+        found.update(config.get("topics", {}))
+    return found
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the layout of one camera as JSON."""
+    parser = argparse.ArgumentParser(prog="python -m topseg.services.foxglove_layout")
+    parser.add_argument("--cell", default=wire.DEFAULT_CELL)
+    parser.add_argument("--camera", default=wire.DEFAULT_CAMERA)
+    args = parser.parse_args(argv)
+    print(json.dumps(layout(args.cell, args.camera), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,206 @@
+"""The viewer's Foxglove sink: live through the Foxglove SDK's WebSocket server.
+
+`topseg viewer --foxglove [--foxglove-host H --foxglove-port P]` serves, per camera, on the
+topics `/topseg/<cell>/<camera>/<stream>` (`ros2_messages.ros2_topic`, the names recordings
+and the ROS 2 bridge use), with Foxglove's own schemas (protobuf):
+
+| stream         | schema                      | what                                              |
+|----------------|-----------------------------|---------------------------------------------------|
+| `depth`        | `foxglove.RawImage`         | `16UC1`, millimetres, 0 = no reading              |
+| `labels`       | `foxglove.RawImage`         | `mono8`, the label ids of `core/labels.py`        |
+| `labels_color` | `foxglove.RawImage`         | `rgb8`, the labels in the label table's colours   |
+| `camera_info`  | `foxglove.CameraCalibration`| the pinhole of the depth frames                   |
+| `points`       | `foxglove.PointCloud`       | the labelled cloud, x y z float32 + r g b a uint8 |
+| `mount`        | `foxglove.FrameTransform`   | floor frame -> the camera's optical frame         |
+
+Images and the calibration are in the camera's optical frame (`<camera>_optical_frame`);
+the cloud is in the floor frame (`topseg_floor`) when the mount is known, else in the
+optical frame, and `mount` is sent with every depth frame that has one (so a client that
+connects late gets it). `docs/foxglove/topseg-layout.json` opens these topics laid out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+import numpy as np
+
+from topseg.core import labels
+from topseg.core.formats import ros2_messages
+
+log = logging.getLogger("topseg.viewer")
+
+#: the Foxglove SDK's own default port
+FOXGLOVE_PORT = 8765
+#: the streams served per camera, in the order they are advertised
+STREAMS = ("depth", "labels", "labels_color", "camera_info", "points", "mount")
+#: one point of a PointCloud: x, y, z float32 then r, g, b, a uint8
+POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgba", "u1", (4,))])
+
+
+def add_foxglove_arguments(parser: argparse.ArgumentParser) -> None:
+    """--foxglove, --foxglove-host and --foxglove-port."""
+    parser.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="serve live to Foxglove (its SDK's WebSocket server); alone: Foxglove only",
+    )
+    parser.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="H",
+        help="address the Foxglove server listens on (default: %(default)s; 0.0.0.0: all)",
+    )
+    parser.add_argument(
+        "--foxglove-port",
+        type=int,
+        default=FOXGLOVE_PORT,
+        metavar="P",
+        help="port of the Foxglove server (default: %(default)s; 0: any free one)",
+    )
+
+
+def topic(cell: str, camera: str, stream: str) -> str:
+    """The Foxglove topic of a camera's stream."""
+    return ros2_messages.ros2_topic(cell, camera, stream)
+
+
+def point_cloud_bytes(xyz: np.ndarray, rgba: np.ndarray) -> bytes:
+    """The packed PointCloud data of (N, 3) float32 points and their (N, 4) uint8 colours."""
+    packed = np.empty(len(xyz), POINT_DTYPE)
+    packed["x"], packed["y"], packed["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    packed["rgba"] = rgba
+    return packed.tobytes()
+
+
+def _timestamp(stamp_ns: int):
+    from foxglove.messages import Timestamp
+
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return Timestamp(sec, nsec)
+
+
+def _raw_image(image: np.ndarray, encoding: str, stamp_ns: int, frame_id: str):
+    from foxglove.messages import RawImage
+
+    image = np.ascontiguousarray(image)
+    return RawImage(
+        timestamp=_timestamp(stamp_ns),
+        frame_id=frame_id,
+        width=image.shape[1],
+        height=image.shape[0],
+        encoding=encoding,
+        step=image.shape[1] * image.itemsize * (image.shape[2] if image.ndim == 3 else 1),
+        data=image.tobytes(),
+    )
+
+
+class FoxgloveSink:
+    """Serves the viewer's cameras to Foxglove clients over the SDK's WebSocket server."""
+
+    def __init__(self, server, context) -> None:
+        self.server, self.context = server, context
+        self.channels: dict[tuple[str, str], dict] = {}
+
+    @classmethod
+    def start(cls, host: str, port: int) -> FoxgloveSink:
+        """Start the WebSocket server on host:port; a TopsegError when it cannot."""
+        import foxglove
+
+        from topseg.core.errors import TopsegError
+
+        context = foxglove.Context()
+        try:
+            server = foxglove.start_server(name="topseg", host=host, port=port, context=context)
+        except Exception as exc:
+            raise TopsegError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
+        log.info("Foxglove WebSocket server: ws://%s:%d", host, server.port)
+        return cls(server, context)
+
+    def cameras_changed(self, cameras) -> None:
+        """Advertise the channels of cameras not seen before."""
+        from foxglove import channels as fc
+
+        kinds = {
+            "depth": fc.RawImageChannel,
+            "labels": fc.RawImageChannel,
+            "labels_color": fc.RawImageChannel,
+            "camera_info": fc.CameraCalibrationChannel,
+            "points": fc.PointCloudChannel,
+            "mount": fc.FrameTransformChannel,
+        }
+        for cam in cameras:
+            if cam not in self.channels:
+                self.channels[cam] = {
+                    stream: kinds[stream](topic(*cam, stream), context=self.context)
+                    for stream in STREAMS
+                }
+
+    def depth(self, cam: tuple[str, str], frame) -> None:
+        """The depth image, the camera's calibration and its mount (when known)."""
+        from foxglove.messages import CameraCalibration, FrameTransform, Quaternion, Vector3
+
+        channels, optical = self.channels[cam], ros2_messages.optical_frame(cam[1])
+        stamp = _timestamp(frame.stamp_ns)
+        channels["depth"].log(_raw_image(frame.depth, "16UC1", frame.stamp_ns, optical))
+        k = frame.intrinsics
+        channels["camera_info"].log(
+            CameraCalibration(
+                timestamp=stamp,
+                frame_id=optical,
+                width=k.width,
+                height=k.height,
+                distortion_model="plumb_bob",
+                D=[0.0] * 5,
+                K=[k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+                R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                P=[k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+            )
+        )
+        if frame.mount is not None:
+            (tx, ty, tz), (qx, qy, qz, qw) = ros2_messages.mount_pose(frame.mount)
+            channels["mount"].log(
+                FrameTransform(
+                    timestamp=stamp,
+                    parent_frame_id=ros2_messages.FLOOR_FRAME,
+                    child_frame_id=optical,
+                    translation=Vector3(x=tx, y=ty, z=tz),
+                    rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
+                )
+            )
+
+    def labels(self, cam: tuple[str, str], frame, cloud) -> None:
+        """The label ids, their colours, and the labelled cloud when there is one."""
+        from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud
+
+        channels, optical = self.channels[cam], ros2_messages.optical_frame(cam[1])
+        channels["labels"].log(_raw_image(frame.labels, "mono8", frame.stamp_ns, optical))
+        channels["labels_color"].log(
+            _raw_image(labels.colorize(frame.labels), "rgb8", frame.stamp_ns, optical)
+        )
+        if cloud is None:
+            return
+        f32, u8 = PackedElementFieldNumericType.Float32, PackedElementFieldNumericType.Uint8
+        fields = [
+            PackedElementField(name=name, offset=4 * i, type=f32) for i, name in enumerate("xyz")
+        ] + [
+            PackedElementField(name=name, offset=12 + i, type=u8)
+            for i, name in enumerate(("red", "green", "blue", "alpha"))
+        ]
+        channels["points"].log(
+            PointCloud(
+                timestamp=_timestamp(frame.stamp_ns),
+                frame_id=ros2_messages.FLOOR_FRAME if cloud.in_floor_frame else optical,
+                point_stride=POINT_DTYPE.itemsize,
+                fields=fields,
+                data=point_cloud_bytes(cloud.xyz, cloud.rgba()),
+            )
+        )
+
+    def stats(self, cam: tuple[str, str], stats: dict) -> None:
+        """Not served to Foxglove: the worker's stats are plotted in Rerun."""
+
+    def close(self) -> None:
+        """Stop the server (clients see it go)."""
+        self.server.stop()

@@ -1,0 +1,222 @@
+"""The viewer's live sinks as real processes: Rerun's web viewer fetched over HTTP, and the
+Foxglove WebSocket server spoken to as a Foxglove client would (its subprotocol, the
+advertised channels, messages decoded with the protobuf schemas the server sends)."""
+
+import base64
+import json
+import signal
+import struct
+import threading
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import zenoh
+from netutil import Service, free_port, wait_for
+
+from topseg.core import labels
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
+from topseg.core.formats import ros2_messages, wire
+from topseg.core.labelled_cloud import labelled_cloud
+from topseg.core.synth.procedural import procedural_frame
+from topseg.services import foxglove_layout
+from topseg.services.viewer_foxglove import POINT_DTYPE, STREAMS, topic
+from topseg.services.zenoh_session import open_session
+
+K = KINECT_V1.scaled_to(160, 120)
+MOUNT = TopViewMount(K, PAPER_MOUNT.height_mm, pitch_deg=8.0, roll_deg=-4.0)
+LAYOUT_FILE = Path(__file__).parents[1] / "docs" / "foxglove" / "topseg-layout.json"
+#: the Foxglove SDK's WebSocket subprotocol (the SDK 0.30 server speaks this one)
+SUBPROTOCOL = "foxglove.sdk.v1"
+#: what the viewer advertises per stream: schema name and encoding
+SCHEMAS = {
+    "depth": "foxglove.RawImage",
+    "labels": "foxglove.RawImage",
+    "labels_color": "foxglove.RawImage",
+    "camera_info": "foxglove.CameraCalibration",
+    "points": "foxglove.PointCloud",
+    "mount": "foxglove.FrameTransform",
+}
+
+
+def fetch(url: str, limit: int | None = None) -> tuple[str, bytes]:
+    with urllib.request.urlopen(url, timeout=30) as reply:
+        return reply.headers.get("Content-Type", ""), reply.read(limit)
+
+
+def stop(service: Service) -> int:
+    service.proc.send_signal(signal.SIGTERM)
+    return service.proc.wait(timeout=60)
+
+
+def test_web_serves_rerun_web_viewer_page_and_its_wasm():
+    web, grpc = free_port(), free_port()
+    viewer = Service(
+        "viewer", "--web", "--web-port", web, "--grpc-port", grpc, "--zenoh-port", free_port()
+    )
+    try:
+        viewer.wait_line("viewer ready")
+        # the log names the page with the gRPC address the browser reads the data from
+        assert f"http://localhost:{web}/?url=rerun%2Bhttp://" in viewer.err
+        assert f":{grpc}/proxy" in viewer.err
+        kind, page = fetch(f"http://127.0.0.1:{web}/")
+        html = page.decode()
+        assert "text/html" in kind and "<title>Rerun Viewer</title>" in html
+        assert 'src="re_viewer.js"' in html and "re_viewer_bg.wasm" in html
+        kind, js = fetch(f"http://127.0.0.1:{web}/re_viewer.js")
+        assert "javascript" in kind and b"wasm" in js
+        kind, wasm = fetch(f"http://127.0.0.1:{web}/re_viewer_bg.wasm", limit=4)
+        assert kind == "application/wasm" and wasm == b"\0asm"
+        assert stop(viewer) == 0, viewer.err
+    finally:
+        if viewer.alive():
+            viewer.proc.kill()
+
+
+class Publisher:
+    """Publishes depth (with MOUNT) and labels of one camera on loopback Zenoh in a thread
+    until stopped, and remembers every frame by its stamp."""
+
+    def __init__(self, port: int, cell: str, camera: str):
+        self.session = open_session(port=port)
+        block = dict(congestion_control=zenoh.CongestionControl.BLOCK)
+        self.pubs = {
+            kind: self.session.declare_publisher(
+                f"{wire.camera_prefix(cell, camera)}/{kind}", **block
+            )
+            for kind in ("depth", "labels")
+        }
+        self.sent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+
+    def run(self):
+        rng = np.random.default_rng(7)
+        seq = 0
+        while not self.done.is_set():
+            depth, truth = procedural_frame(rng, MOUNT)
+            stamp = 10**18 + seq * 10**8
+            self.sent[stamp] = depth, truth
+            self.pubs["depth"].put(
+                wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp, mount=MOUNT))
+            )
+            self.pubs["labels"].put(wire.encode_labels(wire.LabelFrame(truth, seq, stamp)))
+            seq += 1
+            self.done.wait(0.2)
+
+    def close(self):
+        self.done.set()
+        self.thread.join(10)
+        self.session.close()
+
+
+def decoder(channel: dict):
+    """A protobuf message class from the schema (a FileDescriptorSet) the server advertised."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    assert channel["schemaEncoding"] == "protobuf"
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for f in files.file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages():
+    from websockets.sync.client import connect
+
+    cell, camera = wire.DEFAULT_CELL, wire.DEFAULT_CAMERA  # the layout file's camera
+    zport, fport = free_port(), free_port()
+    viewer = Service("viewer", "--foxglove", "--foxglove-port", fport, "--zenoh-port", zport)
+    publisher = None
+    try:
+        viewer.wait_line("viewer ready")
+        assert f"ws://127.0.0.1:{fport}" in viewer.err
+        publisher = Publisher(zport, cell, camera)
+        publisher.thread.start()
+        with connect(f"ws://127.0.0.1:{fport}", subprotocols=[SUBPROTOCOL]) as ws:
+            assert ws.subprotocol == SUBPROTOCOL
+            channels: dict[str, dict] = {}
+            wanted = {topic(cell, camera, stream) for stream in STREAMS}
+            while not wanted <= set(channels):  # the camera's channels come with its first frame
+                message = json.loads(ws.recv(timeout=90))
+                if message["op"] == "advertise":
+                    channels.update({c["topic"]: c for c in message["channels"]})
+            for stream, schema in SCHEMAS.items():
+                channel = channels[topic(cell, camera, stream)]
+                assert (channel["schemaName"], channel["encoding"]) == (schema, "protobuf")
+            # the layout file reads only topics the viewer serves
+            layout = json.loads(LAYOUT_FILE.read_text())
+            assert layout == foxglove_layout.layout(cell, camera), "regenerate the layout file"
+            assert foxglove_layout.layout_topics(layout) <= set(channels)
+
+            subscribed = {}
+            for i, stream in enumerate(("points", "labels_color", "mount", "depth")):
+                subscribed[i] = stream, channels[topic(cell, camera, stream)]
+            ws.send(json.dumps({
+                "op": "subscribe",
+                "subscriptions": [{"id": i, "channelId": c["id"]} for i, (_, c) in subscribed.items()],
+            }))  # fmt: skip
+            got = {}
+            while len(got) < len(subscribed):
+                data = ws.recv(timeout=90)
+                if isinstance(data, str):
+                    continue
+                op, sub = struct.unpack_from("<BI", data)
+                assert op == 1  # MessageData: op, subscription id, log time, payload
+                stream, channel = subscribed[sub]
+                got.setdefault(stream, decoder(channel).FromString(data[13:]))
+    finally:
+        if publisher is not None:
+            publisher.close()
+        code = stop(viewer) if viewer.alive() else viewer.proc.returncode
+    assert code == 0, viewer.err
+
+    optical = ros2_messages.optical_frame(camera)
+    points = got["points"]
+    assert points.frame_id == ros2_messages.FLOOR_FRAME
+    stamp = points.timestamp.seconds * 10**9 + points.timestamp.nanos
+    depth, truth = publisher.sent[stamp]
+    expected = labelled_cloud(depth, truth, K, MOUNT, 4)  # the viewer's default --stride
+    assert points.point_stride == POINT_DTYPE.itemsize
+    assert [f.name for f in points.fields] == ["x", "y", "z", "red", "green", "blue", "alpha"]
+    cloud = np.frombuffer(points.data, POINT_DTYPE)
+    np.testing.assert_allclose(np.stack([cloud["x"], cloud["y"], cloud["z"]], 1), expected.xyz)
+    np.testing.assert_array_equal(cloud["rgba"], expected.rgba())
+
+    colours = got["labels_color"]
+    assert (colours.encoding, colours.width, colours.height) == ("rgb8", K.width, K.height)
+    assert colours.frame_id == optical and colours.step == 3 * K.width
+    stamp = colours.timestamp.seconds * 10**9 + colours.timestamp.nanos
+    image = np.frombuffer(colours.data, np.uint8).reshape(K.height, K.width, 3)
+    np.testing.assert_array_equal(image, labels.colorize(publisher.sent[stamp][1]))
+
+    mount = got["mount"]
+    assert (mount.parent_frame_id, mount.child_frame_id) == (ros2_messages.FLOOR_FRAME, optical)
+    translation, quaternion = ros2_messages.mount_pose(MOUNT)
+    t, q = mount.translation, mount.rotation
+    np.testing.assert_allclose([t.x, t.y, t.z], translation)
+    np.testing.assert_allclose([q.x, q.y, q.z, q.w], quaternion)
+
+    depth_image = got["depth"]
+    assert (depth_image.encoding, depth_image.step) == ("16UC1", 2 * K.width)
+    stamp = depth_image.timestamp.seconds * 10**9 + depth_image.timestamp.nanos
+    np.testing.assert_array_equal(
+        np.frombuffer(depth_image.data, "<u2").reshape(K.shape), publisher.sent[stamp][0]
+    )
+
+
+def test_foxglove_port_in_use_is_one_clear_line():
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        viewer = Service(
+            "viewer", "--foxglove", "--foxglove-port", port, "--zenoh-port", free_port()
+        )
+        viewer.proc.wait(timeout=60)
+        wait_for(lambda: "error" in viewer.err, 10, "the error line")
+    assert viewer.proc.returncode == 2
+    assert f"cannot serve Foxglove on 127.0.0.1:{port}" in viewer.err
