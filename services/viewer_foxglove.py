@@ -16,7 +16,9 @@ and the ROS 2 bridge use), with Foxglove's own schemas (protobuf):
 Images and the calibration are in the camera's optical frame (`<camera>_optical_frame`);
 the cloud is in the floor frame (`topseg_floor`) when the mount is known, else in the
 optical frame, and `mount` is sent with every depth frame that has one (so a client that
-connects late gets it). `docs/foxglove/topseg-layout.json` opens these topics laid out.
+connects late gets it). Images and clouds are converted only while a client subscribes to
+them; each client's queue holds `CLIENT_BACKLOG` messages, the oldest dropped first.
+`docs/foxglove/topseg-layout.json` opens these topics laid out.
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ log = logging.getLogger("topseg.viewer")
 
 #: the Foxglove SDK's own default port
 FOXGLOVE_PORT = 8765
+#: messages queued per client before the oldest is dropped (the SDK's default, 1024 frames
+#: of 640x480 depth, would be 600 MB for one slow client)
+CLIENT_BACKLOG = 32
 #: the streams served per camera, in the order they are advertised
 STREAMS = ("depth", "labels", "labels_color", "camera_info", "points", "mount")
 #: one point of a PointCloud: x, y, z float32 then r, g, b, a uint8
@@ -112,7 +117,13 @@ class FoxgloveSink:
 
         context = foxglove.Context()
         try:
-            server = foxglove.start_server(name="topseg", host=host, port=port, context=context)
+            server = foxglove.start_server(
+                name="topseg",
+                host=host,
+                port=port,
+                context=context,
+                message_backlog_size=CLIENT_BACKLOG,
+            )
         except Exception as exc:
             raise TopsegError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         log.info("Foxglove WebSocket server: ws://%s:%d", host, server.port)
@@ -143,7 +154,8 @@ class FoxgloveSink:
 
         channels, optical = self.channels[cam], ros2_messages.optical_frame(cam[1])
         stamp = _timestamp(frame.stamp_ns)
-        channels["depth"].log(_raw_image(frame.depth, "16UC1", frame.stamp_ns, optical))
+        if channels["depth"].has_sinks():  # a client subscribed: worth the copy
+            channels["depth"].log(_raw_image(frame.depth, "16UC1", frame.stamp_ns, optical))
         k = frame.intrinsics
         channels["camera_info"].log(
             CameraCalibration(
@@ -175,11 +187,13 @@ class FoxgloveSink:
         from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud
 
         channels, optical = self.channels[cam], ros2_messages.optical_frame(cam[1])
-        channels["labels"].log(_raw_image(frame.labels, "mono8", frame.stamp_ns, optical))
-        channels["labels_color"].log(
-            _raw_image(labels.colorize(frame.labels), "rgb8", frame.stamp_ns, optical)
-        )
-        if cloud is None:
+        if channels["labels"].has_sinks():
+            channels["labels"].log(_raw_image(frame.labels, "mono8", frame.stamp_ns, optical))
+        if channels["labels_color"].has_sinks():
+            channels["labels_color"].log(
+                _raw_image(labels.colorize(frame.labels), "rgb8", frame.stamp_ns, optical)
+            )
+        if cloud is None or not channels["points"].has_sinks():
             return
         f32, u8 = PackedElementFieldNumericType.Float32, PackedElementFieldNumericType.Uint8
         fields = [
