@@ -311,10 +311,11 @@ def run(args: argparse.Namespace) -> int:
         raise TopsegError(f"--stride must be >= 1, got {args.stride}")
     if args.duration is not None and args.duration <= 0:
         raise TopsegError(f"--duration must be > 0, got {args.duration}")
-    for name in ("web_port", "grpc_port", "foxglove_port"):
+    for name, lowest in (("web_port", 1), ("grpc_port", 1), ("foxglove_port", 0)):
         port = getattr(args, name)
-        if not 0 <= port <= 65535:
-            raise TopsegError(f"--{name.replace('_', '-')} must be a port 0-65535, got {port}")
+        if not lowest <= port <= 65535:
+            option = f"--{name.replace('_', '-')}"
+            raise TopsegError(f"{option} must be a port {lowest}-65535, got {port}")
     svc = ServiceLifecycle("viewer", args)
     sinks: list = []
     inbox: queue.Queue = queue.Queue(QUEUE_SIZE)

@@ -148,8 +148,21 @@ def test_viewer_stops_after_duration_and_writes_a_valid_rrd(tmp_path):
     assert "/@AnnotationContext" in text and "/legend@Points2D" in text
 
 
-def test_viewer_refuses_bad_options_with_one_line(tmp_path):
+@pytest.mark.parametrize(
+    ("option", "error"),
+    [
+        (["--stride", "0"], "--stride must be >= 1, got 0"),
+        (["--web", "--web-port", "0"], "--web-port must be a port 1-65535, got 0"),
+        (
+            ["--foxglove", "--foxglove-port", "70000"],
+            "--foxglove-port must be a port 0-65535, got 70000",
+        ),
+    ],
+)
+def test_viewer_refuses_bad_options_with_one_line(tmp_path, option, error):
     cmd = [sys.executable, "-m", "topseg.services.cli", "viewer", "--save", str(tmp_path / "x.rrd")]
-    proc = subprocess.run([*cmd, "--stride", "0"], capture_output=True, text=True, timeout=60)
+    if "--web" in option:
+        cmd = cmd[:-2]  # --web and --save exclude each other
+    proc = subprocess.run([*cmd, *option], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
-    assert proc.stderr.strip() == "topseg viewer: error: --stride must be >= 1, got 0"
+    assert proc.stderr.strip() == f"topseg viewer: error: {error}"

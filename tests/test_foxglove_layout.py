@@ -1,0 +1,36 @@
+"""The Foxglove layout file: the app's import format, with the viewer's topics."""
+
+import json
+from pathlib import Path
+
+from topseg.services import foxglove_layout
+from topseg.services.viewer_foxglove import topic
+
+LAYOUT_FILE = Path(__file__).parents[1] / "docs" / "foxglove" / "topseg-layout.json"
+
+
+def leaves(node) -> list[str]:
+    """The panel ids of a mosaic layout tree."""
+    if isinstance(node, str):
+        return [node]
+    assert node["direction"] in ("row", "column") and 0 < node["splitPercentage"] < 100
+    return leaves(node["first"]) + leaves(node["second"])
+
+
+def test_the_committed_file_is_the_generated_layout_of_the_default_camera():
+    assert json.loads(LAYOUT_FILE.read_text()) == foxglove_layout.layout(), (
+        "regenerate: python -m topseg.services.foxglove_layout > docs/foxglove/topseg-layout.json"
+    )
+
+
+def test_every_panel_is_placed_once_and_reads_the_cameras_topics():
+    layout = foxglove_layout.layout("c2", "top")
+    assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
+    assert {name.split("!")[0] for name in layout["configById"]} == {"Image", "3D"}
+    assert foxglove_layout.layout_topics(layout) == {
+        topic("c2", "top", stream) for stream in ("depth", "labels_color", "camera_info", "points")
+    }
+    scene = layout["configById"]["3D!floor"]
+    assert scene["followTf"] == "topseg_floor"
+    assert scene["topics"][topic("c2", "top", "points")]["colorMode"] == "rgba-fields"
+    assert scene["layers"]["grid"]["layerId"] == "foxglove.Grid"
