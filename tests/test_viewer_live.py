@@ -11,6 +11,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import pytest
 import zenoh
 from netutil import Service, free_port, wait_for
 
@@ -122,6 +123,34 @@ def decoder(channel: dict):
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
 
 
+class FoxgloveClient:
+    """What a Foxglove client does on an open WebSocket: collect the advertised channels,
+    subscribe, and decode the first message of each subscription with its schema."""
+
+    def __init__(self, ws):
+        self.ws = ws
+        self.channels: dict[str, dict] = {}
+
+    def wait_for_topics(self, topics: set[str], timeout: float) -> None:
+        while not topics <= set(self.channels):  # a camera's channels come with its first frame
+            message = self.ws.recv(timeout=timeout)
+            if isinstance(message, str) and json.loads(message)["op"] == "advertise":
+                self.channels.update({c["topic"]: c for c in json.loads(message)["channels"]})
+
+    def first_messages(self, topics: list[str], timeout: float) -> dict:
+        subs = {i: self.channels[t] for i, t in enumerate(topics)}
+        ws_subs = [{"id": i, "channelId": c["id"]} for i, c in subs.items()]
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": ws_subs}))
+        got = {}
+        while len(got) < len(subs):
+            data = self.ws.recv(timeout=timeout)
+            if isinstance(data, bytes):
+                op, sub = struct.unpack_from("<BI", data)
+                assert op == 1  # MessageData: op, subscription id, log time, payload
+                got.setdefault(subs[sub]["topic"], decoder(subs[sub]).FromString(data[13:]))
+        return got
+
+
 def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages():
     from websockets.sync.client import connect
 
@@ -136,36 +165,18 @@ def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages()
         publisher.thread.start()
         with connect(f"ws://127.0.0.1:{fport}", subprotocols=[SUBPROTOCOL]) as ws:
             assert ws.subprotocol == SUBPROTOCOL
-            channels: dict[str, dict] = {}
-            wanted = {topic(cell, camera, stream) for stream in STREAMS}
-            while not wanted <= set(channels):  # the camera's channels come with its first frame
-                message = json.loads(ws.recv(timeout=90))
-                if message["op"] == "advertise":
-                    channels.update({c["topic"]: c for c in message["channels"]})
+            client = FoxgloveClient(ws)
+            client.wait_for_topics({topic(cell, camera, stream) for stream in STREAMS}, 90)
             for stream, schema in SCHEMAS.items():
-                channel = channels[topic(cell, camera, stream)]
+                channel = client.channels[topic(cell, camera, stream)]
                 assert (channel["schemaName"], channel["encoding"]) == (schema, "protobuf")
             # the layout file reads only topics the viewer serves
             layout = json.loads(LAYOUT_FILE.read_text())
             assert layout == foxglove_layout.layout(cell, camera), "regenerate the layout file"
-            assert foxglove_layout.layout_topics(layout) <= set(channels)
-
-            subscribed = {}
-            for i, stream in enumerate(("points", "labels_color", "mount", "depth")):
-                subscribed[i] = stream, channels[topic(cell, camera, stream)]
-            ws.send(json.dumps({
-                "op": "subscribe",
-                "subscriptions": [{"id": i, "channelId": c["id"]} for i, (_, c) in subscribed.items()],
-            }))  # fmt: skip
-            got = {}
-            while len(got) < len(subscribed):
-                data = ws.recv(timeout=90)
-                if isinstance(data, str):
-                    continue
-                op, sub = struct.unpack_from("<BI", data)
-                assert op == 1  # MessageData: op, subscription id, log time, payload
-                stream, channel = subscribed[sub]
-                got.setdefault(stream, decoder(channel).FromString(data[13:]))
+            assert foxglove_layout.layout_topics(layout) <= set(client.channels)
+            streams = ("points", "labels_color", "mount", "depth")
+            first = client.first_messages([topic(cell, camera, s) for s in streams], 90)
+            got = {stream: first[topic(cell, camera, stream)] for stream in streams}
     finally:
         if publisher is not None:
             publisher.close()
@@ -220,3 +231,44 @@ def test_foxglove_port_in_use_is_one_clear_line():
         wait_for(lambda: "error" in viewer.err, 10, "the error line")
     assert viewer.proc.returncode == 2
     assert f"cannot serve Foxglove on 127.0.0.1:{port}" in viewer.err
+
+
+@pytest.mark.slow
+def test_driver_worker_viewer_foxglove_shows_the_labelled_cloud_in_the_floor_frame():
+    """The real path: a synthetic camera (its mount on every frame), the bundled model's
+    worker, and the viewer serving Foxglove; the cloud arrives on the floor, labelled."""
+    from websockets.sync.client import connect
+
+    zport, fport = free_port(), free_port()
+    cell, camera = "fx1", "top"
+    services = [
+        Service("viewer", "--foxglove", "--foxglove-port", fport, "--zenoh-port", zport),
+        Service("worker", "--crf", "none", "--zenoh-port", zport),
+        Service(
+            "driver", "--source", "synthetic:mount=random,seed=5", "--cell", cell,
+            "--camera", camera, "--fps", 2, "--zenoh-port", zport,
+        ),
+    ]  # fmt: skip
+    try:
+        for service, line in zip(
+            services, ("viewer ready", "worker ready", "publishing"), strict=True
+        ):
+            service.wait_line(line, timeout=120)
+        points_topic, mount_topic = topic(cell, camera, "points"), topic(cell, camera, "mount")
+        with connect(f"ws://127.0.0.1:{fport}", subprotocols=[SUBPROTOCOL]) as ws:
+            client = FoxgloveClient(ws)
+            client.wait_for_topics({topic(cell, camera, s) for s in STREAMS}, 120)
+            got = client.first_messages([points_topic, mount_topic], 120)
+    finally:
+        codes = [stop(s) if s.alive() else s.proc.returncode for s in services]
+    assert codes == [0, 0, 0], "\n".join(s.err for s in services)
+    points, mount = got[points_topic], got[mount_topic]
+    assert points.frame_id == ros2_messages.FLOOR_FRAME
+    assert mount.child_frame_id == ros2_messages.optical_frame(camera)
+    cloud = np.frombuffer(points.data, POINT_DTYPE)
+    assert len(cloud) > 1000
+    # the floor is at z = 0 in the floor frame: most points lie near it, none far below it
+    assert abs(np.median(cloud["z"])) < 0.1 and cloud["z"].min() > -0.5
+    assert 0 < mount.translation.z < 5  # the camera hangs metres above the floor
+    palette = {tuple(c) for c in labels.palette()[[lab.id for lab in labels.LABELS]]}
+    assert {tuple(c[:3]) for c in cloud["rgba"]} <= palette
