@@ -77,8 +77,8 @@ class _Collector:
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.frames_sent = 0
-        self.truth: dict[int, np.ndarray] = {}
-        self.labels: dict[int, np.ndarray] = {}
+        self.truth: dict[tuple[str, int], np.ndarray] = {}  # by (camera, seq)
+        self.labels: dict[tuple[str, int], np.ndarray] = {}
         self.latency_ms: list[float] = []
         self.first_label_s: float | None = None
         self.last_label_s: float | None = None
@@ -99,7 +99,7 @@ class _Collector:
             return
         with self.lock:
             if len(self.truth) < MAX_SCORED:
-                self.truth[frame.seq] = frame.labels
+                self.truth[_camera_of(sample), frame.seq] = frame.labels
 
     def on_labels(self, sample) -> None:
         from topseg.core.formats import wire
@@ -118,7 +118,17 @@ class _Collector:
             if self.n_labels > WARMUP_FRAMES:
                 self.latency_ms.append((now_ns - frame.stamp_ns) / 1e6)
             if len(self.labels) < MAX_SCORED:
-                self.labels[frame.seq] = frame.labels
+                self.labels[_camera_of(sample), frame.seq] = frame.labels
+
+
+def _camera_of(sample) -> str:
+    """The camera name in a sample's key `topseg/<cell>/<camera>/<stream>`."""
+    return str(sample.key_expr).split("/")[2]
+
+
+def camera_names(cameras: int) -> list[str]:
+    """The cameras of a pipeline run: CAMERA alone, or cam0, cam1, ... for several."""
+    return [CAMERA] if cameras == 1 else [f"cam{i}" for i in range(cameras)]
 
 
 def _cli(*args: str) -> list[str]:
@@ -181,13 +191,16 @@ def run_pipeline(
     port: int | None = None,
     logs_dir: Path | None = None,
     stride: int | None = None,
+    cameras: int = 1,
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
     `model` None is the bundled model (`core.segmenter.bundled_model_path`).
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
     "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
-    "exit_codes", "logs"}. `stride` is the worker's (None: auto). `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
+    "exit_codes", "logs"}. `stride` is the worker's (None: auto). `cameras` > 1 runs that many drivers of the same
+    source (cameras cam0, cam1, ...; each at `fps`) into the one worker; the figures are over
+    all of them. `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
     one until SIGINT/SIGTERM reaches this process). `lossless` makes the whole path lossless:
     the driver publishes with BLOCK congestion control (a real-time replay uses DROP, which
     under load dropped a frame on the worker's link while this process's copy arrived), the
@@ -219,15 +232,19 @@ def run_pipeline(
         old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     session = open_session(port=port)
     col = _Collector()
+    if cameras < 1:
+        raise TopsegError(f"cameras must be >= 1, got {cameras}")
+    names = camera_names(cameras)
     subs = [
-        session.declare_subscriber(wire.depth_key(CELL, CAMERA), col.on_depth),
-        session.declare_subscriber(wire.truth_key(CELL, CAMERA), col.on_truth),
-        session.declare_subscriber(wire.labels_key(CELL, CAMERA), col.on_labels),
+        session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/depth", col.on_depth),
+        session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/truth", col.on_truth),
+        session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/labels", col.on_labels),
     ]
     kids = _Children(logs)
     codes: dict[str, int | None] = {}
     try:
-        worker = ["worker", "--model", str(model), "--crf", crf, "--cameras", f"{CELL}/{CAMERA}"]
+        worker = ["worker", "--model", str(model), "--crf", crf, "--cameras"]
+        worker += [f"{CELL}/{name}" for name in names]
         worker += ["--stride", "auto" if stride is None else str(stride)]
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
@@ -239,27 +256,32 @@ def run_pipeline(
             kids.wait_ready("viewer", "viewer ready", START_TIMEOUT_S)
         if web:
             kids.wait_ready("web-viewer", "viewer ready", START_TIMEOUT_S)
-        driver = ["driver", "--source", str(spec), "--cell", CELL, "--camera", CAMERA]
-        if fps is not None:
-            driver += ["--fps", str(fps)]
-        if duration_s is not None and spec.kind == "replay":
-            driver.append("--loop")
-        if lossless:  # lossless end to end: a real-time driver would DROP under load
-            driver += ["--congestion", "block"]
-        kids.start("driver", _cli(*driver, *zenoh))
-        drv = kids.procs["driver"]
+        drivers = {}
+        for name in names:
+            driver = ["driver", "--source", str(spec), "--cell", CELL, "--camera", name]
+            if fps is not None:
+                driver += ["--fps", str(fps)]
+            if duration_s is not None and spec.kind == "replay":
+                driver.append("--loop")
+            if lossless:  # lossless end to end: a real-time driver would DROP under load
+                driver += ["--congestion", "block"]
+            kid = "driver" if cameras == 1 else f"driver-{name}"
+            kids.start(kid, _cli(*driver, *zenoh))
+            drivers[kid] = kids.procs[kid]
         while col.first_label_s is None and not stop.is_set():
-            if drv.poll() is not None and drv.returncode != 0:
-                raise TopsegError(f"driver exited ({drv.returncode}): {kids.tail('driver')}")
-            if drv.poll() is not None and col.frames_sent == 0:
-                raise TopsegError(f"driver ended without a frame: {kids.tail('driver')}")
+            for kid, drv in drivers.items():
+                if drv.poll() is not None and drv.returncode != 0:
+                    raise TopsegError(f"{kid} exited ({drv.returncode}): {kids.tail(kid)}")
+                if drv.poll() is not None and col.frames_sent == 0:
+                    raise TopsegError(f"{kid} ended without a frame: {kids.tail(kid)}")
             stop.wait(0.05)
         end = None if duration_s is None else time.monotonic() + duration_s
-        while not stop.is_set() and drv.poll() is None:
+        while not stop.is_set() and any(d.poll() is None for d in drivers.values()):
             if end is not None and time.monotonic() >= end:
                 break
             stop.wait(0.05)
-        codes["driver"] = kids.stop("driver")
+        for kid in drivers:
+            codes[kid] = kids.stop(kid)
         _drain(col, lossless, stop)
     finally:
         for name in kids.procs:
@@ -275,13 +297,14 @@ def run_pipeline(
         span = (col.last_label_s or 0.0) - (col.first_label_s or 0.0)
         acc = ConfusionAccumulator()
         scored = 0
-        for seq, pred in col.labels.items():
-            truth = col.truth.get(seq)
+        for key, pred in col.labels.items():
+            truth = col.truth.get(key)
             if truth is not None and truth.shape == pred.shape:
                 acc.add(truth, pred)
                 scored += 1
         return {
             "source": str(spec),
+            "cameras": cameras,
             "fps": (col.n_labels - 1) / span if span > 0 else 0.0,
             "latency_p50_ms": percentile(col.latency_ms, 50),
             "latency_p99_ms": percentile(col.latency_ms, 99),

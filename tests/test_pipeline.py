@@ -81,3 +81,14 @@ def test_bench_pipeline_prints_the_figures_as_json(model_path):
     for key in ("fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled"):
         assert key in figures
     assert figures["frames_labelled"] > 0
+
+
+@pytest.mark.slow
+def test_one_worker_labels_two_cameras(recording, model_path):
+    figures = run_pipeline(
+        f"replay:{recording}", model_path, None, 10.0, "none", None, True, cameras=2
+    )
+    assert figures["exit_codes"] == {"worker": 0, "driver-cam0": 0, "driver-cam1": 0}
+    assert figures["cameras"] == 2
+    # both cameras' frames, each scored against its own truth
+    assert figures["frames_sent"] == figures["frames_labelled"] == figures["frames_scored"] == 2 * N

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from topseg.services.cli_types import add_stride_argument
+from topseg.services.cli_types import add_stride_argument, int_range
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +45,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--lossless", action="store_true", help="worker labels every frame (FIFO)")
     add_stride_argument(parser)
+    parser.add_argument(
+        "--cameras",
+        type=int_range(1, 16),
+        default=1,
+        metavar="N",
+        help="drivers of the source into the one worker, each at --fps (default: %(default)s)",
+    )
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -60,6 +67,7 @@ def measure(args: argparse.Namespace) -> dict:
         None,
         args.lossless,
         stride=args.stride,
+        cameras=args.cameras,
     )
     scores = figures.pop("scores")
     figures.pop("exit_codes")
