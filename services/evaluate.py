@@ -61,7 +61,10 @@ def run(args: argparse.Namespace) -> int:
         print()
         print(metrics.format_table(final_scores, title=f"forest + CRF ({args.crf})"))
     timing = result.ms_per_frame()
-    print(f"\nms per frame: forest {timing['forest']:.1f}, crf {timing['crf']:.1f}")
+    stride = "auto (from each frame's mount)" if args.stride is None else str(args.stride)
+    print(
+        f"\nms per frame: forest {timing['forest']:.1f} (stride {stride}), crf {timing['crf']:.1f}"
+    )
     if segmenter.reads_height and result.frames:
         share = result.floor_share / result.frames
         print(f"floor skipped: {100 * share:.1f} % of the pixels with depth (each frame's mount)")
@@ -70,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         doc = json.loads(metrics.to_json(final_scores))
         doc.update(
             crf=args.crf,
+            stride="auto" if args.stride is None else args.stride,
             model=str(segmenter.path),
             data=str(args.data),
             forest_only=json.loads(metrics.to_json(forest_scores)),
