@@ -38,6 +38,9 @@ CAMERA = "cam0"
 WARMUP_FRAMES = 5
 START_TIMEOUT_S = 180.0
 MAX_SCORED = 3000  # frames kept for scoring (~0.6 MB each)
+#: the worker's per-frame stage timings kept for percentiles
+MAX_STAGE = 100_000
+STAGES = ("forest", "crf", "total")
 DRAIN_S = 1.0  # wait for labels still in flight after the driver stops
 #: --lossless: after the driver stops, keep waiting while labels still come (at most this
 #: long between two), until every frame sent is labelled; a loaded worker has a backlog
@@ -84,6 +87,8 @@ class _Collector:
         self.last_label_s: float | None = None
         self.n_labels = 0
         self.rejected = 0
+        self.stage_ms: dict[str, list[float]] = {}  # the worker's own timings, per stage
+        self.n_stats = 0
 
     def on_depth(self, _sample) -> None:
         with self.lock:
@@ -119,6 +124,25 @@ class _Collector:
                 self.latency_ms.append((now_ns - frame.stamp_ns) / 1e6)
             if len(self.labels) < MAX_SCORED:
                 self.labels[_camera_of(sample), frame.seq] = frame.labels
+
+    def on_stats(self, sample) -> None:
+        from topseg.core.formats import wire
+
+        try:
+            stats = wire.decode_stats(sample.payload.to_bytes())
+        except wire.WireError:
+            self.rejected += 1
+            return
+        timings = stats.get("timings_ms") or {}
+        with self.lock:
+            if "total" not in timings:
+                return  # a count update, not a labelled frame
+            self.n_stats += 1
+            if self.n_stats <= WARMUP_FRAMES or len(self.stage_ms.get("total", ())) >= MAX_STAGE:
+                return
+            for stage in STAGES:
+                if stage in timings:
+                    self.stage_ms.setdefault(stage, []).append(float(timings[stage]))
 
 
 def _camera_of(sample) -> str:
@@ -196,7 +220,9 @@ def run_pipeline(
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
     `model` None is the bundled model (`core.segmenter.bundled_model_path`).
-    Returns {"fps", "latency_p50_ms", "latency_p99_ms", "frames_sent", "frames_labelled",
+    Returns {"fps", "latency_p50_ms", "latency_p99_ms", "worker_<stage>_p50_ms" and "_p99_ms"
+    (the worker's own forest, crf and total: receive to publish, from its stats),
+    "frames_sent", "frames_labelled",
     "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
     "exit_codes", "logs"}. `stride` is the worker's (None: auto). `cameras` > 1 runs that many drivers of the same
     source (cameras cam0, cam1, ...; each at `fps`) into the one worker; the figures are over
@@ -239,6 +265,7 @@ def run_pipeline(
         session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/depth", col.on_depth),
         session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/truth", col.on_truth),
         session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/labels", col.on_labels),
+        session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/stats", col.on_stats),
     ]
     kids = _Children(logs)
     codes: dict[str, int | None] = {}
@@ -308,6 +335,11 @@ def run_pipeline(
             "fps": (col.n_labels - 1) / span if span > 0 else 0.0,
             "latency_p50_ms": percentile(col.latency_ms, 50),
             "latency_p99_ms": percentile(col.latency_ms, 99),
+            **{
+                f"worker_{stage}_p{q}_ms": percentile(col.stage_ms.get(stage, []), q)
+                for stage in STAGES
+                for q in (50, 99)
+            },
             "frames_sent": col.frames_sent,
             "frames_labelled": col.n_labels,
             "frames_scored": scored,
@@ -327,7 +359,8 @@ def summary(figures: dict) -> str:
     line = (
         f"{figures['frames_labelled']}/{figures['frames_sent']} frames labelled, "
         f"{figures['fps']:.1f} fps, latency p50 {ms(figures['latency_p50_ms'])}, "
-        f"p99 {ms(figures['latency_p99_ms'])}"
+        f"p99 {ms(figures['latency_p99_ms'])}; worker per frame p50 "
+        f"{ms(figures.get('worker_total_p50_ms'))}, p99 {ms(figures.get('worker_total_p99_ms'))}"
     )
     s = figures.get("scores")
     if s is None:

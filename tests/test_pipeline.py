@@ -46,6 +46,9 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
     assert figures["exit_codes"] == {"worker": 0, "viewer": 0, "driver": 0}
     assert figures["frames_sent"] == figures["frames_labelled"] == figures["frames_scored"] == N
     assert 0 < figures["latency_p50_ms"] <= figures["latency_p99_ms"]
+    # the worker's own stage timings, from its stats (the first frames are warm-up)
+    assert 0 < figures["worker_forest_p50_ms"] <= figures["worker_total_p99_ms"]
+    assert figures["worker_total_p50_ms"] <= figures["worker_total_p99_ms"]
     assert figures["fps"] > 0
     assert rrd.stat().st_size > 0
 
