@@ -1,9 +1,9 @@
 """Replay recorded depth: `replay:PATH` where PATH is
 
-- an MCAP recording (`FILE.mcap`, or `FILE.mcap#KEY` to pick one depth channel): its depth
-  channel (the first one unless named), with ground truth from the same camera's `truth`
-  channel when it has one (paired by `seq`); messages that fail to decode are skipped
-  and counted;
+- an MCAP recording (`FILE.mcap`, or `FILE.mcap#KEY` to pick one depth channel), ROS 2 or
+  msgpack (`core/formats/recording.py` reads both): its depth channel (the first one unless
+  named), with ground truth from the same camera's `truth` channel when it has one (paired
+  by `seq`); messages that fail to decode are skipped and counted;
 - a folder of 16-bit PNGs in millimetres, played in name order at `fps` (default 30), with
   Kinect v1 optics scaled to the image size;
 - a libfreenect fakenect dump (a folder with INDEX.txt), read directly (no libfreenect).
@@ -139,7 +139,11 @@ class RecordingFrames:
             item.truth = truth
             return item
 
-        for msg in recording.read_messages(self.path):
+        info = recording.RecordingInfo()  # counts the ROS 2 messages that do not decode
+        counted = 0
+        for msg in recording.read_messages(self.path, info=info):
+            self.rejected += info.rejected - counted
+            counted = info.rejected
             kind = msg.key.rsplit("/", 1)[-1]
             if depth_key is None and kind == "depth":
                 depth_key, truth_key = msg.key, _truth_of(msg.key)
@@ -178,6 +182,7 @@ class RecordingFrames:
             elif kind == "depth" and msg.key not in self.others:
                 self.others.add(msg.key)
                 log.info("%s: also holds %s; reading %s only", self.path, msg.key, depth_key)
+        self.rejected += info.rejected - counted
         if held is not None:
             yield emit(held)
         if depth_key is None:

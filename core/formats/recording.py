@@ -1,9 +1,14 @@
-"""MCAP recordings of the wire: one channel per key expression, the exact message bytes.
+"""MCAP recordings: the file, its atomic writing, and reading both forms of recording.
 
-A recording is an MCAP file (DESIGN section 4): each Zenoh key expression it saw is one
-channel (topic = the key, message encoding `msgpack`, no schema), and each message's data is
-the very bytes that crossed the wire; ground truth rides on its own `.../truth` channel.
-Log time is when the recorder received the message.
+A recording is an MCAP file (DESIGN section 4) in one of two forms:
+- ROS 2 (what `topseg record` writes by default, `ros2_recording.py`): profile `ros2`,
+  CDR messages on ROS 2 topics, readable by ROS 2 tools;
+- msgpack (`RecordingWriter.write`, `topseg record --format msgpack`): each Zenoh key
+  expression is one channel (topic = the key, message encoding `msgpack`, no schema), and
+  each message's data is the very bytes that crossed the wire.
+Either way ground truth rides on its own `truth` channel and log time is when the
+recorder received the message. `read_messages` yields wire messages from both forms (it
+rebuilds them from ROS 2 messages), so no reader has to care which form it reads.
 
 `RecordingWriter` writes to a temporary file beside the target and renames it into place on
 `close()`, so a finished recording appears whole or not at all. If the disk fills (or any
@@ -14,6 +19,7 @@ also reads such cut-short files (and ones left by a crash) up to their last comp
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -50,13 +56,17 @@ class RecordedMessage:
 
 @dataclass
 class RecordingInfo:
-    """What a recording holds: messages per key, time span, and whether it was cut short."""
+    """What a recording holds: wire messages per key, time span, whether it was cut short."""
 
     counts: dict[str, int] = field(default_factory=dict)
     start_ns: int | None = None
     end_ns: int | None = None
     truncated: bool = False
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    #: ROS 2 messages skipped because they did not decode (msgpack ones are the reader's)
+    rejected: int = 0
+    #: the MCAP header's profile: "ros2" for ROS 2 recordings, "" for msgpack ones
+    profile: str = ""
 
     @property
     def keys(self) -> list[str]:
@@ -78,6 +88,7 @@ class RecordingWriter:
         metadata: dict[str, str] | None = None,
         compression: str = "zstd",
         chunk_size: int = CHUNK_SIZE,
+        profile: str = "",
     ) -> None:
         from mcap.writer import CompressionType, Writer
 
@@ -101,7 +112,7 @@ class RecordingWriter:
             os.fchmod(fd, 0o666 & ~mask)  # mkstemp's 0600 would lock other users out
             self._file = os.fdopen(fd, "wb")
             self._writer = Writer(self._file, chunk_size=chunk_size, compression=compress)
-            self._writer.start(profile="", library=f"topseg {__version__}")
+            self._writer.start(profile=profile, library=f"topseg {__version__}")
             info = {"topseg_version": __version__, "created_ns": str(time.time_ns())}
             self._writer.add_metadata("topseg", {**info, **(metadata or {})})
         except OSError as exc:
@@ -118,39 +129,96 @@ class RecordingWriter:
         log_time_ns: int | None = None,
         publish_time_ns: int | None = None,
     ) -> None:
-        """Append one message on the channel for `key` (created on first use)."""
-        if self._closed:
-            raise RecordingError(f"recording {self.path} is already closed")
+        """Append one message on the msgpack channel for `key` (created on first use)."""
         if not isinstance(key, str) or not key:
             raise RecordingError(f"a recording key must be a non-empty string, got {key!r}")
+        channel = self._channels.get(key)
+        if channel is None:
+            channel = self._channels[key] = self.add_channel(key, MESSAGE_ENCODING)
+            self._sequence[key] = 0
+        seq = self._sequence[key]
+        self.write_to(channel, data, log_time_ns, publish_time_ns, seq)
+        self._sequence[key] = seq + 1
+
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Register a schema record; its id for `add_channel`."""
+        with self._guard():
+            return self._writer.register_schema(name, encoding, data)
+
+    def add_channel(
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_id: int = 0,
+        metadata: dict[str, str] | None = None,
+    ) -> int:
+        """Register a channel (schema 0: none); its id for `write_to`."""
+        with self._guard():
+            return self._writer.register_channel(topic, message_encoding, schema_id, metadata or {})
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Add a metadata record (string keys and values) to the file."""
+        with self._guard():
+            self._writer.add_metadata(name, data)
+
+    def write_to(
+        self,
+        channel: int,
+        data: bytes,
+        log_time_ns: int | None = None,
+        publish_time_ns: int | None = None,
+        sequence: int = 0,
+    ) -> None:
+        """Append one message to a channel of `add_channel`; log time defaults to now,
+        publish time to the log time, `sequence` is kept modulo 2**32."""
         now = time.time_ns() if log_time_ns is None else int(log_time_ns)
-        try:
-            channel = self._channels.get(key)
-            if channel is None:
-                channel = self._writer.register_channel(key, MESSAGE_ENCODING, 0)
-                self._channels[key] = channel
-                self._sequence[key] = 0
-            seq = self._sequence[key]
+        with self._guard():
             self._writer.add_message(
                 channel,
                 log_time=now,
                 data=bytes(data),
                 publish_time=now if publish_time_ns is None else int(publish_time_ns),
-                sequence=seq % 2**32,
+                sequence=int(sequence) % 2**32,
             )
+        self.messages += 1
+
+    def check_in_place(self) -> None:
+        """RecordingError when the file being written is gone (its folder, or the temporary
+        file itself, was deleted): what was recorded into it is lost, and saying so beats
+        claiming it was kept."""
+        if self._closed:
+            return
+        try:
+            gone = os.fstat(self._file.fileno()).st_nlink == 0
+        except OSError:
+            gone = True
+        if gone:
+            self.discard()
+            raise RecordingError(
+                f"{self.path.parent} (or the recording's temporary file in it) was deleted while "
+                f"recording {self.path.name}: the {self.messages} messages recorded are lost"
+            )
+
+    @contextlib.contextmanager
+    def _guard(self) -> Iterator[None]:
+        """Refuse writes after close; on a failed write keep what reached the disk."""
+        if self._closed:
+            raise RecordingError(f"recording {self.path} is already closed")
+        try:
+            yield
         except OSError as exc:
+            self.check_in_place()  # a deleted folder: nothing was kept, say so
             self._salvage()
             raise RecordingError(
                 f"writing {self.path} failed after {self.messages} messages ({exc}); "
                 "what was written before is kept there and stays readable"
             ) from exc
-        self._sequence[key] = seq + 1
-        self.messages += 1
 
     def close(self) -> Path:
         """Finish the file (index and summary), flush it to disk and move it into place."""
         if self._closed:
             return self.path
+        self.check_in_place()
         try:
             self._writer.finish()
             self._file.flush()
@@ -225,40 +293,70 @@ def read_messages(
     keys: Iterable[str] | None = None,
     info: RecordingInfo | None = None,
 ) -> Iterator[RecordedMessage]:
-    """Messages of a recording in file order (= the order they were recorded).
+    """Wire messages of a recording in file order (= the order they were recorded).
 
-    `keys` keeps only those channels. Pass a `RecordingInfo` to learn whether the file
-    was cut short (`info.truncated`).
+    Reads both forms: msgpack channels give their bytes as recorded; ROS 2 (`cdr`) channels
+    give wire messages rebuilt from them (`ros2_recording.Ros2Channels`), and the ones that
+    do not decode are skipped and counted in `info.rejected`. `keys` keeps only those
+    channels. Pass a `RecordingInfo` to learn whether the file was cut short
+    (`info.truncated`), its profile and metadata.
     """
-    from mcap.records import Channel, Message, Metadata
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+
+    from topseg.core.formats.wire import WireError
 
     wanted = None if keys is None else set(keys)
     info = RecordingInfo() if info is None else info
     topics: dict[int, str] = {}
+    schemas: dict[int, str] = {}
+    ros = None
     for record in _stream_records(Path(path), info):
-        if isinstance(record, Channel):
-            if record.message_encoding != MESSAGE_ENCODING:
-                log.warning(
-                    "%s: channel %s is %s, not msgpack: skipped",
-                    path,
-                    record.topic,
-                    record.message_encoding,
-                )
-                continue
-            topics[record.id] = record.topic
-        elif isinstance(record, Metadata):
-            info.metadata[record.name] = dict(record.metadata)
-        elif isinstance(record, Message):
+        if isinstance(record, Message):
             key = topics.get(record.channel_id)
-            if key is None or (wanted is not None and key not in wanted):
+            data = record.data
+            if key is None:
+                if ros is None or record.channel_id not in ros:
+                    continue
+                key = ros.key(record.channel_id)
+                if key is not None and wanted is not None and key not in wanted:
+                    continue
+                try:
+                    data = ros.message(record.channel_id, record.data, record.sequence)
+                except WireError as exc:
+                    info.rejected += 1
+                    log.warning("%s: skipped a damaged message on %s: %s", path, key, exc)
+                    continue
+            if key is None or data is None or (wanted is not None and key not in wanted):
                 continue
             info.counts[key] = info.counts.get(key, 0) + 1
             if info.start_ns is None:
                 info.start_ns = record.log_time
             info.end_ns = record.log_time
             yield RecordedMessage(
-                key, bytes(record.data), record.log_time, record.publish_time, record.sequence
+                key, bytes(data), record.log_time, record.publish_time, record.sequence
             )
+        elif isinstance(record, Channel):
+            if record.message_encoding == MESSAGE_ENCODING:
+                topics[record.id] = record.topic
+            elif record.message_encoding == "cdr":
+                if ros is None:
+                    from topseg.core.formats.ros2_recording import Ros2Channels
+
+                    ros = Ros2Channels(path)
+                ros.add(record.id, record.topic, schemas.get(record.schema_id))
+            else:
+                log.warning(
+                    "%s: channel %s is %s, neither msgpack nor cdr: skipped",
+                    path,
+                    record.topic,
+                    record.message_encoding,
+                )
+        elif isinstance(record, Schema):
+            schemas[record.id] = record.name
+        elif isinstance(record, Metadata):
+            info.metadata[record.name] = dict(record.metadata)
+        elif isinstance(record, Header):
+            info.profile = record.profile
 
 
 def inspect(path: str | os.PathLike) -> RecordingInfo:
@@ -277,6 +375,8 @@ def info_json(info: RecordingInfo) -> str:
             "start_ns": info.start_ns,
             "end_ns": info.end_ns,
             "truncated": info.truncated,
+            "rejected": info.rejected,
+            "profile": info.profile,
             "metadata": info.metadata,
         },
         indent=2,
