@@ -1,14 +1,20 @@
 """Record topseg's Zenoh traffic to an MCAP file: `topseg record --out FILE.mcap`.
 
-Subscribes to `--keys` (default: every camera's depth, labels and ground truth) and writes
-each message's exact bytes on a channel named after its key (`topseg.core.formats.recording`).
+Subscribes to `--keys` (default: every camera's depth, labels, ground truth and stats).
+`--format ros2` (the default) writes a ROS 2 recording (`core/formats/ros2_recording.py`:
+CDR images, camera info, the mount as `/tf_static`, stats as JSON); wire messages that are
+not depth, labels, truth or stats are dropped and counted as rejected. `--format msgpack`
+writes each message's exact bytes on a channel named after its key
+(`core/formats/recording.py`), a raw capture of the wire, garbage included.
 Stops after `--duration` seconds, `--count` messages, or SIGTERM/SIGINT, and only then
 moves the finished file into place. If the disk fills up it stops, keeps what it wrote
-(readable up to its last complete chunk) and exits with status 2.
+(readable up to its last complete chunk) and exits with status 2. If the output folder is
+deleted while recording it stops, says that what it recorded is lost, and exits with 2.
 
-Zenoh callbacks only queue the messages; the main thread writes them. If writing falls
-behind by more than `--queue` messages, new ones are dropped and counted, never buffered
-without bound. Under systemd it says READY=1 once subscribed and pings the watchdog.
+Zenoh callbacks only queue the messages; the main thread converts and writes them. If
+writing falls behind by more than `--queue` messages, new ones are dropped and counted,
+never buffered without bound. Under systemd it says READY=1 once subscribed and pings the
+watchdog.
 """
 
 from __future__ import annotations
@@ -26,7 +32,8 @@ from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.record")
 
-DEFAULT_KEYS = ("topseg/*/*/depth", "topseg/*/*/labels", "topseg/*/*/truth")
+DEFAULT_KEYS = ("topseg/*/*/depth", "topseg/*/*/labels", "topseg/*/*/truth", "topseg/*/*/stats")
+FORMATS = ("ros2", "msgpack")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,6 +49,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEYEXPR",
         default=list(DEFAULT_KEYS),
         help="Zenoh key expressions to record (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="ros2",
+        help="ros2: ROS 2 messages (CDR) for ROS tools and replay; msgpack: the exact wire "
+        "bytes (default: %(default)s)",
     )
     parser.add_argument(
         "--queue",
@@ -71,15 +85,24 @@ def _check(args: argparse.Namespace) -> list[str]:
     return keys
 
 
+def open_writer(fmt: str, path: str, metadata: dict[str, str]):
+    """The writer of a `--format`: both take `write(key, wire bytes, log_time_ns=...)`."""
+    from topseg.core.formats.recording import RecordingWriter
+    from topseg.core.formats.ros2_recording import Ros2RecordingWriter
+
+    writer = Ros2RecordingWriter if fmt == "ros2" else RecordingWriter
+    return writer(path, metadata=metadata)
+
+
 def run(args: argparse.Namespace) -> int:
     """Record until --duration, --count or SIGTERM/SIGINT; 2 (and the part written) on a
-    full disk."""
-    from topseg.core.formats.recording import RecordingWriter
+    full disk, 2 when the output folder was deleted (what it held is lost)."""
+    from topseg.core.formats.wire import WireError
 
     keys = _check(args)
     svc = ServiceLifecycle("record", args, signal_note="finishing the recording")
     inbox: queue.Queue = queue.Queue(maxsize=args.queue)
-    dropped = 0
+    dropped = rejected = written = 0
 
     def on_sample(sample) -> None:
         nonlocal dropped
@@ -92,16 +115,32 @@ def run(args: argparse.Namespace) -> int:
         with contextlib.suppress(queue.Full):
             inbox.put_nowait(None)
 
-    written = 0
+    def store(item) -> None:
+        nonlocal written, rejected
+        key, data, log_time = item
+        try:
+            writer.write(key, data, log_time_ns=log_time)
+        except WireError as exc:  # only the ros2 form reads what it writes
+            rejected += 1
+            log.warning("dropped a message on %s that is not a topseg message: %s", key, exc)
+            return
+        written += 1
+
     with svc:
-        writer = RecordingWriter(args.out, metadata={"keys": " ".join(keys)})
+        writer = open_writer(args.format, args.out, {"keys": " ".join(keys)})
         svc.defer(writer.close)  # moves the file into place; after a write error it is there
         subscribers = [svc.session.declare_subscriber(k, on_sample) for k in keys]
         svc.on_stop(wake)
-        log.info("recording %s to %s", ", ".join(keys), args.out)
-        svc.ready(status=lambda: f"recording to {args.out}: {written} messages, {dropped} dropped")
+        log.info("recording %s to %s (%s)", ", ".join(keys), args.out, args.format)
+        svc.ready(
+            status=lambda: (
+                f"recording to {args.out}: {written} messages, {dropped} dropped, "
+                f"{rejected} rejected"
+            )
+        )
         deadline = None if args.duration is None else time.monotonic() + args.duration
         while not svc.stopping:
+            writer.check_in_place()
             if args.count is not None and written >= args.count:
                 break
             svc.beat()
@@ -113,9 +152,7 @@ def run(args: argparse.Namespace) -> int:
             except queue.Empty:
                 continue
             if item is not None:
-                key, data, log_time = item
-                writer.write(key, data, log_time_ns=log_time)
-                written += 1
+                store(item)
         for sub in subscribers:
             sub.undeclare()
         while args.count is None or written < args.count:  # what arrived before the stop
@@ -124,8 +161,8 @@ def run(args: argparse.Namespace) -> int:
             except queue.Empty:
                 break
             if item is not None:
-                key, data, log_time = item
-                writer.write(key, data, log_time_ns=log_time)
-                written += 1
-    log.info("recorded %d messages to %s (%d dropped)", written, args.out, dropped)
+                store(item)
+    log.info(
+        "recorded %d messages to %s (%d dropped, %d rejected)", written, args.out, dropped, rejected
+    )
     return 0

@@ -1,7 +1,9 @@
 """`topseg record` as a real process: the MCAP it writes holds exactly the bytes published."""
 
 import os
+import re
 import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -10,10 +12,15 @@ import time
 import numpy as np
 import pytest
 import zenoh
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from netutil import free_port
+from rosbags.highlevel import AnyReader
 
-from topseg.core.camera import KINECT_V1
+from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import recording, wire
+from topseg.core.formats import ros2_messages as ros2
+from topseg.drivers.replay import RecordingFrames
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
@@ -77,10 +84,10 @@ def messages(cell, n=4, seed=0):
     return out
 
 
-def test_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_path, publisher):
+def test_msgpack_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_path, publisher):
     port, cell = free_port(), "rec1"
     out = tmp_path / "session.mcap"
-    proc = start_recorder(port, out)
+    proc = start_recorder(port, out, "--format", "msgpack")
     pub = publisher(port, cell)
     msgs = messages(cell)
     stats = (
@@ -89,7 +96,7 @@ def test_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_path, publ
     )
     junk = (wire.depth_key(cell), b"\xc1 not msgpack")  # recorded as is: a recording keeps the wire
     try:
-        pub.wait_matched([k for k, _ in msgs])
+        pub.wait_matched([k for k, _ in [*msgs, stats]])
         for key, data in [*msgs, stats, junk]:
             pub.pub(key).put(data)
         time.sleep(0.5)
@@ -102,14 +109,13 @@ def test_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_path, publ
     assert proc.returncode == 0, err
     info = recording.RecordingInfo()
     back = [(m.key, m.data) for m in recording.read_messages(out, info=info)]
-    # stats are not recorded by default; bytes and each key's order are kept (zenoh does
-    # not order messages across keys)
+    # bytes and each key's order are kept (zenoh does not order messages across keys)
     for key in {k for k, _ in msgs}:
         assert [d for k, d in back if k == key] == [d for k, d in [*msgs, junk] if k == key]
-    assert len(back) == len(msgs) + 1
+    assert len(back) == len(msgs) + 2
     assert not info.truncated
     assert sorted(info.counts) == sorted(
-        {wire.depth_key(cell), wire.labels_key(cell), wire.truth_key(cell)}
+        {wire.depth_key(cell), wire.labels_key(cell), wire.truth_key(cell), wire.stats_key(cell)}
     )
     assert not list(tmp_path.glob(".*partial"))
 
@@ -118,7 +124,9 @@ def test_count_and_chosen_keys(tmp_path, publisher):
     port, cell = free_port(), "rec2"
     out = tmp_path / "stats.mcap"
     key = wire.stats_key(cell)
-    proc = start_recorder(port, out, "--keys", f"topseg/{cell}/*/stats", "--count", "3")
+    proc = start_recorder(
+        port, out, "--keys", f"topseg/{cell}/*/stats", "--count", "3", "--format", "msgpack"
+    )
     pub = publisher(port, cell)
     sent = [
         wire.encode_stats({"stamp_ns": i, "timings_ms": {"crf": 1.5}, "counts": {}})
@@ -153,7 +161,7 @@ def test_full_disk_stops_cleanly_and_keeps_what_was_written(tmp_path, publisher)
 
     port, cell = free_port(), "rec3"
     out = tmp_path / "full.mcap"
-    proc = start_recorder(port, out, preexec_fn=small_disk)
+    proc = start_recorder(port, out, "--format", "msgpack", preexec_fn=small_disk)
     pub = publisher(port, cell)
     rng = np.random.default_rng(5)
     key = wire.depth_key(cell)
@@ -185,3 +193,139 @@ def test_bad_arguments(tmp_path):
     assert proc.wait(timeout=30) == 2
     assert "key expression" in proc.stderr.read()
     assert not os.path.exists(tmp_path / "x.mcap")
+
+
+def test_a_deleted_output_folder_stops_the_recorder_saying_what_was_lost(tmp_path, publisher):
+    port, cell = free_port(), "rec6"
+    folder = tmp_path / "out"
+    folder.mkdir()
+    proc = start_recorder(port, folder / "x.mcap")
+    pub = publisher(port, cell)
+    msgs = messages(cell)
+    try:
+        pub.wait_matched([k for k, _ in msgs])
+        for key, data in msgs:
+            pub.pub(key).put(data)
+        shutil.rmtree(folder)
+        _, err = proc.communicate(timeout=30)  # it notices on its own, no signal needed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, err
+    lines = [line for line in err.splitlines() if "topseg record: error:" in line]
+    assert len(lines) == 1 and "Traceback" not in err
+    assert re.search(
+        r"was deleted while recording x\.mcap: the \d+ messages recorded are lost", lines[0]
+    )
+    assert "recorded 12 messages" not in err and "kept" not in err
+
+
+def _old_recording(path, n):
+    """A msgpack recording (today's form) of n frames with truth; the mount changes halfway."""
+    rng = np.random.default_rng(3)
+    mounts = [TopViewMount(K, 2800.0 if i < n // 2 else 3200.0, 2.0, -1.0) for i in range(n)]
+    frames = []
+    with recording.RecordingWriter(path) as w:
+        for i, mount in enumerate(mounts):
+            t = 1_763_000_000_000_000_000 + i * 20_000_000  # 50 fps
+            depth = rng.integers(0, 5000, K.shape, dtype=np.uint16)
+            truth = rng.integers(0, 11, K.shape, dtype=np.uint8)
+            frames.append((depth, truth, mount))
+            w.write(
+                wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t, "", mount)), t
+            )
+            w.write(wire.truth_key(), wire.encode_labels(wire.LabelFrame(truth, i, t)), t)
+    return frames
+
+
+def test_ros2_recording_of_a_live_driver_reads_back_in_ros_tools_and_replays_the_same(
+    tmp_path, publisher
+):
+    """driver (replaying an old msgpack recording, looped) -> Zenoh -> `topseg record` (the
+    default ROS 2 form) -> Foxglove's decoder, rosbags, and our replay: same frames."""
+    n, port, cell = 6, free_port(), "rec7"
+    old = tmp_path / "old.mcap"
+    frames = _old_recording(old, n)
+    out = tmp_path / "ros2.mcap"
+    recorder = start_recorder(port, out, "--count", str(4 * n))  # 2n frames: depth + truth
+    probe = publisher(port, cell)
+    probe.wait_matched([wire.depth_key(cell), wire.truth_key(cell)])  # the recorder listens
+    cmd = [sys.executable, "-m", "topseg.services.cli", "driver", "--cell", cell]
+    cmd += ["--zenoh-port", str(port), "--source", f"replay:{old}", "--loop"]
+    driver = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        _, err = recorder.communicate(timeout=60)
+    finally:
+        for proc in (recorder, driver):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        driver.communicate(timeout=20)
+    assert recorder.returncode == 0, err
+
+    # Foxglove's decoder: the profile, every message, depth bit-exact, the mounts as tf
+    decoded: dict[str, list] = {}
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        for schema, channel, message, msg in reader.iter_decoded_messages(log_time_order=False):
+            assert (schema.encoding, channel.message_encoding) == ("ros2msg", "cdr")
+            assert "offered_qos_profiles" in channel.metadata
+            decoded.setdefault(channel.topic, []).append((message.sequence, schema.name, msg))
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    base = f"/topseg/{cell}/cam0"
+    assert set(decoded) == {f"{base}/{s}" for s in ("depth", "truth", "camera_info", "mount")} | {
+        "/tf_static"
+    }
+    assert len(decoded[f"{base}/depth"]) + len(decoded[f"{base}/truth"]) == 4 * n
+    for seq, typename, msg in decoded[f"{base}/depth"]:
+        assert (typename, msg.encoding, msg.header.frame_id) == (
+            "sensor_msgs/msg/Image",
+            "16UC1",
+            "cam0_optical_frame",
+        )
+        depth = np.frombuffer(bytes(msg.data), "<u2").reshape(K.shape)
+        np.testing.assert_array_equal(depth, frames[seq % n][0])
+    for seq, _, msg in decoded[f"{base}/truth"]:
+        assert msg.encoding == "mono8"
+        truth = np.frombuffer(bytes(msg.data), np.uint8).reshape(K.shape)
+        np.testing.assert_array_equal(truth, frames[seq % n][1])
+    assert all(
+        list(m.k) == [K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1]
+        for *_, m in decoded[f"{base}/camera_info"]
+    )
+    poses = {2800.0: ros2.mount_pose(frames[0][2]), 3200.0: ros2.mount_pose(frames[-1][2])}
+    for *_, msg in decoded["/tf_static"]:
+        (t,) = msg.transforms
+        assert (t.header.frame_id, t.child_frame_id) == ("topseg_floor", "cam0_optical_frame")
+        moved = t.transform.translation
+        centre, quat = poses[round(moved.z * 1000, 6)]
+        assert (moved.x, moved.y, moved.z) == tuple(centre)
+        r = t.transform.rotation
+        np.testing.assert_allclose((r.x, r.y, r.z, r.w), quat)
+    assert len(decoded["/tf_static"]) == len(decoded[f"{base}/mount"]) >= 2  # it changed
+    assert metadata["topseg"]["format"] == "ros2" and "topseg.labels" in metadata
+
+    # rosbags' rosbag2 reader takes the file as a ROS 2 bag
+    with AnyReader([out]) as bag:
+        types = {c.topic: c.msgtype for c in bag.connections}
+        assert sum(1 for c, _, d in bag.messages() if bag.deserialize(d, c.msgtype)) > 4 * n
+    assert types[f"{base}/depth"] == "sensor_msgs/msg/Image"
+    assert types["/tf_static"] == "tf2_msgs/msg/TFMessage"
+
+    # replay reads it back as the frames the driver sent: depth, camera, mount and truth
+    # (each truth with its depth frame; Zenoh does not order the two keys)
+    truth_seqs = {seq for seq, *_ in decoded[f"{base}/truth"]}
+    replayed = list(RecordingFrames(out))
+    assert [item.seq for item in replayed] == [seq for seq, *_ in decoded[f"{base}/depth"]]
+    for item in replayed:
+        depth, truth, mount = frames[item.seq % n]
+        np.testing.assert_array_equal(item.depth, depth)
+        assert (item.intrinsics, item.mount) == (K, mount)
+        assert (item.truth is not None) == (item.seq in truth_seqs)
+        if item.truth is not None:
+            np.testing.assert_array_equal(item.truth, truth)
