@@ -124,17 +124,17 @@ def open(arg: str | None, options: SourceOptions) -> SyntheticSource:
 def record(
     path: str | Path, n_frames: int, arg: str | None = None, fps: float = DEFAULT_FPS
 ) -> Path:
-    """Write `n_frames` synthetic frames (depth + truth, 1/fps apart) to an MCAP recording that
-    `replay:PATH` plays back with its ground truth; atomic like every RecordingWriter."""
+    """Write `n_frames` synthetic frames (depth + truth, 1/fps apart) to a ROS 2 MCAP recording
+    that `replay:PATH` plays back with its ground truth; atomic like every RecordingWriter."""
     from topseg.core.formats import wire
-    from topseg.core.formats.recording import RecordingWriter
+    from topseg.core.formats.ros2_recording import Ros2RecordingWriter
 
     if n_frames < 1:
         raise SourceError(f"a recording needs at least one frame, got {n_frames}")
     source = SyntheticSource(arg, SourceOptions(realtime=False))
     t0 = time.time_ns()
     try:
-        with RecordingWriter(path, metadata={"source": source.description}) as w:
+        with Ros2RecordingWriter(path, metadata={"source": source.description}) as w:
             for frame in source.frames():
                 i = frame.depth.seq
                 stamp = t0 + round(i * 1e9 / fps)

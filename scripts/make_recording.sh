@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Write the bundled demo recording: synthetic modeled scenes with ground truth (depth + truth
-# channels, 1/FPS apart) rendered by the synthetic driver, for `replay:recordings/demo.mcap`.
+# channels, 1/FPS apart, in the ROS 2 form of `topseg record`) rendered by the synthetic
+# driver, for `replay:recordings/demo.mcap`.
 # Kinect noise (quantised disparity) keeps it ~65 KB a frame; gaussian noise is ~5x that.
-# Deterministic: the same FRAMES/SPEC give the same file contents. Atomic (RecordingWriter).
+# Deterministic: the same FRAMES/SPEC give the same frames (only the stamps differ). Atomic.
 #   FRAMES=300 SPEC=modeled,seed=1,noise=kinect FPS=30 OUT=recordings/demo.mcap scripts/make_recording.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
