@@ -8,6 +8,9 @@ own reader must give back the exact wire messages that went in.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -234,3 +237,22 @@ def test_a_write_after_close_and_a_deleted_folder_are_refused(tmp_path):
         w.write(
             wire.stats_key(), wire.encode_stats({"stamp_ns": 2, "timings_ms": {}, "counts": {}})
         )
+
+
+def test_rerun_maps_depth_camera_info_and_the_mount_to_its_archetypes(written, tmp_path):
+    """Rerun's own MCAP import (the viewer's CLI) sees the file as ROS 2 data."""
+    path, _ = written
+    rerun = Path(sys.executable).parent / "rerun"
+    check = subprocess.run(
+        [rerun, "mcap", "check", path], capture_output=True, text=True, timeout=120
+    )
+    assert check.returncode == 0, check.stderr
+    rrd = tmp_path / "r.rrd"
+    subprocess.run([rerun, "mcap", "convert", path, "-o", rrd], check=True, timeout=120)
+    printed = subprocess.run(
+        [rerun, "rrd", "print", rrd], capture_output=True, text=True, check=True, timeout=120
+    ).stdout
+    columns = {line.split(" - ")[1]: line for line in printed.splitlines() if " - /" in line}
+    assert "Transform3D:translation" in columns["/tf_static"]
+    assert "Pinhole:image_from_camera" in columns["/topseg/c1/cam0/camera_info"]
+    assert "DepthImage:buffer" in columns["/topseg/c1/cam0/depth"]

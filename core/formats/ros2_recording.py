@@ -4,8 +4,10 @@
 wire capture). The file follows MCAP's `ros2` profile: header profile `ros2`, every channel
 message encoding `cdr` with a `ros2msg` schema (`ros2_messages.schema_text`) and channel
 metadata `offered_qos_profiles` (rosbag2's version-9 YAML) and `topic_type_hash` (RIHS01,
-rosbag2 practice). So `ros2 bag play`, Foxglove, Rerun, rosbags and mcap-ros2-support read
-it as they read any rosbag2 MCAP. Topics (`ros2_messages.ros2_topic`, the live bridge's names):
+rosbag2 practice), as rosbag2's MCAP storage writes them. Checked in tests: rosbags'
+rosbag2 reader, Foxglove's mcap-ros2-support and Rerun's MCAP import read every message
+(rosbag2 itself is not installable here). Topics (`ros2_messages.ros2_topic`, the live
+bridge's names):
 
     /topseg/<cell>/<camera>/depth        sensor_msgs/msg/Image       16UC1, millimetres
     /topseg/<cell>/<camera>/labels       sensor_msgs/msg/Image       mono8 label ids (worker)
