@@ -66,7 +66,9 @@ def test_recording_onto_a_full_tmpfs_stops_cleanly_and_replays(tmp_path):
         pub.wait_matched([key], 60)
         for i in range(12):  # incompressible 600 KB frames: 7 MB into 3 MB
             depth = rng.integers(0, 65536, KINECT_V1.shape, dtype=np.uint16)
-            sent.append(wire.encode_depth(wire.DepthFrame(depth, KINECT_V1, i, 10**18 + i)))
+            # frame_id = the camera, as drivers send it: the ROS 2 recording gives it back
+            frame = wire.DepthFrame(depth, KINECT_V1, i, 10**18 + i, "cam0")
+            sent.append(wire.encode_depth(frame))
             pub.pub(key).put(sent[-1])
         out, err = proc.communicate(timeout=60)
     finally:
