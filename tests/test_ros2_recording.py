@@ -256,3 +256,30 @@ def test_rerun_maps_depth_camera_info_and_the_mount_to_its_archetypes(written, t
     assert "Transform3D:translation" in columns["/tf_static"]
     assert "Pinhole:image_from_camera" in columns["/topseg/c1/cam0/camera_info"]
     assert "DepthImage:buffer" in columns["/topseg/c1/cam0/depth"]
+
+
+def test_segment_and_replay_read_a_two_camera_ros2_recording(tmp_path):
+    """`input_frames` (what `topseg segment` reads) and the replay source, on ROS 2 files."""
+    from topseg.drivers.base import SourceOptions
+    from topseg.drivers.replay import input_frames
+    from topseg.drivers.replay import open as open_replay
+
+    path = tmp_path / "two.mcap"
+    sent = {cam: wire_messages("c2", cam, n=3) for cam in ("top", "side")}
+    with Ros2RecordingWriter(path) as w:
+        for pair in zip(sent["top"], sent["side"], strict=True):
+            for key, data in pair:
+                w.write(key, data)
+    frames = list(input_frames(path))
+    assert [f.name for f in frames] == [
+        f"two_c2-{cam}_{i:06d}" for cam in ("top", "side") for i in range(3)
+    ]
+    for f in frames:
+        cam = f.key.split("/")[2]
+        depth = [wire.decode_depth(d) for k, d in sent[cam] if k.endswith("/depth")][f.seq]
+        np.testing.assert_array_equal(f.depth, depth.depth)
+        assert (f.intrinsics, f.mount) == (K, depth.mount)
+        assert f.truth is not None
+    with open_replay(f"{path}#topseg/c2/side/depth", SourceOptions(realtime=False)) as src:
+        replayed = [frame.depth.depth for frame in src.frames()]
+    assert len(replayed) == 3 and src.rejected == 0
