@@ -48,6 +48,7 @@ import struct
 from dataclasses import dataclass
 from functools import cache
 from io import StringIO
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -178,7 +179,6 @@ class Ros2RecordingWriter:
         self._channels: dict[str, int] = {}
         self._counts: dict[str, int] = {}
         self._mounts: dict[tuple[str, str], dict | None] = {}
-        self.frames = 0
 
     @property
     def messages(self) -> int:
@@ -206,15 +206,12 @@ class Ros2RecordingWriter:
             self._write(topic, cdr, log_time_ns, seq)
         if isinstance(message, DepthFrame):
             self._mounts[cell, camera] = _mount_state(message)
-        self.frames += 1
 
     def _depth(self, cell: str, camera: str, frame: DepthFrame) -> list:
         """A depth frame's messages: tf and mount when the mount changed, camera info, depth."""
         out = []
         mount = _mount_state(frame)
-        if (cell, camera) not in self._mounts and mount is None:
-            pass  # nothing to say about a mount the camera never sent
-        elif self._mounts.get((cell, camera), False) != mount:
+        if mount != self._mounts.get((cell, camera)):  # a new camera without one: nothing to say
             if frame.mount is not None:
                 tf = mount_transform_message(frame.mount, frame.stamp_ns, camera)
                 out.append((TF_STATIC, tf, None))
@@ -254,7 +251,7 @@ class Ros2RecordingWriter:
         """RecordingError when the file being written was deleted (`RecordingWriter`)."""
         self._out.check_in_place()
 
-    def close(self):
+    def close(self) -> Path:
         """Finish the file and move it into place (`RecordingWriter.close`)."""
         return self._out.close()
 
