@@ -6,10 +6,10 @@ it publishes, as a ROS 2 node `/topseg_bridge` would under `rmw_zenoh_cpp`:
 - `/topseg/<cell>/<camera>/depth`: `sensor_msgs/msg/Image`, `16UC1` millimetres (0 = none);
 - `/topseg/<cell>/<camera>/labels`: `sensor_msgs/msg/Image`, `mono8` label ids;
 - `/topseg/<cell>/<camera>/camera_info`: `sensor_msgs/msg/CameraInfo`, with every depth frame;
-- `/tf_static`: `tf2_msgs/msg/TFMessage`, `topseg_floor` -> `<camera>_optical_frame` for every
+- `/tf_static`: `tf2_msgs/msg/TFMessage`, `<cell>_<camera>_floor` -> `<cell>_<camera>_optical_frame` for every
   camera whose frames carry a mount, kept for late joiners (transient local, depth 1).
 
-Images carry the topseg frame's stamp and `<camera>_optical_frame`. The bytes are
+Images carry the topseg frame's stamp and `<cell>_<camera>_optical_frame`. The bytes are
 `core/formats/ros2_messages.py`'s CDR (the same as in recordings); keys, liveliness tokens,
 GIDs and attachments are `core/formats/rmw_zenoh.py`'s. Each topic is a Zenoh
 AdvancedPublisher declared as rmw_zenoh declares one for its QoS (`rmw_publisher_data.cpp`):
@@ -173,7 +173,7 @@ class Bridge:
         self.node_token = session.liveliness().declare_token(self.node.token())
         self.next_entity_id = 1
         self.cameras: dict[tuple[str, str], dict[str, Ros2Publisher]] = {}
-        self.mounts: dict[str, Any] = {}  # camera name -> its TopViewMount (frame ids)
+        self.mounts: dict[tuple[str, str], Any] = {}  # (cell, camera) -> its TopViewMount
         self.tf_static: Ros2Publisher | None = None
         self.refused: set[tuple[str, str]] = set()
         self.published = self.rejected = self.ignored = 0
@@ -254,30 +254,31 @@ class Bridge:
         topics = self.topics(parts.cell, parts.camera)
         if topics is None:
             return
+        cam = (parts.cell, parts.camera)
         if parts.kind == "depth":
-            self.publish_depth(parts.camera, topics, message)
+            self.publish_depth(cam, topics, message)
         else:
-            self.publish_labels(parts.camera, topics, message)
+            self.publish_labels(cam, topics, message)
 
-    def publish_depth(self, camera: str, topics: dict[str, Ros2Publisher], frame) -> None:
+    def publish_depth(self, cam: tuple[str, str], topics: dict[str, Ros2Publisher], frame) -> None:
         """The depth image, its camera info, and /tf_static when the mount is new."""
         from topseg.core.formats import ros2_messages as ros2
 
-        frame_id = ros2.optical_frame(camera)
+        frame_id = ros2.optical_frame(*cam)
         topics["depth"].put(ros2.image_message(frame.depth, frame.stamp_ns, frame_id))
         info = ros2.camera_info_message(frame.intrinsics, frame.stamp_ns, frame_id)
         topics["camera_info"].put(info)
         self.published += 2
-        if frame.mount is not None and self.mounts.get(camera) != frame.mount:
-            self.mounts[camera] = frame.mount
+        if frame.mount is not None and self.mounts.get(cam) != frame.mount:
+            self.mounts[cam] = frame.mount
             self.publish_mounts(frame.stamp_ns)
 
-    def publish_labels(self, camera: str, topics: dict[str, Ros2Publisher], frame) -> None:
+    def publish_labels(self, cam: tuple[str, str], topics: dict[str, Ros2Publisher], frame) -> None:
         """The label image (mono8), stamped like the depth frame it came from."""
         from topseg.core.formats import ros2_messages as ros2
 
         topics["labels"].put(
-            ros2.image_message(frame.labels, frame.stamp_ns, ros2.optical_frame(camera))
+            ros2.image_message(frame.labels, frame.stamp_ns, ros2.optical_frame(*cam))
         )
         self.published += 1
 
@@ -290,7 +291,8 @@ class Bridge:
             self.tf_static = self._publisher("/tf_static", ros2.TF_MESSAGE, rz.STATIC_TF_QOS)
         self.tf_static.put(ros2.mount_transforms_message(self.mounts, stamp_ns))
         self.published += 1
-        log.info("published /tf_static: %s", ", ".join(ros2.optical_frame(c) for c in self.mounts))
+        frames = ", ".join(ros2.optical_frame(*cam) for cam in self.mounts)
+        log.info("published /tf_static: %s", frames)
 
     def close(self) -> None:
         """Leave the ROS graph: every publisher, then the node."""

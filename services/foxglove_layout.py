@@ -47,7 +47,7 @@ def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> 
         )
     )
     scene = fl.ThreeDeeConfig(
-        follow_tf=ros2_messages.FLOOR_FRAME,
+        follow_tf=ros2_messages.floor_frame(cell, camera),
         topics={
             topic(cell, camera, "points"): fl.BaseRendererPointCloudTopicSettings(
                 visible=True, color_mode="rgba-fields", point_size=3

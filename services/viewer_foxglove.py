@@ -13,8 +13,8 @@ and the ROS 2 bridge use), with Foxglove's own schemas (protobuf):
 | `points`       | `foxglove.PointCloud`       | the labelled cloud, x y z float32 + r g b a uint8 |
 | `mount`        | `foxglove.FrameTransform`   | floor frame -> the camera's optical frame         |
 
-Images and the calibration are in the camera's optical frame (`<camera>_optical_frame`);
-the cloud is in the floor frame (`topseg_floor`) when the mount is known, else in the
+Images and the calibration are in the camera's optical frame (`<cell>_<camera>_optical_frame`);
+the cloud is in the floor frame (`<cell>_<camera>_floor`) when the mount is known, else in the
 optical frame, and `mount` is sent with every depth frame that has one (so a client that
 connects late gets it). Images and clouds are converted only while a client subscribes to
 them; each client's queue holds `CLIENT_BACKLOG` messages, the oldest dropped first.
@@ -152,7 +152,7 @@ class FoxgloveSink:
         """The depth image, the camera's calibration and its mount (when known)."""
         from foxglove.messages import CameraCalibration, FrameTransform, Quaternion, Vector3
 
-        channels, optical = self.channels[cam], ros2_messages.optical_frame(cam[1])
+        channels, optical = self.channels[cam], ros2_messages.optical_frame(*cam)
         stamp = _timestamp(frame.stamp_ns)
         if channels["depth"].has_sinks():  # a client subscribed: worth the copy
             channels["depth"].log(_raw_image(frame.depth, "16UC1", frame.stamp_ns, optical))
@@ -175,7 +175,7 @@ class FoxgloveSink:
             channels["mount"].log(
                 FrameTransform(
                     timestamp=stamp,
-                    parent_frame_id=ros2_messages.FLOOR_FRAME,
+                    parent_frame_id=ros2_messages.floor_frame(*cam),
                     child_frame_id=optical,
                     translation=Vector3(x=tx, y=ty, z=tz),
                     rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
@@ -186,7 +186,7 @@ class FoxgloveSink:
         """The label ids, their colours, and the labelled cloud when there is one."""
         from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud
 
-        channels, optical = self.channels[cam], ros2_messages.optical_frame(cam[1])
+        channels, optical = self.channels[cam], ros2_messages.optical_frame(*cam)
         if channels["labels"].has_sinks():
             channels["labels"].log(_raw_image(frame.labels, "mono8", frame.stamp_ns, optical))
         if channels["labels_color"].has_sinks():
@@ -205,7 +205,7 @@ class FoxgloveSink:
         channels["points"].log(
             PointCloud(
                 timestamp=_timestamp(frame.stamp_ns),
-                frame_id=ros2_messages.FLOOR_FRAME if cloud.in_floor_frame else optical,
+                frame_id=ros2_messages.floor_frame(*cam) if cloud.in_floor_frame else optical,
                 point_stride=POINT_DTYPE.itemsize,
                 fields=fields,
                 data=point_cloud_bytes(cloud.xyz, cloud.rgba()),

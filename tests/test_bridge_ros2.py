@@ -178,7 +178,7 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
         if frame is None:  # a wire frame the test's own subscriber missed
             continue
         assert (msg.encoding, msg.is_bigendian, msg.header.frame_id) == (
-            "16UC1", 0, "cam0_optical_frame",
+            "16UC1", 0, ros2.optical_frame(cell, camera),
         )  # fmt: skip
         assert (msg.height, msg.width, msg.step) == (*frame.depth.shape, 2 * frame.depth.shape[1])
         got = np.frombuffer(bytes(msg.data), "<u2").reshape(frame.depth.shape)
@@ -193,7 +193,7 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
     k = any_frame.intrinsics
     assert (infos[0].width, infos[0].height) == (k.width, k.height)
     np.testing.assert_allclose(infos[0].k, [k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])
-    assert infos[0].header.frame_id == "cam0_optical_frame"
+    assert infos[0].header.frame_id == ros2.optical_frame(cell, camera)
 
     # labels: the test plays the worker for one frame; mono8, bit-exact, same stamp
     labels = (np.arange(k.height * k.width) % 11).astype(np.uint8).reshape(k.height, k.width)
@@ -203,7 +203,7 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
     pub.put(wire.encode_labels(wire.LabelFrame(labels, any_frame.seq, any_frame.stamp_ns, "")))
     wait_for(lambda: ros.on(topic["labels"], ros2.IMAGE), 60, "the ROS labels image")
     lab = decode(ros2.IMAGE, ros.on(topic["labels"], ros2.IMAGE)[0][0])
-    assert (lab.encoding, lab.header.frame_id) == ("mono8", "cam0_optical_frame")
+    assert (lab.encoding, lab.header.frame_id) == ("mono8", ros2.optical_frame(cell, camera))
     assert lab.header.stamp.sec * 10**9 + lab.header.stamp.nanosec == any_frame.stamp_ns
     np.testing.assert_array_equal(
         np.frombuffer(bytes(lab.data), np.uint8).reshape(labels.shape), labels
@@ -248,7 +248,10 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
     finally:
         late.undeclare()
     (tf,) = decode(ros2.TF_MESSAGE, got[0][0]).transforms
-    assert (tf.header.frame_id, tf.child_frame_id) == ("topseg_floor", "cam0_optical_frame")
+    assert (tf.header.frame_id, tf.child_frame_id) == (
+        ros2.floor_frame(cell, camera),
+        ros2.optical_frame(cell, camera),
+    )
     assert any_frame.mount is not None  # the synthetic camera sends its mount
     t, q = ros2.mount_pose(any_frame.mount)
     tr, rot = tf.transform.translation, tf.transform.rotation
@@ -291,7 +294,10 @@ def test_worker_labels_reach_a_ros2_reader_bit_exact(run, sessions):
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             labels = wire_labels.get(stamp)
             if labels is not None:
-                assert (msg.encoding, msg.header.frame_id) == ("mono8", "cam0_optical_frame")
+                assert (msg.encoding, msg.header.frame_id) == (
+                    "mono8",
+                    ros2.optical_frame(cell, "cam0"),
+                )
                 got = np.frombuffer(bytes(msg.data), np.uint8).reshape(labels.shape)
                 np.testing.assert_array_equal(got, labels)
                 found += 1

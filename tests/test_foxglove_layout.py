@@ -31,6 +31,6 @@ def test_every_panel_is_placed_once_and_reads_the_cameras_topics():
         topic("c2", "top", stream) for stream in ("depth", "labels_color", "camera_info", "points")
     }
     scene = layout["configById"]["3D!floor"]
-    assert scene["followTf"] == "topseg_floor"
+    assert scene["followTf"] == "c2_top_floor"  # the floor below that camera
     assert scene["topics"][topic("c2", "top", "points")]["colorMode"] == "rgba-fields"
     assert scene["layers"]["grid"]["layerId"] == "foxglove.Grid"

@@ -286,7 +286,7 @@ def test_ros2_recording_of_a_live_driver_reads_back_in_ros_tools_and_replays_the
         assert (typename, msg.encoding, msg.header.frame_id) == (
             "sensor_msgs/msg/Image",
             "16UC1",
-            "cam0_optical_frame",
+            f"{cell}_cam0_optical_frame",
         )
         depth = np.frombuffer(bytes(msg.data), "<u2").reshape(K.shape)
         np.testing.assert_array_equal(depth, frames[seq % n][0])
@@ -301,7 +301,10 @@ def test_ros2_recording_of_a_live_driver_reads_back_in_ros_tools_and_replays_the
     poses = {2800.0: ros2.mount_pose(frames[0][2]), 3200.0: ros2.mount_pose(frames[-1][2])}
     for *_, msg in decoded["/tf_static"]:
         (t,) = msg.transforms
-        assert (t.header.frame_id, t.child_frame_id) == ("topseg_floor", "cam0_optical_frame")
+        assert (t.header.frame_id, t.child_frame_id) == (
+            f"{cell}_cam0_floor",
+            f"{cell}_cam0_optical_frame",
+        )
         moved = t.transform.translation
         centre, quat = poses[round(moved.z * 1000, 6)]
         assert (moved.x, moved.y, moved.z) == tuple(centre)

@@ -64,9 +64,9 @@ def test_camera_info_carries_the_pinhole():
 @pytest.mark.parametrize("pitch, roll", [(0.0, 0.0), (12.0, -7.0), (-30.0, 20.0)])
 def test_mount_transform_maps_camera_points_to_the_floor_frame(pitch, roll):
     mount = TopViewMount(Intrinsics(), 3100.0, pitch, roll, "kinect_v2")
-    msg = _decode(ros2.TF_MESSAGE, ros2.mount_transform_message(mount, 9, "cell1_cam"))
+    msg = _decode(ros2.TF_MESSAGE, ros2.mount_transform_message(mount, 9, "cell1", "cam"))
     (tf,) = msg.transforms
-    assert (tf.header.frame_id, tf.child_frame_id) == (ros2.FLOOR_FRAME, "cell1_cam_optical_frame")
+    assert (tf.header.frame_id, tf.child_frame_id) == ("cell1_cam_floor", "cell1_cam_optical_frame")
     t, q = tf.transform.translation, tf.transform.rotation
     # a tf consumer maps p_floor = R(q) p_cam + t: it must agree with the mount's own geometry
     rng = np.random.default_rng(1)
@@ -79,13 +79,14 @@ def test_mount_transform_maps_camera_points_to_the_floor_frame(pitch, roll):
 
 def test_mount_transforms_message_names_every_camera():
     mounts = {
-        "cam0": TopViewMount(Intrinsics(), 3100.0, 5.0, 0.0, "kinect_v2"),
-        "cam1": TopViewMount(Intrinsics(), 2800.0, 0.0, 3.0, "kinect_v2"),
+        ("c", "cam0"): TopViewMount(Intrinsics(), 3100.0, 5.0, 0.0, "kinect_v2"),
+        ("d", "cam0"): TopViewMount(Intrinsics(), 2800.0, 0.0, 3.0, "kinect_v2"),
     }
     msg = _decode(ros2.TF_MESSAGE, ros2.mount_transforms_message(mounts, 9))
-    assert [tf.child_frame_id for tf in msg.transforms] == [
-        "cam0_optical_frame",
-        "cam1_optical_frame",
+    # two cells with a camera of the same name: two floors, two optical frames
+    assert [(tf.header.frame_id, tf.child_frame_id) for tf in msg.transforms] == [
+        ("c_cam0_floor", "c_cam0_optical_frame"),
+        ("d_cam0_floor", "d_cam0_optical_frame"),
     ]
     heights = [tf.transform.translation.z for tf in msg.transforms]
     np.testing.assert_allclose(heights, [m.centre_world_m()[2] for m in mounts.values()])

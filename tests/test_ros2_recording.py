@@ -135,7 +135,7 @@ def test_foxglove_decodes_images_camera_info_stats_and_the_mount_transform(writt
     truth_sent = [wire.decode_labels(d) for k, d in sent if k.endswith("/truth")]
     for (sequence, msg), frame in zip(by_topic["/topseg/c1/cam0/depth"], depth_sent, strict=True):
         assert (msg.encoding, msg.height, msg.width, msg.step) == ("16UC1", 120, 160, 320)
-        assert msg.header.frame_id == "cam0_optical_frame"
+        assert msg.header.frame_id == "c1_cam0_optical_frame"
         assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == frame.stamp_ns
         assert sequence == frame.seq
         got = np.frombuffer(bytes(msg.data), "<u2").reshape(120, 160)
@@ -151,8 +151,8 @@ def test_foxglove_decodes_images_camera_info_stats_and_the_mount_transform(writt
     assert [s["counts"]["n"] for s in stats] == list(range(6))
     # the mount went A, A, B, B, none, A: three transforms, four mount messages
     tfs = [msg.transforms[0] for _, msg in by_topic["/tf_static"]]
-    assert [t.header.frame_id for t in tfs] == ["topseg_floor"] * 3
-    assert [t.child_frame_id for t in tfs] == ["cam0_optical_frame"] * 3
+    assert [t.header.frame_id for t in tfs] == ["c1_cam0_floor"] * 3
+    assert [t.child_frame_id for t in tfs] == ["c1_cam0_optical_frame"] * 3
     for t, mount in zip(tfs, (MOUNT_A, MOUNT_B, MOUNT_A), strict=True):
         (x, y, z), quat = ros2.mount_pose(mount)
         got = t.transform

@@ -183,9 +183,9 @@ def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages()
         code = stop(viewer) if viewer.alive() else viewer.proc.returncode
     assert code == 0, viewer.err
 
-    optical = ros2_messages.optical_frame(camera)
+    optical = ros2_messages.optical_frame(cell, camera)
     points = got["points"]
-    assert points.frame_id == ros2_messages.FLOOR_FRAME
+    assert points.frame_id == ros2_messages.floor_frame(cell, camera)
     stamp = points.timestamp.seconds * 10**9 + points.timestamp.nanos
     depth, truth = publisher.sent[stamp]
     expected = labelled_cloud(depth, truth, K, MOUNT, 4)  # the viewer's default --stride
@@ -203,7 +203,10 @@ def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages()
     np.testing.assert_array_equal(image, labels.colorize(publisher.sent[stamp][1]))
 
     mount = got["mount"]
-    assert (mount.parent_frame_id, mount.child_frame_id) == (ros2_messages.FLOOR_FRAME, optical)
+    assert (mount.parent_frame_id, mount.child_frame_id) == (
+        ros2_messages.floor_frame(cell, camera),
+        optical,
+    )
     translation, quaternion = ros2_messages.mount_pose(MOUNT)
     t, q = mount.translation, mount.rotation
     np.testing.assert_allclose([t.x, t.y, t.z], translation)
@@ -263,8 +266,8 @@ def test_driver_worker_viewer_foxglove_shows_the_labelled_cloud_in_the_floor_fra
         codes = [stop(s) if s.alive() else s.proc.returncode for s in services]
     assert codes == [0, 0, 0], "\n".join(s.err for s in services)
     points, mount = got[points_topic], got[mount_topic]
-    assert points.frame_id == ros2_messages.FLOOR_FRAME
-    assert mount.child_frame_id == ros2_messages.optical_frame(camera)
+    assert points.frame_id == ros2_messages.floor_frame(cell, camera)
+    assert mount.child_frame_id == ros2_messages.optical_frame(cell, camera)
     cloud = np.frombuffer(points.data, POINT_DTYPE)
     assert len(cloud) > 1000
     # the floor is at z = 0 in the floor frame: most points lie near it, none far below it

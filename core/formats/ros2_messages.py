@@ -9,11 +9,14 @@ type hashes and writes the concatenated `ros2msg` schema text that MCAP's ROS 2 
 Types follow ROS 2 Jazzy (the LTS with type hashes that rmw_zenoh ships for); the four types
 used here have the same RIHS01 hash in Iron, Jazzy, Kilted and Lyrical (checked in tests).
 
-Frames (REP 103 / REP 105 conventions):
-- `FLOOR_FRAME`: x, y on the floor, z up, origin on the floor below the camera centre
-  (`TopViewMount`'s world frame).
-- `<camera>_optical_frame`: x right, y down, z forward, the camera's optical frame.
-The mount is the static transform FLOOR_FRAME -> optical frame.
+Frames (REP 103 / REP 105 conventions), one pair per camera, named after cell and camera so
+that every camera of every cell has its own:
+- `<cell>_<camera>_floor` (`floor_frame`): x, y on the floor, z up, origin on the floor below
+  that camera's centre, x along its image's x (`TopViewMount`'s world frame). A mount fixes
+  height, pitch and roll only, so two cameras' floor frames are not related by topseg: a
+  user with several cameras publishes each floor frame's pose in their own map frame.
+- `<cell>_<camera>_optical_frame` (`optical_frame`): x right, y down, z forward.
+The mount is the static transform floor frame -> optical frame.
 """
 
 from __future__ import annotations
@@ -29,7 +32,6 @@ from topseg.core.camera import Intrinsics, TopViewMount
 
 #: the ROS 2 release whose message definitions and type hashes topseg speaks
 ROS_DISTRO = "jazzy"
-FLOOR_FRAME = "topseg_floor"
 
 IMAGE = "sensor_msgs/msg/Image"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
@@ -72,9 +74,14 @@ def ros2_topic(cell: str, camera: str, stream: str) -> str:
     return f"/topseg/{cell}/{camera}/{stream}"
 
 
-def optical_frame(camera: str) -> str:
-    """The optical frame id of a camera's images."""
-    return f"{camera}_optical_frame"
+def floor_frame(cell: str, camera: str) -> str:
+    """The frame id of the floor below a camera: `<cell>_<camera>_floor` (z up)."""
+    return f"{cell}_{camera}_floor"
+
+
+def optical_frame(cell: str, camera: str) -> str:
+    """The optical frame id of a camera's images: `<cell>_<camera>_optical_frame`."""
+    return f"{cell}_{camera}_optical_frame"
 
 
 def _types():
@@ -144,23 +151,26 @@ def mount_pose(mount: TopViewMount) -> tuple[np.ndarray, np.ndarray]:
     return mount.centre_world_m(), Rotation.from_matrix(camera_axes_in_floor).as_quat()
 
 
-def mount_transform_message(mount: TopViewMount, stamp_ns: int, camera: str) -> bytes:
-    """A `tf2_msgs/TFMessage` as CDR: the static transform FLOOR_FRAME -> the optical frame."""
-    return mount_transforms_message({camera: mount}, stamp_ns)
+def mount_transform_message(mount: TopViewMount, stamp_ns: int, cell: str, camera: str) -> bytes:
+    """A `tf2_msgs/TFMessage` as CDR: the static transform floor frame -> optical frame."""
+    return mount_transforms_message({(cell, camera): mount}, stamp_ns)
 
 
-def mount_transforms_message(mounts: Mapping[str, TopViewMount], stamp_ns: int) -> bytes:
-    """A `tf2_msgs/TFMessage` as CDR with one static transform FLOOR_FRAME -> optical frame
-    per camera of `mounts` ({camera: mount}): `/tf_static` keeps only its last message, so
-    that message names every camera (as tf2_ros' StaticTransformBroadcaster does)."""
+def mount_transforms_message(
+    mounts: Mapping[tuple[str, str], TopViewMount], stamp_ns: int
+) -> bytes:
+    """A `tf2_msgs/TFMessage` as CDR with one static transform floor frame -> optical frame
+    per camera of `mounts` ({(cell, camera): mount}): `/tf_static` keeps only its last
+    message, so that message names every camera (as tf2_ros' StaticTransformBroadcaster
+    does)."""
     types = _types()
     transforms = []
-    for camera, mount in mounts.items():
+    for (cell, camera), mount in mounts.items():
         (tx, ty, tz), (qx, qy, qz, qw) = mount_pose(mount)
         transforms.append(
             types["geometry_msgs/msg/TransformStamped"](
-                header=_header(stamp_ns, FLOOR_FRAME),
-                child_frame_id=optical_frame(camera),
+                header=_header(stamp_ns, floor_frame(cell, camera)),
+                child_frame_id=optical_frame(cell, camera),
                 transform=types["geometry_msgs/msg/Transform"](
                     translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
                     rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),

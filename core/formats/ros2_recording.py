@@ -15,9 +15,9 @@ bridge's names):
     /topseg/<cell>/<camera>/camera_info  sensor_msgs/msg/CameraInfo  one before each depth frame
     /topseg/<cell>/<camera>/stats        std_msgs/msg/String         the stats map as JSON
     /topseg/<cell>/<camera>/mount        std_msgs/msg/String         the wire's mount map as JSON
-    /tf_static                           tf2_msgs/msg/TFMessage      topseg_floor -> optical frame
+    /tf_static                           tf2_msgs/msg/TFMessage      <cell>_<camera>_floor -> optical frame
 
-Images and camera info carry the frame's capture stamp and `<camera>_optical_frame`; the
+Images and camera info carry the frame's capture stamp and `<cell>_<camera>_optical_frame`; the
 MCAP `sequence` of depth, labels, truth and camera info is the wire `seq` (modulo 2**32),
 which pairs a frame's depth, labels and truth; log time is when the recorder received it.
 `/tf_static` and `/mount` (latched QoS: transient local, depth 1) are written before the
@@ -194,7 +194,7 @@ class Ros2RecordingWriter:
             if isinstance(message, DepthFrame):
                 out = self._depth(cell, camera, message)
             elif isinstance(message, LabelFrame):
-                frame = optical_frame(camera)
+                frame = optical_frame(cell, camera)
                 cdr = image_message(message.labels, message.stamp_ns, frame)
                 out = [(ros2_topic(cell, camera, parts.kind), cdr, message.seq)]
             else:
@@ -213,13 +213,14 @@ class Ros2RecordingWriter:
         mount = _mount_state(frame)
         if mount != self._mounts.get((cell, camera)):  # a new camera without one: nothing to say
             if frame.mount is not None:
-                tf = mount_transform_message(frame.mount, frame.stamp_ns, camera)
+                tf = mount_transform_message(frame.mount, frame.stamp_ns, cell, camera)
                 out.append((TF_STATIC, tf, None))
             out.append(
                 (ros2_topic(cell, camera, "mount"), _string_message(json.dumps(mount)), None)
             )
-        info = camera_info_message(frame.intrinsics, frame.stamp_ns, optical_frame(camera))
-        depth = image_message(frame.depth, frame.stamp_ns, optical_frame(camera))
+        optical = optical_frame(cell, camera)
+        info = camera_info_message(frame.intrinsics, frame.stamp_ns, optical)
+        depth = image_message(frame.depth, frame.stamp_ns, optical)
         out.append((ros2_topic(cell, camera, "camera_info"), info, frame.seq))
         out.append((ros2_topic(cell, camera, "depth"), depth, frame.seq))
         return out
