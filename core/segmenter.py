@@ -178,6 +178,7 @@ class Segmenter:
         self.features = model_features(self.header, forest)
         self.trained_for: dict[str, Any] | None = self.header.get("trained_for")
         self._out: np.ndarray | None = None
+        self._summary = None  # crf.argmax.Summary: the CRF's per-pixel view of _out
 
     @property
     def reads_height(self) -> bool:
@@ -313,12 +314,14 @@ class Segmenter:
         return grid_stride(self.frame_mount(depth, intrinsics, name, mount))
 
     def _predict(self, inp: ModelInput, stride: int) -> np.ndarray:
+        from topseg.core.crf.argmax import Summary
         from topseg.core.forest.predict import predict_proba
 
         shape = (*inp.shape, L.NUM_CLASSES)
         if self._out is None or self._out.shape != shape:
             self._out = np.empty(shape, np.float32)
-        return predict_proba(self.forest, inp, out=self._out, stride=stride)
+            self._summary = Summary.empty(inp.shape)  # filled with _out, read by the CRF
+        return predict_proba(self.forest, inp, out=self._out, stride=stride, summary=self._summary)
 
     def smooth(self, proba: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """The CRF stage alone: (H, W) uint8 labels of `proba` under this CRF mode."""
@@ -337,11 +340,13 @@ class Segmenter:
         names it in the error). A height model reads it through `mount` (the config's when
         None) with the frame's `intrinsics` when given; the forest stage's time includes
         building the model input."""
+        from topseg.core.crf import segment_crf
+
         t0 = time.perf_counter()
         inp = self.model_input(depth, intrinsics, name, mount)
         proba = self._predict(inp, self.stride_for(depth, intrinsics, name, mount))
         t1 = time.perf_counter()
-        labels = self.smooth(proba, depth)
+        labels = segment_crf(proba, depth, self.config.crf, self._summary)
         t2 = time.perf_counter()
         ms = 1000.0
         return Segmentation(

@@ -160,3 +160,20 @@ def test_smoothness_zero_is_the_argmax():
     proba, depth = random_frame(rng)
     amax, _, _ = argmax_confidence(proba, depth > 0)
     assert np.array_equal(segment_realtime(proba, depth, CRFConfig(smoothness=0.0)), amax)
+
+
+@pytest.mark.parametrize("mode", ["none", "realtime"])
+def test_a_given_summary_gives_the_same_labels_and_is_never_returned(mode):
+    from topseg.core.crf import Summary, argmax_confidence, segment_crf
+
+    rng = np.random.default_rng(31)
+    for _ in range(4):
+        proba, depth = random_frame(rng)
+        cfg = CRFConfig(mode=mode)
+        summary = Summary(*argmax_confidence(proba, depth > 0))
+        kept = [a.copy() for a in summary]
+        got = segment_crf(proba, depth, cfg, summary)
+        np.testing.assert_array_equal(got, segment_crf(proba, depth, cfg))
+        assert not np.shares_memory(got, summary.amax)  # the caller reuses its buffers
+        for a, b in zip(summary, kept, strict=True):
+            np.testing.assert_array_equal(a, b)

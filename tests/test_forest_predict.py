@@ -7,6 +7,7 @@ import pytest
 from reference import apply_reference, predict_reference, upsample_reference
 
 from topseg.core import labels
+from topseg.core.crf.argmax import Summary, argmax_confidence
 from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
 from topseg.core.forest.inputs import ModelInput, as_input
 from topseg.core.forest.predict import UPSAMPLE_SIGMA_MM, _upsample, apply, height_weights
@@ -88,6 +89,18 @@ def test_stride_walks_a_grid_and_upsamples_by_height(shape):
         np.testing.assert_allclose(fast[informed].sum(axis=1), 1.0, rtol=1e-5)
 
 
+@pytest.mark.parametrize("stride", [1, 2, 3])
+def test_the_summary_filled_with_the_posteriors_is_their_argmax_confidence(stride):
+    forest = random_forest(70 + stride, 2)
+    inp = random_input(80 + stride, (31, 45))
+    summary = Summary(*(np.full_like(a, 7) for a in Summary.empty(inp.shape)))  # stale buffers
+    proba = predict_proba(forest, inp, stride=stride, summary=summary)
+    for got, want in zip(summary, argmax_confidence(proba, inp.values > 0), strict=True):
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="summary"):
+        predict_proba(forest, inp, summary=Summary.empty((3, 3)))
+
+
 def test_upsampling_keeps_a_height_edge():
     """A step in height between grid columns: pixels take the posterior of their own side."""
     values = np.full((9, 9), 2000, np.uint16)
@@ -98,7 +111,7 @@ def test_upsampling_keeps_a_height_edge():
     proba[:, 5:, 7] = 1.0
     grid = np.zeros_like(proba)
     grid[::4, ::4] = proba[::4, ::4]
-    _upsample(values, floor, 4, height_weights(), grid)
+    _upsample(values, floor, 4, height_weights(), grid, *Summary.empty(values.shape))
     np.testing.assert_array_equal(grid.argmax(axis=2), proba.argmax(axis=2))
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from topseg.core.crf.argmax import argmax_confidence, segment_argmax
+from topseg.core.crf.argmax import Summary, argmax_confidence, segment_argmax
 from topseg.core.crf.energy import (
     ENERGY_SCALE,
     MAX_SMOOTHNESS,
@@ -44,6 +44,7 @@ __all__ = [
     "MODES",
     "CRFConfig",
     "Mode",
+    "Summary",
     "argmax_confidence",
     "edge_weights",
     "gco_expansion",
@@ -58,16 +59,20 @@ __all__ = [
 ]
 
 
-def segment_crf(proba: np.ndarray, depth_u16: np.ndarray, config: CRFConfig) -> np.ndarray:
+def segment_crf(
+    proba: np.ndarray, depth_u16: np.ndarray, config: CRFConfig, summary: Summary | None = None
+) -> np.ndarray:
     """(H, W) uint8 labels minimising the Potts energy under `config.mode`.
 
-    Pixels with depth == 0 come out NO_DEPTH and take no part in the graph.
+    Pixels with depth == 0 come out NO_DEPTH and take no part in the graph. `summary`, when
+    given, is `proba`'s argmax and top two posteriors (`argmax.Summary`, as the forest fills
+    it): the realtime and argmax modes then skip that pass over `proba`.
     """
     proba = check_proba(proba)
     depth = check_depth_shape(depth_u16, proba.shape[:2])
     valid = depth > 0
     if config.mode == "none":
-        return segment_argmax(proba, valid)
+        return segment_argmax(proba, valid) if summary is None else summary.amax.copy()
     if config.mode == "exact":
         wh, wv = edge_weights(depth, config)
         unary = unaries_from_posteriors(proba, config.eps)
@@ -77,4 +82,4 @@ def segment_crf(proba: np.ndarray, depth_u16: np.ndarray, config: CRFConfig) -> 
         if grid_energy(labels, unary, wh, wv, valid) > grid_energy(argmax, unary, wh, wv, valid):
             return argmax
         return labels
-    return segment_realtime(proba, depth, config)
+    return segment_realtime(proba, depth, config, summary)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from topseg.core.crf.argmax import argmax_confidence
+from topseg.core.crf.argmax import Summary, argmax_confidence
 from topseg.core.crf.energy import ENERGY_SCALE, CRFConfig, edge_weights
 from topseg.core.crf.expansion import expansion_run
 
@@ -203,11 +203,19 @@ def band_mask(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.nda
     )
 
 
-def segment_realtime(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.ndarray:
-    """(H, W) uint8 labels: argmax where fixed, alpha-expansion on the band (see module doc)."""
+def segment_realtime(
+    proba: np.ndarray, depth: np.ndarray, config: CRFConfig, summary: Summary | None = None
+) -> np.ndarray:
+    """(H, W) uint8 labels: argmax where fixed, alpha-expansion on the band (see module doc).
+
+    `summary` is `proba`'s argmax and top two posteriors when the caller has them (the
+    forest fills them as it writes `proba`); its arrays are read, never returned."""
     proba = np.ascontiguousarray(proba, dtype=np.float32)
     valid = np.asarray(depth) > 0
-    amax, pmax, psecond = argmax_confidence(proba, valid)
+    if summary is None:
+        amax, pmax, psecond = argmax_confidence(proba, valid)
+    else:  # the caller's buffers: the labels returned must be a copy
+        amax, pmax, psecond = summary.amax.copy(), summary.pmax, summary.psecond
     if config.smoothness == 0:
         return amax
     wh, wv = edge_weights(depth, config)

@@ -29,6 +29,7 @@ import numba
 import numpy as np
 
 from topseg.core.camera import TopViewMount
+from topseg.core.crf.argmax import Summary, summarise_no_depth, summarise_pixel
 from topseg.core.forest.features import response_at
 from topseg.core.forest.inputs import ModelInput, as_input, check_input
 from topseg.core.forest.tree import Forest
@@ -134,19 +135,26 @@ def _accumulate(acc, cur, leaf, posteriors):
 
 
 @numba.njit(cache=True, inline="always")
-def _write_row(out, values, floor, r, stride, n_cols, cols, acc, n_trees):
+def _write_row(out, values, floor, r, stride, n_cols, cols, acc, n_trees, amax, pmax, psecond):
     """Row r's evaluated pixels: zeros without a value, background for the floor, the tree
-    average for the walked ones."""
+    average for the walked ones; and each one's summary (`crf.argmax.Summary`)."""
+    scale = np.float32(1.0) / np.float32(n_trees)
+    walked = 0
     for j in range(n_cols):
         c = j * stride
+        if walked < cols.shape[0] and cols[walked] == c:
+            for q in range(acc.shape[1]):
+                out[r, c, q] = acc[walked, q] * scale
+            walked += 1
+            summarise_pixel(out, r, c, amax, pmax, psecond)
+            continue
         for q in range(out.shape[2]):
             out[r, c, q] = np.float32(0.0)
-        if values[r, c] > 0 and floor[r, c]:
+        if values[r, c] > 0:  # the floor: background, sure
             out[r, c, BACKGROUND] = np.float32(1.0)
-    scale = np.float32(1.0) / np.float32(n_trees)
-    for j in range(cols.shape[0]):
-        for q in range(acc.shape[1]):
-            out[r, cols[j], q] = acc[j, q] * scale
+            summarise_pixel(out, r, c, amax, pmax, psecond)
+        else:
+            summarise_no_depth(r, c, amax, pmax, psecond)
 
 
 @functools.cache
@@ -160,7 +168,20 @@ def _kernel(k: int):
 
     @numba.njit(cache=True, parallel=True)
     def predict(
-        values, scale, floor, nodes, step, leaf, posteriors, roots, background, stride, out
+        values,
+        scale,
+        floor,
+        nodes,
+        step,
+        leaf,
+        posteriors,
+        roots,
+        background,
+        stride,
+        out,
+        amax,
+        pmax,
+        psecond,
     ):
         """Posteriors of the evaluated pixels. Within a row the trees are walked one level
         at a time for all pixels to walk; `cur` is local and the level loop plain so that it
@@ -188,7 +209,20 @@ def _kernel(k: int):
                     if moving == 0:
                         break
                 _accumulate(acc, cur, leaf, posteriors)
-            _write_row(out, values, floor, r, stride, n_cols, cols, acc, roots.shape[0])
+            _write_row(
+                out,
+                values,
+                floor,
+                r,
+                stride,
+                n_cols,
+                cols,
+                acc,
+                roots.shape[0],
+                amax,
+                pmax,
+                psecond,
+            )
 
     return predict
 
@@ -238,7 +272,7 @@ def _range_weight(values, gr, gc, v, spatial, table):
 
 
 @numba.njit(cache=True, parallel=True)
-def _upsample(values, floor, stride, table, out):
+def _upsample(values, floor, stride, table, out, amax, pmax, psecond):
     """Posteriors between the grid points of a strided walk (joint bilateral upsampling,
     Kopf et al. 2007): each pixel with a value averages the posteriors of the up to four
     grid pixels around it, weighted bilinearly and by `table[|dv|]` (`height_weights`:
@@ -246,7 +280,7 @@ def _upsample(values, floor, stride, table, out):
     in the posteriors. Where every neighbour's weight underflows, the neighbour closest in
     value wins; where none of them has a value, zeros (no posterior, as without depth).
     Pixels without a value get zeros, floor pixels background; grid pixels keep their
-    walked posteriors."""
+    walked posteriors. Each pixel written gets its summary (`crf.argmax.Summary`)."""
     h, w = values.shape
     n_classes = out.shape[2]
     last_r = (h - 1) - (h - 1) % stride
@@ -266,6 +300,9 @@ def _upsample(values, floor, stride, table, out):
                     out[r, c, q] = np.float32(0.0)
                 if v != 0:
                     out[r, c, BACKGROUND] = np.float32(1.0)
+                    summarise_pixel(out, r, c, amax, pmax, psecond)
+                else:
+                    summarise_no_depth(r, c, amax, pmax, psecond)
                 continue
             c1 = min(c0 + stride, last_c)
             wc0 = np.float32(stride - (c - c0))
@@ -285,6 +322,7 @@ def _upsample(values, floor, stride, table, out):
                         + w10 * out[r1, c0, q]
                         + w11 * out[r1, c1, q]
                     )
+                summarise_pixel(out, r, c, amax, pmax, psecond)
                 continue
             best_r, best_c, best = -1, -1, np.int32(1 << 30)
             for gr in (r0, r1):
@@ -295,6 +333,7 @@ def _upsample(values, floor, stride, table, out):
                             best_r, best_c, best = gr, gc, d
             for q in range(n_classes):
                 out[r, c, q] = out[best_r, best_c, q] if best_r >= 0 else np.float32(0.0)
+            summarise_pixel(out, r, c, amax, pmax, psecond)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -319,6 +358,7 @@ def predict_proba(
     frame: np.ndarray | ModelInput,
     out: np.ndarray | None = None,
     stride: int = 1,
+    summary: Summary | None = None,
 ) -> np.ndarray:
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
@@ -329,6 +369,9 @@ def predict_proba(
     `stride` > 1 walks the trees only at every stride-th pixel of every stride-th row and
     fills the pixels between by edge-aware upsampling (`_upsample`): stride**2 times fewer
     walks; the posteriors at the grid pixels are exact.
+    `summary` (`crf.argmax.Summary` of (H, W) buffers), when given, is filled with every
+    pixel's argmax and top two posteriors as the posteriors are written: what the CRF reads,
+    without another pass over them (`crf.segment_crf(..., summary=)`).
     """
     inp = check_input(as_input(frame), "forest inference")
     if stride < 1:
@@ -338,6 +381,10 @@ def predict_proba(
         out = np.empty(shape, np.float32)
     elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
+    if summary is None:
+        summary = Summary.empty(inp.shape)
+    elif any(a.shape != inp.shape or not a.flags.c_contiguous for a in summary):
+        raise ValueError(f"summary arrays must be C-contiguous of shape {inp.shape}")
     table = inference_table(forest)
     _kernel(table.k)(
         inp.values,
@@ -351,9 +398,10 @@ def predict_proba(
         np.int32(forest.background_mm),
         stride,
         out,
+        *summary,
     )
     if stride > 1:
-        _upsample(inp.values, inp.floor, stride, height_weights(), out)
+        _upsample(inp.values, inp.floor, stride, height_weights(), out, *summary)
     return out
 
 
