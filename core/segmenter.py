@@ -369,7 +369,12 @@ class Segmenter:
             mount = TopViewMount(KINECT_V1.scaled_to(64, 48), self.features.canonical_height_mm)
             depth[:] = int(mount.height_mm * 0.6)
             depth[:, :8] = int(mount.height_mm)
-        self.smooth(self.posteriors(depth, mount), depth)
+        from topseg.core.crf import segment_crf
+        from topseg.core.forest.inputs import legacy_input
+
+        inp = legacy_input(depth) if self.features is None else self.model_input(depth, mount=mount)
+        for stride in (1, 2):  # both paths: every pixel walked, and a grid upsampled
+            segment_crf(self._predict(inp, stride), depth, self.config.crf, self._summary)
 
 
 def model_features(header: dict | None, forest: Forest | None = None) -> FeatureConfig | None:

@@ -80,6 +80,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_stride_argument(parser)
     parser.add_argument(
+        "--threads",
+        type=int_range(0, 256),
+        default=0,
+        metavar="N",
+        help="threads of the forest's kernels (default 0: one per core); on a machine shared "
+        "with a driver, 1 can hold latency better (docs/performance.md)",
+    )
+    parser.add_argument(
         "--cameras",
         nargs="+",
         metavar="CELL/CAMERA",
@@ -555,6 +563,10 @@ def run(args: argparse.Namespace) -> int:
         parse_camera(text)  # bad names fail before anything is loaded
     mount_config(args)  # so do a bad --mount-check or --sensor
     svc = ServiceLifecycle("worker", args)  # so does a bad Zenoh config
+    if args.threads:
+        import numba
+
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     segmenter = load_segmenter(
         args.model, args.crf, args.stride
     )  # ModelFileError: one line, exit 2
