@@ -3,8 +3,17 @@
 Reads frames from a source (`replay:PATH`, `freenect[:index]`, `openni2[:uri]`,
 `oak[:device-id]`, `synthetic`) and publishes them as wire messages on
 `topseg/<cell>/<camera>/depth`, with ground truth on `.../truth` when the source has it.
-It holds the liveliness token `.../alive/driver` while running and answers `.../info`
-queries with JSON (source, camera intrinsics, mount, fps, frames published, reconnects).
+It holds the liveliness token `.../alive/driver/<instance>` while running (its Zenoh id,
+`services/identity.py`; also the attachment of every message it publishes) and answers
+`.../info` queries with JSON (source, camera intrinsics, mount, fps, frames published,
+reconnects, instance, pid and host).
+
+One camera, one driver: a driver that finds another live driver of its cell/camera (a token
+whose process answers `info`) refuses to start (one line, exit 2), since their frames would
+interleave on one key. A crashed driver's token goes with its connection, so a restart is
+not refused; a token whose process does not answer (a host gone, until Zenoh's lease ends)
+is only warned about. A second driver that appears later (two started at once) is warned
+about loudly; the worker and `topseg status` report it too.
 
 `--mount FILE` (a mount file from `topseg calibrate`) puts the camera's mount on every
 depth message and in `info`; the mount's intrinsics must be for frames of the source's
@@ -33,8 +42,9 @@ import logging
 import threading
 import time
 
+from topseg.core.errors import TopsegError
 from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
-from topseg.services import zenoh_session
+from topseg.services import identity, zenoh_session
 from topseg.services.cli_types import finite
 from topseg.services.lifecycle import ServiceLifecycle
 
@@ -114,12 +124,19 @@ class DriverState:
             "keys": keys,
             "congestion": args.congestion,
             "version": __version__,
+            "duplicates": [],
         }
 
     def update(self, **fields) -> None:
         """Set some fields (from the publishing loop; the queryable reads them)."""
         with self.lock:
             self.info.update(fields)
+
+    def note_duplicate(self, instance: str) -> None:
+        """Remember another driver seen serving this camera (shown in `info`)."""
+        with self.lock:
+            if instance not in self.info["duplicates"]:
+                self.info["duplicates"].append(instance)
 
     def to_json(self) -> bytes:
         """The info reply: all fields as JSON."""
@@ -148,7 +165,6 @@ def read_mount(path: str):
 def check_mount_fits(mount, intrinsics, path: str) -> None:
     """TopsegError (one line) unless the mount file is for frames of the source's size; a
     warning when the focal lengths differ by more than 1 %."""
-    from topseg.core.errors import TopsegError
 
     m = mount.intrinsics
     if m.shape != intrinsics.shape:
@@ -164,6 +180,73 @@ def check_mount_fits(mount, intrinsics, path: str) -> None:
             m.fx,
             intrinsics.fx,
         )
+
+
+def refuse_if_served(session, args: argparse.Namespace, me: identity.Identity) -> None:
+    """TopsegError (one line) when another live driver serves this cell/camera: one whose
+    token is there and whose process answers `info`; a token nobody answers for (a host that
+    vanished, until Zenoh's lease ends) is only warned about."""
+    import zenoh
+
+    from topseg.core.formats import wire
+
+    zenoh_session.wait_connected(session, identity.CONNECT_WAIT_S)
+    token = wire.alive_key(args.cell, args.camera, "driver")
+    others = identity.other_instances(session, token, me.instance)
+    if not others:
+        return
+    answering = {}
+    replies = session.get(
+        wire.info_key(args.cell, args.camera),
+        timeout=identity.QUERY_S,
+        consolidation=zenoh.ConsolidationMode.NONE,  # one reply per driver, not per key
+    )
+    for reply in replies:
+        try:
+            info = json.loads(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+        except ValueError:
+            continue
+        if isinstance(info, dict) and info.get("instance") in others:
+            answering[info["instance"]] = info
+    if answering:
+        inst, info = sorted(answering.items())[0]
+        raise TopsegError(
+            f"camera {args.cell}/{args.camera} is already served by driver {inst} (pid "
+            f"{info.get('pid')} on {info.get('host')}, source {info.get('source')}); stop it "
+            "or give this one another --camera"
+        )
+    log.warning(
+        "a liveliness token of driver %s for %s/%s remains but that driver does not answer "
+        "(gone, until Zenoh's lease ends); starting anyway",
+        ", ".join(sorted(others)),
+        args.cell,
+        args.camera,
+    )
+
+
+def watch_duplicates(session, args: argparse.Namespace, me, state: DriverState):
+    """A liveliness subscriber that warns loudly when another driver of this camera appears
+    while this one runs (two started at once, or one that could not be seen at start)."""
+    from topseg.core.formats import wire
+
+    token = wire.alive_key(args.cell, args.camera, "driver")
+
+    def on_token(sample) -> None:
+        try:
+            parts = wire.parse_key(str(sample.key_expr))
+        except wire.WireError:
+            return
+        if str(sample.kind).endswith("PUT") and parts.instance not in (None, me.instance):
+            state.note_duplicate(parts.instance)
+            log.warning(
+                "ANOTHER DRIVER serves %s/%s: %s; the frames of both interleave on %s: stop one",
+                args.cell,
+                args.camera,
+                parts.instance,
+                wire.depth_key(args.cell, args.camera),
+            )
+
+    return session.liveliness().declare_subscriber(f"{token}/*", on_token, history=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -190,7 +273,6 @@ def run(args: argparse.Namespace) -> int:
         "depth": wire.depth_key(args.cell, args.camera),
         "truth": wire.truth_key(args.cell, args.camera),
         "info": wire.info_key(args.cell, args.camera),
-        "alive": wire.alive_key(args.cell, args.camera, "driver"),
     }
     state = DriverState(args, keys)
     last = {"t": time.monotonic(), "n": 0}
@@ -217,10 +299,16 @@ def run(args: argparse.Namespace) -> int:
     fitted = None  # the frame size the mount was last checked against
     with ServiceLifecycle("driver", args, status=status_text) as svc:
         session = svc.session
+        me = identity.Identity.of(session)
+        refuse_if_served(session, args, me)  # one camera, one driver
+        keys["alive"] = wire.alive_key(args.cell, args.camera, "driver", me.instance)
+        state.update(keys=keys, **me.to_dict())
+        attachment = wire.instance_attachment(me.instance)
         publish = dict(congestion_control=congestion[args.congestion], express=True)
         depth_pub = session.declare_publisher(keys["depth"], **publish)
         truth_pub = session.declare_publisher(keys["truth"], **publish)
         svc.declare(session.liveliness().declare_token(keys["alive"]))
+        svc.declare(watch_duplicates(session, args, me, state))
         svc.declare(
             session.declare_queryable(
                 keys["info"], lambda query: query.reply(keys["info"], state.to_json())
@@ -274,10 +362,10 @@ def run(args: argparse.Namespace) -> int:
             depth = dataclasses.replace(
                 frame.depth, seq=seq, frame_id=args.camera, mount=frame_mount
             )
-            depth_pub.put(wire.encode_depth(depth))
+            depth_pub.put(wire.encode_depth(depth), attachment=attachment)
             if frame.truth is not None:
                 truth = dataclasses.replace(frame.truth, seq=seq, frame_id=args.camera)
-                truth_pub.put(wire.encode_labels(truth))
+                truth_pub.put(wire.encode_labels(truth), attachment=attachment)
                 truth_count += 1
             seq += 1
             svc.beat()  # watchdog ping from the publishing loop, STATUS= every few s

@@ -16,6 +16,11 @@ pipe (`signal.set_wakeup_fd`) and a small thread reads it, sets `stop` and calls
 `with svc.interruptible():` a signal also raises `ServiceStopped` to cut a blocking call
 short (a sensor read); the `with svc:` block swallows it.
 
+A session that has met no Zenoh peer or router `ISOLATION_WARN_S` after opening, though it
+should have (it connects to a rendezvous port it does not hold, or to configured endpoints),
+is warned about once (`zenoh_session.isolation_problem`: another program or a frozen
+process on the port leaves services "ready" and never meeting), and the recovery logged.
+
 On the way out the original handlers come back first, so a second signal during the
 shut-down has its usual effect (Ctrl-C raises KeyboardInterrupt, SIGTERM ends the
 process); then every clean-up runs, last registered first, even when one fails; then the
@@ -39,6 +44,8 @@ from topseg.services import systemd_notify, zenoh_session
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 #: Longest wait between two heartbeats (shorter when systemd's watchdog asks for it).
 TICK_S = 0.5
+#: A session that met nobody this long after opening (and should have) is warned about (s).
+ISOLATION_WARN_S = 5.0
 
 
 class ServiceStopped(BaseException):
@@ -70,6 +77,9 @@ class ServiceLifecycle:
         self.name = name
         self.log = logging.getLogger(f"topseg.{name}")
         self.config = config if config is not None else zenoh_session.config_from_args(args)
+        self.rendezvous = None  # the default config's port, when it is in use
+        if config is None and not getattr(args, "zenoh_config", None):
+            self.rendezvous = zenoh_session.rendezvous_port(getattr(args, "zenoh_port", None))
         self.open_error = open_error
         self.signal_note = signal_note
         self.notifier = notifier or systemd_notify.default()
@@ -95,6 +105,9 @@ class ServiceLifecycle:
         except BaseException:
             self._restore_signals()
             raise
+        threading.Thread(
+            target=self._watch_isolation, name=f"{self.name}-peers", daemon=True
+        ).start()
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -178,6 +191,26 @@ class ServiceLifecycle:
             left = self.tick if deadline is None else min(self.tick, deadline - time.monotonic())
             if left <= 0 or self.stop.wait(left):
                 return self.stop.is_set()
+
+    def _watch_isolation(self) -> None:
+        """Warn once when the session met nobody it should have; log when it does later."""
+        warned = False
+        wait = ISOLATION_WARN_S
+        while not self.stop.wait(wait):
+            wait = 1.0
+            try:
+                problem = zenoh_session.isolation_problem(
+                    self.session, self.config, self.rendezvous
+                )
+            except Exception as err:  # a closing session: nothing to say
+                self.log.debug("checking Zenoh peers failed: %s", err)
+                return
+            if problem and not warned:
+                self.log.warning("%s (after %.0f s)", problem, ISOLATION_WARN_S)
+                warned = True
+            elif warned and not problem:
+                self.log.info("Zenoh: a peer or router is reached now")
+                warned = False
 
     # -- signals ------------------------------------------------------------------------------
 

@@ -17,6 +17,16 @@ Liveliness comes from a `get` at the end of the window plus a subscriber for the
 a service that goes away during the window shows as DOWN. A service killed outright is seen
 as soon as its TCP link closes; one on a host that vanished, after Zenoh's lease (10 s).
 
+Each process's token names its instance (`.../alive/<role>/<instance>`,
+`services/identity.py`): two drivers or two workers for one camera are shown as a problem
+("2 drivers: ...") with a non-zero exit, and so is depth from two drivers that a worker
+dropped as `foreign`. A worker serving every camera holds `topseg/_any/_any/alive/worker/...`
+too, so one that waits for its first frame is listed as waiting, not missing.
+
+The whole run is bounded by `--timeout` (plus up to 1 s for the final queries): a Zenoh
+session that cannot open by then (the rendezvous port held by a frozen process makes Zenoh's
+handshake wait 10 s) is one error line, exit 2.
+
 Exit status: 0 when every camera has both its driver and its worker alive; 1 when any
 camera's driver or worker is DOWN, or when no topseg service was found at all; 2 for bad
 arguments or no Zenoh session. A camera whose services are alive but labelled no frame in
@@ -29,6 +39,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 import threading
 import time
@@ -79,6 +90,8 @@ class Observed:
     """What one window saw: tokens, stats messages and driver info replies, by camera."""
 
     alive: set = field(default_factory=set)  # (cell, camera, role) alive at the end
+    instances: dict = field(default_factory=dict)  # (cell, camera, role) -> {instance ids}
+    any_workers: dict = field(default_factory=dict)  # workers for every camera: id -> cameras
     went_down: set = field(default_factory=set)  # (cell, camera, role) deleted in the window
     stats: dict = field(default_factory=dict)  # (cell, camera) -> [stats dicts]
     info_start: dict = field(default_factory=dict)  # (cell, camera) -> (monotonic, info)
@@ -122,7 +135,7 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         out["floor_share"] = sum(shares) / len(shares)
     if "mount" in last:
         out["mount"] = last["mount"]
-    for name in ("processed", "dropped", "rejected"):
+    for name in ("processed", "dropped", "rejected", "foreign"):
         out[name] = last["counts"].get(name, 0)
         out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))
     return out
@@ -142,7 +155,26 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
             seen.info_end.get((cell, camera)),
         )
         worker = _worker_report("worker" in roles, seen.stats.get((cell, camera), []))
-        problems = [f"{r} DOWN" for r in REQUIRED_ROLES if r not in roles]
+        waiting = "worker" not in roles and bool(seen.any_workers)
+        problems = [
+            f"{r} DOWN"
+            if not (r == "worker" and waiting)
+            else f"no worker labels it yet ({len(seen.any_workers)} worker(s) serving every "
+            "camera wait for its depth)"
+            for r in REQUIRED_ROLES
+            if r not in roles
+        ]
+        duplicates = {
+            r: sorted(ids)
+            for (c, cam, r), ids in seen.instances.items()
+            if (c, cam) == (cell, camera) and len(ids) > 1
+        }
+        problems += [f"{len(ids)} {r}s: {', '.join(ids)}" for r, ids in sorted(duplicates.items())]
+        if worker.get("foreign_in_window"):
+            problems.append(
+                f"depth from two drivers: the worker dropped {worker['foreign_in_window']} "
+                "frames of the one it does not follow"
+            )
         problems += [
             f"{r} went down during the window"
             for c, cam, r in sorted(seen.went_down)
@@ -153,7 +185,11 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
             {
                 "cell": cell,
                 "camera": camera,
-                "ok": not any(r not in roles for r in REQUIRED_ROLES),
+                "ok": not any(r not in roles for r in REQUIRED_ROLES)
+                and not duplicates
+                and not worker.get("foreign_in_window"),
+                "waiting": waiting,
+                "duplicates": duplicates,
                 "idle": idle,
                 "driver": driver,
                 "worker": worker,
@@ -162,10 +198,36 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
             }
         )
     ok = bool(rows) and all(r["ok"] for r in rows)
+    any_workers = [
+        {"instance": inst, "cameras": len(cams)} for inst, cams in sorted(seen.any_workers.items())
+    ]
     rep = {"window_s": round(seen.window_s, 3), "ok": ok, "cameras": rows}
+    if any_workers:
+        rep["any_camera_workers"] = any_workers
     if seen.incomplete:
         rep["incomplete"] = list(seen.incomplete)
     return rep
+
+
+def observed_tokens(tokens: set, went_down: set) -> Observed:
+    """Observed's token fields from (cell, camera, role, instance) entries: roles alive per
+    camera, the instances of each, the workers for every camera (with how many cameras they
+    hold tokens for), and the roles that went down and did not come back."""
+    from topseg.core.formats import wire
+
+    seen = Observed()
+    any_ids = {inst for c, _, r, inst in tokens if c == wire.ANY and r == "worker" and inst}
+    seen.any_workers = {inst: set() for inst in any_ids}
+    for cell, camera, role, inst in tokens:
+        if cell == wire.ANY:
+            continue
+        seen.alive.add((cell, camera, role))
+        seen.instances.setdefault((cell, camera, role), set()).add(inst or "?")
+        if inst in seen.any_workers:
+            seen.any_workers[inst].add((cell, camera))
+    # a token deleted and never seen again is down; one that came back is alive
+    seen.went_down = {(c, cam, r) for c, cam, r, _ in went_down if c != wire.ANY} - seen.alive
+    return seen
 
 
 def exit_status(rep: dict) -> int:
@@ -197,7 +259,16 @@ def mount_cell(mount: dict | None) -> str:
 
 def format_table(rep: dict) -> str:
     """The report as a table for people: one row per camera, DOWN in capitals."""
+    waiting = [
+        f"worker {w['instance']} serves every camera: "
+        + (f"{w['cameras']} now" if w["cameras"] else "waiting for a first depth frame")
+        for w in rep.get("any_camera_workers", ())
+    ]
     if not rep["cameras"]:
+        if waiting:
+            return "\n".join(
+                [f"no camera seen in {rep['window_s']:.1f} s", *waiting, "PROBLEM: no camera"]
+            )
         return f"no topseg service answered in {rep['window_s']:.1f} s (is Zenoh reachable?)"
     head = (
         "CAMERA", "DRIVER", "WORKER", "FPS", "LATENCY p50/p99 ms",
@@ -215,7 +286,7 @@ def format_table(rep: dict) -> str:
             (
                 f"{row['cell']}/{row['camera']}",
                 ("alive" + drv_fps) if d["alive"] else "DOWN",
-                "alive" if w["alive"] else "DOWN",
+                "alive" if w["alive"] else "waiting" if row.get("waiting") else "DOWN",
                 fps,
                 f"{_ms(lat.get('p50'))}/{_ms(lat.get('p99'))}",
                 str(w.get("processed", "-")),
@@ -239,9 +310,10 @@ def format_table(rep: dict) -> str:
             out.append(
                 f"{row['cell']}/{row['camera']}: driver's last error: {row['driver']['last_error']}"
             )
+    out += waiting
     for what in rep.get("incomplete", ()):
         out.append(f"warning: the query for {what} did not end in time; cameras may be missing")
-    verdict = "all cameras up" if rep["ok"] else "PROBLEM: some service is DOWN"
+    verdict = "all cameras up" if rep["ok"] else "PROBLEM: see the lines above"
     out.append(f"{verdict} (window {rep['window_s']:.1f} s)")
     return "\n".join(out)
 
@@ -308,11 +380,15 @@ class Listener:
         self.went_down: set = set()
         self.stats: dict = {}
         self.incomplete: list[str] = []  # queries of this window cut off at their deadline
-        self.alive_key = f"topseg/{cell}/*/alive/*"
+        # `alive/**`: a token of a topseg before instances (`.../alive/<role>`) counts too
+        self.alive_keys = [f"topseg/{cell}/*/alive/**"]
+        if cell != "*":
+            self.alive_keys.append("topseg/_any/_any/alive/**")
         self._subs = [
-            session.liveliness().declare_subscriber(self.alive_key, self._on_token, history=True),
-            session.declare_subscriber(f"topseg/{cell}/*/stats", self._on_stats),
+            session.liveliness().declare_subscriber(key, self._on_token, history=True)
+            for key in self.alive_keys
         ]
+        self._subs.append(session.declare_subscriber(f"topseg/{cell}/*/stats", self._on_stats))
 
     def _on_token(self, sample) -> None:
         from topseg.core.formats import wire
@@ -321,7 +397,7 @@ class Listener:
             parts = wire.parse_key(str(sample.key_expr))
         except wire.WireError:
             return
-        entry = (parts.cell, parts.camera, parts.role)
+        entry = (parts.cell, parts.camera, parts.role, parts.instance)
         with self.lock:
             if str(sample.kind).endswith("DELETE"):
                 self.tokens.discard(entry)
@@ -345,7 +421,13 @@ class Listener:
     def info(self, timeout: float):
         """Ask every driver's info queryable; the returned callable collects the replies as
         {(cell, camera): (monotonic, info dict)} (so other queries can go out meanwhile)."""
-        got = Replies(self.session.get, f"topseg/{self.cell}/*/info", timeout)
+        import zenoh
+
+        def get(key, handler, timeout):  # every driver's reply, not one per key
+            none = zenoh.ConsolidationMode.NONE
+            self.session.get(key, handler, timeout=timeout, consolidation=none)
+
+        got = Replies(get, f"topseg/{self.cell}/*/info", timeout)
 
         def collect() -> dict:
             out = {}
@@ -360,8 +442,11 @@ class Listener:
                 camera = _camera_of(str(reply.ok.key_expr))
                 if camera is None:
                     camera = _camera_of(f"topseg/{info.get('cell')}/{info.get('camera')}/info")
-                if camera is not None:
-                    out[camera] = (when, info)
+                if camera is not None and (
+                    camera not in out
+                    or str(info.get("instance")) < str(out[camera][1].get("instance"))
+                ):
+                    out[camera] = (when, info)  # of two drivers, always the same one
             if not got.complete:
                 self.incomplete.append("driver info")
             return out
@@ -369,21 +454,23 @@ class Listener:
         return collect
 
     def live_tokens(self, timeout: float):
-        """Ask for the live tokens; the returned callable collects {(cell, camera, role)}."""
+        """Ask for the live tokens; the returned callable collects
+        {(cell, camera, role, instance)}."""
         from topseg.core.formats import wire
 
-        got = Replies(self.session.liveliness().get, self.alive_key, timeout)
+        gets = [Replies(self.session.liveliness().get, key, timeout) for key in self.alive_keys]
 
         def collect() -> set:
             out = set()
-            for _, reply in got.wait():
-                try:
-                    parts = wire.parse_key(str(reply.ok.key_expr))
-                except wire.WireError:
-                    continue
-                out.add((parts.cell, parts.camera, parts.role))
-            if not got.complete:
-                self.incomplete.append("liveliness tokens")
+            for got in gets:
+                for _, reply in got.wait():
+                    try:
+                        parts = wire.parse_key(str(reply.ok.key_expr))
+                    except wire.WireError:
+                        continue
+                    out.add((parts.cell, parts.camera, parts.role, parts.instance))
+                if not got.complete:
+                    self.incomplete.append("liveliness tokens")
             return out
 
         return collect
@@ -401,11 +488,13 @@ class Listener:
         end_info, end_tokens = self.info(query_s), self.live_tokens(query_s)
         end, live = end_info(), end_tokens()
         with self.lock:
-            alive = self.tokens | live
-            # a token deleted and never seen again is down; one that came back is alive
+            tokens = self.tokens | live
+            seen = observed_tokens(tokens, self.went_down)
             seen = Observed(
-                alive=alive,
-                went_down=self.went_down - alive,
+                alive=seen.alive,
+                instances=seen.instances,
+                any_workers=seen.any_workers,
+                went_down=seen.went_down,
                 stats={k: list(v) for k, v in self.stats.items()},
                 info_start=start,
                 info_end=end,
@@ -418,18 +507,6 @@ class Listener:
         """Undeclare the subscribers."""
         for sub in self._subs:
             sub.undeclare()
-
-
-def wait_connected(session, timeout: float) -> bool:
-    """Wait up to `timeout` s for a first peer or router, so the first queries reach someone."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if any(True for _ in session.info.peers_zid()) or any(
-            True for _ in session.info.routers_zid()
-        ):
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def _expected(entries: list[str]) -> list[tuple[str, str]]:
@@ -452,14 +529,27 @@ def run(args: argparse.Namespace) -> int:
             raise TopsegError(str(exc)) from None
     expect = _expected(args.expect)
     stop = threading.Event()
-    session = zenoh_session.session_from_args(args)
+    t0 = time.monotonic()
+    config = zenoh_session.config_from_args(args)
+    try:  # Zenoh's own handshake timeout is 10 s: open within the window (+ the query grace)
+        session = zenoh_session.open_within(config, args.timeout + 1.0)
+    except zenoh_session.OpenTimeout as exc:
+        from topseg.services.cli import fail
+
+        fail("status", exc)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(2)  # see OpenTimeout: a normal exit would abort inside Zenoh
     try:
         listener = Listener(session, args.cell)
-        wait_connected(session, min(1.0, args.timeout / 3))
+        zenoh_session.wait_connected(session, min(1.0, args.timeout / 3))
         rc = 1
+        # the first window gives back what opening took, so the run stays within --timeout
+        window = max(0.1, args.timeout - (time.monotonic() - t0))
         while True:
             try:
-                rep = report(listener.window(args.timeout, stop), expect)
+                rep = report(listener.window(window, stop), expect)
+                window = args.timeout
             except KeyboardInterrupt:
                 break
             rc = exit_status(rep)

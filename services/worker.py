@@ -32,8 +32,20 @@ seconds is released (its publishers, token and subscriber undeclared, its state 
 logged), so names that came once do not cost memory and threads forever; it is served
 again from its next message. Cameras named with `--cameras` are never limited or forgotten.
 
-It holds `topseg/<cell>/<camera>/alive/worker` for each camera it serves and stops cleanly on
-SIGTERM/SIGINT. A missing or damaged model file stops it before it joins Zenoh (exit 2).
+It holds `topseg/<cell>/<camera>/alive/worker/<instance>` for each camera it serves (its
+Zenoh id, `services/identity.py`, also the attachment of its labels and stats) and, without
+`--cameras`, `topseg/_any/_any/alive/worker/<instance>`, so that `topseg status` shows it
+while it waits for a first frame. It stops cleanly on SIGTERM/SIGINT. A missing or damaged
+model file stops it before it joins Zenoh (exit 2).
+
+One camera, one worker, one driver. A worker whose `--cameras` are already labelled by
+another worker refuses to start (one line, exit 2); a discovered camera that another worker
+labels is left to it (two discovering workers: the one with the smaller instance id keeps
+it); a named camera another worker takes later is warned about. Depth from two drivers on
+one key (their attachments name two instances) is not labelled alternately: the worker
+follows one driver, drops the other's frames, counts them as `foreign` and warns; it turns
+to another driver only when the one it follows was silent for `SOURCE_SWITCH_S` (a
+restarted driver).
 """
 
 from __future__ import annotations
@@ -46,7 +58,8 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from topseg.services import zenoh_session
+from topseg.core.errors import TopsegError
+from topseg.services import identity, zenoh_session
 from topseg.services.cli_types import add_stride_argument, finite, int_range
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
@@ -65,6 +78,11 @@ LIMIT_WARN_S = 10.0
 MAX_IGNORED_NAMES = 4096
 #: Smoothing of the fps estimate (weight of the newest interval).
 FPS_ALPHA = 0.2
+#: A camera's depth comes from another driver instance: taken as a restart only when the
+#: followed one was silent this long (s); before, the newcomer's frames are foreign.
+SOURCE_SWITCH_S = 1.0
+#: At most one warning about another worker on a camera this often (s).
+DUPLICATE_WARN_S = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -164,6 +182,42 @@ class CameraState:
     warned_outside: bool = False
     discovered: bool = False  # served because its depth came (not named by --cameras)
     last_seen: float = field(default_factory=time.monotonic)  # last depth message taken
+    source: str | None = None  # the driver instance whose depth this camera follows
+    source_seen: float = 0.0  # when its last frame was taken (monotonic)
+    last_duplicate_warning: float = -math.inf
+
+    def follow(self, source: str | None, now: float) -> bool:
+        """Whether a depth message from driver instance `source` is this camera's: the one
+        followed, a first one, or a new one after the followed one fell silent (a restart;
+        logged). Another driver's frames meanwhile are counted as `foreign` and warned
+        about; None (no attachment: an older topseg) is always taken."""
+        if source is None:
+            return True
+        if self.source is None or source == self.source or now - self.source_seen > SOURCE_SWITCH_S:
+            if self.source not in (None, source):
+                log.info(
+                    "%s/%s: depth now from driver %s (driver %s silent %.1f s)",
+                    self.cell,
+                    self.camera,
+                    source,
+                    self.source,
+                    now - self.source_seen,
+                )
+                self.last_seq = None  # a new source's seq starts afresh
+            self.source, self.source_seen = source, now
+            return True
+        n = self.counts["foreign"] = self.counts.get("foreign", 0) + 1
+        if n == 1 or n % 100 == 0:
+            log.warning(
+                "TWO DRIVERS publish %s/%s: following %s, dropping the frames of %s "
+                "(%d dropped); stop one of them",
+                self.cell,
+                self.camera,
+                self.source,
+                source,
+                n,
+            )
+        return False
 
     def note_seq(self, seq: int) -> None:
         """Count the frames skipped between the last labelled seq and this one."""
@@ -193,7 +247,11 @@ class Worker:
     def __init__(self, args: argparse.Namespace, session, segmenter: Segmenter) -> None:
         import zenoh
 
+        from topseg.core.formats import wire
+
         self.args, self.session, self.segmenter = args, session, segmenter
+        self.me = identity.Identity.of(session)
+        self.attachment = wire.instance_attachment(self.me.instance)
         self.mount_config = mount_config(args)
         self.cameras: dict[tuple[str, str], CameraState] = {}
         self.depth_keys: dict[str, tuple[str, str]] = {}  # the doorbell's cache of served keys
@@ -209,15 +267,25 @@ class Worker:
         self.last_limit_warning = -math.inf
         self.next_sweep = time.monotonic()
         self.forgotten = 0
+        self.other_workers: dict[tuple[str, str], set[str]] = {}  # under self.bell
+        self.contested: set[tuple[str, str]] = set()  # another worker appeared (self.bell)
+        self.left_to_others: set[tuple[str, str]] = set()  # said once each
+        self.any_token = None
         self.congestion = (
             zenoh.CongestionControl.BLOCK if args.lossless else zenoh.CongestionControl.DROP
         )
         wanted = [parse_camera(c) for c in args.cameras or ()]
         # discovery: without --cameras a camera is served from its first depth message on
         self.discover = not wanted and not args.lossless
+        self.worker_watch = session.liveliness().declare_subscriber(
+            "topseg/*/*/alive/worker/*", self._on_worker_token, history=True
+        )
         for cell, camera in wanted:
             self.serve(cell, camera, own_subscriber=True)
         if not wanted:
+            self.any_token = session.liveliness().declare_token(
+                wire.any_alive_key("worker", self.me.instance)
+            )
             if args.lossless:
                 self.shared_sub = session.declare_subscriber(
                     "topseg/*/*/depth", zenoh.handlers.FifoChannel(LOSSLESS_QUEUE)
@@ -243,6 +311,63 @@ class Worker:
                 self.announced.add(new)  # bounded: the main loop refuses and counts the excess
             self.bell.notify()
 
+    def _on_worker_token(self, sample) -> None:
+        """Zenoh's callback thread: note other workers' tokens per camera; a new one on a
+        camera is looked at by the main loop (`settle_contested`)."""
+        from topseg.core.formats import wire
+
+        try:
+            parts = wire.parse_key(str(sample.key_expr))
+        except wire.WireError:
+            return
+        if parts.instance in (None, self.me.instance) or parts.cell == wire.ANY:
+            return
+        camera = (parts.cell, parts.camera)
+        with self.bell:
+            others = self.other_workers.setdefault(camera, set())
+            if str(sample.kind).endswith("DELETE"):
+                others.discard(parts.instance)
+                if not others:
+                    del self.other_workers[camera]
+                    self.left_to_others.discard(camera)
+            else:
+                others.add(parts.instance)
+                self.contested.add(camera)
+            self.rung = True
+            self.bell.notify()
+
+    def labelled_elsewhere(self, camera: tuple[str, str]) -> set[str]:
+        """The other workers holding a token for `camera` now."""
+        with self.bell:
+            return set(self.other_workers.get(camera, ()))
+
+    def settle_contested(self) -> None:
+        """Another worker took a token for a camera served here: a discovered camera goes to
+        the worker with the smaller instance id; a named one stays, warned about loudly."""
+        with self.bell:
+            contested, self.contested = self.contested, set()
+        now = time.monotonic()
+        for camera in sorted(contested):
+            state, others = self.cameras.get(camera), self.labelled_elsewhere(camera)
+            if state is None or not others:
+                continue
+            if state.discovered and min(others) < self.me.instance:
+                self.release(state)
+                self.left_to_others.add(camera)
+                log.warning(
+                    "worker %s labels %s/%s too; leaving that camera to it",
+                    min(others),
+                    *camera,
+                )
+            elif now - state.last_duplicate_warning >= DUPLICATE_WARN_S:
+                state.last_duplicate_warning = now
+                log.warning(
+                    "ANOTHER WORKER labels %s/%s too: %s; both publish labels for it: stop "
+                    "one, or take the camera out of its --cameras",
+                    *camera,
+                    ", ".join(sorted(others)),
+                )
+
     def wake(self) -> None:
         """Wake the main loop now (a stopping signal)."""
         with self.bell:
@@ -259,6 +384,19 @@ class Worker:
     def discovered_count(self) -> int:
         """How many cameras are served because their depth came."""
         return sum(1 for s in self.cameras.values() if s.discovered)
+
+    def admissible(self, cell: str, camera: str) -> bool:
+        """Whether a newly seen camera is served here: not while another worker labels it
+        (said once), and within --max-cameras (`admit`)."""
+        others = self.labelled_elsewhere((cell, camera))
+        if others:
+            if (cell, camera) not in self.left_to_others:
+                self.left_to_others.add((cell, camera))
+                log.info(
+                    "%s/%s is labelled by worker %s; not serving it", cell, camera, min(others)
+                )
+            return False
+        return self.admit(cell, camera)
 
     def admit(self, cell: str, camera: str) -> bool:
         """Whether a newly seen camera may be served (--max-cameras); counts and warns (at
@@ -334,7 +472,7 @@ class Worker:
             if self.args.cameras:  # without, the wildcard doorbell covers discovered cameras
                 self.doorbells.append(self.session.declare_subscriber(key, self._ring))
         state.token = self.session.liveliness().declare_token(
-            wire.alive_key(cell, camera, "worker")
+            wire.alive_key(cell, camera, "worker", self.me.instance)
         )
         self.cameras[(cell, camera)] = state
         self.depth_keys[key] = (cell, camera)
@@ -346,8 +484,9 @@ class Worker:
         none had."""
         with self.bell:
             new, self.announced = self.announced, set()
+        self.settle_contested()
         for cell, camera in sorted(new):
-            if (cell, camera) not in self.cameras and self.admit(cell, camera):
+            if (cell, camera) not in self.cameras and self.admissible(cell, camera):
                 self.serve(cell, camera, own_subscriber=True)
         self.forget_idle()
         busy = self.handle_due()
@@ -400,10 +539,13 @@ class Worker:
                 return
             state = self.cameras.get((parts.cell, parts.camera))
             if state is None:
-                if not self.admit(parts.cell, parts.camera):
+                if not self.admissible(parts.cell, parts.camera):
                     return
                 state = self.serve(parts.cell, parts.camera, own_subscriber=False)
         state.last_seen = time.monotonic()
+        if not state.follow(wire.instance_of(sample.attachment), state.last_seen):
+            self.publish_stats(state, {})  # a second driver on this key: counted, dropped
+            return
         try:
             frame = wire.decode_depth(sample.payload.to_bytes())
         except wire.WireError as exc:
@@ -450,7 +592,7 @@ class Worker:
             return
         t3 = time.perf_counter()
         out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
-        state.labels_pub.put(wire.encode_labels(out))
+        state.labels_pub.put(wire.encode_labels(out), attachment=self.attachment)
         t4 = time.perf_counter()
         state.note_seq(frame.seq)
         state.counts["processed"] += 1
@@ -497,12 +639,15 @@ class Worker:
         mount = state.watch.stats() if state.watch is not None else None
         if mount is not None:
             stats["mount"] = mount
-        state.stats_pub.put(wire.encode_stats(stats))
+        state.stats_pub.put(wire.encode_stats(stats), attachment=self.attachment)
 
     def close(self) -> None:
         """Undeclare the doorbells, subscribers and liveliness tokens."""
         for bell in self.doorbells:
             bell.undeclare()
+        self.worker_watch.undeclare()
+        if self.any_token is not None:
+            self.any_token.undeclare()
         for state in list(self.cameras.values()):
             self.release(state)
         if self.shared_sub is not None:
@@ -557,6 +702,25 @@ def load_segmenter(model: str | None, crf_mode: str, stride: int | None = None) 
     return Segmenter.from_file(model, config, crf=crf_mode)
 
 
+def refuse_if_labelled(session, cameras: list[tuple[str, str]], me: identity.Identity) -> None:
+    """TopsegError (one line) when another worker already labels one of `cameras` (its
+    token is there; a crashed worker's token goes with its connection)."""
+    from topseg.core.formats import wire
+
+    if not cameras:
+        return
+    zenoh_session.wait_connected(session, identity.CONNECT_WAIT_S)
+    for cell, camera in cameras:
+        others = identity.other_instances(
+            session, wire.alive_key(cell, camera, "worker"), me.instance
+        )
+        if others:
+            raise TopsegError(
+                f"camera {cell}/{camera} is already labelled by worker {min(others)}; stop it "
+                "or leave the camera out of --cameras"
+            )
+
+
 def run(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; a bad camera name, Zenoh config or model fails first (2)."""
     for text in args.cameras or ():
@@ -576,6 +740,8 @@ def run(args: argparse.Namespace) -> int:
     log.info("model %s loaded and compiled in %.1f s", segmenter.model_id, time.perf_counter() - t0)
 
     with svc:
+        wanted = [parse_camera(c) for c in args.cameras or ()]
+        refuse_if_labelled(svc.session, wanted, identity.Identity.of(svc.session))
         worker = Worker(args, svc.session, segmenter)
         svc.defer(worker.close)
         log.info("worker ready")

@@ -25,6 +25,7 @@ import argparse
 import json
 import os
 import re
+import time
 from typing import Any
 
 from topseg.core.errors import TopsegError
@@ -133,6 +134,39 @@ def open_config(config: Any, what: str = "cannot open a Zenoh session") -> Any:
         raise TopsegError(f"{what}: {error_line(exc)}") from exc
 
 
+class OpenTimeout(TopsegError):
+    """No Zenoh session by the deadline (`open_within`). The open still runs in a thread:
+    leave with `os._exit` after saying so, since a normal exit would stop that thread inside
+    Zenoh's Rust code, which aborts the process ("FATAL: exception not rethrown")."""
+
+
+def open_within(config: Any, seconds: float, what: str = "cannot open a Zenoh session") -> Any:
+    """`open_config`, but OpenTimeout once `seconds` passed without a session: Zenoh's open
+    waits for the handshake with the rendezvous port's holder (10 s for a frozen one)."""
+    import threading
+
+    box: list = []
+
+    def opener() -> None:
+        try:
+            box.append(open_config(config, what))
+        except BaseException as exc:
+            box.append(exc)
+
+    thread = threading.Thread(target=opener, name="zenoh-open", daemon=True)
+    thread.start()
+    thread.join(seconds)
+    if not box:
+        raise OpenTimeout(
+            f"{what} within {seconds:g} s: whatever holds the rendezvous port (or the "
+            "configured endpoints) accepts connections but does not answer as Zenoh (a "
+            "frozen process, or another program)"
+        )
+    if isinstance(box[0], BaseException):
+        raise box[0]
+    return box[0]
+
+
 def open_session(config_file: str | None = None, port: int | None = None) -> Any:
     """An open zenoh.Session (close it, or use it as a context manager)."""
     return open_config(make_config(config_file, port))
@@ -141,6 +175,60 @@ def open_session(config_file: str | None = None, port: int | None = None) -> Any
 def config_from_args(args: argparse.Namespace) -> Any:
     """The zenoh.Config named by a service's --zenoh-config / --zenoh-port options."""
     return make_config(args.zenoh_config, args.zenoh_port)
+
+
+def wait_connected(session: Any, timeout: float) -> bool:
+    """Wait up to `timeout` s for a first peer or router, so that a first query reaches
+    someone; False when none came."""
+    deadline = time.monotonic() + timeout
+    while True:
+        if any(True for _ in session.info.peers_zid()) or any(
+            True for _ in session.info.routers_zid()
+        ):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.02)
+
+
+def holds_port(port: int) -> bool:
+    """Whether this process listens on loopback TCP `port` (its Zenoh session took it)."""
+    import psutil
+
+    return any(
+        c.status == psutil.CONN_LISTEN and c.laddr and c.laddr.port == port
+        for c in psutil.Process().net_connections("tcp")
+    )
+
+
+def isolation_problem(session: Any, config: Any, port: int | None) -> str | None:
+    """Why `session`, open for a while, has met nobody, when that is a fault; else None.
+
+    Alone is normal for the process holding the rendezvous port (`port`, topseg's default
+    config: it waits for the others) and for a config that connects nowhere. Otherwise the
+    endpoint it connects to is held by something that does not answer as Zenoh: another
+    program on the port, or a frozen process (Zenoh retries without a word)."""
+    if any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid()):
+        return None
+    if port is not None:
+        if holds_port(port):
+            return None
+        where = f"tcp/127.0.0.1:{port}"
+        return (
+            f"no Zenoh peer reached: {where} (the rendezvous port) is held by something that "
+            "does not answer as Zenoh (another program, or a frozen process), so topseg "
+            "services cannot meet there; free the port or give every service another "
+            "--zenoh-port"
+        )
+    endpoints = json.loads(config.get_json("connect/endpoints") or "[]")
+    if isinstance(endpoints, dict):
+        endpoints = [e for v in endpoints.values() for e in v or ()]
+    if not endpoints:
+        return None
+    return (
+        f"no Zenoh peer or router reached at {', '.join(map(str, endpoints))}: nothing "
+        "there answers as Zenoh (down, another program, or a frozen process)"
+    )
 
 
 def session_from_args(args: argparse.Namespace) -> Any:

@@ -107,10 +107,12 @@ def test_driver_publishes_answers_info_and_stops_on_sigterm(listen, recording):
     proc = start_driver(port, cell, "--source", f"replay:{recording}", "--loop")
     try:
         wait_for(lambda: listener.alive, what="the driver's liveliness token")
-        assert listener.alive[0] == (wire.alive_key(cell, "cam0", "driver"), "PUT")
         wait_for(lambda: len(listener.depth) >= 2 * N, what=f"{2 * N} depth frames")
         info = listener.info()
         assert len(info) == 1 and info[0]["role"] == "driver"
+        assert info[0]["pid"] == proc.pid and len(info[0]["instance"]) == 32  # a Zenoh id
+        token = wire.alive_key(cell, "cam0", "driver", info[0]["instance"])
+        assert listener.alive[0] == (token, "PUT")
         assert info[0]["source"] == f"replay:{recording}"
         assert info[0]["intrinsics"] == K.to_dict()
         assert info[0]["fps"] == pytest.approx(50.0)

@@ -153,7 +153,7 @@ def assert_gets_nothing(secure, outsider, camera: str) -> None:
     key = f"topseg/c/{camera}/depth"
     stolen = collect(outsider, key)
     driver, viewer = secure.client("driver"), secure.client("viewer")
-    token = driver.liveliness().declare_token(f"topseg/c/{camera}/alive/driver")
+    token = driver.liveliness().declare_token(f"topseg/c/{camera}/alive/driver/d1")
     seen = collect(viewer, key)
     keep_putting(driver, key, b"depth", lambda: len(seen) >= 3, "depth at the real viewer")
     time.sleep(SETTLE_S)
@@ -226,21 +226,26 @@ def test_roles_hold_only_their_own_liveliness_tokens(secure):
     driver, worker, viewer = (secure.client(r) for r in ("driver", "worker", "viewer"))
     observer = secure.client("viewer")  # a session sees its own tokens: ask from another
     tokens = [
-        driver.liveliness().declare_token("topseg/c/t1/alive/driver"),
-        driver.liveliness().declare_token("topseg/c/t1/alive/worker"),  # forged
-        worker.liveliness().declare_token("topseg/c/t2/alive/worker"),
-        worker.liveliness().declare_token("topseg/c/t2/alive/driver"),  # forged
-        viewer.liveliness().declare_token("topseg/c/t3/alive/driver"),  # forged
+        driver.liveliness().declare_token("topseg/c/t1/alive/driver/d1"),
+        driver.liveliness().declare_token("topseg/c/t1/alive/worker/d1"),  # forged
+        worker.liveliness().declare_token("topseg/c/t2/alive/worker/w1"),
+        worker.liveliness().declare_token("topseg/_any/_any/alive/worker/w1"),
+        worker.liveliness().declare_token("topseg/c/t2/alive/driver/w1"),  # forged
+        viewer.liveliness().declare_token("topseg/c/t3/alive/driver/v1"),  # forged
     ]
 
     def alive():
-        replies = observer.liveliness().get("topseg/*/*/alive/*", timeout=1.0)
+        replies = observer.liveliness().get("topseg/*/*/alive/**", timeout=1.0)
         return {str(r.ok.key_expr) for r in replies if r.ok is not None}
 
-    expected = {"topseg/c/t1/alive/driver", "topseg/c/t2/alive/worker"}
+    expected = {
+        "topseg/c/t1/alive/driver/d1",
+        "topseg/c/t2/alive/worker/w1",
+        "topseg/_any/_any/alive/worker/w1",
+    }
     wait_for(lambda: expected <= alive(), 10, "the real tokens")
     time.sleep(SETTLE_S)
-    assert {k for k in alive() if "/t1/" in k or "/t2/" in k or "/t3/" in k} == expected
+    assert {k for k in alive() if "/t" in k or "/_any/" in k} == expected
     for t in tokens:
         t.undeclare()
 
@@ -253,8 +258,8 @@ def test_topseg_status_works_with_the_viewer_identity(secure):
     driver, worker = secure.client("driver"), secure.client("worker")
     info = {"role": "driver", "cell": "sec", "camera": "cam0", "source": "synthetic", "frames": 5}
     tokens = [
-        driver.liveliness().declare_token(wire.alive_key("sec", "cam0", "driver")),
-        worker.liveliness().declare_token(wire.alive_key("sec", "cam0", "worker")),
+        driver.liveliness().declare_token(wire.alive_key("sec", "cam0", "driver", "d1")),
+        worker.liveliness().declare_token(wire.alive_key("sec", "cam0", "worker", "w1")),
     ]
     queryable = driver.declare_queryable(
         wire.info_key("sec", "cam0"), lambda q: q.reply(q.key_expr, json.dumps(info).encode())

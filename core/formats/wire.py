@@ -510,7 +510,10 @@ def _check_name(what: str, name: Any) -> str:
 
 
 def camera_prefix(cell: str, camera: str) -> str:
-    """`topseg/<cell>/<camera>`, after checking both names are plain key chunks."""
+    """`topseg/<cell>/<camera>`, after checking both names are plain key chunks (and not
+    `_any/_any`, the chunks of `any_alive_key`)."""
+    if (cell, camera) == (ANY, ANY):
+        raise WireError(f"{ANY}/{ANY} is reserved for services that serve every camera")
     return f"{ROOT}/{_check_name('cell', cell)}/{_check_name('camera', camera)}"
 
 
@@ -539,32 +542,70 @@ def info_key(cell: str = DEFAULT_CELL, camera: str = DEFAULT_CAMERA) -> str:
     return f"{camera_prefix(cell, camera)}/info"
 
 
-def alive_key(cell: str, camera: str, role: str) -> str:
-    """Liveliness token of one service (`driver`, `worker`, ...) for one camera."""
-    return f"{camera_prefix(cell, camera)}/alive/{_check_name('role', role)}"
+#: The cell/camera chunks of the token a worker serving every camera holds (`any_alive_key`).
+ANY = "_any"
+
+
+def alive_key(cell: str, camera: str, role: str, instance: str | None = None) -> str:
+    """Liveliness token of one service (`driver`, `worker`, ...) for one camera; with
+    `instance` (the process's Zenoh id) `.../alive/<role>/<instance>`, so that two processes
+    in one role for one camera hold two tokens (Zenoh merges equal token keys into one)."""
+    key = f"{camera_prefix(cell, camera)}/alive/{_check_name('role', role)}"
+    return key if instance is None else f"{key}/{_check_name('instance', instance)}"
+
+
+def any_alive_key(role: str, instance: str) -> str:
+    """Token of a process that serves every camera (a worker without --cameras), held also
+    while it waits for its first frame: `topseg/_any/_any/alive/<role>/<instance>`."""
+    role, instance = _check_name("role", role), _check_name("instance", instance)
+    return f"{ROOT}/{ANY}/{ANY}/alive/{role}/{instance}"
 
 
 @dataclass(frozen=True)
 class KeyParts:
-    """A parsed key: cell, camera, kind (one of KINDS or `alive`) and, for `alive`, the role."""
+    """A parsed key: cell, camera, kind (one of KINDS or `alive`) and, for `alive`, the role
+    and the instance (None in a token of a topseg before instances; cell and camera are
+    `ANY` in `any_alive_key`)."""
 
     cell: str
     camera: str
     kind: str
     role: str | None = None
+    instance: str | None = None
 
 
 def parse_key(key: str) -> KeyParts:
     """Split a concrete topseg key expression; WireError if it is not one."""
     parts = key.split("/") if isinstance(key, str) else []
-    if len(parts) == 5 and parts[0] == ROOT and parts[3] == "alive":
+    if len(parts) in (5, 6) and parts[0] == ROOT and parts[3] == "alive":
         _check_name("cell", parts[1]), _check_name("camera", parts[2])
-        return KeyParts(parts[1], parts[2], "alive", _check_name("role", parts[4]))
+        instance = _check_name("instance", parts[5]) if len(parts) == 6 else None
+        return KeyParts(parts[1], parts[2], "alive", _check_name("role", parts[4]), instance)
     if len(parts) != 4 or parts[0] != ROOT or parts[3] not in KINDS:
         raise WireError(
             f"{_short(key)} is not a topseg key (topseg/<cell>/<camera>/<{'|'.join(KINDS)}>)"
         )
     return KeyParts(_check_name("cell", parts[1]), _check_name("camera", parts[2]), parts[3])
+
+
+def instance_attachment(instance: str) -> bytes:
+    """The Zenoh attachment a service puts on its messages: its instance id, so a reader
+    tells two publishers on one key apart (the msgpack message itself is unchanged, so
+    older readers and recordings are unaffected)."""
+    return _check_name("instance", instance).encode()
+
+
+def instance_of(attachment: Any) -> str | None:
+    """The instance id in a message's attachment (`instance_attachment`); None when there is
+    none or it is not one (an older topseg, another tool)."""
+    if attachment is None:
+        return None
+    try:
+        raw = attachment if isinstance(attachment, bytes) else attachment.to_bytes()
+        text = raw.decode("ascii") if len(raw) <= 64 else ""
+    except (UnicodeDecodeError, AttributeError):
+        return None
+    return text if _NAME.fullmatch(text) else None
 
 
 def decode_for_key(key: str, data: bytes) -> DepthFrame | LabelFrame | dict:
