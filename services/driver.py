@@ -8,12 +8,13 @@ It holds the liveliness token `.../alive/driver/<instance>` while running (its Z
 `.../info` queries with JSON (source, camera intrinsics, mount, fps, frames published,
 reconnects, instance, pid and host).
 
-One camera, one driver: a driver that finds another live driver of its cell/camera (a token
-whose process answers `info`) refuses to start (one line, exit 2), since their frames would
-interleave on one key. A crashed driver's token goes with its connection, so a restart is
-not refused; a token whose process does not answer (a host gone, until Zenoh's lease ends)
-is only warned about. A second driver that appears later (two started at once) is warned
-about loudly; the worker and `topseg status` report it too.
+One camera, one driver (`OneDriverPerCamera`): a driver that finds another live driver of
+its cell/camera (a token whose process answers `info`) refuses to start (one line, exit 2),
+since their frames would interleave on one key; two started at once, each too early to see
+the other, find each other later and the younger one stops the same way. A crashed driver's
+token goes with its connection, so a restart is not refused; a token whose process does not
+answer (a host gone, until Zenoh's lease ends) is only warned about. The worker and
+`topseg status` report two drivers on one key too.
 
 `--mount FILE` (a mount file from `topseg calibrate`) puts the camera's mount on every
 depth message and in `info`; the mount's intrinsics must be for frames of the source's
@@ -182,71 +183,115 @@ def check_mount_fits(mount, intrinsics, path: str) -> None:
         )
 
 
-def refuse_if_served(session, args: argparse.Namespace, me: identity.Identity) -> None:
-    """TopsegError (one line) when another live driver serves this cell/camera: one whose
-    token is there and whose process answers `info`; a token nobody answers for (a host that
-    vanished, until Zenoh's lease ends) is only warned about."""
-    import zenoh
+class OneDriverPerCamera:
+    """One camera, one driver. A liveliness subscriber notes every other driver token of this
+    cell/camera (warned about loudly: their frames interleave on one key); `check` asks those
+    drivers' `info`, and when one that answers started before this one (or at the same ns
+    with a smaller instance id) it raises TopsegError (one line, exit 2): at start, after
+    the peers settled, and again whenever a new token appears (two drivers started at once,
+    each too early to see the other: the younger one stops). A token nobody answers for (a
+    host gone, until Zenoh's lease ends; a crashed process's token goes with its connection,
+    so restarts start) is only warned about."""
 
-    from topseg.core.formats import wire
+    def __init__(self, session, args: argparse.Namespace, me, state: DriverState) -> None:
+        from topseg.core.formats import wire
 
-    zenoh_session.wait_connected(session, identity.CONNECT_WAIT_S)
-    token = wire.alive_key(args.cell, args.camera, "driver")
-    others = identity.other_instances(session, token, me.instance)
-    if not others:
-        return
-    answering = {}
-    replies = session.get(
-        wire.info_key(args.cell, args.camera),
-        timeout=identity.QUERY_S,
-        consolidation=zenoh.ConsolidationMode.NONE,  # one reply per driver, not per key
-    )
-    for reply in replies:
-        try:
-            info = json.loads(reply.ok.payload.to_bytes()) if reply.ok is not None else None
-        except ValueError:
-            continue
-        if isinstance(info, dict) and info.get("instance") in others:
-            answering[info["instance"]] = info
-    if answering:
-        inst, info = sorted(answering.items())[0]
-        raise TopsegError(
-            f"camera {args.cell}/{args.camera} is already served by driver {inst} (pid "
-            f"{info.get('pid')} on {info.get('host')}, source {info.get('source')}); stop it "
-            "or give this one another --camera"
+        self.session, self.args, self.me, self.state = session, args, me, state
+        self.token = wire.alive_key(args.cell, args.camera, "driver")
+        self.lock = threading.Lock()
+        self.others: set[str] = set()
+        self.appeared = threading.Event()
+        self.said: set[str] = set()
+        self.subscriber = session.liveliness().declare_subscriber(
+            f"{self.token}/*", self._on_token, history=True
         )
-    log.warning(
-        "a liveliness token of driver %s for %s/%s remains but that driver does not answer "
-        "(gone, until Zenoh's lease ends); starting anyway",
-        ", ".join(sorted(others)),
-        args.cell,
-        args.camera,
-    )
 
+    def _on_token(self, sample) -> None:
+        from topseg.core.formats import wire
 
-def watch_duplicates(session, args: argparse.Namespace, me, state: DriverState):
-    """A liveliness subscriber that warns loudly when another driver of this camera appears
-    while this one runs (two started at once, or one that could not be seen at start)."""
-    from topseg.core.formats import wire
-
-    token = wire.alive_key(args.cell, args.camera, "driver")
-
-    def on_token(sample) -> None:
         try:
             parts = wire.parse_key(str(sample.key_expr))
         except wire.WireError:
             return
-        if str(sample.kind).endswith("PUT") and parts.instance not in (None, me.instance):
-            state.note_duplicate(parts.instance)
+        if parts.instance in (None, self.me.instance):
+            return
+        with self.lock:
+            if str(sample.kind).endswith("DELETE"):
+                self.others.discard(parts.instance)
+                return
+            self.others.add(parts.instance)
+        self.state.note_duplicate(parts.instance)
+        self.appeared.set()
+        log.warning(
+            "ANOTHER DRIVER serves %s/%s: %s; the frames of both interleave on %s: stop one",
+            self.args.cell,
+            self.args.camera,
+            parts.instance,
+            wire.depth_key(self.args.cell, self.args.camera),
+        )
+
+    def at_start(self) -> None:
+        """Wait for the peers (1 s at most when nobody is there) and their gossip to settle,
+        then `check`."""
+        if zenoh_session.wait_connected(self.session, identity.CONNECT_WAIT_S):
+            zenoh_session.wait_settled(self.session)
+        self.appeared.clear()
+        self.check(identity.other_instances(self.session, self.token, self.me.instance))
+
+    def poll(self) -> None:
+        """From the publishing loop: `check` again once a new driver token appeared."""
+        if self.appeared.is_set():
+            self.appeared.clear()
+            self.check(set())
+
+    def check(self, found: set[str]) -> None:
+        """TopsegError when a live driver that started first serves this camera."""
+        import zenoh
+
+        from topseg.core.formats import wire
+
+        with self.lock:
+            others = found | self.others
+        if not others:
+            return
+        answering = {}
+        replies = self.session.get(
+            wire.info_key(self.args.cell, self.args.camera),
+            timeout=identity.QUERY_S,
+            consolidation=zenoh.ConsolidationMode.NONE,  # one reply per driver, not per key
+        )
+        for reply in replies:
+            try:
+                info = json.loads(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+            except ValueError:
+                continue
+            if isinstance(info, dict) and info.get("instance") in others:
+                answering[info["instance"]] = info
+        mine = (self.state.info["started_ns"], self.me.instance)
+        first = sorted(
+            (int(info.get("started_ns") or 0), inst, info) for inst, info in answering.items()
+        )
+        if first and first[0][:2] < mine:
+            _, inst, info = first[0]
+            raise TopsegError(
+                f"camera {self.args.cell}/{self.args.camera} is already served by driver "
+                f"{inst} (pid {info.get('pid')} on {info.get('host')}, source "
+                f"{info.get('source')}); stop it or give this one another --camera"
+            )
+        silent = sorted(others - set(answering) - self.said)
+        if silent:
+            self.said.update(silent)
             log.warning(
-                "ANOTHER DRIVER serves %s/%s: %s; the frames of both interleave on %s: stop one",
-                args.cell,
-                args.camera,
-                parts.instance,
-                wire.depth_key(args.cell, args.camera),
+                "a liveliness token of driver %s for %s/%s is there but that driver does not "
+                "answer (gone, until Zenoh's lease ends); going on",
+                ", ".join(silent),
+                self.args.cell,
+                self.args.camera,
             )
 
-    return session.liveliness().declare_subscriber(f"{token}/*", on_token, history=True)
+    def undeclare(self) -> None:
+        """Undeclare the liveliness subscriber."""
+        self.subscriber.undeclare()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -300,7 +345,8 @@ def run(args: argparse.Namespace) -> int:
     with ServiceLifecycle("driver", args, status=status_text) as svc:
         session = svc.session
         me = identity.Identity.of(session)
-        refuse_if_served(session, args, me)  # one camera, one driver
+        one_driver = svc.declare(OneDriverPerCamera(session, args, me, state))
+        one_driver.at_start()  # another live driver of this camera: refused, exit 2
         keys["alive"] = wire.alive_key(args.cell, args.camera, "driver", me.instance)
         state.update(keys=keys, **me.to_dict())
         attachment = wire.instance_attachment(me.instance)
@@ -308,7 +354,6 @@ def run(args: argparse.Namespace) -> int:
         depth_pub = session.declare_publisher(keys["depth"], **publish)
         truth_pub = session.declare_publisher(keys["truth"], **publish)
         svc.declare(session.liveliness().declare_token(keys["alive"]))
-        svc.declare(watch_duplicates(session, args, me, state))
         svc.declare(
             session.declare_queryable(
                 keys["info"], lambda query: query.reply(keys["info"], state.to_json())
@@ -369,6 +414,7 @@ def run(args: argparse.Namespace) -> int:
                 truth_count += 1
             seq += 1
             svc.beat()  # watchdog ping from the publishing loop, STATUS= every few s
+            one_driver.poll()  # a driver that started first appeared: stop (exit 2)
             state.update(
                 frames=seq,
                 truth_frames=truth_count,

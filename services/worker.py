@@ -44,8 +44,8 @@ labels is left to it (two discovering workers: the one with the smaller instance
 it); a named camera another worker takes later is warned about. Depth from two drivers on
 one key (their attachments name two instances) is not labelled alternately: the worker
 follows one driver, drops the other's frames, counts them as `foreign` and warns; it turns
-to another driver only when the one it follows was silent for `SOURCE_SWITCH_S` (a
-restarted driver).
+to another driver only when the one it follows is gone (its token deleted: a driver killed
+and restarted) or was silent for `SOURCE_SWITCH_S`.
 """
 
 from __future__ import annotations
@@ -186,22 +186,24 @@ class CameraState:
     source_seen: float = 0.0  # when its last frame was taken (monotonic)
     last_duplicate_warning: float = -math.inf
 
-    def follow(self, source: str | None, now: float) -> bool:
+    def follow(self, source: str | None, now: float, followed_gone: bool = False) -> bool:
         """Whether a depth message from driver instance `source` is this camera's: the one
-        followed, a first one, or a new one after the followed one fell silent (a restart;
-        logged). Another driver's frames meanwhile are counted as `foreign` and warned
-        about; None (no attachment: an older topseg) is always taken."""
+        followed, a first one, or a new one once the followed one is gone (`followed_gone`:
+        its token was deleted) or fell silent (a restart; logged). Another driver's frames
+        meanwhile are counted as `foreign` and warned about; None (no attachment: an older
+        topseg) is always taken."""
         if source is None:
             return True
-        if self.source is None or source == self.source or now - self.source_seen > SOURCE_SWITCH_S:
+        silent = now - self.source_seen > SOURCE_SWITCH_S
+        if self.source is None or source == self.source or followed_gone or silent:
             if self.source not in (None, source):
                 log.info(
-                    "%s/%s: depth now from driver %s (driver %s silent %.1f s)",
+                    "%s/%s: depth now from driver %s (driver %s %s)",
                     self.cell,
                     self.camera,
                     source,
                     self.source,
-                    now - self.source_seen,
+                    "gone" if followed_gone else f"silent {now - self.source_seen:.1f} s",
                 )
                 self.last_seq = None  # a new source's seq starts afresh
             self.source, self.source_seen = source, now
@@ -277,8 +279,9 @@ class Worker:
         wanted = [parse_camera(c) for c in args.cameras or ()]
         # discovery: without --cameras a camera is served from its first depth message on
         self.discover = not wanted and not args.lossless
-        self.worker_watch = session.liveliness().declare_subscriber(
-            "topseg/*/*/alive/worker/*", self._on_worker_token, history=True
+        self.gone_drivers: dict[str, None] = {}  # tokens deleted, newest last (bounded)
+        self.token_watch = session.liveliness().declare_subscriber(
+            "topseg/*/*/alive/*/*", self._on_token, history=True
         )
         for cell, camera in wanted:
             self.serve(cell, camera, own_subscriber=True)
@@ -311,9 +314,10 @@ class Worker:
                 self.announced.add(new)  # bounded: the main loop refuses and counts the excess
             self.bell.notify()
 
-    def _on_worker_token(self, sample) -> None:
-        """Zenoh's callback thread: note other workers' tokens per camera; a new one on a
-        camera is looked at by the main loop (`settle_contested`)."""
+    def _on_token(self, sample) -> None:
+        """Zenoh's callback thread: note drivers that went away (a camera following one may
+        take the next driver's frames at once) and other workers' tokens per camera (a new
+        one on a camera is looked at by the main loop, `settle_contested`)."""
         from topseg.core.formats import wire
 
         try:
@@ -321,6 +325,17 @@ class Worker:
         except wire.WireError:
             return
         if parts.instance in (None, self.me.instance) or parts.cell == wire.ANY:
+            return
+        if parts.role == "driver":
+            with self.bell:
+                if str(sample.kind).endswith("DELETE"):
+                    self.gone_drivers[parts.instance] = None
+                    while len(self.gone_drivers) > MAX_IGNORED_NAMES:
+                        del self.gone_drivers[next(iter(self.gone_drivers))]
+                else:
+                    self.gone_drivers.pop(parts.instance, None)
+            return
+        if parts.role != "worker":
             return
         camera = (parts.cell, parts.camera)
         with self.bell:
@@ -543,7 +558,9 @@ class Worker:
                     return
                 state = self.serve(parts.cell, parts.camera, own_subscriber=False)
         state.last_seen = time.monotonic()
-        if not state.follow(wire.instance_of(sample.attachment), state.last_seen):
+        with self.bell:
+            gone = state.source in self.gone_drivers
+        if not state.follow(wire.instance_of(sample.attachment), state.last_seen, gone):
             self.publish_stats(state, {})  # a second driver on this key: counted, dropped
             return
         try:
@@ -645,7 +662,7 @@ class Worker:
         """Undeclare the doorbells, subscribers and liveliness tokens."""
         for bell in self.doorbells:
             bell.undeclare()
-        self.worker_watch.undeclare()
+        self.token_watch.undeclare()
         if self.any_token is not None:
             self.any_token.undeclare()
         for state in list(self.cameras.values()):
@@ -709,7 +726,8 @@ def refuse_if_labelled(session, cameras: list[tuple[str, str]], me: identity.Ide
 
     if not cameras:
         return
-    zenoh_session.wait_connected(session, identity.CONNECT_WAIT_S)
+    if zenoh_session.wait_connected(session, identity.CONNECT_WAIT_S):
+        zenoh_session.wait_settled(session)  # gossip brings the peers after the first one
     for cell, camera in cameras:
         others = identity.other_instances(
             session, wire.alive_key(cell, camera, "worker"), me.instance

@@ -191,6 +191,20 @@ def wait_connected(session: Any, timeout: float) -> bool:
         time.sleep(0.02)
 
 
+def wait_settled(session: Any, quiet_s: float = 0.3, timeout: float = 2.0) -> None:
+    """Wait until the session's peers stayed the same for `quiet_s` (gossip brings the
+    others after the first one), `timeout` s at most."""
+    deadline = time.monotonic() + timeout
+    peers, since = None, time.monotonic()
+    while time.monotonic() < deadline:
+        now_peers = {str(z) for z in session.info.peers_zid()}
+        if now_peers != peers:
+            peers, since = now_peers, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return
+        time.sleep(0.02)
+
+
 def holds_port(port: int) -> bool:
     """Whether this process listens on loopback TCP `port` (its Zenoh session took it)."""
     import psutil

@@ -234,8 +234,8 @@ def test_roles_hold_only_their_own_liveliness_tokens(secure):
         viewer.liveliness().declare_token("topseg/c/t3/alive/driver/v1"),  # forged
     ]
 
-    def alive():
-        replies = observer.liveliness().get("topseg/*/*/alive/**", timeout=1.0)
+    def alive(session=observer):
+        replies = session.liveliness().get("topseg/*/*/alive/**", timeout=1.0)
         return {str(r.ok.key_expr) for r in replies if r.ok is not None}
 
     expected = {
@@ -246,6 +246,10 @@ def test_roles_hold_only_their_own_liveliness_tokens(secure):
     wait_for(lambda: expected <= alive(), 10, "the real tokens")
     time.sleep(SETTLE_S)
     assert {k for k in alive() if "/t" in k or "/_any/" in k} == expected
+    # a driver and a worker see the tokens too: one camera, one driver, one worker
+    for role in ("driver", "worker"):
+        other = secure.client(role)
+        wait_for(lambda other=other: expected <= alive(other), 10, f"the tokens, as a {role}")
     for t in tokens:
         t.undeclare()
 
