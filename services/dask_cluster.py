@@ -12,6 +12,10 @@ BLAS thread pools of cores / workers threads. Leaving the `with` block closes th
 and the cluster it started. A scheduler that cannot be reached within `timeout` seconds is
 one TopsegError line. Dask's own log chatter is silenced unless topseg logs at DEBUG
 (`-vv`): the caller reports what went wrong itself.
+
+Ctrl-C reaches the whole process group: the local worker processes ignore SIGINT (`dask_setup`,
+preloaded into each), so only the client stops (its caller says how far it got) and closes
+them; before, each worker printed a 30-line KeyboardInterrupt traceback.
 """
 
 from __future__ import annotations
@@ -74,10 +78,21 @@ def dask_client(
             # task errors reach the client, which reports them as one line; -vv shows all
             silence_logs=logging.CRITICAL if quiet else logging.DEBUG,
             env=dict.fromkeys(THREAD_ENV, threads),
+            preload=[__name__],  # dask_setup below, in each worker process
         ) as cluster,
         distributed.Client(cluster) as client,
     ):
         yield client
+
+
+def dask_setup(worker: Any) -> None:
+    """Dask's preload hook, run in each local worker process: ignore SIGINT, which the
+    terminal sends to the whole process group; the client closes the workers itself."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -21,10 +21,15 @@ should have (it connects to a rendezvous port it does not hold, or to configured
 is warned about once (`zenoh_session.isolation_problem`: another program or a frozen
 process on the port leaves services "ready" and never meeting), and the recovery logged.
 
-On the way out the original handlers come back first, so a second signal during the
-shut-down has its usual effect (Ctrl-C raises KeyboardInterrupt, SIGTERM ends the
-process); then every clean-up runs, last registered first, even when one fails; then the
-session closes. An error of the service body wins over errors of its clean-ups.
+On the way out every clean-up runs, last registered first, even when one fails; then the
+session closes; then the original handlers come back. More stopping signals meanwhile (an
+impatient operator, `docker stop` after systemd's stop) are logged and the clean-up goes on,
+so tokens are undeclared and the exit status stays the service's; only once the shut-down
+has taken `FORCE_AFTER_S` does a signal have its usual effect (Ctrl-C raises
+KeyboardInterrupt, SIGTERM ends the process), for a clean-up that hangs. A service that a
+signal stopped leaves SIGTERM and SIGINT ignored, not restored: the process is on its way
+out, and one more signal would only turn its exit status 0 into 143 or a traceback. An error of the service body wins over errors of its
+clean-ups.
 """
 
 from __future__ import annotations
@@ -44,6 +49,9 @@ from topseg.services import systemd_notify, zenoh_session
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 #: Longest wait between two heartbeats (shorter when systemd's watchdog asks for it).
 TICK_S = 0.5
+#: A stopping signal during a shut-down that has taken this long forces it (s); before, the
+#: signal is logged and the clean-up goes on.
+FORCE_AFTER_S = 5.0
 #: A session that met nobody this long after opening (and should have) is warned about (s).
 ISOLATION_WARN_S = 5.0
 
@@ -51,6 +59,27 @@ ISOLATION_WARN_S = 5.0
 class ServiceStopped(BaseException):
     """Raised by the signal handler inside `interruptible()`; a BaseException, so that the
     `except Exception` of a source or a library does not swallow it."""
+
+
+@contextlib.contextmanager
+def stop_between_steps() -> Iterator[threading.Event]:
+    """Within: the first SIGINT or SIGTERM sets the returned Event instead of raising
+    KeyboardInterrupt wherever the main thread is (inside numba's compiled code that ended in
+    a `SystemError`, exit 1); a batch loop checks it between steps and says what it wrote.
+    A second one raises KeyboardInterrupt (the operator insists)."""
+    stop = threading.Event()
+
+    def handler(signum: int, frame: Any) -> None:
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    old = {s: signal.signal(s, handler) for s in STOP_SIGNALS}
+    try:
+        yield stop
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 class ServiceLifecycle:
@@ -95,6 +124,9 @@ class ServiceLifecycle:
         self._pipe: tuple[int, int] | None = None
         self._watcher: threading.Thread | None = None
         self._interruptible = False
+        self._shutting_down = False
+        self._shutdown_began = 0.0
+        self._signalled = False  # a stopping signal came: leave them ignored on the way out
 
     # -- start and stop -------------------------------------------------------------------
 
@@ -113,21 +145,35 @@ class ServiceLifecycle:
     def __exit__(self, exc_type, exc, tb) -> bool:
         self.stop.set()
         self._interruptible = False
+        self._shutdown_began = time.monotonic()
+        self._shutting_down = True  # another signal now: logged, the clean-up goes on
         self.notifier.stopping()
-        self._restore_signals()
+        try:
+            return self._shut_down(exc_type)
+        finally:
+            self._restore_signals()
+
+    def _shut_down(self, exc_type) -> bool:
         first: BaseException | None = None
         while self._cleanups:
             fn, args = self._cleanups.pop()
             try:
                 fn(*args)
-            except BaseException as err:  # every clean-up runs; the first error is kept
-                self.log.warning("clean-up %s failed: %s", getattr(fn, "__qualname__", fn), err)
+            except Exception as err:  # every clean-up runs; the first error is kept (a forced
+                # stop, KeyboardInterrupt, leaves the rest)
+                self.log.warning(
+                    "clean-up %s failed: %s",
+                    getattr(fn, "__qualname__", fn),
+                    zenoh_session.error_line(err),  # Zenoh's own errors name Rust sources
+                )
                 first = first or err
         if self.session is not None:
             try:
                 self.session.close()
             except Exception as err:
-                self.log.warning("closing the Zenoh session failed: %s", err)
+                self.log.warning(
+                    "closing the Zenoh session failed: %s", zenoh_session.error_line(err)
+                )
                 first = first or err
         if exc_type is not None:
             return issubclass(exc_type, ServiceStopped)  # a body error wins over clean-ups'
@@ -214,11 +260,24 @@ class ServiceLifecycle:
 
     # -- signals ------------------------------------------------------------------------------
 
-    def _on_signal(self, signum: int, _frame: Any) -> None:
+    def _on_signal(self, signum: int, frame: Any) -> None:
         # no locks here: the wakeup fd already carries the signal to the watcher thread
+        if self._shutting_down:
+            if time.monotonic() - self._shutdown_began > FORCE_AFTER_S:  # a clean-up hangs
+                self._force(signum, frame)
+            return
         if self._interruptible:
             self._interruptible = False
             raise ServiceStopped
+
+    def _force(self, signum: int, frame: Any) -> None:
+        """The signal's usual effect, as if topseg had installed no handler."""
+        old = self._old_handlers.get(signum, signal.SIG_DFL)
+        if callable(old):
+            old(signum, frame)  # Python's own SIGINT handler: KeyboardInterrupt
+            return
+        signal.signal(signum, signal.SIG_DFL if old is None else old)
+        os.kill(os.getpid(), signum)
 
     def _install_signals(self) -> None:
         read_fd, write_fd = os.pipe()
@@ -240,7 +299,15 @@ class ServiceLifecycle:
             if not data:  # the write end closed: the service is done
                 return
             for signum in data:
-                if signum in self._old_handlers:
+                if signum not in self._old_handlers:
+                    continue
+                if self._shutting_down:
+                    self.log.warning(
+                        "%s again: still stopping (undeclaring, closing Zenoh)",
+                        signal.Signals(signum).name,
+                    )
+                else:
+                    self._signalled = True
                     self._stopped_by(signum)
 
     def _stopped_by(self, signum: int) -> None:
@@ -256,7 +323,7 @@ class ServiceLifecycle:
         if self._pipe is None:
             return
         for s, handler in self._old_handlers.items():
-            signal.signal(s, handler)
+            signal.signal(s, signal.SIG_IGN if self._signalled else handler)
         signal.set_wakeup_fd(self._old_wakeup_fd)
         read_fd, write_fd = self._pipe
         self._pipe = None

@@ -7,7 +7,9 @@ among the inputs) or `<recording stem>_<seq>` for each depth channel of a record
 (`<stem>_<cell>-<camera>_<seq>` when it holds several cameras; `-N` on a seq seen again, as
 after a driver restart). An output name already written in this run is refused with one line.
 A write that fails stops the run: one line naming the path, how many frames were written,
-exit 2. The end prints how many frames of each camera went where.
+exit 2. Ctrl-C (or SIGTERM) finishes the frame at hand and stops there: the summary and one
+line saying how many frames were written, exit 130. The end prints how many frames of each
+camera went where.
 
 A model that reads heights above the floor (every model trained since mounts were drawn)
 labels each frame through its camera's mount: `--mount FILE` (from `topseg calibrate`) when
@@ -29,9 +31,11 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import threading
 from pathlib import Path
 
 from topseg.services.cli_types import add_stride_argument
+from topseg.services.lifecycle import stop_between_steps
 
 log = logging.getLogger("topseg.segment")
 
@@ -110,29 +114,16 @@ def run(args: argparse.Namespace) -> int:
     run_ = _Run(segmenter, args.out, given, _png_names(all_sources), _count_frames(all_sources))
     skipped = 0
     try:
-        for arg, sources in inputs:
-            try:
-                estimates: dict = {}
-                if segmenter.reads_height and given is None:
-                    estimates = _estimates(arg, sources)
-                for key, est in estimates.items():
-                    if isinstance(est, TopsegError):  # this camera: no mount, not segmented
-                        skipped += 1
-                        camera = "" if key is None else f" {key}"
-                        print(f"topseg segment: skipped {arg}{camera}: {est}", file=sys.stderr)
-                for source in sources:
-                    try:
-                        run_.segment(arg, source, estimates)
-                    except _WriteFailed:
-                        raise
-                    except TopsegError as exc:  # this input is damaged: say so, go on
-                        skipped += 1
-                        print(f"topseg segment: skipped {exc}", file=sys.stderr)
-            except _WriteFailed:
-                raise
-            except TopsegError as exc:  # no mount for this input: none of it is segmented
-                skipped += len(sources)
-                print(f"topseg segment: skipped {arg}: {exc}", file=sys.stderr)
+        with stop_between_steps() as run_.stop:  # Ctrl-C: stop after the frame at hand
+            skipped = _segment_all(run_, inputs, given)
+    except _Interrupted:
+        run_.summary()
+        print(
+            f"topseg segment: interrupted; {run_.count} of {run_.total} frames written to "
+            f"{args.out} (each with its overlay)",
+            file=sys.stderr,
+        )
+        return 130
     except _WriteFailed as exc:
         run_.summary()
         raise TopsegError(
@@ -156,6 +147,42 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _segment_all(run_: _Run, inputs: list, given) -> int:
+    """Segment every input (`run`'s loop); how many inputs were skipped."""
+    from topseg.core.errors import TopsegError
+
+    skipped = 0
+    segmenter = run_.segmenter
+    for arg, sources in inputs:
+        try:
+            estimates: dict = {}
+            if segmenter.reads_height and given is None:
+                estimates = _estimates(arg, sources)
+            for key, est in estimates.items():
+                if isinstance(est, TopsegError):  # this camera: no mount, not segmented
+                    skipped += 1
+                    camera = "" if key is None else f" {key}"
+                    print(f"topseg segment: skipped {arg}{camera}: {est}", file=sys.stderr)
+            for source in sources:
+                try:
+                    run_.segment(arg, source, estimates)
+                except _WriteFailed:
+                    raise
+                except TopsegError as exc:  # this input is damaged: say so, go on
+                    skipped += 1
+                    print(f"topseg segment: skipped {exc}", file=sys.stderr)
+        except _WriteFailed:
+            raise
+        except TopsegError as exc:  # no mount for this input: none of it is segmented
+            skipped += len(sources)
+            print(f"topseg segment: skipped {arg}: {exc}", file=sys.stderr)
+    return skipped
+
+
+class _Interrupted(Exception):
+    """Ctrl-C (or SIGTERM) came: the run stops before its next frame."""
+
+
 class _WriteFailed(Exception):
     """An output file could not be written (the run stops there)."""
 
@@ -176,6 +203,7 @@ class _Run:
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
+        self.stop = threading.Event()  # set by Ctrl-C: stop before the next frame
 
     def segment(self, arg: Path, source: Path, estimates: dict) -> None:
         """Label every frame of one source and write its PNGs (both of a frame or neither)."""
@@ -184,6 +212,8 @@ class _Run:
         from topseg.drivers.replay import input_frames
 
         for frame in input_frames(source, on_recording=_report_skipped):
+            if self.stop.is_set():
+                raise _Interrupted
             what = f"{source}" if frame.key is None else f"{source} {frame.key} seq {frame.seq}"
             mount = None
             if self.segmenter.reads_height:

@@ -95,14 +95,21 @@ def test_a_cleanup_error_is_raised_when_the_body_succeeded():
 def test_a_signal_stops_wakes_and_is_logged(caplog, sig):
     caplog.set_level(logging.INFO, logger="topseg")
     woken = threading.Event()
+    before = handlers()
     svc = ServiceLifecycle("lc4", args(), notifier=systemd_notify.Notifier({}))
-    with svc:
-        svc.on_stop(woken.set)
-        threading.Timer(0.2, os.kill, (os.getpid(), sig)).start()
-        t0 = time.monotonic()
-        assert svc.wait()  # blocks until the signal
-        assert time.monotonic() - t0 < 1.0
-        assert woken.wait(1.0)
+    try:
+        with svc:
+            svc.on_stop(woken.set)
+            threading.Timer(0.2, os.kill, (os.getpid(), sig)).start()
+            t0 = time.monotonic()
+            assert svc.wait()  # blocks until the signal
+            assert time.monotonic() - t0 < 1.0
+            assert woken.wait(1.0)
+        # stopped by a signal, the process is on its way out: more signals are ignored
+        assert handlers() == {signal.SIGTERM: signal.SIG_IGN, signal.SIGINT: signal.SIG_IGN}
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
     assert f"{signal.Signals(sig).name}: stopping" in caplog.text
 
 

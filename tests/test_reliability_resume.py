@@ -142,6 +142,8 @@ def test_datagen_interrupted_by_ctrl_c_resumes_to_the_same_dataset(tmp_path):
     assert proc.returncode == 130, err
     line = [ln for ln in err.splitlines() if ln.startswith("topseg datagen: interrupted")]
     assert line and "rerun the same command to resume" in line[0], err
+    # one line, not the Dask workers' KeyboardInterrupt tracebacks (~65 lines before)
+    assert err.strip().splitlines() == line, err
     had = n_complete(out)
     assert 4 <= had < frames
 
