@@ -16,6 +16,8 @@ import argparse
 import time
 from pathlib import Path
 
+from topseg.services.cli_types import finite, int_range, non_negative_int
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -31,7 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--web", action="store_true", help="also serve Rerun's web viewer")
     parser.add_argument(
-        "--fps", type=float, default=None, help="replay rate (default: the recorded rate, 30 fps)"
+        "--fps",
+        type=finite(0.1, 1000),
+        default=None,
+        help="replay rate (default: the recorded rate, 30 fps)",
     )
     parser.add_argument(
         "--lossless",
@@ -42,11 +47,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     core.add_argument(
         "--core", action="store_true", help="run the core demo instead of the live one"
     )
-    core.add_argument("--train-frames", type=int, default=24, help="procedural frames to train on")
-    core.add_argument("--test-frames", type=int, default=8, help="held-out frames to score")
-    core.add_argument("--trees", type=int, default=3)
-    core.add_argument("--depth", type=int, default=14, help="maximum tree depth")
-    core.add_argument("--seed", type=int, default=0)
+    core.add_argument(
+        "--train-frames",
+        type=int_range(1, 100000),
+        default=24,
+        help="procedural frames to train on",
+    )
+    core.add_argument(
+        "--test-frames", type=int_range(1, 100000), default=8, help="held-out frames to score"
+    )
+    core.add_argument("--trees", type=int_range(1, 1000), default=3)
+    core.add_argument("--depth", type=int_range(0, 30), default=14, help="maximum tree depth")
+    core.add_argument("--seed", type=non_negative_int, default=0)
 
 
 def run(args: argparse.Namespace) -> int:

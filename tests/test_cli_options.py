@@ -1,7 +1,8 @@
 """Bad option values are refused up front with one line naming the option and exit 2 (never
 a traceback, a crash later, or a sleep for days): `train`'s numbers, `driver --fps` and
 `--frame-timeout`, `record --duration`, `status --timeout`, `evaluate --frames 0`,
-`router --listen garbage`, and a PNG whose header claims 60000x60000 in the replay driver."""
+`router --listen garbage`, numbers of `bench`, `demo` and `datagen`, and a PNG whose header
+claims 60000x60000 in the replay driver."""
 
 import struct
 import subprocess
@@ -77,6 +78,32 @@ def test_commands_refuse_a_bad_number(tmp_path, command, option, value):
         "evaluate": ["--data", tmp_path / "none"],
     }.get(command, [])
     rc, err = topseg(command, *extra, option, value, "--zenoh-port", free_port())
+    assert_one_line(rc, err, command, option)
+
+
+BENCH_DEMO_DATAGEN = [
+    ("bench", "crf", "--frames", "0"),
+    ("bench", "crf", "--smoothness", "nan"),
+    ("bench", "forest", "--depth", "100"),
+    ("bench", "datagen", "--chunk", "0"),
+    ("bench", "pipeline", "--fps", "1e-300"),
+    ("bench", "train", "--scale", "inf"),
+    ("bench", "transport", "--fps", "-1"),
+    ("bench", "synthesis", "--warmup", "-1"),
+    ("bench", "calibrate", "--mounts", "0"),
+    ("demo", None, "--fps", "nan"),
+    ("demo", None, "--trees", "0"),
+    ("datagen", None, "--frames", "0"),
+    ("datagen", None, "--workers", "-2"),
+    ("datagen", "preview", "--count", "0"),
+]
+
+
+@pytest.mark.parametrize(("command", "sub", "option", "value"), BENCH_DEMO_DATAGEN)
+def test_bench_demo_and_datagen_refuse_a_bad_number(tmp_path, command, sub, option, value):
+    extra = {"datagen": ["--out", tmp_path / "ds.zarr"], "preview": [tmp_path / "ds.zarr"]}
+    args = [command, *([sub] if sub else []), *extra.get(sub or command, []), option, value]
+    rc, err = topseg(*args)
     assert_one_line(rc, err, command, option)
 
 

@@ -17,20 +17,27 @@ from __future__ import annotations
 import argparse
 import time
 
+from topseg.services.cli_types import int_range, non_negative_int
+
 #: a pixel counts as floor in the truth when its true height is below this (mm)
 FLOOR_BAND_MM = 60.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """--mounts, --frames per mount, --seed, --max-objects."""
-    parser.add_argument("--mounts", type=int, default=50, help="random mounts (default 50)")
     parser.add_argument(
-        "--frames", type=int, default=5, help="frames per mount to calibrate from (default 5)"
+        "--mounts", type=int_range(1, 100000), default=50, help="random mounts (default 50)"
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--frames",
+        type=int_range(1, 10000),
+        default=5,
+        help="frames per mount to calibrate from (default 5)",
+    )
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument(
         "--max-objects",
-        type=int,
+        type=int_range(1, 100),
         default=7,
         help="furniture per scene drawn from 1..N (people come with the scenes)",
     )

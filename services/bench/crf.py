@@ -31,14 +31,18 @@ from pathlib import Path
 import numpy as np
 
 from topseg.services.bench import frames as bench_frames
-from topseg.services.cli_types import add_stride_argument
+from topseg.services.cli_types import add_stride_argument, finite, int_range, non_negative_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Frames, repeats, where the unaries come from and CRF setting overrides."""
-    parser.add_argument("--frames", type=int, default=4, help="frames to measure on")
-    parser.add_argument("--repeat", type=int, default=10, help="realtime runs per frame")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--frames", type=int_range(1, 10000), default=4, help="frames to measure on"
+    )
+    parser.add_argument(
+        "--repeat", type=int_range(1, 100000), default=10, help="realtime runs per frame"
+    )
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument(
         "--unaries",
         choices=("model", "quick-forest", "synthetic"),
@@ -48,10 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", type=Path, help="topseg model file (default: the bundled one)")
     add_stride_argument(parser)
     bench_frames.add_arguments(parser)
-    parser.add_argument("--smoothness", type=float, default=None, help="Potts weight (nats)")
-    parser.add_argument("--confidence", type=float, default=None)
-    parser.add_argument("--ring", type=int, default=None)
-    parser.add_argument("--cycles", type=int, default=None)
+    parser.add_argument(
+        "--smoothness", type=finite(0, 1e6), default=None, help="Potts weight (nats)"
+    )
+    parser.add_argument("--confidence", type=finite(0, 1e6), default=None)
+    parser.add_argument("--ring", type=int_range(0, 1000), default=None)
+    parser.add_argument("--cycles", type=int_range(0, 100000), default=None)
 
 
 def _quick_forest(rng: np.random.Generator):

@@ -19,13 +19,23 @@ import tempfile
 import time
 from pathlib import Path
 
+from topseg.services.cli_types import int_range
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Frames, warm-up, workers, task size and generator of the run; temp stores in `--dir`."""
-    parser.add_argument("--frames", type=int, default=240, help="frames in the timed run (240)")
-    parser.add_argument("--warmup", type=int, default=8, help="frames per worker before timing (8)")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (one per core)")
-    parser.add_argument("--chunk", type=int, default=16, help="frames per Dask task (16)")
+    parser.add_argument(
+        "--frames", type=int_range(1, 10**7), default=240, help="frames in the timed run (240)"
+    )
+    parser.add_argument(
+        "--warmup", type=int_range(0, 10**6), default=8, help="frames per worker before timing (8)"
+    )
+    parser.add_argument(
+        "--workers", type=int_range(1, 1024), default=None, help="worker processes (one per core)"
+    )
+    parser.add_argument(
+        "--chunk", type=int_range(1, 10**6), default=16, help="frames per Dask task (16)"
+    )
     parser.add_argument("--mode", choices=("modeled", "non-modeled"), default="modeled")
     parser.add_argument("--noise", default="gaussian:15")
     parser.add_argument("--generator", default="synthesis", help="as for `topseg datagen`")

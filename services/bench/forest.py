@@ -21,7 +21,7 @@ import time
 from dataclasses import replace
 
 from topseg.services.bench import frames as bench_frames
-from topseg.services.cli_types import add_stride_argument
+from topseg.services.cli_types import add_stride_argument, int_range, non_negative_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,17 +33,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the bundled model (default), one trained here on procedural frames, or random",
     )
     parser.add_argument("--model", help="time this model file instead (see --forest)")
-    parser.add_argument("--trees", type=int, default=5, help="--forest trained/random: trees")
-    parser.add_argument("--depth", type=int, default=19, help="--forest trained/random: depth")
+    parser.add_argument(
+        "--trees", type=int_range(1, 1000), default=5, help="--forest trained/random: trees"
+    )
+    parser.add_argument(
+        "--depth", type=int_range(0, 30), default=19, help="--forest trained/random: depth"
+    )
     parser.add_argument("--split", choices=("linear", "axis"), default="linear")
     parser.add_argument(
-        "--train-frames", type=int, default=40, help="--forest trained: procedural frames"
+        "--train-frames",
+        type=int_range(1, 100000),
+        default=40,
+        help="--forest trained: procedural frames",
     )
-    parser.add_argument("--frames", type=int, default=10, help="frames to time")
-    parser.add_argument("--repeats", type=int, default=3, help="passes over the frames")
+    parser.add_argument("--frames", type=int_range(1, 100000), default=10, help="frames to time")
+    parser.add_argument(
+        "--repeats", type=int_range(1, 100000), default=3, help="passes over the frames"
+    )
     add_stride_argument(parser)
-    parser.add_argument("--threads", type=int, default=0, help="numba threads (0: all cores)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--threads", type=int_range(0, 1024), default=0, help="numba threads (0: all cores)"
+    )
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     bench_frames.add_arguments(parser)
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from topseg.services.cli_types import add_stride_argument, int_range
+from topseg.services.cli_types import add_stride_argument, finite, int_range
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,13 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument(
         "--duration",
-        type=float,
+        type=finite(0.1, 86400),
         default=10.0,
         metavar="S",
         help="seconds of labels (default: %(default)s)",
     )
     parser.add_argument(
-        "--fps", type=float, default=30.0, help="source rate (default: %(default)s)"
+        "--fps", type=finite(0.1, 1000), default=30.0, help="source rate (default: %(default)s)"
     )
     from topseg.services.demo import REPO
 

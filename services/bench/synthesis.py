@@ -13,15 +13,19 @@ from __future__ import annotations
 import argparse
 import time
 
+from topseg.services.cli_types import int_range
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Frames timed and rendered before timing, mode, noise spec, numba threads."""
-    parser.add_argument("--frames", type=int, default=200)
-    parser.add_argument("--warmup", type=int, default=300, help="frames rendered before timing")
+    parser.add_argument("--frames", type=int_range(1, 10**7), default=200)
+    parser.add_argument(
+        "--warmup", type=int_range(0, 10**7), default=300, help="frames rendered before timing"
+    )
     parser.add_argument("--mode", choices=("modeled", "non-modeled"), default="modeled")
     parser.add_argument("--noise", default="kinect", help="none | gaussian:<sigma_mm> | kinect")
     parser.add_argument(
-        "--threads", type=int, default=0, help="numba threads (0 = numba's default)"
+        "--threads", type=int_range(0, 1024), default=0, help="numba threads (0 = numba's default)"
     )
 
 

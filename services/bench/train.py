@@ -27,6 +27,8 @@ import threading
 import time
 from pathlib import Path
 
+from topseg.services.cli_types import finite, int_range, non_negative_int
+
 PAPER = {
     "trees": 5,
     "depth": 19,
@@ -45,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg bench train`'s options."""
     parser.add_argument(
         "--scale",
-        type=float,
+        type=finite(1e-4, 100),
         default=0.05,
         help="fraction of the paper's F = 1600 frames per tree (1 = the paper; default 0.05)",
     )
@@ -55,12 +57,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--keep-model", type=Path, default=None, help="keep the trained model at this path"
     )
-    parser.add_argument("--workers", type=int, default=None, help="as for `topseg train`")
-    parser.add_argument("--seed", type=int, default=0, help="training (and dataset) seed")
+    parser.add_argument(
+        "--workers", type=int_range(1, 1024), default=None, help="as for `topseg train`"
+    )
+    parser.add_argument(
+        "--seed", type=non_negative_int, default=0, help="training (and dataset) seed"
+    )
     parser.add_argument(
         "--cache", type=Path, default=Path("out/bench-train"), help="where generated data goes"
     )
-    parser.add_argument("--sample-s", type=float, default=0.2, help="memory sampling period")
+    parser.add_argument(
+        "--sample-s", type=finite(0.01, 60), default=0.2, help="memory sampling period"
+    )
 
 
 def frames_per_tree(scale: float) -> int:

@@ -18,19 +18,26 @@ import subprocess
 import sys
 import time
 
+from topseg.services.cli_types import finite, int_range
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Frames, rate, Zenoh congestion control and express, and a slow or frozen subscriber."""
-    parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--fps", type=float, default=30.0, help="publish rate; 0 = flat out")
+    parser.add_argument("--frames", type=int_range(1, 10**7), default=300)
+    parser.add_argument(
+        "--fps", type=finite(0, 100000), default=30.0, help="publish rate; 0 = flat out"
+    )
     parser.add_argument("--congestion", choices=("block", "drop"), default="block")
     parser.add_argument("--no-express", dest="express", action="store_false")
     parser.add_argument(
-        "--consumer-ms", type=float, default=0.0, help="time the subscriber spends on each frame"
+        "--consumer-ms",
+        type=finite(0, 60000),
+        default=0.0,
+        help="time the subscriber spends on each frame",
     )
     parser.add_argument(
         "--stall-consumer",
-        type=float,
+        type=finite(0, 3600),
         default=0.0,
         metavar="S",
         help="freeze the subscriber process (SIGSTOP) for S seconds after 1 s",

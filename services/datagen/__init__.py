@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from topseg.core.errors import TopsegError
+from topseg.services.cli_types import int_range, non_negative_int
 from topseg.services.dask_cluster import dask_client, default_workers
 
 __all__ = ["add_arguments", "dask_client", "default_workers", "generate", "render_chunk", "run"]
@@ -52,13 +53,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mode", choices=MODES, default="modeled", help="scene model (default: modeled)"
     )
-    parser.add_argument("--frames", type=int, help="number of frames in the dataset")
+    parser.add_argument(
+        "--frames", type=int_range(1, 10**8), help="number of frames in the dataset"
+    )
     parser.add_argument(
         "--out",
         help="dataset directory (a Zarr v3 store) to create or resume; missing folders above "
         "it are created",
     )
-    parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="dataset seed (default 0)")
     parser.add_argument(
         "--noise",
         default=None,
@@ -90,9 +93,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scheduler", help="address of a running Dask scheduler (default: local cluster)"
     )
     parser.add_argument(
-        "--workers", type=int, help="local worker processes (default: one per core)"
+        "--workers", type=int_range(1, 1024), help="local worker processes (default: one per core)"
     )
-    parser.add_argument("--chunk", type=int, default=16, help="frames per Dask task (default 16)")
+    parser.add_argument(
+        "--chunk", type=int_range(1, 10**6), default=16, help="frames per Dask task (default 16)"
+    )
     parser.add_argument(
         "--progress",
         action=argparse.BooleanOptionalAction,

@@ -20,6 +20,7 @@ import numpy as np
 
 from topseg.core import labels as label_table
 from topseg.core.errors import TopsegError
+from topseg.services.cli_types import int_range
 
 HELP = "write a PNG contact sheet (depth and labels side by side) of a dataset"
 GAP = 4  # between a frame's depth and its labels
@@ -35,10 +36,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="dataset directory")
     parser.add_argument("--png", help="output PNG (default: PATH without .zarr + -preview.png)")
     parser.add_argument(
-        "--count", type=int, default=12, help="frames on the sheet, evenly spaced (12)"
+        "--count",
+        type=int_range(1, 10000),
+        default=12,
+        help="frames on the sheet, evenly spaced (12)",
     )
-    parser.add_argument("--cols", type=int, default=3, help="tiles per row (3)")
-    parser.add_argument("--scale", type=int, default=2, help="downsampling factor (2)")
+    parser.add_argument("--cols", type=int_range(1, 1000), default=3, help="tiles per row (3)")
+    parser.add_argument("--scale", type=int_range(1, 64), default=2, help="downsampling factor (2)")
 
 
 def depth_rgb(depth: np.ndarray, far_mm: float, span_mm: float = 2500.0) -> np.ndarray:
