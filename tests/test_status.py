@@ -195,3 +195,27 @@ def test_a_query_cut_off_at_its_deadline_is_said():
     rep = status.report(seen)
     assert rep["incomplete"] == ["liveliness tokens"]
     assert "query for liveliness tokens did not end in time" in status.format_table(rep)
+
+
+def test_two_workers_of_one_camera_and_a_waiting_wildcard_worker_are_shown():
+    """Tokens name their process: two workers for one camera are a problem (exit 1); a worker
+    for every camera with no camera yet is listed as waiting, and an expected camera without
+    a worker of its own shows it waiting instead of DOWN."""
+    tokens = {
+        ("c", "k", "driver", "d1"),
+        ("c", "k", "worker", "w1"),
+        ("c", "k", "worker", "w2"),
+        ("_any", "_any", "worker", "w3"),
+    }
+    seen = status.observed_tokens(tokens, went_down=set())
+    seen.window_s = 2.0
+    rep = status.report(seen, [("c", "other")])
+    rows = {r["camera"]: r for r in rep["cameras"]}
+    assert rows["k"]["duplicates"] == {"worker": ["w1", "w2"]} and not rows["k"]["ok"]
+    assert rows["other"]["waiting"] and not rows["other"]["ok"]
+    assert rep["any_camera_workers"] == [{"instance": "w3", "cameras": 0}]
+    assert status.exit_status(rep) == 1
+    table = status.format_table(rep)
+    assert "c/k: 2 workers: w1, w2" in table
+    assert "worker w3 serves every camera: waiting for a first depth frame" in table
+    assert "c/other: no worker labels it yet" in table and "c/other: worker DOWN" not in table
