@@ -47,6 +47,7 @@ from topseg.core.errors import TopsegError
 from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
 from topseg.services import identity, zenoh_session
 from topseg.services.cli_types import finite
+from topseg.services.driver_drain import LabelsSeen, drain
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.driver")
@@ -90,6 +91,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="Zenoh congestion control for depth: auto = drop, or block with "
         "--as-fast-as-possible (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--drain-idle",
+        type=finite(0.1, 3600),
+        default=10.0,
+        metavar="S",
+        help="with block congestion, a finite source's end waits for the worker to label the "
+        "last frame, while labels come at most S s apart (default: %(default)s)",
     )
     parser.add_argument(
         "--frame-timeout",
@@ -390,6 +399,10 @@ def run(args: argparse.Namespace) -> int:
         )
         if not args.realtime:  # as fast as consumed: there has to be a consumer
             _wait_for_subscriber(depth_pub, keys["depth"], svc)
+        labels_seen = None
+        if args.congestion == "block":  # lossless: the end waits for the last frame's labels
+            labels_seen = LabelsSeen(session, args.cell, args.camera)
+            svc.defer(labels_seen.close)
         frames = reconnecting.frames()
         svc.defer(frames.close)  # closes the source (and its reader process)
         seq = truth_count = 0
@@ -399,6 +412,8 @@ def run(args: argparse.Namespace) -> int:
                     frame = next(frames)
             except StopIteration:
                 log.info("%s ended after %d frames", spec, seq)
+                if labels_seen is not None:
+                    drain(labels_seen, seq - 1, args.drain_idle, lambda: svc.stopping)
                 break
             if mount is not None and frame.depth.depth.shape != fitted:
                 check_mount_fits(mount, frame.depth.intrinsics, args.mount)

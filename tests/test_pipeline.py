@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -51,6 +52,9 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
     assert figures["worker_total_p50_ms"] <= figures["worker_total_p99_ms"]
     assert figures["fps"] > 0
     assert rrd.stat().st_size > 0
+    # the driver kept its session open until the worker had labelled its last frame
+    driver_log = (Path(figures["logs"]) / "driver.log").read_text()
+    assert f"frame {N - 1} labelled" in driver_log
 
     segmenter = load_segmenter(str(model_path), "none")
     want = metrics.ConfusionAccumulator()
