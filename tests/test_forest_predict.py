@@ -9,9 +9,16 @@ from reference import apply_reference, predict_reference, upsample_reference
 from topseg.core import labels
 from topseg.core.crf.argmax import Summary, argmax_confidence
 from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
+from topseg.core.forest.features import OFF_IMAGE
 from topseg.core.forest.inputs import ModelInput, as_input
-from topseg.core.forest.predict import UPSAMPLE_SIGMA_MM, _upsample, apply, height_weights
-from topseg.core.forest.tree import node_depths
+from topseg.core.forest.predict import (
+    UPSAMPLE_SIGMA_MM,
+    _upsample,
+    apply,
+    height_weights,
+    inference_table,
+)
+from topseg.core.forest.tree import Tree, node_depths
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
@@ -194,3 +201,71 @@ def test_legacy_path_is_bit_identical_to_before():
         result = seg.label(depth)
         np.testing.assert_array_equal(result.labels, lab)
         assert result.floor_share == 0.0
+
+
+def ragged_tree(rng, depth, k, off_image_share=0.3):
+    """A random tree with leaves at every level up to `depth` (the pixels of a row arrive at
+    different levels, as in a trained tree), breadth-first; `off_image_share` of the split
+    features probe v off every image (`features.OFF_IMAGE`), as absolute features do."""
+    full = random_tree(rng, depth, k, 40 * 2500.0)
+    nodes, levels, splits = [0], [0], []
+    for i in range(2 ** (depth + 1)):
+        if i == len(nodes):
+            break
+        split = levels[i] < depth and (i == 0 or rng.random() < 0.75)
+        splits.append(split)
+        if split:
+            nodes += [2 * nodes[i] + 1, 2 * nodes[i] + 2]
+            levels += [levels[i] + 1] * 2
+    ids, split = np.array(nodes), np.array(splits)
+    left = np.full(ids.size, -1, np.int32)
+    left[split] = 1 + 2 * np.arange(split.sum())  # each split appended its two children
+    leaf = np.full(ids.size, -1, np.int32)
+    leaf[~split] = np.arange((~split).sum())
+    offsets = full.offsets[ids].copy()
+    offsets[..., 2:][split[:, None] & (rng.random((ids.size, k)) < off_image_share)] = OFF_IMAGE
+    posteriors = rng.dirichlet(np.full(labels.NUM_CLASSES, 0.3), size=(~split).sum())
+    return Tree(
+        offsets, full.weights[ids], full.threshold[ids], left, leaf, posteriors.astype(np.float32)
+    )
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_ragged_trees_with_off_image_probes_match_reference(k):
+    rng = np.random.default_rng(100 + k)
+    forest = Forest.from_trees([ragged_tree(rng, d, k) for d in (9, 4, 12)])
+    depths = node_depths(forest.left, forest.roots)[forest.left < 0]
+    assert depths.min() < depths.max() - 3  # leaves at many levels
+    assert np.any(forest.offsets == OFF_IMAGE)
+    for inp in (random_input(110 + k, (33, 47)), as_input(random_depth(120 + k, (33, 47)))):
+        np.testing.assert_array_equal(predict_proba(forest, inp), predict_reference(forest, inp))
+        fast = predict_proba(forest, inp, stride=3)
+        np.testing.assert_array_equal(fast[::3, ::3], predict_reference(forest, inp)[::3, ::3])
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_the_inference_table_holds_each_split_once_in_aligned_records(k):
+    rng = np.random.default_rng(130 + k)
+    forest = Forest.from_trees([ragged_tree(rng, 6, k), random_tree(rng, 0, k, 1e5)])
+    table = inference_table(forest)
+    assert inference_table(forest) is table  # packed once per forest
+    split = np.flatnonzero(forest.left >= 0)
+    s = table.n_splits
+    assert s == split.size
+    record = table.words.strides[0]
+    assert table.words.ctypes.data % 64 == 0 and (record == 32 or record % 64 == 0)
+    assert record >= 4 * (5 * k + 3)
+    f, w = table.fields, table.words
+    np.testing.assert_array_equal(f[:s, : 4 * k], forest.offsets[split].reshape(s, 4 * k))
+    np.testing.assert_array_equal(f[:s, 4 * k : 5 * k], forest.weights[split])
+    np.testing.assert_array_equal(f[:s, 5 * k], forest.threshold[split])
+    assert f[s, 5 * k] == np.inf and np.all(f[s, : 5 * k] == 0)  # the arrived stand-in
+    # each state names one node: a split's row, or n_splits + a leaf's posterior row
+    node_of_state = np.empty(s + forest.posteriors.shape[0], np.int64)
+    node_of_state[:s] = split
+    leaves = np.flatnonzero(forest.left < 0)
+    node_of_state[s + forest.leaf[leaves]] = leaves
+    np.testing.assert_array_equal(node_of_state[w[:s, 5 * k + 1]], forest.left[split])
+    np.testing.assert_array_equal(node_of_state[w[:s, 5 * k + 2]], forest.left[split] + 1)
+    np.testing.assert_array_equal(node_of_state[table.roots], forest.roots)
+    assert table.roots[1] == s + forest.leaf[forest.roots[1]]  # the lone leaf: arrived

@@ -5,12 +5,15 @@ floor gate); a plain depth frame is read as its legacy input, as models trained 
 heights expect.
 
 One numba kernel body, compiled once per number k of features per node, parallel over rows.
-Within a row the trees are walked level by level for all pixels at once (a pixel's walk is a chain of dependent loads; many independent walks side
-by side let the CPU overlap them and let LLVM vectorise the step with gathers). For that the
-kernel uses a packed copy of the node arrays (`InferenceTable`): one float32 row per node
-(offsets, weights, threshold) and a `step` index in which a leaf points to itself with an
-infinite threshold, so one more step never moves a pixel that has arrived; a row stops when
-a whole level moved nothing.
+Within a row the trees are walked level by level for all pixels at once: a pixel's walk is a
+chain of dependent loads, and many independent walks side by side let the CPU overlap them
+(the level loop compiles to scalar code; LLVM does not vectorise it). Each step prefetches
+the record the pixel goes to, which the next level reads a whole row of pixels later.
+The kernel reads a packed copy of the split nodes (`InferenceTable`): one 64-byte,
+cache-line-aligned record per split for k = 2 (offsets, weights, threshold, both children),
+no records for leaves, a uint16 probe image; a pixel that has arrived at a leaf reads a
+stand-in record and keeps its state, and a row's tree is done when every pixel has arrived.
+Results are bit-identical to a plain walk (`apply`, `tests/reference.py`).
 
 Only pixels with depth that the floor gate lets through are walked (a row's pixels to walk
 are gathered first). Pixels without depth get an all-zero posterior row (not a
@@ -27,6 +30,9 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 from topseg.core.camera import TopViewMount
 from topseg.core.crf.argmax import Summary, summarise_no_depth, summarise_pixel
@@ -39,15 +45,47 @@ _i32 = np.int32
 _f32 = np.float32
 
 
+#: bytes of a cache line: records start on one and never straddle two they need not
+_CACHE_LINE = 64
+
+
+def _record_words(k: int) -> int:
+    """The 32-bit words of one split record for k features per node (`InferenceTable`):
+    its 5k + 3 words rounded up to 8 (32 bytes, two records to a cache line) or to whole
+    cache lines (16 words: 64 bytes for k = 2, the bundled model's)."""
+    used = 5 * k + 3
+    return 8 if used <= 8 else 16 * -(-used // 16)
+
+
 @dataclass(frozen=True)
 class InferenceTable:
-    """Node arrays packed for the kernel: `nodes` (n, 5k + 1) float32 rows of
-    [u_row, u_col, v_row, v_col] * k, weights * k, threshold; `step` (n,) int32: the left
-    child, or the node itself for a leaf (whose threshold is +inf)."""
+    """A forest's splits packed for the kernel, one cache-aligned record per split node.
 
-    nodes: np.ndarray
-    step: np.ndarray
+    `words` (n_splits + 1, R) int32 rows, R = `_record_words(k)`, read as float32 through
+    `fields` (the same memory): [u_row, u_col, v_row, v_col] * k, weights * k, threshold
+    (float32), then the left and right child (int32), zero padding. Leaves have no record:
+    a walk's state is a split's row, or `n_splits` + the leaf's posterior row once it has
+    arrived. Row `n_splits` is a stand-in every arrived pixel reads (zero offsets, +inf
+    threshold) so that the level loop needs no branch; its children are never taken.
+    `roots` (T,) are the trees' root states."""
+
+    words: np.ndarray
+    fields: np.ndarray
+    roots: np.ndarray
     k: int
+
+    @property
+    def n_splits(self) -> int:
+        """Split records, the first arrived state."""
+        return self.words.shape[0] - 1
+
+
+def _aligned_zeros(rows: int, cols: int) -> np.ndarray:
+    """(rows, cols) int32 zeros whose first byte starts a cache line."""
+    n = rows * cols
+    raw = np.zeros(n + _CACHE_LINE // 4, np.int32)
+    skip = (-raw.ctypes.data % _CACHE_LINE) // 4
+    return raw[skip : skip + n].reshape(rows, cols)
 
 
 _TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -57,18 +95,52 @@ def inference_table(forest: Forest) -> InferenceTable:
     """The packed table of `forest`, built once per forest and cached."""
     table = _TABLES.get(forest)
     if table is None:
-        n, k = forest.n_nodes, forest.features_per_node
-        is_leaf = forest.left < 0
-        nodes = np.zeros((n, 5 * k + 1), np.float32)
-        nodes[:, : 4 * k] = forest.offsets.reshape(n, 4 * k)
-        nodes[:, 4 * k : 5 * k] = forest.weights
-        nodes[:, 5 * k] = forest.threshold
-        nodes[is_leaf] = 0.0
-        nodes[is_leaf, 5 * k] = np.inf
-        step = np.where(is_leaf, np.arange(n), forest.left).astype(np.int32)
-        table = InferenceTable(nodes, step, k)
+        k = forest.features_per_node
+        split = np.flatnonzero(forest.left >= 0)
+        s = split.size
+        # state of every node: its split row, or s + its posterior row for a leaf
+        state = np.where(forest.left >= 0, -1, s + forest.leaf).astype(np.int64)
+        state[split] = np.arange(s)
+        words = _aligned_zeros(s + 1, _record_words(k))
+        fields = words.view(np.float32)
+        fields[:s, : 4 * k] = forest.offsets[split].reshape(s, 4 * k)
+        fields[:s, 4 * k : 5 * k] = forest.weights[split]
+        fields[:s, 5 * k] = forest.threshold[split]
+        fields[s, 5 * k] = np.inf
+        left = forest.left[split]
+        words[:s, 5 * k + 1] = state[left]
+        words[:s, 5 * k + 2] = state[left + 1]
+        words.flags.writeable = False
+        fields.flags.writeable = False
+        roots = state[forest.roots].astype(np.int32)
+        table = InferenceTable(words, fields, roots, k)
         _TABLES[forest] = table
     return table
+
+
+@intrinsic
+def _prefetch_row(typingctx, table, i):
+    """Ask the CPU to start fetching row i of the C-contiguous 2-D `table` into the
+    first-level cache (`llvm.prefetch`: a hint, which neither blocks nor faults)."""
+
+    def codegen(context, builder, signature, args):
+        table_type, i_type = signature.args
+        array = context.make_array(table_type)(context, builder, args[0])
+        row = context.cast(builder, args[1], i_type, types.intp)
+        zero = context.get_constant(types.intp, 0)
+        ptr = cgutils.get_item_pointer(context, builder, table_type, array, [row, zero])
+        byte_ptr = ir.IntType(8).as_pointer()
+        int32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(
+            builder.module,
+            ir.FunctionType(ir.VoidType(), [byte_ptr] + [int32] * 3),
+            "llvm.prefetch.p0i8",
+        )
+        read, keep_close, data = ir.Constant(int32, 0), ir.Constant(int32, 3), ir.Constant(int32, 1)
+        builder.call(fn, [builder.bitcast(ptr, byte_ptr), read, keep_close, data])
+        return context.get_dummy_value()
+
+    return types.void(table, i), codegen
 
 
 @numba.njit(cache=True, inline="always")
@@ -79,13 +151,15 @@ def _probe(padded, r, c, inv_d, dr, dc, h, w):
     pc = c + _i32(np.floor(dc * inv_d + _f32(0.5)))
     pr = min(max(pr, _i32(-1)), h) + _i32(1)
     pc = min(max(pc, _i32(-1)), w) + _i32(1)
-    return padded[pr * (w + _i32(2)) + pc]
+    return _i32(padded[pr * (w + _i32(2)) + pc])
 
 
 @numba.njit(cache=True)
 def _padded(depth, background):
+    """The probe image as uint16 (half the cache footprint of int32; background <= 16000
+    fits), flattened with a 1-pixel border; the border and no-depth pixels hold background."""
     h, w = depth.shape
-    out = np.full((h + 2) * (w + 2), background, np.int32)
+    out = np.full((h + 2) * (w + 2), background, np.uint16)
     for r in range(h):
         for c in range(w):
             z = np.int32(depth[r, c])
@@ -95,19 +169,20 @@ def _padded(depth, background):
 
 
 @numba.njit(cache=True, inline="always")
-def _step(padded, r, c, inv_d, nodes, step, n, k, h, w):
-    """One step of a walk: the node `n` sends the pixel to step[n] (left) or step[n] + 1.
+def _step(padded, r, c, inv_d, fields, words, n, k, h, w):
+    """One step of a walk from split record `n` (`InferenceTable`): its left child's state
+    if the response < threshold, else its right child's.
 
     The response sums k weighted probe differences in float32, in feature order (as
-    training does); a leaf's infinite threshold keeps the pixel where it is."""
+    training does)."""
     resp = np.float32(0.0)
     for q in range(k):
         b = 4 * q
-        f = _probe(padded, r, c, inv_d, nodes[n, b], nodes[n, b + 1], h, w) - _probe(
-            padded, r, c, inv_d, nodes[n, b + 2], nodes[n, b + 3], h, w
+        f = _probe(padded, r, c, inv_d, fields[n, b], fields[n, b + 1], h, w) - _probe(
+            padded, r, c, inv_d, fields[n, b + 2], fields[n, b + 3], h, w
         )
-        resp += nodes[n, 4 * k + q] * np.float32(f)
-    return step[n] + _i32(resp >= nodes[n, 5 * k])
+        resp += fields[n, 4 * k + q] * np.float32(f)
+    return words[n, 5 * k + 1 + _i32(resp >= fields[n, 5 * k])]
 
 
 @numba.njit(cache=True, inline="always")
@@ -127,9 +202,10 @@ def _row_pixels(values, scale, floor, r, stride, n_cols):
 
 
 @numba.njit(cache=True, inline="always")
-def _accumulate(acc, cur, leaf, posteriors):
+def _accumulate(acc, cur, n_splits, posteriors):
+    """Add each arrived pixel's leaf posterior (state `n_splits` + its row) to its sum."""
     for j in range(cur.shape[0]):
-        row = leaf[cur[j]]
+        row = cur[j] - n_splits
         for q in range(posteriors.shape[1]):
             acc[j, q] += posteriors[row, q]
 
@@ -162,8 +238,7 @@ def _kernel(k: int):
     """The prediction kernel for forests of k features per node, compiled once per k.
 
     k is a constant of the kernel (a closure variable, which numba freezes at compile time),
-    so `_step`'s feature loop is unrolled and LLVM vectorises the level loop with gathers; a
-    k passed at run time would leave a branch in that loop, which stops the vectorisation.
+    so `_step`'s feature loop is unrolled and the record's fields sit at constant offsets.
     """
 
     @numba.njit(cache=True, parallel=True)
@@ -171,9 +246,8 @@ def _kernel(k: int):
         values,
         scale,
         floor,
-        nodes,
-        step,
-        leaf,
+        fields,
+        words,
         posteriors,
         roots,
         background,
@@ -184,9 +258,10 @@ def _kernel(k: int):
         psecond,
     ):
         """Posteriors of the evaluated pixels. Within a row the trees are walked one level
-        at a time for all pixels to walk; `cur` is local and the level loop plain so that it
-        vectorises."""
+        at a time for all pixels to walk, until all have arrived at a leaf; an arrived
+        pixel reads the stand-in record and keeps its state (a select, not a branch)."""
         h, w = _i32(values.shape[0]), _i32(values.shape[1])
+        n_splits = _i32(words.shape[0] - 1)
         padded = _padded(values, background)
         n_rows = (values.shape[0] + stride - 1) // stride
         n_cols = (values.shape[1] + stride - 1) // stride
@@ -199,16 +274,21 @@ def _kernel(k: int):
             for t in range(roots.shape[0]):
                 for j in range(m):
                     cur[j] = roots[t]
-                while True:
-                    moving = 0
+                walking = _i32(m) if roots[t] < n_splits else _i32(0)
+                while walking > 0:
+                    walking = 0
+                    fetched = _i32(-1)
                     for j in range(m):
                         n = cur[j]
-                        nxt = _step(padded, r, cols[j], inv[j], nodes, step, n, k, h, w)
-                        moving += _i32(nxt != n)
+                        rec = min(n, n_splits)
+                        nxt = _step(padded, r, cols[j], inv[j], fields, words, rec, k, h, w)
+                        nxt = nxt if n < n_splits else n
+                        walking += _i32(nxt < n_splits)
                         cur[j] = nxt
-                    if moving == 0:
-                        break
-                _accumulate(acc, cur, leaf, posteriors)
+                        if nxt != fetched:  # a neighbour's record is in the cache already
+                            _prefetch_row(words, min(nxt, n_splits))
+                            fetched = nxt
+                _accumulate(acc, cur, n_splits, posteriors)
             _write_row(
                 out,
                 values,
@@ -390,11 +470,10 @@ def predict_proba(
         inp.values,
         inp.scale,
         inp.floor,
-        table.nodes,
-        table.step,
-        forest.leaf,
+        table.fields,
+        table.words,
         forest.posteriors,
-        forest.roots,
+        table.roots,
         np.int32(forest.background_mm),
         stride,
         out,
