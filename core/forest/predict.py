@@ -45,7 +45,7 @@ _i32 = np.int32
 _f32 = np.float32
 
 
-#: bytes of a cache line: records start on one and never straddle two they need not
+#: bytes of a cache line: the table starts on one, so no record spans more lines than it fills
 _CACHE_LINE = 64
 
 
@@ -285,7 +285,9 @@ def _kernel(k: int):
                         nxt = nxt if n < n_splits else n
                         walking += _i32(nxt < n_splits)
                         cur[j] = nxt
-                        if nxt != fetched:  # a neighbour's record is in the cache already
+                        # the record the next level reads; not when the pixel before went there
+                        # too (at stride 1 such repeats made prefetching cost more than it saved)
+                        if nxt != fetched:
                             _prefetch_row(words, min(nxt, n_splits))
                             fetched = nxt
                 _accumulate(acc, cur, n_splits, posteriors)
