@@ -99,6 +99,25 @@ def backproject(depth_mm: np.ndarray, k: Intrinsics) -> np.ndarray:
     z = depth_mm.astype(np.float32) / 1000.0
     z[depth_mm == 0] = np.nan
     v, u = np.indices(k.shape, dtype=np.float32)
+    return _rays(u, v, z, k)
+
+
+def backproject_pixels(
+    depth_mm: np.ndarray, rows: np.ndarray, cols: np.ndarray, k: Intrinsics
+) -> np.ndarray:
+    """(N, 3) float32 points in metres in the camera frame of the pixels (rows, cols) of a
+    depth frame (`backproject` at those pixels only; without depth, NaN)."""
+    depth_mm = np.asarray(depth_mm)
+    if depth_mm.shape != k.shape:
+        raise ValueError(f"depth shape {depth_mm.shape} does not match camera {k.shape}")
+    d = depth_mm[rows, cols]
+    z = d.astype(np.float32) / 1000.0
+    z[d == 0] = np.nan
+    return _rays(np.asarray(cols, np.float32), np.asarray(rows, np.float32), z, k)
+
+
+def _rays(u: np.ndarray, v: np.ndarray, z: np.ndarray, k: Intrinsics) -> np.ndarray:
+    """Pixel coordinates (u right, v down) at depth z (m) -> camera-frame points, last axis."""
     x = (u - k.cx) * z / k.fx
     y = (v - k.cy) * z / k.fy
     return np.stack([x, y, z], axis=-1)

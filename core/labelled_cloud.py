@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import Intrinsics, TopViewMount, backproject
+from topseg.core.camera import Intrinsics, TopViewMount, backproject_pixels
 
 
 @dataclass(frozen=True)
@@ -47,9 +47,10 @@ def labelled_cloud(
         raise ValueError(f"stride must be >= 1, got {stride}")
     if label_img.shape != depth_mm.shape:
         raise ValueError(f"labels {label_img.shape} and depth {depth_mm.shape} differ in shape")
-    keep = depth_mm[::stride, ::stride] > 0
-    xyz = backproject(depth_mm, k)[::stride, ::stride][keep]
+    rows, cols = np.nonzero(np.asarray(depth_mm)[::stride, ::stride] > 0)
+    rows, cols = rows * stride, cols * stride
+    xyz = backproject_pixels(depth_mm, rows, cols, k)
     if mount is not None:
         xyz = mount.camera_to_world(xyz)
-    ids = np.asarray(label_img[::stride, ::stride][keep], np.uint8)
+    ids = np.asarray(label_img[rows, cols], np.uint8)
     return LabelledCloud(xyz.astype(np.float32), ids, mount is not None)

@@ -81,3 +81,16 @@ def test_top_view_mount():
 def test_scaled_intrinsics_keep_field_of_view():
     k2 = KINECT_V1.scaled_to(320, 240)
     np.testing.assert_allclose(k2.field_of_view_deg(), KINECT_V1.field_of_view_deg(), rtol=1e-6)
+
+
+def test_backproject_pixels_is_backproject_at_those_pixels():
+    from topseg.core.camera import backproject, backproject_pixels
+
+    rng = np.random.default_rng(3)
+    k = Intrinsics(width=64, height=48, fx=50.0, fy=51.0, cx=31.5, cy=23.5)
+    depth = rng.integers(0, 5000, k.shape).astype(np.uint16)
+    depth[rng.random(k.shape) < 0.2] = 0
+    rows, cols = rng.integers(0, 48, 100), rng.integers(0, 64, 100)
+    np.testing.assert_array_equal(
+        backproject_pixels(depth, rows, cols, k), backproject(depth, k)[rows, cols]
+    )
