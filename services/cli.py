@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import re
 import sys
 import warnings
@@ -117,8 +118,15 @@ def fail(command: str | None, exc: BaseException) -> None:
     systemd_notify.failed(line, getattr(cause, "errno", None))
 
 
+#: OpenMP threads (numba's parallel kernels) sleep between parallel regions instead of
+#: spinning: on the 2-core target a driver, a viewer and the worker share the cores, and
+#: spinning threads took their time (docs/performance.md). The environment can override it.
+OMP_WAIT_POLICY = "PASSIVE"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one `topseg` command; its exit code (2 with one error line on a TopsegError)."""
+    os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)  # before any kernel runs
     try:
         args = build_parser(argv).parse_args(argv)
     except TopsegError as exc:  # a bad --config file

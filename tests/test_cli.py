@@ -1,5 +1,6 @@
 """The `topseg` command: every subcommand (and bench) has working --help; errors are one line."""
 
+import os
 import subprocess
 import sys
 
@@ -41,3 +42,21 @@ def test_top_level_help_lists_commands_and_version_runs():
         check=True,
     ).stdout
     assert v.startswith("topseg ")
+
+
+@pytest.mark.parametrize("given, expected", [(None, "PASSIVE"), ("active", "active")])
+def test_openmp_threads_sleep_between_kernels_unless_the_environment_says(given, expected):
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if given is not None:
+        env["OMP_WAIT_POLICY"] = given
+    code = (
+        "import contextlib, io, os\n"
+        "from topseg.services import cli\n"
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+        "    cli.main(['--version'])\n"
+        "print(os.environ['OMP_WAIT_POLICY'])\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert out.stdout.strip().splitlines()[-1] == expected, out.stderr
