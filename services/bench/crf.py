@@ -14,7 +14,9 @@ Unaries are the bundled model's posteriors (or --model's), as the Segmenter make
 default (on its grid, upsampled by height), on rendered modeled scenes with the sensor's own
 noise (`bench/frames.py`; `--frames-from procedural` for procedural top views).
 `--unaries quick-forest` uses a small forest trained here on procedural frames (seeded,
-~20 s), `--unaries synthetic` the stand-in forest-like posteriors of `bench.crf_standin`. Timings
+~20 s), `--unaries synthetic` the stand-in forest-like posteriors of `bench.crf_standin`.
+The realtime CRF is timed as the Segmenter runs it: given the per-pixel argmax and top two
+posteriors that the forest computes as it writes the posteriors (`crf.Summary`). Timings
 are per-frame medians of --repeat runs, wall clock (*_ms_*) and this process's CPU time
 (*_cpu_ms_*: both solvers are single-threaded, so on an idle machine the two agree); the
 load average is reported beside them, since other processes on a 2-core machine inflate
@@ -81,7 +83,7 @@ def _quick_forest(rng: np.random.Generator):
     return forest.train_forest(depth, labels, config, seed=seed, mounts=mounts)
 
 
-def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
+def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
     """[(posteriors, depth)] and a sentence saying where the unaries came from."""
     rng = np.random.default_rng(args.seed)
     if args.unaries == "synthetic":
@@ -90,8 +92,9 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray
         out = []
         for _ in range(args.frames):
             depth, truth = synthetic_scene(rng)
-            out.append((forest_like_posteriors(truth, rng), depth))
+            out.append((forest_like_posteriors(truth, rng), depth, None))
         return out, "stand-in forest-like posteriors on synthetic scenes (bench/crf_standin)"
+    from topseg.core.crf import Summary, argmax_confidence
     from topseg.core.forest import FeatureConfig
     from topseg.core.forest.inputs import header_fields
     from topseg.core.segmenter import Segmenter, SegmenterConfig
@@ -109,7 +112,12 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple[np.ndarray, np.ndarray
     pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1)
     stride = segmenter.stride_for(pairs[0][0])
     # the buffer is reused: copy
-    out = [(segmenter.posteriors(depth).copy(), depth) for depth, _ in pairs]
+    out = []
+    for depth, _ in pairs:
+        proba = segmenter.posteriors(depth).copy()  # the buffer is reused
+        # what the forest hands the CRF beside the posteriors (it computes them as it writes)
+        summary = Summary(*argmax_confidence(proba, depth > 0))
+        out.append((proba, depth, summary))
     return out, f"{source} (stride {stride}) on {what}"
 
 
@@ -131,16 +139,18 @@ def measure(args: argparse.Namespace) -> dict:
     exact = CRFConfig(**{**realtime.to_dict(), "mode": "exact"})
     none = CRFConfig(**{**realtime.to_dict(), "mode": "none"})
     frames, source = _frames(args)
-    segment_crf(*frames[0], realtime)  # compile / load the numba kernels
+    proba0, depth0, summary0 = frames[0]
+    segment_crf(proba0, depth0, realtime, summary0)  # compile / load the numba kernels
+    segment_crf(proba0, depth0, realtime)
     rows = []
-    for proba, depth in frames:
+    for proba, depth, summary in frames:
         t0, c0 = time.perf_counter(), time.process_time()
         lab_exact = segment_crf(proba, depth, exact)
         t_exact, c_exact = time.perf_counter() - t0, time.process_time() - c0
         times, cpu = [], []
         for _ in range(args.repeat):
             t0, c0 = time.perf_counter(), time.process_time()
-            lab_rt = segment_crf(proba, depth, realtime)
+            lab_rt = segment_crf(proba, depth, realtime, summary)
             times.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         lab_none = segment_crf(proba, depth, none)
