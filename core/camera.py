@@ -226,12 +226,16 @@ class TopViewMount:
             raise ValueError(
                 f"depth shape {depth_mm.shape} does not match camera {self.intrinsics.shape}"
             )
-        n = tuple(float(x) for x in self.up_normal_camera())
-        a = _ray_coefficients(self.intrinsics, n)
         z = depth_mm.astype(np.float32)
-        h = z * a + np.float32(self.height_mm)
+        h = z * self.height_rays() + np.float32(self.height_mm)
         h[depth_mm == 0] = np.nan
         return h
+
+    def height_rays(self) -> np.ndarray:
+        """(H, W) float32 read-only `n . (x/z, y/z, 1)` of each pixel's ray (n the floor's
+        up-normal): a point at depth z (mm) is `height_mm + z * it` mm above the floor.
+        Cached per camera and normal."""
+        return _ray_coefficients(self.intrinsics, tuple(float(x) for x in self.up_normal_camera()))
 
     @classmethod
     def from_floor_plane(

@@ -9,7 +9,8 @@ bit (as stumpy keeps its naive versions in one test module).
 - `hash_uniform_np`, `kinect_reference`: the Kinect v1 noise model (`noise.KinectNoise`).
 - `field_at_reference`, `concavity_reference`, `tof_reference`, `stereo_reference`: the
   time-of-flight and stereo noise models (`noise.ToFNoise`, `noise.StereoNoise`).
-- `reference_input`, `model_input_reference`: the forest's input (`forest.inputs`).
+- `reference_input`, `model_input_reference`, `model_input_float32_reference`: the forest's
+  input (`forest.inputs`).
 - `probe_reference`, `extract_reference`, `response_reference`: the depth-difference features.
 - `apply_reference`, `predict_reference`: forest inference (`predict.apply`, `predict_proba`).
 - `SplitMix`, `responses_reference`, `gains_reference`, `best_split_reference`: training's
@@ -307,6 +308,25 @@ def model_input_reference(depth, mount, features, margin):
         scale = np.where(has, (k.fx / features.reference_focal_px) / z, 0.0)
     floor = has & (np.where(has, h, np.inf) < margin(depth))
     return values, scale, floor, np.where(has, h, np.nan)
+
+
+def model_input_float32_reference(depth, mount, features, margin):
+    """`inputs.model_input` in numpy with the kernel's float32 arithmetic: heights from
+    `mount.height_map_mm`; bit-identical, unlike the float64 `model_input_reference`.
+    Returns (values, scale, floor)."""
+    has = depth > 0
+    h = mount.height_map_mm(depth)
+    v = np.float32(features.canonical_height_mm) - np.where(has, h, np.float32(0.0))
+    top = int(features.background_mm) - 1
+    values = np.clip(np.floor(v + np.float32(0.5)), 1, top).astype(np.uint16)
+    values[~has] = 0
+    with np.errstate(divide="ignore"):
+        scale = np.float32(mount.intrinsics.fx / features.reference_focal_px) / depth.astype(
+            np.float32
+        )
+    scale[~has] = 0.0
+    floor = has & (np.where(has, h, np.float32(np.inf)) < margin(depth))
+    return values, scale, floor
 
 
 def extract_reference(frame, rows, cols, offsets, background):

@@ -3,7 +3,7 @@ path, and a model trained at one mount labelling scenes seen from another."""
 
 import numpy as np
 import pytest
-from reference import model_input_reference
+from reference import model_input_float32_reference, model_input_reference
 
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount, metres_to_mm
@@ -96,6 +96,23 @@ def test_model_input_matches_first_principles():
     np.testing.assert_array_equal(inp.floor[clear], floor[clear])
     assert inp.floor.any() and (~inp.floor & (depth > 0)).any()
     assert 0 < inp.floor_share() < 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_model_input_kernel_is_bit_identical_to_numpy(seed):
+    rng = np.random.default_rng(seed)
+    k = SMALL_K1 if seed % 2 else WIDE
+    mount = TopViewMount(k, rng.uniform(2200, 4500), *rng.uniform(-10, 10, 2), sensor="oak_d")
+    depth = rng.integers(0, 9000, size=k.shape).astype(np.uint16)
+    depth[rng.random(k.shape) < 0.1] = 0
+    inp = model_input(depth, mount, FEATURES)
+    values, scale, floor = model_input_float32_reference(
+        depth, mount, FEATURES, lambda d: floor_margin_mm(d, mount.sensor)
+    )
+    np.testing.assert_array_equal(inp.values, values)
+    np.testing.assert_array_equal(inp.scale, scale)
+    np.testing.assert_array_equal(inp.floor, floor)
+    assert inp.values.dtype == np.uint16 and inp.scale.dtype == np.float32
 
 
 def test_floor_gate_is_noise_aware():

@@ -27,6 +27,7 @@ import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import numba
 import numpy as np
 
 from topseg.core.camera import check_depth
@@ -106,12 +107,6 @@ def _margin_table(sensor: str) -> np.ndarray:
     return table
 
 
-def height_map_mm(mount: TopViewMount, depth_mm: np.ndarray) -> np.ndarray:
-    """(H, W) float32 height above the floor of each pixel's point (NaN without depth):
-    `mount.height_map_mm` (height_mm + n . X, n the floor's up-normal in camera coords)."""
-    return mount.height_map_mm(depth_mm)
-
-
 def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
     """The input of a height model (see the module) for a uint16 depth frame from `mount`.
 
@@ -124,18 +119,44 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
             f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
             f"{k.width}x{k.height}"
         )
-    has = depth > 0
-    h = height_map_mm(mount, depth)
-    bg = int(features.background_mm)
-    v = np.float32(features.canonical_height_mm) - np.where(has, h, np.float32(0.0))
-    values = np.clip(np.floor(v + np.float32(0.5)), 1, bg - 1).astype(np.uint16)
-    values[~has] = 0
-    d = depth.astype(np.float32)
-    with np.errstate(divide="ignore"):
-        scale = np.float32(k.fx / features.reference_focal_px) / d
-    scale[~has] = 0.0
-    floor = has & (np.where(has, h, np.float32(np.inf)) < _margin_table(mount.sensor)[depth])
-    return ModelInput(values, scale.astype(np.float32, copy=False), floor)
+    values = np.empty(depth.shape, np.uint16)
+    scale = np.empty(depth.shape, np.float32)
+    floor = np.empty(depth.shape, np.bool_)
+    _height_input(
+        depth,
+        mount.height_rays(),
+        np.float32(mount.height_mm),
+        np.float32(features.canonical_height_mm),
+        np.float32(int(features.background_mm) - 1),
+        np.float32(k.fx / features.reference_focal_px),
+        _margin_table(mount.sensor),
+        values,
+        scale,
+        floor,
+    )
+    return ModelInput(values, scale, floor)
+
+
+@numba.njit(cache=True, parallel=True)
+def _height_input(depth, ray, height, canonical, top, focal_ratio, margin, values, scale, floor):
+    """`model_input`'s three images in one pass over the frame, in float32 as
+    `TopViewMount.height_map_mm` computes heights (h = depth * ray + height; `ray` is
+    `TopViewMount.height_rays`): values clip(floor(canonical - h + 0.5), 1, top), scale
+    focal_ratio / depth, floor h < margin[depth]; zeros and False without depth."""
+    for r in numba.prange(depth.shape[0]):
+        for c in range(depth.shape[1]):
+            d = depth[r, c]
+            if d == 0:
+                values[r, c] = 0
+                scale[r, c] = np.float32(0.0)
+                floor[r, c] = False
+                continue
+            z = np.float32(d)
+            h = z * ray[r, c] + height
+            v = np.floor((canonical - h) + np.float32(0.5))
+            values[r, c] = np.uint16(min(max(v, np.float32(1.0)), top))
+            scale[r, c] = focal_ratio / z
+            floor[r, c] = h < margin[d]
 
 
 def legacy_input(depth: np.ndarray) -> ModelInput:
