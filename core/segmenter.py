@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -132,17 +133,23 @@ class Segmentation:
     """What `Segmenter.label` returns for one frame.
 
     labels       (H, W) uint8 class ids, NO_DEPTH (255) where there is no depth
-    proba        (H, W, C) float32 forest posteriors: the Segmenter's reused buffer, valid
-                 until its next call (copy it to keep it)
+    proba        (H, W, C) float32 forest posteriors (a property, see there)
     timings      per-stage milliseconds
     floor_share  share of the pixels with depth the floor gate sent to background without
                  the forest (0 for a model that reads depth)
     """
 
     labels: np.ndarray
-    proba: np.ndarray
     timings: Timings
-    floor_share: float = 0.0
+    floor_share: float
+    _posteriors: Callable[[], np.ndarray] = field(repr=False)
+
+    @property
+    def proba(self) -> np.ndarray:
+        """(H, W, C) float32 forest posteriors: the Segmenter's reused buffer, valid until
+        its next call (copy it to keep it). On a grid the Segmenter stores only the ones the
+        CRF reads; the first read of `proba` stores the rest (~1.5 ms a 640x480 frame)."""
+        return self._posteriors()
 
 
 class Segmenter:
@@ -179,6 +186,7 @@ class Segmenter:
         self.trained_for: dict[str, Any] | None = self.header.get("trained_for")
         self._out: np.ndarray | None = None
         self._summary = None  # crf.argmax.Summary: the CRF's per-pixel view of _out
+        self._frame = 0  # counts writes into _out (a Segmentation fills only its own)
 
     @property
     def reads_height(self) -> bool:
@@ -313,7 +321,7 @@ class Segmenter:
             return 1
         return grid_stride(self.frame_mount(depth, intrinsics, name, mount))
 
-    def _predict(self, inp: ModelInput, stride: int) -> np.ndarray:
+    def _predict(self, inp: ModelInput, stride: int, lazy: bool = False) -> np.ndarray:
         from topseg.core.crf.argmax import Summary
         from topseg.core.forest.predict import predict_proba
 
@@ -321,7 +329,10 @@ class Segmenter:
         if self._out is None or self._out.shape != shape:
             self._out = np.empty(shape, np.float32)
             self._summary = Summary.empty(inp.shape)  # filled with _out, read by the CRF
-        return predict_proba(self.forest, inp, out=self._out, stride=stride, summary=self._summary)
+        self._frame += 1  # a Segmentation's lazy posteriors are this buffer's until now
+        return predict_proba(
+            self.forest, inp, out=self._out, stride=stride, summary=self._summary, lazy=lazy
+        )
 
     def smooth(self, proba: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """The CRF stage alone: (H, W) uint8 labels of `proba` under this CRF mode."""
@@ -341,19 +352,37 @@ class Segmenter:
         None) with the frame's `intrinsics` when given; the forest stage's time includes
         building the model input."""
         from topseg.core.crf import segment_crf
+        from topseg.core.forest.predict import fill_posteriors
 
         t0 = time.perf_counter()
         inp = self.model_input(depth, intrinsics, name, mount)
-        proba = self._predict(inp, self.stride_for(depth, intrinsics, name, mount))
+        stride = self.stride_for(depth, intrinsics, name, mount)
+        proba = self._predict(inp, stride, lazy=stride > 1)
         t1 = time.perf_counter()
-        labels = segment_crf(proba, depth, self.config.crf, self._summary)
+        frame, filled = self._frame, [stride == 1]
+
+        def fill(mask: np.ndarray | None = None) -> np.ndarray:
+            """Store the posteriors left out at `mask` (all: the rest), for this frame only."""
+            if self._frame != frame:
+                raise TopsegError(
+                    "Segmentation.proba of an earlier frame: the Segmenter has labelled "
+                    "another since (copy proba before the next label)"
+                )
+            if not filled[0]:
+                fill_posteriors(inp, proba, stride, mask)
+                filled[0] = mask is None
+            return proba
+
+        labels = segment_crf(
+            proba, depth, self.config.crf, self._summary, None if filled[0] else fill
+        )
         t2 = time.perf_counter()
         ms = 1000.0
         return Segmentation(
             labels,
-            proba,
             Timings(ms * (t1 - t0), ms * (t2 - t1), ms * (t2 - t0)),
             inp.floor_share(),
+            fill,
         )
 
     def warm_up(self) -> None:

@@ -8,7 +8,13 @@ from reference import apply_reference, predict_reference, upsample_reference
 
 from topseg.core import labels
 from topseg.core.crf.argmax import Summary, argmax_confidence
-from topseg.core.forest import Forest, predict_labels, predict_proba, random_tree
+from topseg.core.forest import (
+    Forest,
+    fill_posteriors,
+    predict_labels,
+    predict_proba,
+    random_tree,
+)
 from topseg.core.forest.features import OFF_IMAGE
 from topseg.core.forest.inputs import ModelInput, as_input
 from topseg.core.forest.predict import (
@@ -108,6 +114,34 @@ def test_the_summary_filled_with_the_posteriors_is_their_argmax_confidence(strid
         predict_proba(forest, inp, summary=Summary.empty((3, 3)))
 
 
+@pytest.mark.parametrize("stride", [2, 3, 4])
+def test_lazy_posteriors_keep_the_summary_and_fill_to_the_eager_values(stride):
+    forest = random_forest(90 + stride, 2)
+    inp = random_input(95 + stride, (31, 45))
+    eager_summary = Summary.empty(inp.shape)
+    eager = predict_proba(forest, inp, stride=stride, summary=eager_summary)
+    lazy_summary = Summary.empty(inp.shape)
+    lazy = predict_proba(
+        forest,
+        inp,
+        out=np.full_like(eager, np.nan),
+        stride=stride,
+        summary=lazy_summary,
+        lazy=True,
+    )
+    for got, want in zip(lazy_summary, eager_summary, strict=True):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(lazy[::stride, ::stride], eager[::stride, ::stride])
+    assert np.isnan(lazy).any()  # the in-between pixels were left out
+    mask = np.random.default_rng(stride).random(inp.shape) < 0.3
+    fill_posteriors(inp, lazy, stride, mask)
+    np.testing.assert_array_equal(lazy[mask], eager[mask])
+    fill_posteriors(inp, lazy, stride)
+    np.testing.assert_array_equal(lazy, eager)
+    with pytest.raises(ValueError, match="mask"):
+        fill_posteriors(inp, lazy, stride, np.ones((3, 3), bool))
+
+
 def test_upsampling_keeps_a_height_edge():
     """A step in height between grid columns: pixels take the posterior of their own side."""
     values = np.full((9, 9), 2000, np.uint16)
@@ -118,7 +152,7 @@ def test_upsampling_keeps_a_height_edge():
     proba[:, 5:, 7] = 1.0
     grid = np.zeros_like(proba)
     grid[::4, ::4] = proba[::4, ::4]
-    _upsample(values, floor, 4, height_weights(), grid, *Summary.empty(values.shape))
+    _upsample(values, floor, 4, height_weights(), grid, *Summary.empty(values.shape), True)
     np.testing.assert_array_equal(grid.argmax(axis=2), proba.argmax(axis=2))
 
 

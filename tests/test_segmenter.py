@@ -92,6 +92,28 @@ def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
         assert t.forest_ms > 0 and t.crf_ms >= 0 and t.total_ms >= t.forest_ms
 
 
+@pytest.mark.parametrize("mode", ["none", "realtime", "exact"])
+def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode):
+    """On a grid the Segmenter stores only the posteriors the CRF reads; labels and the
+    posteriors read afterwards are those of the eager forest + CRF path."""
+    from topseg.core.forest.inputs import model_input
+
+    k = KINECT_V1.scaled_to(160, 120)
+    mount = TopViewMount(k, PAPER_MOUNT.height_mm)
+    seg = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2), crf=mode)
+    for depth, _ in demo_frames(2):
+        depth = np.ascontiguousarray(depth[::4, ::4])
+        got = seg.label(depth)
+        inp = model_input(depth, mount, seg.features)
+        proba = forest.predict_proba(seg.forest, inp, stride=2)
+        np.testing.assert_array_equal(got.labels, crf.segment_crf(proba, depth, seg.config.crf))
+        np.testing.assert_array_equal(got.proba, proba)
+    stale = seg.label(depth)
+    seg.label(depth)
+    with pytest.raises(TopsegError, match="earlier frame"):
+        stale.proba  # noqa: B018 (the property is what is tested)
+
+
 def test_the_one_argmax_agrees_with_numpy_on_ties_and_no_depth():
     rng = np.random.default_rng(4)
     for _ in range(20):

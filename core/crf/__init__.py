@@ -18,6 +18,8 @@ definition every mode and test uses. See docs/crf.md.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from topseg.core.crf.argmax import Summary, argmax_confidence, segment_argmax
@@ -60,14 +62,24 @@ __all__ = [
 
 
 def segment_crf(
-    proba: np.ndarray, depth_u16: np.ndarray, config: CRFConfig, summary: Summary | None = None
+    proba: np.ndarray,
+    depth_u16: np.ndarray,
+    config: CRFConfig,
+    summary: Summary | None = None,
+    fill: Callable[[np.ndarray], object] | None = None,
 ) -> np.ndarray:
     """(H, W) uint8 labels minimising the Potts energy under `config.mode`.
 
     Pixels with depth == 0 come out NO_DEPTH and take no part in the graph. `summary`, when
     given, is `proba`'s argmax and top two posteriors (`argmax.Summary`, as the forest fills
-    it): the realtime and argmax modes then skip that pass over `proba`.
+    it): the realtime and argmax modes then skip that pass over `proba`. `fill(mask)`, when
+    given, stores posteriors into `proba` at the (H, W) bool mask before they are read
+    there (`segment_realtime`; the argmax mode reads none, `exact` asks for all): for a
+    lazy `forest.predict_proba`.
     """
+    if fill is not None and (config.mode == "exact" or summary is None):
+        fill(np.ones(np.shape(depth_u16), np.bool_))  # every posterior is read
+        fill = None
     proba = check_proba(proba)
     depth = check_depth_shape(depth_u16, proba.shape[:2])
     valid = depth > 0
@@ -82,4 +94,4 @@ def segment_crf(
         if grid_energy(labels, unary, wh, wv, valid) > grid_energy(argmax, unary, wh, wv, valid):
             return argmax
         return labels
-    return segment_realtime(proba, depth, config, summary)
+    return segment_realtime(proba, depth, config, summary, fill)

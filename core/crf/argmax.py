@@ -33,16 +33,16 @@ class Summary(NamedTuple):
 
 
 @numba.njit(cache=True, inline="always")
-def summarise_pixel(proba, i, j, amax, pmax, psecond):
-    """Pixel (i, j)'s argmax and top two posteriors into the summary arrays.
+def summarise_values(p, i, j, amax, pmax, psecond):
+    """The argmax and top two of posterior vector `p` into the summary arrays at (i, j).
 
     Written with min/max rather than nested branches: twice as fast on forest posteriors.
     """
     best = 0
-    b1 = proba[i, j, 0]
+    b1 = p[0]
     b2 = np.float32(-1.0)
-    for k in range(1, proba.shape[2]):
-        pk = proba[i, j, k]
+    for k in range(1, p.shape[0]):
+        pk = p[k]
         b2 = max(b2, min(pk, b1))
         if pk > b1:
             best = k
@@ -50,6 +50,12 @@ def summarise_pixel(proba, i, j, amax, pmax, psecond):
     amax[i, j] = best
     pmax[i, j] = b1
     psecond[i, j] = b2
+
+
+@numba.njit(cache=True, inline="always")
+def summarise_pixel(proba, i, j, amax, pmax, psecond):
+    """Pixel (i, j)'s argmax and top two posteriors into the summary arrays."""
+    summarise_values(proba[i, j], i, j, amax, pmax, psecond)
 
 
 @numba.njit(cache=True, inline="always")

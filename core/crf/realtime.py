@@ -22,6 +22,8 @@ beside the CRF, and OpenMP threads waiting for a busy core cost more than they g
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numba
 import numpy as np
 
@@ -204,12 +206,21 @@ def band_mask(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.nda
 
 
 def segment_realtime(
-    proba: np.ndarray, depth: np.ndarray, config: CRFConfig, summary: Summary | None = None
+    proba: np.ndarray,
+    depth: np.ndarray,
+    config: CRFConfig,
+    summary: Summary | None = None,
+    fill: Callable[[np.ndarray], object] | None = None,
 ) -> np.ndarray:
     """(H, W) uint8 labels: argmax where fixed, alpha-expansion on the band (see module doc).
 
     `summary` is `proba`'s argmax and top two posteriors when the caller has them (the
-    forest fills them as it writes `proba`); its arrays are read, never returned."""
+    forest fills them as it writes `proba`); its arrays are read, never returned. `fill`,
+    when given, is called with the (H, W) bool band before `proba` is read there: `proba`
+    need hold posteriors only where `fill` stores them (`forest.fill_posteriors` of a lazy
+    `predict_proba`); it needs a summary."""
+    if fill is not None and summary is None:
+        raise ValueError("segment_realtime: fill needs the summary of the posteriors")
     proba = np.ascontiguousarray(proba, dtype=np.float32)
     valid = np.asarray(depth) > 0
     if summary is None:
@@ -225,6 +236,8 @@ def segment_realtime(
     index, n = number_band(free)
     if n == 0:
         return amax
+    if fill is not None:
+        fill(free)
     eps = np.float32(config.eps)
     pix, unary, nbr, nw, init = band_problem(proba, amax, index, n, wh, wv, eps, ENERGY_SCALE)
     cycles = config.cycles if config.cycles > 0 else 1_000_000

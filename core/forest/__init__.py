@@ -11,7 +11,7 @@ no-pickle file format); this module gathers their public names so callers write
 from topseg.core.forest.features import FeatureConfig
 from topseg.core.forest.inputs import ModelInput, legacy_input, model_input
 from topseg.core.forest.model_file import FORMAT_VERSION, ModelFileError, load_model, save_model
-from topseg.core.forest.predict import predict_labels, predict_proba
+from topseg.core.forest.predict import fill_posteriors, predict_labels, predict_proba
 from topseg.core.forest.train import TrainConfig, train_forest, train_tree, tree_seed
 from topseg.core.forest.tree import Forest, Tree, random_tree
 
@@ -23,6 +23,7 @@ __all__ = [
     "ModelInput",
     "TrainConfig",
     "Tree",
+    "fill_posteriors",
     "legacy_input",
     "load_model",
     "model_input",

@@ -35,7 +35,12 @@ from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 from topseg.core.camera import TopViewMount
-from topseg.core.crf.argmax import Summary, summarise_no_depth, summarise_pixel
+from topseg.core.crf.argmax import (
+    Summary,
+    summarise_no_depth,
+    summarise_pixel,
+    summarise_values,
+)
 from topseg.core.forest.features import response_at
 from topseg.core.forest.inputs import ModelInput, as_input, check_input
 from topseg.core.forest.tree import Forest
@@ -353,8 +358,62 @@ def _range_weight(values, gr, gc, v, spatial, table):
     return spatial * table[d]
 
 
+@numba.njit(cache=True, inline="always")
+def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
+    """The upsampled posterior (see `_upsample`) of the in-between pixel of probe value
+    v > 0 in column c of a row between grid rows r0 and r1 (weights wr0, wr1) into `buf`."""
+    c0 = c - c % stride
+    c1 = min(c0 + stride, last_c)
+    wc0 = np.float32(stride - (c - c0))
+    wc1 = np.float32(stride - (c1 - c)) if c1 != c0 else np.float32(0.0)
+    w00 = _range_weight(values, r0, c0, v, wr0 * wc0, table)
+    w01 = _range_weight(values, r0, c1, v, wr0 * wc1, table)
+    w10 = _range_weight(values, r1, c0, v, wr1 * wc0, table)
+    w11 = _range_weight(values, r1, c1, v, wr1 * wc1, table)
+    total = w00 + w01 + w10 + w11
+    if total > np.float32(1e-30):
+        inv = np.float32(1.0) / total
+        w00, w01, w10, w11 = w00 * inv, w01 * inv, w10 * inv, w11 * inv
+        for q in range(buf.shape[0]):
+            buf[q] = (
+                w00 * out[r0, c0, q]
+                + w01 * out[r0, c1, q]
+                + w10 * out[r1, c0, q]
+                + w11 * out[r1, c1, q]
+            )
+        return
+    best_r, best_c, best = -1, -1, np.int32(1 << 30)
+    for gr in (r0, r1):
+        for gc in (c0, c1):
+            if values[gr, gc] > 0:
+                d = abs(np.int32(values[gr, gc]) - v)
+                if d < best:
+                    best_r, best_c, best = gr, gc, d
+    for q in range(buf.shape[0]):
+        buf[q] = out[best_r, best_c, q] if best_r >= 0 else np.float32(0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _grid_rows(r, stride, last_r):
+    """The grid rows r0 <= r <= r1 around row r and their bilinear weights."""
+    r0 = r - r % stride
+    r1 = min(r0 + stride, last_r)
+    wr0 = np.float32(stride - (r - r0))
+    wr1 = np.float32(stride - (r1 - r)) if r1 != r0 else np.float32(0.0)
+    return r0, r1, wr0, wr1
+
+
+@numba.njit(cache=True, inline="always")
+def _write_fixed(out, r, c, has_value):
+    """A pixel the forest does not decide: background for the floor, zeros without a value."""
+    for q in range(out.shape[2]):
+        out[r, c, q] = np.float32(0.0)
+    if has_value:
+        out[r, c, BACKGROUND] = np.float32(1.0)
+
+
 @numba.njit(cache=True, parallel=True)
-def _upsample(values, floor, stride, table, out, amax, pmax, psecond):
+def _upsample(values, floor, stride, table, out, amax, pmax, psecond, write):
     """Posteriors between the grid points of a strided walk (joint bilateral upsampling,
     Kopf et al. 2007): each pixel with a value averages the posteriors of the up to four
     grid pixels around it, weighted bilinearly and by `table[|dv|]` (`height_weights`:
@@ -362,60 +421,54 @@ def _upsample(values, floor, stride, table, out, amax, pmax, psecond):
     in the posteriors. Where every neighbour's weight underflows, the neighbour closest in
     value wins; where none of them has a value, zeros (no posterior, as without depth).
     Pixels without a value get zeros, floor pixels background; grid pixels keep their
-    walked posteriors. Each pixel written gets its summary (`crf.argmax.Summary`)."""
+    walked posteriors. Every in-between pixel gets its summary (`crf.argmax.Summary`); its
+    posterior is stored only when `write` (else `_fill` stores it where it is needed)."""
     h, w = values.shape
-    n_classes = out.shape[2]
     last_r = (h - 1) - (h - 1) % stride
     last_c = (w - 1) - (w - 1) % stride
     for r in numba.prange(h):
-        r0 = r - r % stride
-        r1 = min(r0 + stride, last_r)
-        wr0 = np.float32(stride - (r - r0))
-        wr1 = np.float32(stride - (r1 - r)) if r1 != r0 else np.float32(0.0)
+        buf = np.empty(out.shape[2], np.float32)
+        r0, r1, wr0, wr1 = _grid_rows(r, stride, last_r)
         for c in range(w):
-            c0 = c - c % stride
-            if r == r0 and c == c0:
+            if r == r0 and c % stride == 0:
                 continue
             v = np.int32(values[r, c])
             if v == 0 or floor[r, c]:
-                for q in range(n_classes):
-                    out[r, c, q] = np.float32(0.0)
+                if write:
+                    _write_fixed(out, r, c, v != 0)
                 if v != 0:
-                    out[r, c, BACKGROUND] = np.float32(1.0)
-                    summarise_pixel(out, r, c, amax, pmax, psecond)
+                    amax[r, c] = BACKGROUND
+                    pmax[r, c] = np.float32(1.0)
+                    psecond[r, c] = np.float32(0.0)
                 else:
                     summarise_no_depth(r, c, amax, pmax, psecond)
                 continue
-            c1 = min(c0 + stride, last_c)
-            wc0 = np.float32(stride - (c - c0))
-            wc1 = np.float32(stride - (c1 - c)) if c1 != c0 else np.float32(0.0)
-            w00 = _range_weight(values, r0, c0, v, wr0 * wc0, table)
-            w01 = _range_weight(values, r0, c1, v, wr0 * wc1, table)
-            w10 = _range_weight(values, r1, c0, v, wr1 * wc0, table)
-            w11 = _range_weight(values, r1, c1, v, wr1 * wc1, table)
-            total = w00 + w01 + w10 + w11
-            if total > np.float32(1e-30):
-                inv = np.float32(1.0) / total
-                w00, w01, w10, w11 = w00 * inv, w01 * inv, w10 * inv, w11 * inv
-                for q in range(n_classes):
-                    out[r, c, q] = (
-                        w00 * out[r0, c0, q]
-                        + w01 * out[r0, c1, q]
-                        + w10 * out[r1, c0, q]
-                        + w11 * out[r1, c1, q]
-                    )
-                summarise_pixel(out, r, c, amax, pmax, psecond)
+            _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf)
+            summarise_values(buf, r, c, amax, pmax, psecond)
+            if write:
+                for q in range(buf.shape[0]):
+                    out[r, c, q] = buf[q]
+
+
+@numba.njit(cache=True, parallel=True)
+def _fill(values, floor, stride, table, out, mask):
+    """Store the posteriors `_upsample(..., write=False)` left out, at the pixels of `mask`."""
+    h, w = values.shape
+    last_r = (h - 1) - (h - 1) % stride
+    last_c = (w - 1) - (w - 1) % stride
+    for r in numba.prange(h):
+        buf = np.empty(out.shape[2], np.float32)
+        r0, r1, wr0, wr1 = _grid_rows(r, stride, last_r)
+        for c in range(w):
+            if not mask[r, c] or (r == r0 and c % stride == 0):
                 continue
-            best_r, best_c, best = -1, -1, np.int32(1 << 30)
-            for gr in (r0, r1):
-                for gc in (c0, c1):
-                    if values[gr, gc] > 0:
-                        d = abs(np.int32(values[gr, gc]) - v)
-                        if d < best:
-                            best_r, best_c, best = gr, gc, d
-            for q in range(n_classes):
-                out[r, c, q] = out[best_r, best_c, q] if best_r >= 0 else np.float32(0.0)
-            summarise_pixel(out, r, c, amax, pmax, psecond)
+            v = np.int32(values[r, c])
+            if v == 0 or floor[r, c]:
+                _write_fixed(out, r, c, v != 0)
+                continue
+            _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf)
+            for q in range(buf.shape[0]):
+                out[r, c, q] = buf[q]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -441,6 +494,7 @@ def predict_proba(
     out: np.ndarray | None = None,
     stride: int = 1,
     summary: Summary | None = None,
+    lazy: bool = False,
 ) -> np.ndarray:
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
@@ -454,6 +508,10 @@ def predict_proba(
     `summary` (`crf.argmax.Summary` of (H, W) buffers), when given, is filled with every
     pixel's argmax and top two posteriors as the posteriors are written: what the CRF reads,
     without another pass over them (`crf.segment_crf(..., summary=)`).
+    `lazy` (with stride > 1 and a summary) stores the posteriors of grid pixels only: every
+    pixel's summary is still exact, and `fill_posteriors` stores the rest where a reader
+    needs them (the realtime CRF reads its band only), sparing the write of the whole
+    (H, W, C) array.
     """
     inp = check_input(as_input(frame), "forest inference")
     if stride < 1:
@@ -482,7 +540,22 @@ def predict_proba(
         *summary,
     )
     if stride > 1:
-        _upsample(inp.values, inp.floor, stride, height_weights(), out, *summary)
+        _upsample(inp.values, inp.floor, stride, height_weights(), out, *summary, not lazy)
+    return out
+
+
+def fill_posteriors(
+    frame: ModelInput, out: np.ndarray, stride: int, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """Store the posteriors `predict_proba(frame, out, stride, lazy=True)` left out, at the
+    pixels of (H, W) bool `mask` (all pixels when None); the values are those an eager call
+    writes. Returns `out`."""
+    inp = check_input(frame, "forest inference")
+    if stride > 1:
+        mask = np.ones(inp.shape, np.bool_) if mask is None else np.asarray(mask, np.bool_)
+        if mask.shape != inp.shape:
+            raise ValueError(f"mask is {mask.shape}, the frame {inp.shape}")
+        _fill(inp.values, inp.floor, stride, height_weights(), out, mask)
     return out
 
 

@@ -26,6 +26,7 @@ the wall-clock figures.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import time
 from pathlib import Path
@@ -84,7 +85,8 @@ def _quick_forest(rng: np.random.Generator):
 
 
 def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
-    """[(posteriors, depth)] and a sentence saying where the unaries came from."""
+    """[(posteriors, depth, summary, fill)] and a sentence saying where the unaries came from
+    (`segment_crf`'s arguments; summary and fill None where the Segmenter has none)."""
     rng = np.random.default_rng(args.seed)
     if args.unaries == "synthetic":
         from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
@@ -92,10 +94,10 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
         out = []
         for _ in range(args.frames):
             depth, truth = synthetic_scene(rng)
-            out.append((forest_like_posteriors(truth, rng), depth, None))
+            out.append((forest_like_posteriors(truth, rng), depth, None, None))
         return out, "stand-in forest-like posteriors on synthetic scenes (bench/crf_standin)"
     from topseg.core.crf import Summary, argmax_confidence
-    from topseg.core.forest import FeatureConfig
+    from topseg.core.forest import FeatureConfig, fill_posteriors
     from topseg.core.forest.inputs import header_fields
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
@@ -117,7 +119,12 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
         proba = segmenter.posteriors(depth).copy()  # the buffer is reused
         # what the forest hands the CRF beside the posteriors (it computes them as it writes)
         summary = Summary(*argmax_confidence(proba, depth > 0))
-        out.append((proba, depth, summary))
+        # on a grid the Segmenter stores the band's posteriors when the CRF asks for them
+        # (`Segmenter.label`): the realtime CRF's time includes that
+        fill = None
+        if stride > 1 and segmenter.reads_height:
+            fill = functools.partial(fill_posteriors, segmenter.model_input(depth), proba, stride)
+        out.append((proba, depth, summary, fill))
     return out, f"{source} (stride {stride}) on {what}"
 
 
@@ -139,18 +146,18 @@ def measure(args: argparse.Namespace) -> dict:
     exact = CRFConfig(**{**realtime.to_dict(), "mode": "exact"})
     none = CRFConfig(**{**realtime.to_dict(), "mode": "none"})
     frames, source = _frames(args)
-    proba0, depth0, summary0 = frames[0]
-    segment_crf(proba0, depth0, realtime, summary0)  # compile / load the numba kernels
+    proba0, depth0, summary0, fill0 = frames[0]
+    segment_crf(proba0, depth0, realtime, summary0, fill0)  # compile / load the kernels
     segment_crf(proba0, depth0, realtime)
     rows = []
-    for proba, depth, summary in frames:
+    for proba, depth, summary, fill in frames:
         t0, c0 = time.perf_counter(), time.process_time()
         lab_exact = segment_crf(proba, depth, exact)
         t_exact, c_exact = time.perf_counter() - t0, time.process_time() - c0
         times, cpu = [], []
         for _ in range(args.repeat):
             t0, c0 = time.perf_counter(), time.process_time()
-            lab_rt = segment_crf(proba, depth, realtime, summary)
+            lab_rt = segment_crf(proba, depth, realtime, summary, fill)
             times.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         lab_none = segment_crf(proba, depth, none)

@@ -128,8 +128,9 @@ def measure(args: argparse.Namespace) -> dict:
     pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1)
     frames = [d for d, _ in pairs]
     mount = bench_frames.bench_mount()
-    # the forest stage alone (`posteriors`, into the Segmenter's reused buffer); no camera
-    # check: a model file's camera need not be these frames'
+    # the forest stage as `Segmenter.label` runs it with no CRF (model input, walk, the
+    # upsampled summary; on a grid the posteriors between grid pixels are left to the CRF's
+    # band); no camera check: a model file's camera need not be these frames'
     full = Segmenter(
         model, header, SegmenterConfig(check_camera=False, mount=mount, stride=1), crf="none"
     )
@@ -148,7 +149,7 @@ def measure(args: argparse.Namespace) -> dict:
     levels = node_depths(model.left, model.roots)
     figures["mean_levels_walked"] = round(float(levels[leaves[leaves >= 0]].mean()), 2)
     for s, segmenter in {1: full, stride: grid}.items():
-        wall, cpu = _time_frames(segmenter.posteriors, frames, args.repeats)
+        wall, cpu = _time_frames(segmenter.label, frames, args.repeats)
         grid_leaves = leaves[:, ::s, ::s]
         visits = int(levels[grid_leaves[grid_leaves >= 0]].sum())
         figures[f"forest_ms_per_frame_stride{s}"] = round(wall, 2)
