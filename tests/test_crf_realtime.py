@@ -11,13 +11,17 @@ from topseg.core import labels as L
 from topseg.core.crf import CRFConfig, edge_weights, potts_energy
 from topseg.core.crf.expansion import alpha_expansion, energy
 from topseg.core.crf.realtime import (
+    BAND_PARTS,
+    PARALLEL_BAND_PIXELS,
     argmax_confidence,
     band_mask,
+    band_parts,
     band_problem,
     float_gain,
     free_mask,
     number_band,
     segment_realtime,
+    solve_band,
 )
 from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
@@ -177,3 +181,63 @@ def test_a_given_summary_gives_the_same_labels_and_is_never_returned(mode):
         assert not np.shares_memory(got, summary.amax)  # the caller reuses its buffers
         for a, b in zip(summary, kept, strict=True):
             np.testing.assert_array_equal(a, b)
+
+
+def large_band(seed, shape=(240, 320)):
+    """A band problem of a forest-like scene, big enough to be split (`solve_band`)."""
+    rng = np.random.default_rng(seed)
+    depth, truth = synthetic_scene(rng, shape)
+    proba = forest_like_posteriors(truth, rng)
+    cfg = CRFConfig(confidence=0.5, ring=0)  # a band of several components
+    valid = depth > 0
+    amax, pmax, psecond = argmax_confidence(proba, valid)
+    wh, wv = edge_weights(depth, cfg)
+    free = free_mask(amax, pmax, psecond, valid, cfg.confidence, cfg.ring, cfg.smoothness, cfg.eps)
+    index, n = number_band(free)
+    return free, band_problem(proba, amax, index, n, wh, wv, np.float32(cfg.eps), 1000.0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_band_parts_keep_components_whole_and_balance_them(seed):
+    free, (pix, _, nbr, _, _) = large_band(seed)
+    parts = band_parts(nbr, 2)
+    # scipy's components of the band's graph (edges of weight 0 are not in it: none here)
+    comp, n_comp = ndimage.label(free, CROSS)
+    comp = comp.ravel()[pix]
+    assert n_comp > 2
+    for c in range(1, n_comp + 1):
+        assert np.unique(parts[comp == c]).size == 1
+    sizes = np.bincount(comp)[1:]
+    load = np.bincount(parts, minlength=2)
+    # greedy largest-first: the parts differ by at most the largest component
+    assert abs(load[0] - load[1]) <= sizes.max()
+
+
+@pytest.mark.parametrize("cycles", [1, 3])
+def test_a_split_band_is_solved_component_by_component(cycles):
+    """Each part's labels are those of expansion on its own components, solved alone;
+    one thread or two, the same."""
+    import numba
+
+    _, (_, unary, nbr, nw, init) = large_band(7)
+    assert init.size >= PARALLEL_BAND_PIXELS
+    labels, gain, changed = solve_band(unary, nbr, nw, init, cycles)
+    parts = band_parts(nbr, BAND_PARTS)
+    want = np.empty_like(init)
+    for k in range(BAND_PARTS):
+        ids = np.flatnonzero(parts == k)
+        local = np.full(init.size, -1)
+        local[ids] = np.arange(ids.size)
+        sub_nbr = np.where(nbr[ids] >= 0, local[nbr[ids]], -1).astype(nbr.dtype)
+        want[ids] = alpha_expansion(unary[ids], sub_nbr, nw[ids], init[ids], cycles)
+    np.testing.assert_array_equal(labels, want)
+    assert changed == np.count_nonzero(want != init) > 0
+    args = (unary.astype(np.int64), nbr.astype(np.int64), nw.astype(np.int64))
+    assert gain == energy(init.astype(np.int64), *args) - energy(want.astype(np.int64), *args)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        one = solve_band(unary, nbr, nw, init, cycles)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(one[0], labels)
