@@ -120,6 +120,20 @@ def test_unknown_label_ids_are_refused_both_ways():
         wire.decode_labels(msgpack.packb(msg))
 
 
+def test_every_byte_value_is_judged_by_the_label_table():
+    from topseg.core import labels
+
+    valid = {lab.id for lab in labels.LABELS} | {labels.NO_DEPTH}
+    for v in range(256):
+        img = np.zeros((3, 5), np.uint8)
+        img[2, 4] = v
+        if v in valid:
+            wire.encode_labels(LabelFrame(img))
+        else:
+            with pytest.raises(WireError, match=str(v)):
+                wire.encode_labels(LabelFrame(img))
+
+
 @pytest.mark.parametrize(
     ("field", "value", "match"),
     [

