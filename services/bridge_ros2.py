@@ -29,16 +29,15 @@ subscribed and pings the watchdog; SIGTERM/SIGINT stop it cleanly.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
 import os
-import queue
 import time
 from typing import Any
 
 from topseg.core.errors import TopsegError
 from topseg.services import zenoh_session
 from topseg.services.cli_types import int_range
+from topseg.services.inbox import Inbox
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.bridge")
@@ -330,19 +329,7 @@ def run(args: argparse.Namespace) -> int:
     domain = ros_domain(args.domain)
     wanted = wanted_cameras(args.cameras)
     svc = ServiceLifecycle("bridge", args)
-    inbox: queue.Queue = queue.Queue(maxsize=args.queue)
-    dropped = 0
-
-    def on_sample(sample) -> None:  # Zenoh thread: copy and hand over, never block
-        nonlocal dropped
-        try:
-            inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes()))
-        except queue.Full:
-            dropped += 1
-
-    def wake() -> None:  # a stopping signal: end the wait on the inbox at once
-        with contextlib.suppress(queue.Full):
-            inbox.put_nowait(None)
+    inbox = Inbox(args.queue)
 
     if wanted is None:
         keys = ["topseg/*/*/depth", "topseg/*/*/labels"]
@@ -353,13 +340,13 @@ def run(args: argparse.Namespace) -> int:
         bridge = Bridge(svc.session, domain, args.max_cameras, wanted)
         svc.defer(bridge.close)
         for key in keys:
-            svc.declare(svc.session.declare_subscriber(key, on_sample))
-        svc.on_stop(wake)
+            svc.declare(svc.session.declare_subscriber(key, inbox.on_sample))
+        svc.on_stop(inbox.wake)
 
         def status() -> str:
             return (
                 f"bridging {len(bridge.cameras)} camera(s) to ROS 2 domain {domain}: "
-                f"{bridge.published} messages, {bridge.rejected} rejected, {dropped} dropped, "
+                f"{bridge.published} messages, {bridge.rejected} rejected, {inbox.dropped} dropped, "
                 f"{bridge.ignored} ignored"
             )
 
@@ -369,10 +356,7 @@ def run(args: argparse.Namespace) -> int:
         svc.ready(status=status)
         while not svc.stopping:
             svc.beat()
-            try:
-                item = inbox.get(timeout=svc.tick)
-            except queue.Empty:
-                continue
+            item = inbox.get(svc.tick)
             if item is not None:
                 bridge.handle(*item)
         log.info("bridge done: %s", status())

@@ -20,14 +20,13 @@ watchdog.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
-import queue
 import time
 
 from topseg.core.errors import TopsegError
 from topseg.services import zenoh_session
 from topseg.services.cli_types import finite, positive_int
+from topseg.services.inbox import Inbox
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.record")
@@ -101,19 +100,8 @@ def run(args: argparse.Namespace) -> int:
 
     keys = _check(args)
     svc = ServiceLifecycle("record", args, signal_note="finishing the recording")
-    inbox: queue.Queue = queue.Queue(maxsize=args.queue)
-    dropped = rejected = written = 0
-
-    def on_sample(sample) -> None:
-        nonlocal dropped
-        try:
-            inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
-        except queue.Full:
-            dropped += 1
-
-    def wake() -> None:  # a stopping signal: end the wait on the inbox at once
-        with contextlib.suppress(queue.Full):
-            inbox.put_nowait(None)
+    inbox = Inbox(args.queue, stamp=True)
+    rejected = written = 0
 
     def store(item) -> None:
         nonlocal written, rejected
@@ -129,12 +117,12 @@ def run(args: argparse.Namespace) -> int:
     with svc:
         writer = open_writer(args.format, args.out, {"keys": " ".join(keys)})
         svc.defer(writer.close)  # moves the file into place; after a write error it is there
-        subscribers = [svc.session.declare_subscriber(k, on_sample) for k in keys]
-        svc.on_stop(wake)
+        subscribers = [svc.session.declare_subscriber(k, inbox.on_sample) for k in keys]
+        svc.on_stop(inbox.wake)
         log.info("recording %s to %s (%s)", ", ".join(keys), args.out, args.format)
         svc.ready(
             status=lambda: (
-                f"recording to {args.out}: {written} messages, {dropped} dropped, "
+                f"recording to {args.out}: {written} messages, {inbox.dropped} dropped, "
                 f"{rejected} rejected"
             )
         )
@@ -147,22 +135,20 @@ def run(args: argparse.Namespace) -> int:
             timeout = svc.tick if deadline is None else min(svc.tick, deadline - time.monotonic())
             if timeout <= 0:
                 break
-            try:
-                item = inbox.get(timeout=timeout)
-            except queue.Empty:
-                continue
+            item = inbox.get(timeout)
             if item is not None:
                 store(item)
         for sub in subscribers:
             sub.undeclare()
-        while args.count is None or written < args.count:  # what arrived before the stop
-            try:
-                item = inbox.get_nowait()
-            except queue.Empty:
+        for item in inbox.drain():  # what arrived before the stop
+            if args.count is not None and written >= args.count:
                 break
-            if item is not None:
-                store(item)
+            store(item)
     log.info(
-        "recorded %d messages to %s (%d dropped, %d rejected)", written, args.out, dropped, rejected
+        "recorded %d messages to %s (%d dropped, %d rejected)",
+        written,
+        args.out,
+        inbox.dropped,
+        rejected,
     )
     return 0

@@ -25,9 +25,7 @@ thread only queues (bounded), the logging loop drops and counts what it cannot t
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
-import queue
 import time
 import urllib.parse
 from collections import OrderedDict
@@ -35,6 +33,7 @@ from typing import Any
 
 from topseg.services import viewer_layout, zenoh_session
 from topseg.services.cli_types import finite
+from topseg.services.inbox import Inbox
 from topseg.services.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.viewer")
@@ -318,19 +317,7 @@ def run(args: argparse.Namespace) -> int:
             raise TopsegError(f"{option} must be a port {lowest}-65535, got {port}")
     svc = ServiceLifecycle("viewer", args)
     sinks: list = []
-    inbox: queue.Queue = queue.Queue(QUEUE_SIZE)
-    dropped = 0
-
-    def on_sample(sample) -> None:  # Zenoh thread: copy and hand over, never block
-        nonlocal dropped
-        try:
-            inbox.put_nowait((str(sample.key_expr), sample.payload.to_bytes()))
-        except queue.Full:
-            dropped += 1
-
-    def wake() -> None:  # a stopping signal: end the wait on the inbox at once
-        with contextlib.suppress(queue.Full):
-            inbox.put_nowait(None)
+    inbox = Inbox(QUEUE_SIZE)
 
     rec = open_rerun(args)  # a sink that cannot open fails before Zenoh does (exit 2)
     if rec is not None:
@@ -346,12 +333,14 @@ def run(args: argparse.Namespace) -> int:
 
     def status_text() -> str:
         n = len(viewer.cameras)
-        return f"logging {n} camera(s) to {where}; {viewer.rejected} rejected, {dropped} dropped"
+        return (
+            f"logging {n} camera(s) to {where}; {viewer.rejected} rejected, {inbox.dropped} dropped"
+        )
 
     with svc:
         for kind in ("depth", "labels", "stats"):
-            svc.declare(svc.session.declare_subscriber(f"topseg/*/*/{kind}", on_sample))
-        svc.on_stop(wake)
+            svc.declare(svc.session.declare_subscriber(f"topseg/*/*/{kind}", inbox.on_sample))
+        svc.on_stop(inbox.wake)
         log.info("viewer ready")
         svc.ready(status=status_text)
         end = None if args.duration is None else time.monotonic() + args.duration
@@ -360,11 +349,8 @@ def run(args: argparse.Namespace) -> int:
             timeout = svc.tick if end is None else min(svc.tick, end - time.monotonic())
             if timeout <= 0:
                 break
-            try:
-                item = inbox.get(timeout=timeout)
-            except queue.Empty:
-                continue
+            item = inbox.get(timeout)
             if item is not None:
                 viewer.handle(*item)
-    log.info("viewer done (%d rejected, %d dropped while busy)", viewer.rejected, dropped)
+    log.info("viewer done (%d rejected, %d dropped while busy)", viewer.rejected, inbox.dropped)
     return 0
