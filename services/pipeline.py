@@ -40,7 +40,7 @@ START_TIMEOUT_S = 180.0
 MAX_SCORED = 3000  # frames kept for scoring (~0.6 MB each)
 #: the worker's per-frame stage timings kept for percentiles
 MAX_STAGE = 100_000
-STAGES = ("forest", "crf", "total")
+STAGES = ("receive", "mount", "forest", "crf", "publish", "total")
 DRAIN_S = 1.0  # wait for labels still in flight after the driver stops
 #: --lossless: after the driver stops, keep waiting while labels still come (at most this
 #: long between two), until every frame sent is labelled; a loaded worker has a backlog
