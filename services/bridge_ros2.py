@@ -22,7 +22,9 @@ Zenoh callbacks only queue the messages; the main thread decodes, converts and p
 A queue longer than `--queue` drops new messages (counted). Messages that do not decode are
 dropped, counted and logged (rate-limited); they never stop the bridge. Without `--cameras`
 at most `--max-cameras` cameras are served; further names, and names ROS 2 cannot spell
-(a digit first, `.` or `-`), are ignored and counted. Under systemd it says READY=1 once
+(a digit first, `.` or `-`), are ignored and counted. A camera seen without `--cameras` that
+sent nothing for `--forget-after` seconds leaves the ROS graph (its publishers' tokens go,
+its mount leaves `/tf_static`) and frees its place. Under systemd it says READY=1 once
 subscribed and pings the watchdog; SIGTERM/SIGINT stop it cleanly.
 """
 
@@ -36,7 +38,7 @@ from typing import Any
 
 from topseg.core.errors import TopsegError
 from topseg.services import zenoh_session
-from topseg.services.cli_types import int_range
+from topseg.services.cli_types import finite, int_range
 from topseg.services.inbox import Inbox
 from topseg.services.lifecycle import ServiceLifecycle
 
@@ -83,6 +85,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="without --cameras, bridge at most this many cameras; names beyond it are "
         "ignored and counted (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--forget-after",
+        type=finite(0, 1e9),
+        default=60.0,
+        metavar="S",
+        help="without --cameras, release a camera that sent nothing for this long: its topics "
+        "leave the ROS graph; 0 = never (default: %(default)s s)",
     )
     parser.add_argument(
         "--queue",
@@ -163,10 +173,21 @@ def declare_publisher(session: Any, key: str, qos) -> Any:
 class Bridge:
     """The ROS 2 node `/topseg_bridge`: converts topseg messages and publishes them."""
 
-    def __init__(self, session: Any, domain: int, max_cameras: int, wanted=None) -> None:
+    def __init__(
+        self,
+        session: Any,
+        domain: int,
+        max_cameras: int,
+        wanted=None,
+        forget_after: float = 0.0,
+    ) -> None:
         from topseg.core.formats import rmw_zenoh as rz
 
         self.session, self.max_cameras = session, max_cameras
+        self.forget_after = forget_after
+        self.last_seen: dict[tuple[str, str], float] = {}  # monotonic s of the last message
+        self.next_sweep = 0.0
+        self.forgotten = 0
         self.wanted: set[tuple[str, str]] | None = wanted
         self.node = rz.Node(domain, str(session.info.zid()), 0, NODE_NAME)
         self.node_token = session.liveliness().declare_token(self.node.token())
@@ -254,6 +275,7 @@ class Bridge:
         if topics is None:
             return
         cam = (parts.cell, parts.camera)
+        self.last_seen[cam] = time.monotonic()
         if parts.kind == "depth":
             self.publish_depth(cam, topics, message)
         else:
@@ -292,6 +314,24 @@ class Bridge:
         self.published += 1
         frames = ", ".join(ros2.optical_frame(*cam) for cam in self.mounts)
         log.info("published /tf_static: %s", frames)
+
+    def forget_idle(self) -> None:
+        """Release the cameras seen without --cameras that sent nothing for --forget-after
+        seconds (checked a few times a second at most): their publishers leave the ROS graph,
+        their mounts leave /tf_static, their places under --max-cameras are free again."""
+        now = time.monotonic()
+        if self.wanted is not None or not self.forget_after > 0 or now < self.next_sweep:
+            return
+        self.next_sweep = now + min(1.0, self.forget_after / 4)
+        idle = [c for c in self.cameras if now - self.last_seen.get(c, now) > self.forget_after]
+        for cam in idle:
+            for pub in self.cameras.pop(cam).values():
+                pub.undeclare()
+            self.last_seen.pop(cam, None)
+            self.forgotten += 1
+            log.info("released %s/%s: nothing for %.0f s", *cam, self.forget_after)
+            if self.mounts.pop(cam, None) is not None:  # late joiners get the rest only
+                self.publish_mounts(time.time_ns())
 
     def close(self) -> None:
         """Leave the ROS graph: every publisher, then the node."""
@@ -337,7 +377,7 @@ def run(args: argparse.Namespace) -> int:
         keys = [k for c in sorted(wanted) for k in (wire.depth_key(*c), wire.labels_key(*c))]
 
     with svc:
-        bridge = Bridge(svc.session, domain, args.max_cameras, wanted)
+        bridge = Bridge(svc.session, domain, args.max_cameras, wanted, args.forget_after)
         svc.defer(bridge.close)
         for key in keys:
             svc.declare(svc.session.declare_subscriber(key, inbox.on_sample))
@@ -347,7 +387,7 @@ def run(args: argparse.Namespace) -> int:
             return (
                 f"bridging {len(bridge.cameras)} camera(s) to ROS 2 domain {domain}: "
                 f"{bridge.published} messages, {bridge.rejected} rejected, {inbox.dropped} dropped, "
-                f"{bridge.ignored} ignored"
+                f"{bridge.ignored} ignored, {bridge.forgotten} released"
             )
 
         log.info(
@@ -359,5 +399,6 @@ def run(args: argparse.Namespace) -> int:
             item = inbox.get(svc.tick)
             if item is not None:
                 bridge.handle(*item)
+            bridge.forget_idle()
         log.info("bridge done: %s", status())
     return 0

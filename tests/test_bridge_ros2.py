@@ -23,7 +23,7 @@ from mcap_ros2.decoder import DecoderFactory
 from netutil import Services, free_port, wait_for
 from zenoh import ext
 
-from topseg.core.camera import KINECT_V1
+from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import ros2_messages as ros2
 from topseg.core.formats import wire
 from topseg.core.formats.rmw_zenoh import entity_gid
@@ -364,6 +364,46 @@ def test_other_domain_garbage_and_camera_limits(run, sessions):
     assert "2 ignored" in err.splitlines()[-1], err
     assert "9lives" in err and "not a ROS 2 topic name" in err
     assert "camera limit reached (--max-cameras 2)" in err
+
+
+def test_a_silent_camera_leaves_the_ros_graph_and_frees_its_place(run, sessions):
+    port, cell, domain = free_port(), "rb3", 5
+    ros = RosSide(port, domain)
+    sessions.append(ros)
+    bridge = run(
+        "bridge", "ros2", "--domain", domain, "--max-cameras", 1, "--forget-after", 1,
+        "--zenoh-port", port,
+    )  # fmt: skip
+    bridge.wait_line("bridge ready", 60)
+
+    def put(camera, seq):
+        key = wire.depth_key(cell, camera)
+        pub = ros.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        wait_for(lambda: pub.matching_status.matching, 30, "the bridge's subscriber")
+        depth = np.full(K.shape, 1000 + seq, np.uint16)
+        mount = TopViewMount(K, 3000.0 + seq)
+        pub.put(wire.encode_depth(wire.DepthFrame(depth, K, seq, 10**18 + seq, "", mount)))
+        pub.undeclare()
+
+    def topics():
+        return {t.split("/")[9].replace("%", "/") for t in ros.tokens() if t.split("/")[5] == "MP"}
+
+    put("a", 1)
+    wait_for(lambda: ros2.ros2_topic(cell, "a", "depth") in topics(), 60, "camera a's topics")
+    # silent for over a second: its publishers' tokens go; /tf_static stays, now empty
+    wait_for(lambda: topics() == {"/tf_static"}, 30, "camera a released")
+    put("b", 2)  # the one place under --max-cameras 1 is free again
+    wait_for(lambda: ros2.ros2_topic(cell, "b", "depth") in topics(), 60, "camera b's topics")
+    tf = [decode(ros2.TF_MESSAGE, p) for p, _ in ros.on("/tf_static", ros2.TF_MESSAGE)]
+    assert [[t.child_frame_id for t in m.transforms] for m in tf[:3]] == [
+        [ros2.optical_frame(cell, "a")],
+        [],
+        [ros2.optical_frame(cell, "b")],
+    ]
+    assert bridge.stop() == 0
+    last = bridge.err.splitlines()[-1]
+    assert "0 ignored" in last and "released" in last, bridge.err
+    assert f"released {cell}/a: nothing for 1 s" in bridge.err
 
 
 @pytest.mark.parametrize(
