@@ -27,9 +27,13 @@ def _config(part) -> dict:
     return json.loads(part.to_json())
 
 
+#: the worker's stages plotted over time, from its stats messages (ms)
+PLOTTED_STAGES = ("forest", "crf", "total", "latency")
+
+
 def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> dict:
     """The layout of a camera: depth and label-colour images over the labelled 3-D cloud in
-    the floor frame (with a grid)."""
+    the floor frame (with a grid) beside a plot of the worker's ms per stage."""
     import foxglove.layouts as fl
 
     calibration = topic(cell, camera, "camera_info")
@@ -55,10 +59,20 @@ def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> 
         },
         layers={"grid": fl.BaseRendererGridLayerSettings()},
     )
+    stats = topic(cell, camera, "stats")
+    timings = fl.PlotConfig(
+        paths=[
+            fl.PlotSeries(value=f"{stats}.timings_ms.{stage}", label=f"{stage} ms", enabled=True)
+            for stage in PLOTTED_STAGES
+        ],
+        y_axis_label="ms",
+        show_legend=True,
+    )
     panels = {
         "Image!depth": depth,
         "Image!labels": label_colours,
         "3D!floor": scene,
+        "Plot!timings": timings,
     }
     return {
         "configById": {name: _config(config) for name, config in panels.items()},
@@ -74,18 +88,25 @@ def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> 
                 "first": "Image!depth",
                 "second": "Image!labels",
             },
-            "second": "3D!floor",
+            "second": {
+                "direction": "row",
+                "splitPercentage": 65,
+                "first": "3D!floor",
+                "second": "Plot!timings",
+            },
         },
     }
 
 
 def layout_topics(data: dict) -> set[str]:
-    """The topics a layout's panels read (image, calibration and 3-D topics)."""
+    """The topics a layout's panels read (image, calibration, 3-D and plotted topics; a plot
+    path is `<topic>.<field>...`, and topic names hold no dots)."""
     found = set()
     for config in data["configById"].values():
         mode = config.get("imageMode", {})
         found.update(mode[key] for key in ("imageTopic", "calibrationTopic") if key in mode)
         found.update(config.get("topics", {}))
+        found.update(series["value"].split(".", 1)[0] for series in config.get("paths", []))
     return found
 
 

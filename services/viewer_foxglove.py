@@ -12,12 +12,14 @@ and the ROS 2 bridge use), with Foxglove's own schemas (protobuf):
 | `camera_info`  | `foxglove.CameraCalibration`| the pinhole of the depth frames                   |
 | `points`       | `foxglove.PointCloud`       | the labelled cloud, x y z float32 + r g b a uint8 |
 | `mount`        | `foxglove.FrameTransform`   | floor frame -> the camera's optical frame         |
+| `stats`        | JSON (`STATS_SCHEMA`)       | the worker's and driver's stats messages          |
 
 Images and the calibration are in the camera's optical frame (`<cell>_<camera>_optical_frame`);
 the cloud is in the floor frame (`<cell>_<camera>_floor`) when the mount is known, else in the
 optical frame, and `mount` is sent with every depth frame that has one (so a client that
-connects late gets it). Images and clouds are converted only while a client subscribes to
-them; each client's queue holds `CLIENT_BACKLOG` messages, the oldest dropped first.
+connects late gets it). `stats` carries each stats message as it came (ms per stage, fps,
+counts, floor share), for Foxglove's Plot panel (`/topseg/<cell>/<camera>/stats.timings_ms.total`).
+Images and clouds are converted only while a client subscribes to them; each client's queue holds `CLIENT_BACKLOG` messages, the oldest dropped first.
 `docs/foxglove/topseg-layout.json` opens these topics laid out.
 """
 
@@ -38,8 +40,32 @@ FOXGLOVE_PORT = 8765
 #: messages queued per client before the oldest is dropped (the SDK's default, 1024 frames
 #: of 640x480 depth, would be 600 MB for one slow client)
 CLIENT_BACKLOG = 32
-#: the streams served per camera, in the order they are advertised
+#: the streams served per camera with Foxglove's schemas, in the order they are advertised
 STREAMS = ("depth", "labels", "labels_color", "camera_info", "points", "mount")
+#: the JSON stream of stats messages (`wire.decode_stats`), advertised after STREAMS
+STATS_STREAM = "stats"
+#: the JSON schema of the stats channel: what Foxglove's panels offer to plot
+STATS_SCHEMA = {
+    "type": "object",
+    "title": "topseg.Stats",
+    "properties": {
+        "stamp_ns": {"type": "integer", "description": "when the stats were sent (ns)"},
+        "role": {"type": "string", "description": "driver or worker"},
+        "seq": {"type": "integer", "description": "the frame the timings are of"},
+        "fps": {"type": "number", "description": "frames a second"},
+        "timings_ms": {
+            "type": "object",
+            "description": "ms per stage: receive, mount, forest, crf, publish, total, latency",
+            "additionalProperties": {"type": "number"},
+        },
+        "counts": {
+            "type": "object",
+            "description": "frames processed, dropped, rejected, ...",
+            "additionalProperties": {"type": "integer"},
+        },
+        "floor_share": {"type": "number", "description": "share of depth pixels gated as floor"},
+    },
+}
 #: one point of a PointCloud: x, y, z float32 then r, g, b, a uint8
 POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgba", "u1", (4,))])
 
@@ -141,12 +167,17 @@ class FoxgloveSink:
             "points": fc.PointCloudChannel,
             "mount": fc.FrameTransformChannel,
         }
+        import foxglove
+
         for cam in cameras:
             if cam not in self.channels:
                 self.channels[cam] = {
                     stream: kinds[stream](topic(*cam, stream), context=self.context)
                     for stream in STREAMS
                 }
+                self.channels[cam][STATS_STREAM] = foxglove.Channel(
+                    topic(*cam, STATS_STREAM), schema=STATS_SCHEMA, context=self.context
+                )
 
     def depth(self, cam: tuple[str, str], frame) -> None:
         """The depth image, the camera's calibration and its mount (when known)."""
@@ -213,7 +244,10 @@ class FoxgloveSink:
         )
 
     def stats(self, cam: tuple[str, str], stats: dict) -> None:
-        """Not served to Foxglove: the worker's stats are plotted in Rerun."""
+        """The stats message as JSON, logged at its own stamp."""
+        channel = self.channels[cam][STATS_STREAM]
+        if channel.has_sinks():
+            channel.log(stats, log_time=int(stats["stamp_ns"]))
 
     def close(self) -> None:
         """Stop the server (clients see it go)."""

@@ -26,10 +26,16 @@ def test_the_committed_file_is_the_generated_layout_of_the_default_camera():
 def test_every_panel_is_placed_once_and_reads_the_cameras_topics():
     layout = foxglove_layout.layout("c2", "top")
     assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
-    assert {name.split("!")[0] for name in layout["configById"]} == {"Image", "3D"}
+    assert {name.split("!")[0] for name in layout["configById"]} == {"Image", "3D", "Plot"}
     assert foxglove_layout.layout_topics(layout) == {
-        topic("c2", "top", stream) for stream in ("depth", "labels_color", "camera_info", "points")
+        topic("c2", "top", stream)
+        for stream in ("depth", "labels_color", "camera_info", "points", "stats")
     }
+    plot = layout["configById"]["Plot!timings"]
+    assert [p["value"] for p in plot["paths"]] == [
+        f"{topic('c2', 'top', 'stats')}.timings_ms.{stage}"
+        for stage in ("forest", "crf", "total", "latency")
+    ]
     scene = layout["configById"]["3D!floor"]
     assert scene["followTf"] == "c2_top_floor"  # the floor below that camera
     assert scene["topics"][topic("c2", "top", "points")]["colorMode"] == "rgba-fields"

@@ -21,7 +21,7 @@ from topseg.core.formats import ros2_messages, wire
 from topseg.core.labelled_cloud import labelled_cloud
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services import foxglove_layout
-from topseg.services.viewer_foxglove import POINT_DTYPE, STREAMS, topic
+from topseg.services.viewer_foxglove import POINT_DTYPE, STATS_STREAM, STREAMS, topic
 from topseg.services.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
@@ -85,7 +85,7 @@ class Publisher:
             kind: self.session.declare_publisher(
                 f"{wire.camera_prefix(cell, camera)}/{kind}", **block
             )
-            for kind in ("depth", "labels")
+            for kind in ("depth", "labels", "stats")
         }
         self.sent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.done = threading.Event()
@@ -102,6 +102,9 @@ class Publisher:
                 wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp, mount=MOUNT))
             )
             self.pubs["labels"].put(wire.encode_labels(wire.LabelFrame(truth, seq, stamp)))
+            timings = {"forest": 10.0 + seq, "crf": 5.0, "total": 16.0 + seq}
+            stats = {"stamp_ns": stamp, "role": "worker", "seq": seq, "timings_ms": timings}
+            self.pubs["stats"].put(wire.encode_stats({**stats, "counts": {"processed": seq}}))
             seq += 1
             self.done.wait(0.2)
 
@@ -147,7 +150,11 @@ class FoxgloveClient:
             if isinstance(data, bytes):
                 op, sub = struct.unpack_from("<BI", data)
                 assert op == 1  # MessageData: op, subscription id, log time, payload
-                got.setdefault(subs[sub]["topic"], decoder(subs[sub]).FromString(data[13:]))
+                channel, payload = subs[sub], data[13:]
+                if channel["encoding"] == "json":
+                    got.setdefault(channel["topic"], json.loads(payload))
+                else:
+                    got.setdefault(channel["topic"], decoder(channel).FromString(payload))
         return got
 
 
@@ -166,15 +173,23 @@ def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages()
         with connect(f"ws://127.0.0.1:{fport}", subprotocols=[SUBPROTOCOL]) as ws:
             assert ws.subprotocol == SUBPROTOCOL
             client = FoxgloveClient(ws)
-            client.wait_for_topics({topic(cell, camera, stream) for stream in STREAMS}, 90)
+            streams = (*STREAMS, STATS_STREAM)
+            client.wait_for_topics({topic(cell, camera, stream) for stream in streams}, 90)
             for stream, schema in SCHEMAS.items():
                 channel = client.channels[topic(cell, camera, stream)]
                 assert (channel["schemaName"], channel["encoding"]) == (schema, "protobuf")
+            stats_channel = client.channels[topic(cell, camera, STATS_STREAM)]
+            assert (stats_channel["encoding"], stats_channel["schemaEncoding"]) == (
+                "json",
+                "jsonschema",
+            )
+            schema = json.loads(stats_channel["schema"])
+            assert {"timings_ms", "counts", "fps"} <= set(schema["properties"])
             # the layout file reads only topics the viewer serves
             layout = json.loads(LAYOUT_FILE.read_text())
             assert layout == foxglove_layout.layout(cell, camera), "regenerate the layout file"
             assert foxglove_layout.layout_topics(layout) <= set(client.channels)
-            streams = ("points", "labels_color", "mount", "depth")
+            streams = ("points", "labels_color", "mount", "depth", STATS_STREAM)
             first = client.first_messages([topic(cell, camera, s) for s in streams], 90)
             got = {stream: first[topic(cell, camera, stream)] for stream in streams}
     finally:
@@ -211,6 +226,11 @@ def test_foxglove_server_advertises_every_stream_and_serves_decodable_messages()
     t, q = mount.translation, mount.rotation
     np.testing.assert_allclose([t.x, t.y, t.z], translation)
     np.testing.assert_allclose([q.x, q.y, q.z, q.w], quaternion)
+
+    stats = got[STATS_STREAM]  # the stats message as it came, as JSON
+    seq = stats["seq"]
+    assert stats["timings_ms"] == {"forest": 10.0 + seq, "crf": 5.0, "total": 16.0 + seq}
+    assert stats["counts"] == {"processed": seq} and stats["role"] == "worker"
 
     depth_image = got["depth"]
     assert (depth_image.encoding, depth_image.step) == ("16UC1", 2 * K.width)
