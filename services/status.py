@@ -20,7 +20,9 @@ as soon as its TCP link closes; one on a host that vanished, after Zenoh's lease
 Each process's token names its instance (`.../alive/<role>/<instance>`,
 `services/identity.py`): two drivers or two workers for one camera are shown as a problem
 ("2 drivers: ...") with a non-zero exit, and so is depth from two drivers that a worker
-dropped as `foreign`. A worker serving every camera holds `topseg/_any/_any/alive/worker/...`
+dropped as `foreign`. Stats messages are told apart by the worker that sent them (its id
+rides on each message): a camera's row shows one worker's figures, and stats from a second
+worker are a problem line naming both, with each one's frames and fps. A worker serving every camera holds `topseg/_any/_any/alive/worker/...`
 too, so one that waits for its first frame is listed as waiting, not missing.
 
 The whole run is bounded by `--timeout` (plus up to 1 s for the final queries): a Zenoh
@@ -54,6 +56,9 @@ log = logging.getLogger("topseg.status")
 
 #: The roles whose absence makes a camera DOWN.
 REQUIRED_ROLES = ("driver", "worker")
+#: the key under which a stats message keeps the id of the worker that sent it (from its
+#: attachment; not a wire field)
+INSTANCE_FIELD = "_instance"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -141,6 +146,15 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
     return out
 
 
+def _by_worker(stats: list[dict]) -> dict[str, list[dict]]:
+    """A camera's stats messages by the worker that sent them (its instance id from the
+    message's attachment; "?" for a sender without one)."""
+    groups: dict[str, list[dict]] = {}
+    for message in stats:
+        groups.setdefault(message.get(INSTANCE_FIELD) or "?", []).append(message)
+    return groups
+
+
 def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
     """The JSON-able status of every camera `seen` knows of (and every expected one)."""
     cameras = set(expect)
@@ -154,7 +168,12 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
             seen.info_start.get((cell, camera)),
             seen.info_end.get((cell, camera)),
         )
-        worker = _worker_report("worker" in roles, seen.stats.get((cell, camera), []))
+        # one worker's figures: counts and stamps of two workers do not mix
+        senders = _by_worker(seen.stats.get((cell, camera), []))
+        shown = max(senders, key=lambda i: (len(senders[i]), i)) if senders else None
+        worker = _worker_report("worker" in roles, senders.get(shown, []))
+        if len(senders) > 1:
+            worker["instances"] = {i: _worker_report(True, g) for i, g in sorted(senders.items())}
         waiting = "worker" not in roles and bool(seen.any_workers)
         problems = [
             f"{r} DOWN"
@@ -170,6 +189,15 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
             if (c, cam) == (cell, camera) and len(ids) > 1
         }
         problems += [f"{len(ids)} {r}s: {', '.join(ids)}" for r, ids in sorted(duplicates.items())]
+        if len(senders) > 1:
+            others = ", ".join(
+                f"{i}: {r['processed_in_window']} frames, {r['fps']:.1f} fps"
+                for i, r in worker["instances"].items()
+                if i != shown
+            )
+            problems.append(
+                f"stats from {len(senders)} workers; the row shows {shown}'s (others: {others})"
+            )
         if worker.get("foreign_in_window"):
             problems.append(
                 f"depth from two drivers: the worker dropped {worker['foreign_in_window']} "
@@ -187,6 +215,7 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
                 "camera": camera,
                 "ok": not any(r not in roles for r in REQUIRED_ROLES)
                 and not duplicates
+                and len(senders) <= 1
                 and not worker.get("foreign_in_window"),
                 "waiting": waiting,
                 "duplicates": duplicates,
@@ -415,6 +444,7 @@ class Listener:
             stats = wire.decode_stats(sample.payload.to_bytes())
         except wire.WireError:
             return  # not ours to judge: the worker counts its own rejects
+        stats[INSTANCE_FIELD] = wire.instance_of(sample.attachment)
         with self.lock:
             self.stats.setdefault(camera, []).append(stats)
 

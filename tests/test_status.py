@@ -197,6 +197,36 @@ def test_a_query_cut_off_at_its_deadline_is_said():
     assert "query for liveliness tokens did not end in time" in status.format_table(rep)
 
 
+def test_stats_of_two_workers_are_not_merged_into_one_row():
+    seen = status.Observed(window_s=2.0)
+    seen.alive = {("c", "k", "driver"), ("c", "k", "worker")}
+
+    def message(instance, i, processed, latency):
+        return {
+            "stamp_ns": i * 100_000_000,
+            "model_id": f"model-{instance}",
+            "timings_ms": {"total": 5.0, "latency": latency},
+            "counts": {"processed": processed, "dropped": 0, "rejected": 0},
+            status.INSTANCE_FIELD: instance,
+        }
+
+    # interleaved: w1 labels 10 frames in 1 s, w2 (far behind in its counts) 2 in 0.5 s
+    seen.stats[("c", "k")] = [message("w1", i, 100 + i, 10.0) for i in range(11)] + [
+        message("w2", i, 5 + i // 2, 90.0) for i in range(5, 10, 2)
+    ]
+    rep = status.report(seen)
+    row = rep["cameras"][0]
+    worker = row["worker"]
+    assert worker["model"] == "model-w1" and worker["fps"] == pytest.approx(10.0)
+    assert worker["processed"] == 110 and worker["processed_in_window"] == 10
+    assert worker["latency_ms"] == {"p50": 10.0, "p99": 10.0}  # none of w2's
+    assert sorted(worker["instances"]) == ["w1", "w2"]
+    assert worker["instances"]["w2"]["processed_in_window"] == 2
+    assert not row["ok"] and status.exit_status(rep) == 1
+    table = status.format_table(rep)
+    assert "c/k: stats from 2 workers; the row shows w1's (others: w2: 2 frames, 5.0 fps)" in table
+
+
 def test_two_workers_of_one_camera_and_a_waiting_wildcard_worker_are_shown():
     """Tokens name their process: two workers for one camera are a problem (exit 1); a worker
     for every camera with no camera yet is listed as waiting, and an expected camera without
