@@ -191,6 +191,34 @@ def test_a_second_worker_for_a_camera_is_refused_and_a_wildcard_worker_leaves_it
     assert w1.stop() == 0 and w3.stop() == 0 and drv.stop() == 0, w1.err + w3.err
 
 
+def test_two_wildcard_workers_end_with_one_labelling_the_camera(run, recording):
+    """Two workers that serve every camera meet one: one of them leaves it to the other
+    (whichever saw the other's token first, else the larger instance id), and the labels go
+    on from the one left."""
+    port, cell = free_port(), "two"
+    w1, w2 = worker(run, port), worker(run, port)
+    w1.wait_line("worker ready", 120)
+    w2.wait_line("worker ready", 120)
+    drv = driver(run, port, cell, recording)
+    tap = run.tap(port, cell)
+    wait_for(lambda: len(tap.labels) >= 5, 60, "labels")
+
+    def one_worker() -> bool:
+        rc, out, _ = status(port, "--cell", cell)
+        return rc == 0 and "2 workers" not in out
+
+    wait_for(one_worker, 90, "one worker for the camera")
+    left = [
+        w
+        for w in (w1, w2)
+        if "leaving that camera to it" in w.err or f"{cell}/cam0 is labelled by worker" in w.err
+    ]
+    assert len(left) == 1, w1.err + w2.err
+    n = len(tap.labels)
+    wait_for(lambda: len(tap.labels) >= n + 5, 60, "labels from the worker left")
+    assert w1.stop() == 0 and w2.stop() == 0 and drv.stop() == 0, w1.err + w2.err
+
+
 def test_a_waiting_wildcard_worker_shows_in_status_and_serves_a_renamed_camera(run, recording):
     port, cell = free_port(), "ren"
     wk = worker(run, port)
