@@ -531,6 +531,21 @@ def best_split_reference(fm, y, ids, key, node_id, n_cand, n_thr, k, linear, cap
 # --- the real-time CRF's masks -----------------------------------------------------------------
 
 
+def edge_weights_reference(depth, config):
+    """`crf.energy.edge_weights` in numpy, as it was written before the numba pass."""
+    d = np.asarray(depth).astype(np.float32)
+    valid = d > 0
+    wh = np.full((d.shape[0], d.shape[1] - 1), config.smoothness, np.float32)
+    wv = np.full((d.shape[0] - 1, d.shape[1]), config.smoothness, np.float32)
+    if config.depth_sigma_mm > 0:
+        k = np.float32(-0.5 / config.depth_sigma_mm**2)
+        wh *= np.exp(k * (d[:, 1:] - d[:, :-1]) ** 2)
+        wv *= np.exp(k * (d[1:, :] - d[:-1, :]) ** 2)
+    wh[~(valid[:, 1:] & valid[:, :-1])] = 0.0
+    wv[~(valid[1:, :] & valid[:-1, :])] = 0.0
+    return wh, wv
+
+
 def reference_settled(proba, valid, smoothness, eps, margin=SETTLED_MARGIN):
     """Argmax ahead of every other label by more than any pixel's edges weigh (+ margin)."""
     top2 = np.sort(np.maximum(proba.astype(np.float64), eps), axis=2)[..., -2:]

@@ -87,6 +87,25 @@ def test_unaries_are_clipped_negative_log():
     assert np.allclose(u[..., 0], -np.log(1e-3))
 
 
+@pytest.mark.parametrize("sigma", [0.0, 30.0, 300.0])
+def test_edge_weights_match_numpy(sigma):
+    from reference import edge_weights_reference
+
+    rng = np.random.default_rng(int(sigma))
+    for shape in [(1, 1), (1, 7), (6, 1), (37, 53)]:
+        depth = rng.integers(900, 1100, size=shape).astype(np.uint16)
+        depth[rng.random(shape) < 0.2] = 0
+        config = CRFConfig(smoothness=1.7, depth_sigma_mm=sigma)
+        for got, want in zip(
+            edge_weights(depth, config), edge_weights_reference(depth, config), strict=True
+        ):
+            assert got.dtype == np.float32 and got.shape == want.shape
+            if sigma == 0:
+                np.testing.assert_array_equal(got, want)
+            else:  # numba's expf and numpy's may differ in the last bit
+                np.testing.assert_allclose(got, want, rtol=2e-7, atol=1e-30)
+
+
 def test_edge_weights_vanish_at_holes_and_across_depth_steps():
     depth = np.array([[2000, 2000, 0], [2000, 3000, 3000]], np.uint16)
     wh, wv = edge_weights(depth, CRFConfig(smoothness=2.0))

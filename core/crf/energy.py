@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Literal
 
+import numba
 import numpy as np
 
 from topseg.core import labels as L
@@ -101,19 +102,50 @@ def edge_weights(depth: np.ndarray, config: CRFConfig) -> tuple[np.ndarray, np.n
     """Potts weights of the 4-connected grid: (horizontal (H, W-1), vertical (H-1, W)).
 
     Horizontal [i, j] joins (i, j)-(i, j+1), vertical [i, j] joins (i, j)-(i+1, j).
-    An edge touching a pixel without depth weighs 0.
+    An edge touching a pixel without depth weighs 0; with `depth_sigma_mm` > 0 an edge
+    across a depth step d weighs smoothness * exp(-d^2 / (2 sigma^2)) (float32). One numba
+    pass over the frame (numpy took six, ~0.5 ms a 640x480 frame).
     """
-    d = np.asarray(depth).astype(np.float32)
-    valid = d > 0
-    wh = np.full((d.shape[0], d.shape[1] - 1), config.smoothness, np.float32)
-    wv = np.full((d.shape[0] - 1, d.shape[1]), config.smoothness, np.float32)
-    if config.depth_sigma_mm > 0:
-        k = np.float32(-0.5 / config.depth_sigma_mm**2)
-        wh *= np.exp(k * (d[:, 1:] - d[:, :-1]) ** 2)
-        wv *= np.exp(k * (d[1:, :] - d[:-1, :]) ** 2)
-    wh[~(valid[:, 1:] & valid[:, :-1])] = 0.0
-    wv[~(valid[1:, :] & valid[:-1, :])] = 0.0
+    d = np.ascontiguousarray(depth)
+    h, w = d.shape
+    wh = np.empty((h, max(w - 1, 0)), np.float32)
+    wv = np.empty((max(h - 1, 0), w), np.float32)
+    k = np.float32(-0.5 / config.depth_sigma_mm**2) if config.depth_sigma_mm > 0 else 0.0
+    _edge_weights(d, np.float32(config.smoothness), np.float32(k), wh, wv)
     return wh, wv
+
+
+@numba.njit(cache=True, inline="always")
+def _edge_weight(a, b, smoothness, k):
+    """The weight of the edge between depths a and b (mm): 0 when either is 0."""
+    if a == 0 or b == 0:
+        return np.float32(0.0)
+    step = np.float32(a) - np.float32(b)
+    return smoothness * np.exp(k * (step * step))
+
+
+@numba.njit(cache=True)
+def _edge_weights(depth, smoothness, k, wh, wv):
+    """Both weight arrays; without a depth term (k = 0) as branch-free loops that LLVM
+    vectorises."""
+    h, w = depth.shape
+    zero = np.float32(0.0)
+    if k == 0:
+        for i in range(h):
+            for j in range(w - 1):
+                both = (depth[i, j] != 0) & (depth[i, j + 1] != 0)
+                wh[i, j] = smoothness if both else zero
+        for i in range(h - 1):
+            for j in range(w):
+                both = (depth[i, j] != 0) & (depth[i + 1, j] != 0)
+                wv[i, j] = smoothness if both else zero
+        return
+    for i in range(h):
+        for j in range(w - 1):
+            wh[i, j] = _edge_weight(depth[i, j], depth[i, j + 1], smoothness, k)
+    for i in range(h - 1):
+        for j in range(w):
+            wv[i, j] = _edge_weight(depth[i, j], depth[i + 1, j], smoothness, k)
 
 
 def grid_energy(
