@@ -20,7 +20,7 @@ import pytest
 import zenoh
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
-from netutil import Services, free_port, wait_for
+from netutil import free_port, wait_for
 from zenoh import ext
 
 from topseg.core.camera import KINECT_V1, TopViewMount
@@ -97,13 +97,6 @@ class RosSide:
 
     def close(self) -> None:
         self.session.close()
-
-
-@pytest.fixture
-def run():
-    services = Services()
-    yield services
-    services.close()
 
 
 @pytest.fixture

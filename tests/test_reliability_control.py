@@ -14,40 +14,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netutil import Services, free_port, wait_for
+from netutil import free_port, wait_for
 
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
-from topseg.core.formats.recording import RecordingWriter
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "default.npz"
 K = KINECT_V1.scaled_to(160, 120)
-FPS = 30
 #: The instance id of the test's stand-in for a second driver (real ones are Zenoh ids).
 IMPOSTOR = "0123456789abcdef"
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    """One second of small procedural frames at 30 fps (replayed with --loop)."""
-    path = tmp_path_factory.mktemp("control") / "small.mcap"
-    rng = np.random.default_rng(7)
-    with RecordingWriter(path) as w:
-        for i in range(FPS):
-            depth, _ = procedural_frame(rng, TopViewMount(K, PAPER_MOUNT.height_mm))
-            t = 10**18 + i * 10**9 // FPS
-            w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t)), t)
-    return path
-
-
 @pytest.fixture
-def run():
-    services = Services()
-    yield services
-    services.close()
+def recording(small_recording):
+    """One second of small procedural frames at 30 fps (conftest's `small_recording`)."""
+    return small_recording
 
 
 def driver(run, port, cell, recording, camera="cam0"):

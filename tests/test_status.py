@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from netutil import Services, free_port, wait_for
+from netutil import free_port, wait_for
 
 from topseg.services import status
 
@@ -20,13 +20,6 @@ def topseg_status(port, *args, timeout=3.0):
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert done.returncode in (0, 1), done.stderr
     return done.returncode, done.stdout
-
-
-@pytest.fixture
-def run():
-    services = Services()
-    yield services
-    services.close()
 
 
 def test_status_shows_driver_and_worker_alive_then_the_killed_worker_down(run):
