@@ -38,6 +38,9 @@ if TYPE_CHECKING:
 # The numba modules (camera, forest, crf) are imported where they are used, so that a
 # command's `--help` (which reads MODEL_HELP) does not compile or load them.
 
+#: Levels of the forest's adaptive grid by default (`SegmenterConfig.adaptive`): one, the grid
+#: twice as coarse first; measured in docs/performance.md
+ADAPTIVE_LEVELS = 1
 #: Where `deploy/install.sh` puts the bundled model (below its --root).
 INSTALLED_MODEL = Path("/opt/topseg/models/default.npz")
 #: The bundled model inside a checkout, relative to its root.
@@ -107,16 +110,22 @@ class SegmenterConfig:
                   grid `forest.predict.grid_stride` spaces GRID_SPACING_MM apart on the floor
     mount         the camera's mount, for frames labelled without one of their own (a
                   height model needs one or the other)
+    adaptive      on a grid (stride > 1), levels of coarser grids walked first: each finer
+                  grid is walked only where the coarser one does not settle its pixels
+                  (`forest.predict.predict_proba`); 0 walks every grid pixel
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
     check_camera: bool = True
     stride: int | None = None
     mount: TopViewMount | None = None
+    adaptive: int = ADAPTIVE_LEVELS
 
     def __post_init__(self) -> None:
         if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
             raise TopsegError(f"stride must be >= 1 (or None: from the mount), got {self.stride}")
+        if isinstance(self.adaptive, bool) or self.adaptive < 0:
+            raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
 
 
 @dataclass(frozen=True)
@@ -331,7 +340,13 @@ class Segmenter:
             self._summary = Summary.empty(inp.shape)  # filled with _out, read by the CRF
         self._frame += 1  # a Segmentation's lazy posteriors are this buffer's until now
         return predict_proba(
-            self.forest, inp, out=self._out, stride=stride, summary=self._summary, lazy=lazy
+            self.forest,
+            inp,
+            out=self._out,
+            stride=stride,
+            summary=self._summary,
+            lazy=lazy,
+            adaptive=self.config.adaptive,
         )
 
     def smooth(self, proba: np.ndarray, depth: np.ndarray) -> np.ndarray:

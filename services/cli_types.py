@@ -68,8 +68,11 @@ def stride(text: str) -> int | None:
 stride.__name__ = "stride"
 
 
-def add_stride_argument(parser: argparse.ArgumentParser) -> None:
-    """`--stride auto|N`: where the forest walks (SegmenterConfig.stride)."""
+def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--stride auto|N` and `--adaptive N`: where the forest walks (`SegmenterConfig.stride`
+    and `.adaptive`; `grid_config` reads them back)."""
+    from topseg.core.segmenter import ADAPTIVE_LEVELS
+
     parser.add_argument(
         "--stride",
         type=stride,
@@ -78,3 +81,16 @@ def add_stride_argument(parser: argparse.ArgumentParser) -> None:
         help="walk the forest at every N-th pixel of every N-th row and upsample the rest by "
         "height; auto (default) spaces walked pixels ~25 mm apart on the floor; 1: every pixel",
     )
+    parser.add_argument(
+        "--adaptive",
+        type=non_negative_int,
+        default=ADAPTIVE_LEVELS,
+        metavar="N",
+        help="on a grid, walk N coarser grids first and the finer ones only where the coarser "
+        "one is unsure or crosses a height edge; 0 walks every grid pixel (default: %(default)s)",
+    )
+
+
+def grid_config(args: argparse.Namespace) -> dict:
+    """The `SegmenterConfig` fields of `add_grid_arguments`' options."""
+    return {"stride": args.stride, "adaptive": args.adaptive}

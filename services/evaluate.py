@@ -13,7 +13,12 @@ import argparse
 import json
 from pathlib import Path
 
-from topseg.services.cli_types import add_stride_argument, non_negative_int, positive_int
+from topseg.services.cli_types import (
+    add_grid_arguments,
+    grid_config,
+    non_negative_int,
+    positive_int,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
-    add_stride_argument(parser)
+    add_grid_arguments(parser)
     parser.add_argument(
         "--frames", type=positive_int, default=None, help="score only the first N frames"
     )
@@ -43,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.scoring import dataset_frames, score
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    segmenter = Segmenter.from_file(args.model, SegmenterConfig(stride=args.stride), crf=args.crf)
+    segmenter = Segmenter.from_file(args.model, SegmenterConfig(**grid_config(args)), crf=args.crf)
     ds = open_dataset(args.data)
     if args.json_out:  # before the scoring: a folder we cannot write costs no work
         _check_writable(args.json_out.parent, args.json_out)
@@ -63,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
     timing = result.ms_per_frame()
     stride = "auto (from each frame's mount)" if args.stride is None else str(args.stride)
     print(
-        f"\nms per frame: forest {timing['forest']:.1f} (stride {stride}), crf {timing['crf']:.1f}"
+        f"\nms per frame: forest {timing['forest']:.1f} (stride {stride}, adaptive "
+        f"{args.adaptive}), crf {timing['crf']:.1f}"
     )
     if segmenter.reads_height and result.frames:
         share = result.floor_share / result.frames
@@ -74,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
         doc.update(
             crf=args.crf,
             stride="auto" if args.stride is None else args.stride,
+            adaptive=args.adaptive,
             model=str(segmenter.path),
             data=str(args.data),
             forest_only=json.loads(metrics.to_json(forest_scores)),

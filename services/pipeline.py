@@ -215,6 +215,7 @@ def run_pipeline(
     port: int | None = None,
     logs_dir: Path | None = None,
     stride: int | None = None,
+    adaptive: int | None = None,
     cameras: int = 1,
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
@@ -222,12 +223,13 @@ def run_pipeline(
     `model` None is the bundled model (`core.segmenter.bundled_model_path`).
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "worker_<stage>_p50_ms" and "_p99_ms"
     (the worker's own forest, crf and total: receive to publish, from its stats),
-    "frames_sent", "frames_labelled",
-    "frames_scored", "scores" (ConfusionAccumulator.scores(), None without truth), "confusion",
-    "exit_codes", "logs"}. `stride` is the worker's (None: auto). `cameras` > 1 runs that many drivers of the same
-    source (cameras cam0, cam1, ...; each at `fps`) into the one worker; the figures are over
-    all of them. `web` adds a second viewer serving Rerun's web viewer. `duration_s` None runs a finite source to its end (and a live
-    one until SIGINT/SIGTERM reaches this process). `lossless` makes the whole path lossless:
+    "frames_sent", "frames_labelled", "frames_scored", "scores" (ConfusionAccumulator.scores(),
+    None without truth), "confusion", "exit_codes", "logs"}. `stride` is the worker's (None:
+    auto), `adaptive` its adaptive grid's levels (None: its default). `cameras` > 1 runs that
+    many drivers of the same source (cameras cam0, cam1, ...; each at `fps`) into the one
+    worker; the figures are over all of them. `web` adds a second viewer serving Rerun's web
+    viewer. `duration_s` None runs a finite source to its end (and a live one until
+    SIGINT/SIGTERM reaches this process). `lossless` makes the whole path lossless:
     the driver publishes with BLOCK congestion control (a real-time replay uses DROP, which
     under load dropped a frame on the worker's link while this process's copy arrived), the
     worker labels every frame (FIFO), and the drain waits for every frame seen. Raises
@@ -273,6 +275,7 @@ def run_pipeline(
         worker = ["worker", "--model", str(model), "--crf", crf, "--cameras"]
         worker += [f"{CELL}/{name}" for name in names]
         worker += ["--stride", "auto" if stride is None else str(stride)]
+        worker += [] if adaptive is None else ["--adaptive", str(adaptive)]
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
             kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))

@@ -34,7 +34,7 @@ import sys
 import threading
 from pathlib import Path
 
-from topseg.services.cli_types import add_stride_argument
+from topseg.services.cli_types import add_grid_arguments, grid_config
 from topseg.services.lifecycle import stop_between_steps
 
 log = logging.getLogger("topseg.segment")
@@ -55,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
     )
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
-    add_stride_argument(parser)
+    add_grid_arguments(parser)
     parser.add_argument(
         "--mount",
         type=Path,
@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.errors import TopsegError
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    segmenter = Segmenter.from_file(args.model, SegmenterConfig(stride=args.stride), crf=args.crf)
+    segmenter = Segmenter.from_file(args.model, SegmenterConfig(**grid_config(args)), crf=args.crf)
     given = None
     if args.mount is not None and segmenter.reads_height:
         from topseg.core.calibration import read_mount_file

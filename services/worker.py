@@ -60,7 +60,7 @@ from typing import TYPE_CHECKING, Any
 
 from topseg.core.errors import TopsegError
 from topseg.services import identity, zenoh_session
-from topseg.services.cli_types import add_stride_argument, finite, int_range
+from topseg.services.cli_types import add_grid_arguments, finite, grid_config, int_range
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.worker_mount import warm_up as mount_warm_up
@@ -96,7 +96,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="realtime",
         help="CRF smoothing after the forest (default: %(default)s)",
     )
-    add_stride_argument(parser)
+    add_grid_arguments(parser)
     parser.add_argument(
         "--threads",
         type=int_range(0, 256),
@@ -706,16 +706,16 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
     return MountWatchConfig(recheck_s=check, sensor=sensor)
 
 
-def load_segmenter(model: str | None, crf_mode: str, stride: int | None = None) -> Segmenter:
+def load_segmenter(model: str | None, crf_mode: str, **grid: Any) -> Segmenter:
     """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`
-    and the forest's `stride` (None: from each frame's mount).
+    and the forest's grid (`SegmenterConfig` fields `stride`, `adaptive`; `grid_config`).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).
     """
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    config = SegmenterConfig(check_camera=False, stride=stride)
+    config = SegmenterConfig(check_camera=False, **grid)
     return Segmenter.from_file(model, config, crf=crf_mode)
 
 
@@ -749,9 +749,8 @@ def run(args: argparse.Namespace) -> int:
         import numba
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    segmenter = load_segmenter(
-        args.model, args.crf, args.stride
-    )  # ModelFileError: one line, exit 2
+    # ModelFileError: one line, exit 2
+    segmenter = load_segmenter(args.model, args.crf, **grid_config(args))
     t0 = time.perf_counter()
     segmenter.warm_up()
     mount_warm_up()

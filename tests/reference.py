@@ -12,7 +12,8 @@ bit (as stumpy keeps its naive versions in one test module).
 - `reference_input`, `model_input_reference`, `model_input_float32_reference`: the forest's
   input (`forest.inputs`).
 - `probe_reference`, `extract_reference`, `response_reference`: the depth-difference features.
-- `apply_reference`, `predict_reference`: forest inference (`predict.apply`, `predict_proba`).
+- `apply_reference`, `predict_reference`, `upsample_reference`, `adaptive_reference`: forest
+  inference (`predict.apply`, `predict_proba` at full resolution, on a grid, on an adaptive one).
 - `SplitMix`, `responses_reference`, `gains_reference`, `best_split_reference`: training's
   per-node random stream, criterion and splitter.
 - `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
@@ -440,6 +441,56 @@ def upsample_reference(grid_proba, values, floor, stride, sigma_mm) -> np.ndarra
                 near = min(grid, key=lambda g: abs(float(values[g]) - float(values[r, c])))
                 out[r, c] = grid_proba[near]
     return out
+
+
+def adaptive_reference(forest: Forest, frame, stride, levels, confidence, reach_mm, sigma_mm):
+    """`predict_proba(..., stride, adaptive=levels)` in numpy: (posteriors, walked).
+
+    Every pixel's exact posterior comes from `predict_reference`. The grid stride * 2**levels
+    keeps them; each finer grid, down to `stride`, keeps them at its pixels between the
+    coarser grid's points unless that grid settles the pixel: all of its up-to-four
+    surrounding coarser points have a value within `reach_mm` of the pixel's and the same
+    argmax with posterior >= `confidence`; a settled pixel takes the coarser grid's
+    `upsample_reference` posterior. The finest grid is then upsampled to every pixel.
+    `walked` marks the grid pixels that kept their exact posterior (value, not floor)."""
+    values, _, floor = reference_input(frame)
+    exact = predict_reference(forest, frame).astype(np.float64)
+    h, w = values.shape
+    walkable = (values > 0) & ~floor
+    s = stride << levels
+    grid = np.zeros_like(exact)
+    grid[::s, ::s] = exact[::s, ::s]
+    walked = np.zeros(values.shape, bool)
+    walked[::s, ::s] = walkable[::s, ::s]
+    while s > stride:
+        coarse, s = s, s // 2
+        between = upsample_reference(grid, values, floor, coarse, sigma_mm)
+        last_r, last_c = (h - 1) - (h - 1) % coarse, (w - 1) - (w - 1) % coarse
+        for r in range(0, h, s):
+            for c in range(0, w, s):
+                if r % coarse == 0 and c % coarse == 0:
+                    continue  # a point of the coarser grid
+                if not walkable[r, c]:
+                    grid[r, c] = exact[r, c]  # zeros without a value, background on the floor
+                    continue
+                r0, c0 = r - r % coarse, c - c % coarse
+                corners = [
+                    (gr, gc)
+                    for gr in (r0, min(r0 + coarse, last_r))
+                    for gc in (c0, min(c0 + coarse, last_c))
+                ]
+                labels_ = {int(np.argmax(grid[g])) for g in corners}
+                settled = (
+                    len(labels_) == 1
+                    and all(values[g] > 0 for g in corners)
+                    and all(abs(int(values[g]) - int(values[r, c])) < reach_mm for g in corners)
+                    and all(grid[g].max() >= confidence for g in corners)
+                )
+                grid[r, c] = between[r, c] if settled else exact[r, c]
+                walked[r, c] = not settled
+    if stride > 1:
+        return upsample_reference(grid, values, floor, stride, sigma_mm), walked
+    return grid, walked
 
 
 # --- forest training: the node stream, the criterion, the splitter ---------------------------

@@ -21,6 +21,7 @@ def test_random_forest_on_procedural_frames_at_two_strides(capsys):
         "--frames-from", "procedural", "--stride", "2",
     )  # fmt: skip
     assert figures["trees"] == 2 and figures["depth"] == 8
+    assert figures["adaptive_levels"] == 1  # the default; random posteriors settle no pixel
     assert "procedural" in figures["frames"]
     # every walked pixel of a full random tree walks all 8 levels; stride 2 walks ~1/4 of them
     assert figures["mean_levels_walked"] == 8.0
@@ -38,3 +39,7 @@ def test_default_times_the_bundled_model_on_rendered_frames(capsys):
     assert "rendered modeled scenes" in figures["frames"]
     assert figures["node_visits_per_frame_stride4"] < figures["node_visits_per_frame_stride1"] / 10
     assert 0 < figures["avg_f1_forest_only_stride4"] <= 1
+    # the adaptive grid (default) walks fewer grid pixels than the whole grid (--adaptive 0)
+    plain = _figures(capsys, "--frames", "2", "--adaptive", "0")
+    assert figures["node_visits_per_frame_stride4"] < 0.9 * plain["node_visits_per_frame_stride4"]
+    assert figures["node_visits_per_frame_stride1"] == plain["node_visits_per_frame_stride1"]

@@ -87,6 +87,7 @@ def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
 def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
     from topseg.core.forest.inputs import dataset_mount, header_fields, model_input, trained_for
     from topseg.core.forest.predict import grid_stride
+    from topseg.core.segmenter import ADAPTIVE_LEVELS
 
     ds = D.open_dataset(data)
     config = TrainConfig(
@@ -116,11 +117,12 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
         depth = np.asarray(ds.depth[i])[:h, :w]
         truth = np.asarray(ds.labels[i])[:h, :w].ravel()
         inp = model_input(depth, m, config.features)  # walked on the mount's grid, as default
-        pred = forest.predict_labels(model, inp, stride=grid_stride(m)).ravel()
+        pred = forest.predict_labels(model, inp, grid_stride(m), ADAPTIVE_LEVELS).ravel()
         keep = truth != NO_DEPTH
         pred = np.where(pred[keep] == NO_DEPTH, 0, pred[keep])
         cm += np.bincount(truth[keep] * NUM_CLASSES + pred, minlength=NUM_CLASSES**2).reshape(
             cm.shape
         )
     doc = json.loads((tmp_path / "s.json").read_text())
+    assert doc["stride"] == "auto" and doc["adaptive"] == ADAPTIVE_LEVELS
     np.testing.assert_array_equal(np.array(doc["confusion"]), cm)

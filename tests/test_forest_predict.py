@@ -4,7 +4,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from reference import apply_reference, predict_reference, upsample_reference
+from reference import (
+    adaptive_reference,
+    apply_reference,
+    predict_reference,
+    upsample_reference,
+)
 
 from topseg.core import labels
 from topseg.core.crf.argmax import Summary, argmax_confidence
@@ -15,9 +20,11 @@ from topseg.core.forest import (
     predict_proba,
     random_tree,
 )
+from topseg.core.forest import predict as predict_module
 from topseg.core.forest.features import OFF_IMAGE
 from topseg.core.forest.inputs import ModelInput, as_input
 from topseg.core.forest.predict import (
+    SETTLE_REACH_MM,
     UPSAMPLE_SIGMA_MM,
     _upsample,
     apply,
@@ -303,3 +310,86 @@ def test_the_inference_table_holds_each_split_once_in_aligned_records(k):
     np.testing.assert_array_equal(node_of_state[w[:s, 5 * k + 2]], forest.left[split] + 1)
     np.testing.assert_array_equal(node_of_state[table.roots], forest.roots)
     assert table.roots[1] == s + forest.leaf[forest.roots[1]]  # the lone leaf: arrived
+
+
+def blocky_input(seed, shape=(61, 81)):
+    """A model input of four flat blocks at random heights beside a floor band, with a few
+    noisy pixels and holes: regions where a coarse grid settles the finer one (probes of
+    `short_forest` stay inside a block), and edges where it does not."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    values = np.full(shape, 3400, np.uint16)  # the floor band: the last fifth of the columns
+    for rows in (slice(0, h // 2), slice(h // 2, h)):
+        for cols in (slice(0, 2 * w // 5), slice(2 * w // 5, 4 * w // 5)):
+            values[rows, cols] = rng.integers(2000, 3200)
+    noisy = rng.random(shape) < 0.004
+    values[noisy] = rng.integers(1500, 3500, size=noisy.sum())
+    values[rng.random(shape) < 0.004] = 0
+    floor = (values == 3400) & (rng.random(shape) < 0.8)
+    scale = np.float32(1) / np.maximum(values, 1).astype(np.float32)
+    return ModelInput(values, scale, floor)
+
+
+def short_forest(seed):
+    """Three random trees whose probes reach at most ~5 px at these depths."""
+    rng = np.random.default_rng(seed)
+    return Forest.from_trees([random_tree(rng, d, 2, 4 * 2500.0, 150.0) for d in (4, 6, 5)])
+
+
+@pytest.mark.parametrize(("stride", "levels"), [(2, 1), (3, 1), (2, 2), (4, 1), (1, 2)])
+def test_adaptive_grid_matches_reference(stride, levels, monkeypatch):
+    # three random trees rarely agree on more than a fifth of the posterior
+    monkeypatch.setattr(predict_module, "SETTLE_CONFIDENCE", 0.15)
+    forest = short_forest(300 + stride)
+    inp = blocky_input(310 + stride + levels)
+    walked = np.zeros(inp.shape, bool)
+    got = predict_proba(forest, inp, stride=stride, adaptive=levels, walked=walked)
+    want, want_walked = adaptive_reference(
+        forest, inp, stride, levels if stride > 1 else 0, 0.15, SETTLE_REACH_MM, UPSAMPLE_SIGMA_MM
+    )
+    np.testing.assert_array_equal(walked, want_walked)
+    np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6)
+    if stride > 1:  # both branches ran: some grid pixels settled, some walked
+        grid = np.zeros(inp.shape, bool)
+        grid[::stride, ::stride] = True
+        walkable = grid & (inp.values > 0) & ~inp.floor
+        assert 0.1 < walked.sum() / walkable.sum() < 0.9
+        plain = np.zeros(inp.shape, bool)
+        predict_proba(forest, inp, stride=stride, walked=plain)
+        np.testing.assert_array_equal(plain, walkable)
+    else:  # every pixel is walked at stride 1: there is no grid to adapt
+        np.testing.assert_array_equal(got, predict_proba(forest, inp))
+
+
+@pytest.mark.parametrize("levels", [1, 2])
+def test_adaptive_grid_summary_and_lazy_fill_are_the_eager_ones(levels, monkeypatch):
+    monkeypatch.setattr(predict_module, "SETTLE_CONFIDENCE", 0.15)
+    forest = short_forest(330 + levels)
+    inp = blocky_input(340 + levels)
+    eager_summary = Summary.empty(inp.shape)
+    eager = predict_proba(forest, inp, stride=2, summary=eager_summary, adaptive=levels)
+    for got, want in zip(eager_summary, argmax_confidence(eager, inp.values > 0), strict=True):
+        np.testing.assert_array_equal(got, want)
+    lazy_summary = Summary.empty(inp.shape)
+    lazy = predict_proba(
+        forest,
+        inp,
+        out=np.full_like(eager, np.nan),
+        stride=2,
+        summary=lazy_summary,
+        lazy=True,
+        adaptive=levels,
+    )
+    for got, want in zip(lazy_summary, eager_summary, strict=True):
+        np.testing.assert_array_equal(got, want)
+    fill_posteriors(inp, lazy, 2)
+    np.testing.assert_array_equal(lazy, eager)
+
+
+def test_adaptive_grid_refuses_bad_arguments():
+    forest = random_forest(350, 2)
+    inp = blocky_input(351)
+    with pytest.raises(ValueError, match="adaptive"):
+        predict_proba(forest, inp, stride=2, adaptive=-1)
+    with pytest.raises(ValueError, match="walked"):
+        predict_proba(forest, inp, stride=2, walked=np.zeros((3, 3), bool))

@@ -13,6 +13,7 @@ from topseg.core.forest.inputs import header_fields, model_input, trained_for
 from topseg.core.forest.predict import grid_stride
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import recording, wire
+from topseg.core.segmenter import ADAPTIVE_LEVELS
 from topseg.core.synth import procedural
 
 
@@ -126,9 +127,10 @@ def height_model(tmp_path_factory):
     return path, trained, cfg.features
 
 
-def test_segment_refuses_a_bad_stride(tmp_path):
-    r = segment(tmp_path, "--stride", "0", "--out", tmp_path / "o")
-    assert r.returncode == 2 and "--stride" in r.stderr and "Traceback" not in r.stderr
+@pytest.mark.parametrize("option", ["--stride", "--adaptive"])
+def test_segment_refuses_a_bad_grid(tmp_path, option):
+    r = segment(tmp_path, option, "-1", "--out", tmp_path / "o")
+    assert r.returncode == 2 and option in r.stderr and "Traceback" not in r.stderr
 
 
 def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path):
@@ -179,7 +181,7 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     assert r.returncode == 0, r.stderr
     assert "estimated" not in r.stdout
     inp = model_input(depth, MOUNT, features)
-    expected = forest.predict_labels(trained, inp, stride=grid_stride(MOUNT))
+    expected = forest.predict_labels(trained, inp, grid_stride(MOUNT), ADAPTIVE_LEVELS)
     got = np.asarray(Image.open(tmp_path / "b" / "r_000003_labels.png"))
     np.testing.assert_array_equal(got, expected)
 

@@ -13,7 +13,7 @@ from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
 from topseg.core.scoring import score
-from topseg.core.segmenter import Segmenter, SegmenterConfig
+from topseg.core.segmenter import ADAPTIVE_LEVELS, Segmenter, SegmenterConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = KINECT_V1.scaled_to(40, 30)
@@ -105,7 +105,7 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         depth = np.ascontiguousarray(depth[::4, ::4])
         got = seg.label(depth)
         inp = model_input(depth, mount, seg.features)
-        proba = forest.predict_proba(seg.forest, inp, stride=2)
+        proba = forest.predict_proba(seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS)
         np.testing.assert_array_equal(got.labels, crf.segment_crf(proba, depth, seg.config.crf))
         np.testing.assert_array_equal(got.proba, proba)
     stale = seg.label(depth)
@@ -247,3 +247,17 @@ def test_a_depth_model_says_when_a_mount_is_not_its_own(legacy):
     known = Segmenter(legacy.forest, header)
     assert known.outside_trained_for(PAPER_MOUNT) is None
     assert "raw depth" in known.outside_trained_for(TopViewMount(KINECT_V1, 3300.0))
+
+
+def test_the_adaptive_grid_is_a_config_field_checked_up_front():
+    assert SegmenterConfig().adaptive == ADAPTIVE_LEVELS >= 1
+    with pytest.raises(TopsegError, match="adaptive"):
+        SegmenterConfig(adaptive=-1)
+    k = KINECT_V1.scaled_to(160, 120)
+    mount = TopViewMount(k, PAPER_MOUNT.height_mm)
+    plain = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2, adaptive=0))
+    adaptive = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2, adaptive=1))
+    depth = np.ascontiguousarray(demo_frames(1)[0][0][::4, ::4])
+    got, want = adaptive.label(depth), plain.label(depth)
+    assert (got.labels == want.labels).mean() > 0.9  # the same scene ...
+    assert not np.array_equal(got.proba, want.proba)  # ... and not the same walk

@@ -54,6 +54,18 @@ _f32 = np.float32
 _CACHE_LINE = 64
 
 
+#: what a grid pixel gets (`_grid_plan`, `_settle`): walked through the trees, background
+#: (the floor gate), zeros (no value), or nothing (its posterior is already written)
+WALK, FLOOR, NO_VALUE, DONE = 0, 1, 2, 3
+
+#: the adaptive grid (`predict_proba(..., adaptive=)`): a grid pixel between the points of the grid twice as coarse is settled (not walked) when
+#: all of the points around it have the same argmax with at least this posterior ...
+SETTLE_CONFIDENCE = 0.5
+#: ... and probe values within this many mm of its own (2 UPSAMPLE_SIGMA_MM: the upsampling
+#: weighs a point farther than that by less than exp(-4)); it takes their upsampled posterior
+SETTLE_REACH_MM = 80
+
+
 def _record_words(k: int) -> int:
     """The 32-bit words of one split record for k features per node (`InferenceTable`):
     its 5k + 3 words rounded up to 8 (32 bytes, two records to a cache line) or to whole
@@ -191,15 +203,16 @@ def _step(padded, r, c, inv_d, fields, words, n, k, h, w):
 
 
 @numba.njit(cache=True, inline="always")
-def _row_pixels(values, scale, floor, r, stride, n_cols):
-    """The evaluated pixels of row r to walk (a value and not floor): their columns and
-    offset scales, and how many there are."""
+def _row_pixels(plan, scale, i, r, stride):
+    """The grid pixels of grid row i (pixel row r) to walk (`WALK` in the plan): their
+    columns and offset scales, and how many there are."""
+    n_cols = plan.shape[1]
     cols = np.empty(n_cols, np.int32)
     inv = np.empty(n_cols, np.float32)
     m = 0
     for j in range(n_cols):
-        c = j * stride
-        if values[r, c] > 0 and not floor[r, c]:
+        if plan[i, j] == WALK:
+            c = j * stride
             cols[m] = c
             inv[m] = scale[r, c]
             m += 1
@@ -216,26 +229,26 @@ def _accumulate(acc, cur, n_splits, posteriors):
 
 
 @numba.njit(cache=True, inline="always")
-def _write_row(out, values, floor, r, stride, n_cols, cols, acc, n_trees, amax, pmax, psecond):
-    """Row r's evaluated pixels: zeros without a value, background for the floor, the tree
-    average for the walked ones; and each one's summary (`crf.argmax.Summary`)."""
+def _write_row(out, plan, i, r, stride, cols, acc, n_trees, amax, pmax, psecond):
+    """Grid row i's pixels as its plan says: the tree average for the walked ones, background
+    for the floor, zeros without a value, nothing for those already written; and the
+    summary (`crf.argmax.Summary`) of each one written."""
     scale = np.float32(1.0) / np.float32(n_trees)
     walked = 0
-    for j in range(n_cols):
+    for j in range(plan.shape[1]):
         c = j * stride
-        if walked < cols.shape[0] and cols[walked] == c:
+        step = plan[i, j]
+        if step == WALK:
             for q in range(acc.shape[1]):
                 out[r, c, q] = acc[walked, q] * scale
             walked += 1
             summarise_pixel(out, r, c, amax, pmax, psecond)
-            continue
-        for q in range(out.shape[2]):
-            out[r, c, q] = np.float32(0.0)
-        if values[r, c] > 0:  # the floor: background, sure
-            out[r, c, BACKGROUND] = np.float32(1.0)
-            summarise_pixel(out, r, c, amax, pmax, psecond)
-        else:
-            summarise_no_depth(r, c, amax, pmax, psecond)
+        elif step == FLOOR or step == NO_VALUE:
+            _write_fixed(out, r, c, step == FLOOR)
+            if step == FLOOR:
+                summarise_pixel(out, r, c, amax, pmax, psecond)
+            else:
+                summarise_no_depth(r, c, amax, pmax, psecond)
 
 
 @functools.cache
@@ -248,31 +261,28 @@ def _kernel(k: int):
 
     @numba.njit(cache=True, parallel=True)
     def predict(
-        values,
+        padded,
         scale,
-        floor,
+        plan,
         fields,
         words,
         posteriors,
         roots,
-        background,
         stride,
         out,
         amax,
         pmax,
         psecond,
     ):
-        """Posteriors of the evaluated pixels. Within a row the trees are walked one level
-        at a time for all pixels to walk, until all have arrived at a leaf; an arrived
-        pixel reads the stand-in record and keeps its state (a select, not a branch)."""
-        h, w = _i32(values.shape[0]), _i32(values.shape[1])
+        """Posteriors of the grid pixels that `plan` walks or fixes. Within a row the trees
+        are walked one level at a time for all pixels to walk, until all have arrived at a
+        leaf; an arrived pixel reads the stand-in record and keeps its state (a select, not
+        a branch)."""
+        h, w = _i32(scale.shape[0]), _i32(scale.shape[1])
         n_splits = _i32(words.shape[0] - 1)
-        padded = _padded(values, background)
-        n_rows = (values.shape[0] + stride - 1) // stride
-        n_cols = (values.shape[1] + stride - 1) // stride
-        for i in numba.prange(n_rows):
+        for i in numba.prange(plan.shape[0]):
             r = _i32(i * stride)
-            cols, inv = _row_pixels(values, scale, floor, r, stride, n_cols)
+            cols, inv = _row_pixels(plan, scale, i, r, stride)
             m = cols.shape[0]
             cur = np.empty(m, np.int32)
             acc = np.zeros((m, posteriors.shape[1]), np.float32)
@@ -296,20 +306,7 @@ def _kernel(k: int):
                             _prefetch_row(words, min(nxt, n_splits))
                             fetched = nxt
                 _accumulate(acc, cur, n_splits, posteriors)
-            _write_row(
-                out,
-                values,
-                floor,
-                r,
-                stride,
-                n_cols,
-                cols,
-                acc,
-                roots.shape[0],
-                amax,
-                pmax,
-                psecond,
-            )
+            _write_row(out, plan, i, r, stride, cols, acc, roots.shape[0], amax, pmax, psecond)
 
     return predict
 
@@ -471,6 +468,75 @@ def _fill(values, floor, stride, table, out, mask):
                 out[r, c, q] = buf[q]
 
 
+@numba.njit(cache=True)
+def _grid_plan(values, floor, stride):
+    """(rows, cols) uint8 plan of the stride grid: WALK where a pixel has a value and is not
+    floor, FLOOR, or NO_VALUE."""
+    n_rows = (values.shape[0] + stride - 1) // stride
+    n_cols = (values.shape[1] + stride - 1) // stride
+    plan = np.empty((n_rows, n_cols), np.uint8)
+    for i in range(n_rows):
+        for j in range(n_cols):
+            v = values[i * stride, j * stride]
+            plan[i, j] = NO_VALUE if v == 0 else (FLOOR if floor[i * stride, j * stride] else WALK)
+    return plan
+
+
+@numba.njit(cache=True, inline="always")
+def _settled(values, amax, pmax, r0, r1, c0, c1, v, confidence, reach):
+    """Whether the coarse grid pixels (r0 | r1, c0 | c1) around a pixel of probe value v all
+    have a value within `reach` of v and the same argmax with posterior >= `confidence`."""
+    label = amax[r0, c0]
+    for gr in (r0, r1):
+        for gc in (c0, c1):
+            g = np.int32(values[gr, gc])
+            if g == 0 or abs(g - v) >= reach:
+                return False
+            if amax[gr, gc] != label or pmax[gr, gc] < confidence:
+                return False
+    return True
+
+
+@numba.njit(cache=True, parallel=True)
+def _settle(values, floor, stride, table, confidence, reach, out, amax, pmax, psecond):
+    """The plan of the stride grid once the grid twice as coarse is walked and summarised:
+    its pixels are DONE; a pixel between them whose coarse neighbours settle it (`_settled`)
+    takes their upsampled posterior (`_between` on the coarse grid) and summary, and is
+    DONE; the others are planned as by `_grid_plan`."""
+    coarse = 2 * stride
+    h, w = values.shape
+    last_r = (h - 1) - (h - 1) % coarse
+    last_c = (w - 1) - (w - 1) % coarse
+    n_rows = (h + stride - 1) // stride
+    n_cols = (w + stride - 1) // stride
+    plan = np.empty((n_rows, n_cols), np.uint8)
+    for i in numba.prange(n_rows):
+        buf = np.empty(out.shape[2], np.float32)
+        r = i * stride
+        r0, r1, wr0, wr1 = _grid_rows(r, coarse, last_r)
+        for j in range(n_cols):
+            c = j * stride
+            v = np.int32(values[r, c])
+            if r == r0 and c % coarse == 0:
+                plan[i, j] = DONE
+            elif v == 0:
+                plan[i, j] = NO_VALUE
+            elif floor[r, c]:
+                plan[i, j] = FLOOR
+            else:
+                c0 = c - c % coarse
+                c1 = min(c0 + coarse, last_c)
+                if _settled(values, amax, pmax, r0, r1, c0, c1, v, confidence, reach):
+                    _between(values, table, out, r0, r1, wr0, wr1, c, coarse, last_c, v, buf)
+                    for q in range(buf.shape[0]):
+                        out[r, c, q] = buf[q]
+                    summarise_values(buf, r, c, amax, pmax, psecond)
+                    plan[i, j] = DONE
+                else:
+                    plan[i, j] = WALK
+    return plan
+
+
 @numba.njit(cache=True, parallel=True)
 def _apply(values, scale, floor, offsets, weights, threshold, left, roots, background, out):
     for r in numba.prange(values.shape[0]):
@@ -495,6 +561,8 @@ def predict_proba(
     stride: int = 1,
     summary: Summary | None = None,
     lazy: bool = False,
+    adaptive: int = 0,
+    walked: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
@@ -505,6 +573,11 @@ def predict_proba(
     `stride` > 1 walks the trees only at every stride-th pixel of every stride-th row and
     fills the pixels between by edge-aware upsampling (`_upsample`): stride**2 times fewer
     walks; the posteriors at the grid pixels are exact.
+    `adaptive` > 0 (with stride > 1) walks the grid stride * 2**adaptive first, then each
+    finer grid down to `stride` only at the pixels that the coarser one around them does not
+    settle (`_settle`: the same argmax with posterior >= SETTLE_CONFIDENCE, probe values
+    within SETTLE_REACH_MM); a settled pixel takes their upsampled posterior.
+    `walked`, an (H, W) bool array when given, is set True at the pixels walked.
     `summary` (`crf.argmax.Summary` of (H, W) buffers), when given, is filled with every
     pixel's argmax and top two posteriors as the posteriors are written: what the CRF reads,
     without another pass over them (`crf.segment_crf(..., summary=)`).
@@ -516,6 +589,10 @@ def predict_proba(
     inp = check_input(as_input(frame), "forest inference")
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
+    if adaptive < 0:
+        raise ValueError(f"adaptive must be >= 0 levels, got {adaptive}")
+    if walked is not None and (walked.shape != inp.shape or walked.dtype != np.bool_):
+        raise ValueError(f"walked must be a bool array of shape {inp.shape}")
     shape = (*inp.shape, forest.posteriors.shape[1])
     if out is None:
         out = np.empty(shape, np.float32)
@@ -526,19 +603,28 @@ def predict_proba(
     elif any(a.shape != inp.shape or not a.flags.c_contiguous for a in summary):
         raise ValueError(f"summary arrays must be C-contiguous of shape {inp.shape}")
     table = inference_table(forest)
-    _kernel(table.k)(
-        inp.values,
-        inp.scale,
-        inp.floor,
-        table.fields,
-        table.words,
-        forest.posteriors,
-        table.roots,
-        np.int32(forest.background_mm),
-        stride,
-        out,
-        *summary,
-    )
+    walk = _kernel(table.k)
+    padded = _padded(inp.values, np.int32(forest.background_mm))
+    tables = (table.fields, table.words, forest.posteriors, table.roots)
+    s = stride << (adaptive if stride > 1 else 0)
+    plan = _grid_plan(inp.values, inp.floor, s)
+    while True:
+        walk(padded, inp.scale, plan, *tables, s, out, *summary)
+        if walked is not None:
+            walked[::s, ::s] |= plan == WALK
+        if s == stride:
+            break
+        s //= 2
+        plan = _settle(
+            inp.values,
+            inp.floor,
+            s,
+            height_weights(),
+            np.float32(SETTLE_CONFIDENCE),
+            np.int32(SETTLE_REACH_MM),
+            out,
+            *summary,
+        )
     if stride > 1:
         _upsample(inp.values, inp.floor, stride, height_weights(), out, *summary, not lazy)
     return out
@@ -582,10 +668,14 @@ def apply(forest: Forest, frame: np.ndarray | ModelInput) -> np.ndarray:
     return out
 
 
-def predict_labels(forest: Forest, frame: np.ndarray | ModelInput, stride: int = 1) -> np.ndarray:
+def predict_labels(
+    forest: Forest, frame: np.ndarray | ModelInput, stride: int = 1, adaptive: int = 0
+) -> np.ndarray:
     """(H, W) uint8 most probable label per pixel; NO_DEPTH where depth == 0 (through the
-    one argmax, `crf.segment_argmax`, that the CRF's mode `none` is)."""
+    one argmax, `crf.segment_argmax`, that the CRF's mode `none` is). `stride` and
+    `adaptive` as for `predict_proba`."""
     from topseg.core.crf.argmax import segment_argmax
 
     inp = as_input(frame)
-    return segment_argmax(predict_proba(forest, inp, stride=stride), inp.values > 0)
+    proba = predict_proba(forest, inp, stride=stride, adaptive=adaptive)
+    return segment_argmax(proba, inp.values > 0)

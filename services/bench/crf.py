@@ -34,7 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from topseg.services.bench import frames as bench_frames
-from topseg.services.cli_types import add_stride_argument, finite, int_range, non_negative_int
+from topseg.services.cli_types import (
+    add_grid_arguments,
+    finite,
+    grid_config,
+    int_range,
+    non_negative_int,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the model's posteriors (default), a small forest trained here, or the stand-in",
     )
     parser.add_argument("--model", type=Path, help="topseg model file (default: the bundled one)")
-    add_stride_argument(parser)
+    add_grid_arguments(parser)
     bench_frames.add_arguments(parser)
     parser.add_argument(
         "--smoothness", type=finite(0, 1e6), default=None, help="Potts weight (nats)"
@@ -103,7 +109,7 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
 
     # the model's camera need not be these frames'; a height model reads them through theirs
     config = SegmenterConfig(
-        check_camera=False, mount=bench_frames.bench_mount(), stride=args.stride
+        check_camera=False, mount=bench_frames.bench_mount(), **grid_config(args)
     )
     if args.unaries == "quick-forest":
         segmenter = Segmenter(_quick_forest(rng), header_fields(FeatureConfig()), config)

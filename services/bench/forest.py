@@ -3,7 +3,8 @@
 By default the bundled model is timed on rendered modeled scenes with the sensor's own
 noise (640x480 Kinect v1 at the paper's 3.5 m; `bench/frames.py`), as the worker labels
 them: at full resolution (`stride 1`, every pixel the floor gate lets through) and on the
-grid the Segmenter walks by default (`--stride auto`, upsampled by height). `--model` times
+grid the Segmenter walks by default (`--stride auto`, upsampled by height; `--adaptive 1`:
+the grid twice as coarse first, the grid itself only where that one is unsure). `--model` times
 another model file, `--forest trained` a T=5, D=19 forest trained here on procedural frames
 (seconds), `--forest random` full binary trees of random splits (every pixel walks all D
 levels: the worst case). The figures say which forest was timed, how deep pixels walk, wall
@@ -21,7 +22,7 @@ import time
 from dataclasses import replace
 
 from topseg.services.bench import frames as bench_frames
-from topseg.services.cli_types import add_stride_argument, int_range, non_negative_int
+from topseg.services.cli_types import add_grid_arguments, grid_config, int_range, non_negative_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--repeats", type=int_range(1, 100000), default=3, help="passes over the frames"
     )
-    add_stride_argument(parser)
+    add_grid_arguments(parser)
     parser.add_argument(
         "--threads", type=int_range(0, 1024), default=0, help="numba threads (0: all cores)"
     )
@@ -104,6 +105,19 @@ def _time_frames(predict, frames, repeats):
     return 1000 * float(np.median(wall)), 1000 * float(np.median(cpu))
 
 
+def _walked(model, segmenter, frame, stride: int):
+    """(H, W) bool: the pixels `segmenter`'s forest walks on `frame` at `stride` (its
+    adaptive grid's settled pixels are not walked)."""
+    import numpy as np
+
+    from topseg.core.forest.predict import predict_proba
+
+    walked = np.zeros(frame.shape, np.bool_)
+    inp = segmenter.model_input(frame)
+    predict_proba(model, inp, stride=stride, adaptive=segmenter.config.adaptive, walked=walked)
+    return walked
+
+
 def measure(args: argparse.Namespace) -> dict:
     """Time the forest stage of a Segmenter at full resolution and at --stride; accuracy."""
     import numba
@@ -134,7 +148,7 @@ def measure(args: argparse.Namespace) -> dict:
     full = Segmenter(
         model, header, SegmenterConfig(check_camera=False, mount=mount, stride=1), crf="none"
     )
-    grid = Segmenter(model, header, replace(full.config, stride=args.stride), crf="none")
+    grid = Segmenter(model, header, replace(full.config, **grid_config(args)), crf="none")
     stride = grid.stride_for(frames[0])
     figures: dict = {
         "forest": kind,
@@ -144,14 +158,14 @@ def measure(args: argparse.Namespace) -> dict:
         "nodes": model.n_nodes,
         "features_per_node": model.features_per_node,
         "threads": numba.get_num_threads(),
+        "adaptive_levels": args.adaptive,
     }
     leaves = apply(model, full.model_input(frames[0]))
     levels = node_depths(model.left, model.roots)
     figures["mean_levels_walked"] = round(float(levels[leaves[leaves >= 0]].mean()), 2)
     for s, segmenter in {1: full, stride: grid}.items():
         wall, cpu = _time_frames(segmenter.label, frames, args.repeats)
-        grid_leaves = leaves[:, ::s, ::s]
-        visits = int(levels[grid_leaves[grid_leaves >= 0]].sum())
+        visits = int(levels[leaves[:, _walked(model, segmenter, frames[0], s)]].sum())
         figures[f"forest_ms_per_frame_stride{s}"] = round(wall, 2)
         figures[f"forest_cpu_ms_per_frame_stride{s}"] = round(cpu, 2)
         figures[f"node_visits_per_frame_stride{s}"] = visits

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from topseg.services.cli_types import add_stride_argument, finite, int_range
+from topseg.services.cli_types import add_grid_arguments, finite, int_range
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--crf", choices=("none", "exact", "realtime"), default="realtime", help="worker CRF mode"
     )
     parser.add_argument("--lossless", action="store_true", help="worker labels every frame (FIFO)")
-    add_stride_argument(parser)
+    add_grid_arguments(parser)
     parser.add_argument(
         "--cameras",
         type=int_range(1, 16),
@@ -69,6 +69,7 @@ def measure(args: argparse.Namespace) -> dict:
         None,
         args.lossless,
         stride=args.stride,
+        adaptive=args.adaptive,
         cameras=args.cameras,
     )
     scores = figures.pop("scores")
