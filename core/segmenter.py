@@ -20,6 +20,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -417,8 +418,16 @@ class Segmenter:
         from topseg.core.forest.inputs import legacy_input
 
         inp = legacy_input(depth) if self.features is None else self.model_input(depth, mount=mount)
-        for stride in (1, 2):  # both paths: every pixel walked, and a grid upsampled
-            segment_crf(self._predict(inp, stride), depth, self.config.crf, self._summary)
+        from topseg.core.forest.predict import fill_posteriors
+
+        for stride in (1, 2):  # both paths: every pixel walked, and a lazy grid upsampled
+            proba = self._predict(inp, stride, lazy=stride > 1)
+            fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
+            segment_crf(proba, depth, self.config.crf, self._summary, fill)
+        if self.config.crf.mode == "realtime":
+            from topseg.core.crf import realtime
+
+            realtime.warm_up(L.NUM_CLASSES)  # the solve of a large band, in parallel
 
 
 def model_features(header: dict | None, forest: Forest | None = None) -> FeatureConfig | None:

@@ -261,3 +261,16 @@ def test_the_adaptive_grid_is_a_config_field_checked_up_front():
     got, want = adaptive.label(depth), plain.label(depth)
     assert (got.labels == want.labels).mean() > 0.9  # the same scene ...
     assert not np.array_equal(got.proba, want.proba)  # ... and not the same walk
+
+
+def test_warm_up_compiles_what_a_first_large_frame_runs():
+    """A worker warms up on a small frame; the lazy grid's fill and the band solved in two
+    parts in parallel must be ready too (loading them on the first real frame cost ~40 ms
+    and dropped frames at a worker's start)."""
+    from topseg.core.crf import realtime
+    from topseg.core.forest import predict
+
+    seg = Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="realtime")
+    seg.warm_up()
+    for kernel in (predict._fill, realtime._solve_parts, realtime.band_parts):
+        assert kernel.signatures, kernel

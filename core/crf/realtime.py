@@ -297,6 +297,19 @@ def solve_band(unary, nbr, nw, init, cycles):
     return _solve_parts(unary, nbr, nw, init, cycles, part, BAND_PARTS)
 
 
+def warm_up(n_labels: int) -> None:
+    """Compile (or load from numba's cache) both solve paths, the parallel one included: a
+    small warm-up frame's band never reaches PARALLEL_BAND_PIXELS, and loading the parallel
+    kernel on the first real frame that does cost ~40 ms (frames dropped at a worker's start)."""
+    n = PARALLEL_BAND_PIXELS
+    unary = np.zeros((n, n_labels), np.int32)
+    unary[:, 0] = 1  # every pixel moves to label 1: the moves run their whole path
+    nbr = np.full((n, 4), -1, np.int32)
+    nbr[1::2, 0], nbr[0::2, 1] = np.arange(0, n, 2), np.arange(1, n, 2)  # pairs of pixels
+    nw = np.where(nbr >= 0, 1, 0).astype(np.int32)
+    solve_band(unary, nbr, nw, np.zeros(n, np.int32), 1)
+
+
 def band_mask(proba: np.ndarray, depth: np.ndarray, config: CRFConfig) -> np.ndarray:
     """(H, W) bool: the pixels `segment_realtime` hands to the solver (for benches, viewers)."""
     proba = np.ascontiguousarray(proba, dtype=np.float32)
