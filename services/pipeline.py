@@ -9,7 +9,8 @@ truth and labels and measures:
 - `latency_p50_ms` / `latency_p99_ms`: driver stamp (the moment the source handed the frame
   on) -> labels received here, over every labelled frame after the first `WARMUP_FRAMES`
   (nearest-rank percentiles, `core.metrics.percentile`, as `topseg status` reports them);
-- `frames_sent` (depth messages seen), `frames_labelled`, `frames_scored`;
+- `frames_sent` (depth messages seen, and at least the frames labelled), `frames_labelled`,
+  `frames_scored`;
 - `scores`: `ConfusionAccumulator.scores()` of the labels against the truth channel (frames
   paired by seq; scored after the run so that scoring takes no CPU from the pipeline).
 
@@ -343,7 +344,9 @@ def run_pipeline(
                 for stage in STAGES
                 for q in (50, 99)
             },
-            "frames_sent": col.frames_sent,
+            # this process's own subscriber can miss a depth message under load (the driver
+            # drops rather than block) that the worker got: sent is at least what was labelled
+            "frames_sent": max(col.frames_sent, col.n_labels),
             "frames_labelled": col.n_labels,
             "frames_scored": scored,
             "scores": acc.scores() if scored else None,
