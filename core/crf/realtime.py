@@ -290,9 +290,16 @@ BAND_PARTS = 2
 def solve_band(unary, nbr, nw, init, cycles):
     """Expansion on the band: (labels as uint8, integer energy decrease, pixels changed).
     A band of PARALLEL_BAND_PIXELS or more is split into BAND_PARTS independent problems
-    of whole components (`band_parts`), solved in parallel on numba's threads."""
-    if init.shape[0] < PARALLEL_BAND_PIXELS:
-        return _solve_band(unary, nbr, nw, init, cycles)
+    of whole components (`band_parts`), solved in parallel on numba's threads; a smaller
+    one is solved as one part.
+
+    `_solve_parts` is the only way in from Python: with `_solve_band` entered directly as
+    well, a numba cache whose two entries were written by different runs (two processes
+    compiling at once after an update) linked `_solve_band`'s environment to the copy inside
+    `_solve_parts`, and returning its labels failed ("'descr' is NULL")."""
+    n = init.shape[0]
+    if n < PARALLEL_BAND_PIXELS:
+        return _solve_parts(unary, nbr, nw, init, cycles, np.zeros(n, np.int64), 1)
     part = band_parts(nbr, BAND_PARTS)
     return _solve_parts(unary, nbr, nw, init, cycles, part, BAND_PARTS)
 
