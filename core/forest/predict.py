@@ -16,7 +16,8 @@ stand-in record and keeps its state, and a row's tree is done when every pixel h
 Results are bit-identical to a plain walk (`apply`, `tests/reference.py`).
 
 Only pixels with depth that the floor gate lets through are walked (a row's pixels to walk
-are gathered first). Pixels without depth get an all-zero posterior row (not a
+are gathered first, from the grid's plan: `_grid_plan`, or `_settle` on an adaptive grid,
+where a pixel that the coarser grid around it settles is upsampled instead of walked). Pixels without depth get an all-zero posterior row (not a
 distribution), which the argmax (`crf.segment_argmax`) turns into NO_DEPTH; floor-gated
 pixels get background with probability 1. A node sends a pixel left when its response <
 threshold (see `features`).
@@ -58,8 +59,9 @@ _CACHE_LINE = 64
 #: (the floor gate), zeros (no value), or nothing (its posterior is already written)
 WALK, FLOOR, NO_VALUE, DONE = 0, 1, 2, 3
 
-#: the adaptive grid (`predict_proba(..., adaptive=)`): a grid pixel between the points of the grid twice as coarse is settled (not walked) when
-#: all of the points around it have the same argmax with at least this posterior ...
+#: the adaptive grid (`predict_proba(..., adaptive=)`): a grid pixel between the points of
+#: the grid twice as coarse is settled (not walked) when all of the points around it have
+#: the same argmax with at least this posterior ...
 SETTLE_CONFIDENCE = 0.5
 #: ... and probe values within this many mm of its own (2 UPSAMPLE_SIGMA_MM: the upsampling
 #: weighs a point farther than that by less than exp(-4)); it takes their upsampled posterior
@@ -391,6 +393,12 @@ def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
 
 
 @numba.njit(cache=True, inline="always")
+def _last_on_grid(n, stride):
+    """The last of n rows (or columns) on the stride grid."""
+    return (n - 1) - (n - 1) % stride
+
+
+@numba.njit(cache=True, inline="always")
 def _grid_rows(r, stride, last_r):
     """The grid rows r0 <= r <= r1 around row r and their bilinear weights."""
     r0 = r - r % stride
@@ -421,8 +429,7 @@ def _upsample(values, floor, stride, table, out, amax, pmax, psecond, write):
     walked posteriors. Every in-between pixel gets its summary (`crf.argmax.Summary`); its
     posterior is stored only when `write` (else `_fill` stores it where it is needed)."""
     h, w = values.shape
-    last_r = (h - 1) - (h - 1) % stride
-    last_c = (w - 1) - (w - 1) % stride
+    last_r, last_c = _last_on_grid(h, stride), _last_on_grid(w, stride)
     for r in numba.prange(h):
         buf = np.empty(out.shape[2], np.float32)
         r0, r1, wr0, wr1 = _grid_rows(r, stride, last_r)
@@ -451,8 +458,7 @@ def _upsample(values, floor, stride, table, out, amax, pmax, psecond, write):
 def _fill(values, floor, stride, table, out, mask):
     """Store the posteriors `_upsample(..., write=False)` left out, at the pixels of `mask`."""
     h, w = values.shape
-    last_r = (h - 1) - (h - 1) % stride
-    last_c = (w - 1) - (w - 1) % stride
+    last_r, last_c = _last_on_grid(h, stride), _last_on_grid(w, stride)
     for r in numba.prange(h):
         buf = np.empty(out.shape[2], np.float32)
         r0, r1, wr0, wr1 = _grid_rows(r, stride, last_r)
@@ -505,8 +511,7 @@ def _settle(values, floor, stride, table, confidence, reach, out, amax, pmax, ps
     DONE; the others are planned as by `_grid_plan`."""
     coarse = 2 * stride
     h, w = values.shape
-    last_r = (h - 1) - (h - 1) % coarse
-    last_c = (w - 1) - (w - 1) % coarse
+    last_r, last_c = _last_on_grid(h, coarse), _last_on_grid(w, coarse)
     n_rows = (h + stride - 1) // stride
     n_cols = (w + stride - 1) // stride
     plan = np.empty((n_rows, n_cols), np.uint8)
