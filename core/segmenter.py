@@ -416,10 +416,9 @@ class Segmenter:
             depth[:, :8] = int(mount.height_mm)
         from topseg.core.crf import segment_crf
         from topseg.core.forest.inputs import legacy_input
-
-        inp = legacy_input(depth) if self.features is None else self.model_input(depth, mount=mount)
         from topseg.core.forest.predict import fill_posteriors
 
+        inp = legacy_input(depth) if self.features is None else self.model_input(depth, mount=mount)
         for stride in (1, 2):  # both paths: every pixel walked, and a lazy grid upsampled
             proba = self._predict(inp, stride, lazy=stride > 1)
             fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
