@@ -13,7 +13,8 @@ bit (as stumpy keeps its naive versions in one test module).
   input (`forest.inputs`).
 - `probe_reference`, `extract_reference`, `response_reference`: the depth-difference features.
 - `apply_reference`, `predict_reference`, `upsample_reference`, `adaptive_reference`: forest
-  inference (`predict.apply`, `predict_proba` at full resolution, on a grid, on an adaptive one).
+  inference (`predict.apply`, `predict_proba` at full resolution, on a grid, on an adaptive one);
+  `bounded_second_reference`: the lazy grid's bounded second posterior (`_summarise_agreed`).
 - `SplitMix`, `responses_reference`, `gains_reference`, `best_split_reference`: training's
   per-node random stream, criterion and splitter.
 - `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
@@ -440,6 +441,44 @@ def upsample_reference(grid_proba, values, floor, stride, sigma_mm) -> np.ndarra
             elif grid:
                 near = min(grid, key=lambda g: abs(float(values[g]) - float(values[r, c])))
                 out[r, c] = grid_proba[near]
+    return out
+
+
+def bounded_second_reference(summary, values, floor, stride, sigma_mm) -> np.ndarray:
+    """`predict._summarise_agreed` in numpy (float64): (H, W) the second posterior a lazy
+    upsampling stores at each in-between pixel with a value, off the floor, whose weighing
+    grid corners (float32 weight > 0, as `upsample_reference` weighs them, summing to more
+    than 1e-30) share one argmax in `summary`: the weighted mean of their second posteriors, where it stays below the
+    weighted mean of their top ones. NaN at every other pixel (its exact summary stands)."""
+    amax, pmax, psecond = summary
+    h, w = values.shape
+    out = np.full((h, w), np.nan)
+    last_r, last_c = (h - 1) - (h - 1) % stride, (w - 1) - (w - 1) % stride
+    for r in range(h):
+        for c in range(w):
+            r0, c0 = r - r % stride, c - c % stride
+            if (r == r0 and c == c0) or values[r, c] == 0 or floor[r, c]:
+                continue
+            corners = {
+                (gr, gc)
+                for gr in (r0, min(r0 + stride, last_r))
+                for gc in (c0, min(c0 + stride, last_c))
+            }
+            weighed = []
+            for gr, gc in sorted(corners):
+                if values[gr, gc] == 0:
+                    continue
+                dv = (float(values[gr, gc]) - float(values[r, c])) / sigma_mm
+                wt = (stride - abs(r - gr)) * (stride - abs(c - gc)) * np.float32(np.exp(-dv * dv))
+                if wt > 0:
+                    weighed.append((wt, (gr, gc)))
+            total = sum(wt for wt, _ in weighed)
+            if total <= 1e-30 or len({int(amax[g]) for _, g in weighed}) != 1:
+                continue  # underflowed: `_between` takes the nearest corner, exactly
+            top = sum(wt * float(pmax[g]) for wt, g in weighed) / total
+            second = sum(wt * float(psecond[g]) for wt, g in weighed) / total
+            if second < top:
+                out[r, c] = second
     return out
 
 

@@ -183,6 +183,33 @@ def test_a_given_summary_gives_the_same_labels_and_is_never_returned(mode):
             np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_an_upper_bound_of_the_second_posterior_grows_the_band_not_the_labels(seed):
+    """A lazy forest grid stores a bound of the second posterior where its corners agree
+    (`argmax.Summary`): fewer pixels are settled, the band grows, the labels stay."""
+    from topseg.core.crf import Summary
+
+    rng = np.random.default_rng(40 + seed)
+    depth, truth = synthetic_scene(rng, (120, 160))
+    proba = forest_like_posteriors(truth, rng)
+    for cols, label in ((slice(10, 40), 2), (slice(40, 70), 3)):  # two sure blocks, whose
+        proba[10:40, cols] = 0.001  # common edge is settled, not sure
+        proba[10:40, cols, label] = 0.99
+    valid = depth > 0
+    cfg = CRFConfig(confidence=0.5)
+    exact = Summary(*argmax_confidence(proba, valid))
+    bounded = exact.psecond + rng.random(exact.psecond.shape, np.float32) * (
+        exact.pmax - exact.psecond
+    )
+    loose = Summary(exact.amax.copy(), exact.pmax, np.maximum(bounded, exact.psecond))
+    args = (valid, cfg.confidence, cfg.ring, cfg.smoothness, cfg.eps)
+    exact_band = free_mask(*exact, *args)
+    loose_band = free_mask(*loose, *args)
+    assert np.all(loose_band >= exact_band) and loose_band.sum() > exact_band.sum()
+    want = segment_realtime(proba, depth, cfg, exact)
+    np.testing.assert_array_equal(segment_realtime(proba, depth, cfg, loose), want)
+
+
 def large_band(seed, shape=(240, 320)):
     """A band problem of a forest-like scene, big enough to be split (`solve_band`)."""
     rng = np.random.default_rng(seed)

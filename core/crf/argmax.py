@@ -18,7 +18,9 @@ from topseg.core import labels as L
 
 class Summary(NamedTuple):
     """Per pixel: `amax` (H, W) uint8 argmax (NO_DEPTH without depth), `pmax` and `psecond`
-    (H, W) float32 top and second posterior (0 without depth)."""
+    (H, W) float32 top and second posterior (0 without depth). A lazily upsampled forest
+    grid (`forest.predict_proba(..., lazy=True)`) may store an upper bound of the second
+    posterior instead, where a pixel's grid corners agree: readers use it as a bound."""
 
     amax: np.ndarray
     pmax: np.ndarray

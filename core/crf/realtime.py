@@ -44,7 +44,9 @@ def settled(i, j, pmax, psecond, keep, eps):
     by more than the weight any pixel's edges can have, so every move prunes the pixel
     whatever its neighbours do (see `topseg.core.crf.expansion`), and leaving it out of
     the band changes nothing. (Bounding the weights by 4 * smoothness rather than
-    summing the pixel's own keeps this to one comparison; it only ever settles fewer.)
+    summing the pixel's own keeps this to one comparison; it only ever settles fewer.) An
+    upper bound of the second posterior in its place (`argmax.Summary`) also only settles
+    fewer.
     """
     return max(psecond[i, j], eps) <= max(pmax[i, j], eps) * keep
 

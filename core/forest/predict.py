@@ -358,9 +358,9 @@ def _range_weight(values, gr, gc, v, spatial, table):
 
 
 @numba.njit(cache=True, inline="always")
-def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
-    """The upsampled posterior (see `_upsample`) of the in-between pixel of probe value
-    v > 0 in column c of a row between grid rows r0 and r1 (weights wr0, wr1) into `buf`."""
+def _corner_weights(values, table, r0, r1, wr0, wr1, c, stride, last_c, v):
+    """The grid columns c0 <= c <= c1 around column c and the four corners' weights (see
+    `_upsample`) for an in-between pixel of probe value v > 0, with their sum."""
     c0 = c - c % stride
     c1 = min(c0 + stride, last_c)
     wc0 = np.float32(stride - (c - c0))
@@ -369,7 +369,16 @@ def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
     w01 = _range_weight(values, r0, c1, v, wr0 * wc1, table)
     w10 = _range_weight(values, r1, c0, v, wr1 * wc0, table)
     w11 = _range_weight(values, r1, c1, v, wr1 * wc1, table)
-    total = w00 + w01 + w10 + w11
+    return c0, c1, w00, w01, w10, w11, w00 + w01 + w10 + w11
+
+
+@numba.njit(cache=True, inline="always")
+def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
+    """The upsampled posterior (see `_upsample`) of the in-between pixel of probe value
+    v > 0 in column c of a row between grid rows r0 and r1 (weights wr0, wr1) into `buf`."""
+    c0, c1, w00, w01, w10, w11, total = _corner_weights(
+        values, table, r0, r1, wr0, wr1, c, stride, last_c, v
+    )
     if total > np.float32(1e-30):
         inv = np.float32(1.0) / total
         w00, w01, w10, w11 = w00 * inv, w01 * inv, w10 * inv, w11 * inv
@@ -390,6 +399,45 @@ def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
                     best_r, best_c, best = gr, gc, d
     for q in range(buf.shape[0]):
         buf[q] = out[best_r, best_c, q] if best_r >= 0 else np.float32(0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _summarise_agreed(
+    values, table, r0, r1, wr0, wr1, r, c, stride, last_c, v, amax, pmax, psecond
+):
+    """Summarise the in-between pixel (r, c) of probe value v > 0 from its corners'
+    summaries alone when every corner that weighs in `_between` has the same argmax: its
+    top posterior is then exactly the upsampled one (the same sums in the same order), and
+    the weighed sum of the corners' second posteriors bounds every other class's upsampled
+    posterior from above, so it stands for the second. Returns False, writing nothing, when
+    the corners disagree, none weighs, or the bound does not stay below the top."""
+    c0, c1, w00, w01, w10, w11, total = _corner_weights(
+        values, table, r0, r1, wr0, wr1, c, stride, last_c, v
+    )
+    if not total > np.float32(1e-30):
+        return False
+    label = np.int32(-1)
+    for gr, gc, wt in ((r0, c0, w00), (r0, c1, w01), (r1, c0, w10), (r1, c1, w11)):
+        if wt > 0:
+            if label < 0:
+                label = np.int32(amax[gr, gc])
+            elif amax[gr, gc] != label:
+                return False
+    inv = np.float32(1.0) / total
+    w00, w01, w10, w11 = w00 * inv, w01 * inv, w10 * inv, w11 * inv
+    top = w00 * pmax[r0, c0] + w01 * pmax[r0, c1] + w10 * pmax[r1, c0] + w11 * pmax[r1, c1]
+    second = (
+        w00 * psecond[r0, c0]
+        + w01 * psecond[r0, c1]
+        + w10 * psecond[r1, c0]
+        + w11 * psecond[r1, c1]
+    )
+    if not second < top:
+        return False
+    amax[r, c] = label
+    pmax[r, c] = top
+    psecond[r, c] = second
+    return True
 
 
 @numba.njit(cache=True, inline="always")
@@ -427,7 +475,10 @@ def _upsample(values, floor, stride, table, out, amax, pmax, psecond, write):
     value wins; where none of them has a value, zeros (no posterior, as without depth).
     Pixels without a value get zeros, floor pixels background; grid pixels keep their
     walked posteriors. Every in-between pixel gets its summary (`crf.argmax.Summary`); its
-    posterior is stored only when `write` (else `_fill` stores it where it is needed)."""
+    posterior is stored only when `write` (else `_fill` stores it where it is needed).
+    Without `write`, a pixel whose weighing corners share their argmax is summarised from
+    their summaries (`_summarise_agreed`: its second posterior is then an upper bound) and
+    its posteriors are not blended: 1.8 -> 1.2-1.5 ms a bench frame."""
     h, w = values.shape
     last_r, last_c = _last_on_grid(h, stride), _last_on_grid(w, stride)
     for r in numba.prange(h):
@@ -446,6 +497,10 @@ def _upsample(values, floor, stride, table, out, amax, pmax, psecond, write):
                     psecond[r, c] = np.float32(0.0)
                 else:
                     summarise_no_depth(r, c, amax, pmax, psecond)
+                continue
+            if not write and _summarise_agreed(
+                values, table, r0, r1, wr0, wr1, r, c, stride, last_c, v, amax, pmax, psecond
+            ):
                 continue
             _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf)
             summarise_values(buf, r, c, amax, pmax, psecond)
@@ -586,10 +641,12 @@ def predict_proba(
     `summary` (`crf.argmax.Summary` of (H, W) buffers), when given, is filled with every
     pixel's argmax and top two posteriors as the posteriors are written: what the CRF reads,
     without another pass over them (`crf.segment_crf(..., summary=)`).
-    `lazy` (with stride > 1 and a summary) stores the posteriors of grid pixels only: every
-    pixel's summary is still exact, and `fill_posteriors` stores the rest where a reader
-    needs them (the realtime CRF reads its band only), sparing the write of the whole
-    (H, W, C) array.
+    `lazy` (with stride > 1 and a summary) stores the posteriors of grid pixels only, and
+    `fill_posteriors` stores the rest where a reader needs them (the realtime CRF reads its
+    band only), sparing the write of the whole (H, W, C) array. Every pixel's argmax and top
+    posterior are still exact; the second posterior of an in-between pixel whose grid
+    corners agree is an upper bound of it (`_summarise_agreed`), which can only keep the
+    realtime CRF from settling a pixel it could have left out of its band.
     """
     inp = check_input(as_input(frame), "forest inference")
     if stride < 1:
