@@ -27,6 +27,7 @@ from topseg.core.forest.inputs import ModelInput, as_input
 from topseg.core.forest.predict import (
     SETTLE_REACH_MM,
     UPSAMPLE_SIGMA_MM,
+    _padded,
     _upsample,
     apply,
     height_weights,
@@ -432,4 +433,17 @@ def test_realtime_crf_labels_a_lazy_grid_as_it_labels_the_eager_one(seed, monkey
     got = segment_crf(lazy, inp.values, config, lazy_summary, fill)
     assert np.any(lazy_summary.psecond != eager_summary.psecond)  # some seconds are bounds
     assert np.any(want != eager_summary.amax)  # the CRF did change some labels
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (7, 5), (31, 45)])
+def test_the_padded_probe_image_is_the_values_with_a_background_border(shape):
+    rng = np.random.default_rng(shape[0])
+    values = rng.integers(0, 12000, size=shape).astype(np.uint16)
+    values[rng.random(shape) < 0.2] = 0
+    background = 10000
+    inside = np.where((values != 0) & (values <= background), values, background)
+    want = np.pad(inside, 1, constant_values=background).astype(np.uint16).ravel()
+    got = _padded(values, np.int32(background))
+    assert got.dtype == np.uint16
     np.testing.assert_array_equal(got, want)

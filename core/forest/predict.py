@@ -178,12 +178,17 @@ def _padded(depth, background):
     """The probe image as uint16 (half the cache footprint of int32; background <= 16000
     fits), flattened with a 1-pixel border; the border and no-depth pixels hold background."""
     h, w = depth.shape
-    out = np.full((h + 2) * (w + 2), background, np.uint16)
+    out = np.empty((h + 2) * (w + 2), np.uint16)
+    for c in range(w + 2):  # one write per element, a select per pixel: 0.37 -> 0.23 ms
+        out[c] = background
+        out[(h + 1) * (w + 2) + c] = background
     for r in range(h):
+        base = (r + 1) * (w + 2)
+        out[base] = background
+        out[base + w + 1] = background
         for c in range(w):
             z = np.int32(depth[r, c])
-            if z != 0 and z <= background:
-                out[(r + 1) * (w + 2) + c + 1] = z
+            out[base + c + 1] = z if (z != 0 and z <= background) else background
     return out
 
 
