@@ -378,12 +378,10 @@ def _corner_weights(values, table, r0, r1, wr0, wr1, c, stride, last_c, v):
 
 
 @numba.njit(cache=True, inline="always")
-def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
-    """The upsampled posterior (see `_upsample`) of the in-between pixel of probe value
-    v > 0 in column c of a row between grid rows r0 and r1 (weights wr0, wr1) into `buf`."""
-    c0, c1, w00, w01, w10, w11, total = _corner_weights(
-        values, table, r0, r1, wr0, wr1, c, stride, last_c, v
-    )
+def _blend(values, out, r0, r1, c0, c1, w00, w01, w10, w11, total, v, buf):
+    """The upsampled posterior of an in-between pixel of probe value v from its corners and
+    their weights (`_corner_weights`) into `buf`: the weighted mean, or where every weight
+    underflows the corner closest in value, or zeros where no corner has a value."""
     if total > np.float32(1e-30):
         inv = np.float32(1.0) / total
         w00, w01, w10, w11 = w00 * inv, w01 * inv, w10 * inv, w11 * inv
@@ -407,18 +405,23 @@ def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
 
 
 @numba.njit(cache=True, inline="always")
-def _summarise_agreed(
-    values, table, r0, r1, wr0, wr1, r, c, stride, last_c, v, amax, pmax, psecond
-):
-    """Summarise the in-between pixel (r, c) of probe value v > 0 from its corners'
-    summaries alone when every corner that weighs in `_between` has the same argmax: its
-    top posterior is then exactly the upsampled one (the same sums in the same order), and
-    the weighed sum of the corners' second posteriors bounds every other class's upsampled
-    posterior from above, so it stands for the second. Returns False, writing nothing, when
-    the corners disagree, none weighs, or the bound does not stay below the top."""
+def _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf):
+    """The upsampled posterior (see `_upsample`) of the in-between pixel of probe value
+    v > 0 in column c of a row between grid rows r0 and r1 (weights wr0, wr1) into `buf`."""
     c0, c1, w00, w01, w10, w11, total = _corner_weights(
         values, table, r0, r1, wr0, wr1, c, stride, last_c, v
     )
+    _blend(values, out, r0, r1, c0, c1, w00, w01, w10, w11, total, v, buf)
+
+
+@numba.njit(cache=True, inline="always")
+def _summarise_agreed(r, c, r0, r1, c0, c1, w00, w01, w10, w11, total, amax, pmax, psecond):
+    """Summarise the in-between pixel (r, c) from its corners' summaries alone, given their
+    weights (`_corner_weights`), when every corner that weighs has the same argmax: its top
+    posterior is then exactly the upsampled one (`_blend`'s sums in the same order), and the
+    weighed sum of the corners' second posteriors bounds every other class's upsampled
+    posterior from above, so it stands for the second. Returns False, writing nothing, when
+    the corners disagree, none weighs, or the bound does not stay below the top."""
     if not total > np.float32(1e-30):
         return False
     label = np.int32(-1)
@@ -503,11 +506,14 @@ def _upsample(values, floor, stride, table, out, amax, pmax, psecond, write):
                 else:
                     summarise_no_depth(r, c, amax, pmax, psecond)
                 continue
+            c0, c1, w00, w01, w10, w11, total = _corner_weights(
+                values, table, r0, r1, wr0, wr1, c, stride, last_c, v
+            )
             if not write and _summarise_agreed(
-                values, table, r0, r1, wr0, wr1, r, c, stride, last_c, v, amax, pmax, psecond
+                r, c, r0, r1, c0, c1, w00, w01, w10, w11, total, amax, pmax, psecond
             ):
                 continue
-            _between(values, table, out, r0, r1, wr0, wr1, c, stride, last_c, v, buf)
+            _blend(values, out, r0, r1, c0, c1, w00, w01, w10, w11, total, v, buf)
             summarise_values(buf, r, c, amax, pmax, psecond)
             if write:
                 for q in range(buf.shape[0]):
