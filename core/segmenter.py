@@ -42,6 +42,9 @@ if TYPE_CHECKING:
 #: Levels of the forest's adaptive grid by default (`SegmenterConfig.adaptive`): one, the grid
 #: twice as coarse first; measured in docs/performance.md
 ADAPTIVE_LEVELS = 1
+#: A walked pixel stops walking trees once its first two (or more) give one class this
+#: average posterior (`SegmenterConfig.early_exit`); measured in docs/performance.md
+EARLY_EXIT = 0.9
 #: Where `deploy/install.sh` puts the bundled model (below its --root).
 INSTALLED_MODEL = Path("/opt/topseg/models/default.npz")
 #: The bundled model inside a checkout, relative to its root.
@@ -114,6 +117,8 @@ class SegmenterConfig:
     adaptive      on a grid (stride > 1), levels of coarser grids walked first: each finer
                   grid is walked only where the coarser one does not settle its pixels
                   (`forest.predict.predict_proba`); 0 walks every grid pixel
+    early_exit    a walked pixel stops walking trees once the average of its first two (or
+                  more) gives one class at least this posterior; None walks every tree
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
@@ -121,12 +126,15 @@ class SegmenterConfig:
     stride: int | None = None
     mount: TopViewMount | None = None
     adaptive: int = ADAPTIVE_LEVELS
+    early_exit: float | None = EARLY_EXIT
 
     def __post_init__(self) -> None:
         if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
             raise TopsegError(f"stride must be >= 1 (or None: from the mount), got {self.stride}")
         if isinstance(self.adaptive, bool) or self.adaptive < 0:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
+        if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
+            raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
 
 
 @dataclass(frozen=True)
@@ -348,6 +356,7 @@ class Segmenter:
             summary=self._summary,
             lazy=lazy,
             adaptive=self.config.adaptive,
+            early_exit=self.config.early_exit,
         )
 
     def smooth(self, proba: np.ndarray, depth: np.ndarray) -> np.ndarray:

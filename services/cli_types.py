@@ -68,10 +68,24 @@ def stride(text: str) -> int | None:
 stride.__name__ = "stride"
 
 
+def early_exit(text: str) -> float | None:
+    """A `type=` for the forest's `--early-exit`: `off` (None: every tree) or a posterior in
+    (0, 1]."""
+    if text == "off":
+        return None
+    value = finite(0.0, 1.0)(text)
+    if value == 0.0:
+        raise argparse.ArgumentTypeError("must be > 0 (or off), got 0")
+    return value
+
+
+early_exit.__name__ = "early exit"
+
+
 def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--stride auto|N` and `--adaptive N`: where the forest walks (`SegmenterConfig.stride`
-    and `.adaptive`; `grid_config` reads them back)."""
-    from topseg.core.segmenter import ADAPTIVE_LEVELS
+    """`--stride auto|N`, `--adaptive N` and `--early-exit P|off`: where the forest walks
+    (`SegmenterConfig.stride`, `.adaptive` and `.early_exit`; `grid_config` reads them back)."""
+    from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT
 
     parser.add_argument(
         "--stride",
@@ -89,8 +103,16 @@ def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
         help="on a grid, walk N coarser grids first and the finer ones only where the coarser "
         "one is unsure or crosses a height edge; 0 walks every grid pixel (default: %(default)s)",
     )
+    parser.add_argument(
+        "--early-exit",
+        type=early_exit,
+        default=EARLY_EXIT,
+        metavar="P|off",
+        help="a pixel stops walking trees once its first two (or more) give one class an "
+        "average posterior >= P; off walks every tree (default: %(default)s)",
+    )
 
 
 def grid_config(args: argparse.Namespace) -> dict:
     """The `SegmenterConfig` fields of `add_grid_arguments`' options."""
-    return {"stride": args.stride, "adaptive": args.adaptive}
+    return {"stride": args.stride, "adaptive": args.adaptive, "early_exit": args.early_exit}

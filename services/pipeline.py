@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core.errors import TopsegError
+from topseg.core.segmenter import EARLY_EXIT
 
 CELL = "pipeline"
 CAMERA = "cam0"
@@ -218,6 +219,7 @@ def run_pipeline(
     stride: int | None = None,
     adaptive: int | None = None,
     cameras: int = 1,
+    early_exit: float | None = EARLY_EXIT,
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
@@ -226,7 +228,8 @@ def run_pipeline(
     (the worker's own forest, crf and total: receive to publish, from its stats),
     "frames_sent", "frames_labelled", "frames_scored", "scores" (ConfusionAccumulator.scores(),
     None without truth), "confusion", "exit_codes", "logs"}. `stride` is the worker's (None:
-    auto), `adaptive` its adaptive grid's levels (None: its default). `cameras` > 1 runs that
+    auto), `adaptive` its adaptive grid's levels (None: its default), `early_exit` its trees'
+    early exit (`SegmenterConfig.early_exit`; None: off). `cameras` > 1 runs that
     many drivers of the same source (cameras cam0, cam1, ...; each at `fps`) into the one
     worker; the figures are over all of them. `web` adds a second viewer serving Rerun's web
     viewer. `duration_s` None runs a finite source to its end (and a live one until
@@ -277,6 +280,7 @@ def run_pipeline(
         worker += [f"{CELL}/{name}" for name in names]
         worker += ["--stride", "auto" if stride is None else str(stride)]
         worker += [] if adaptive is None else ["--adaptive", str(adaptive)]
+        worker += ["--early-exit", "off" if early_exit is None else str(early_exit)]
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
             kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))

@@ -708,7 +708,7 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
 
 def load_segmenter(model: str | None, crf_mode: str, **grid: Any) -> Segmenter:
     """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`
-    and the forest's grid (`SegmenterConfig` fields `stride`, `adaptive`; `grid_config`).
+    and the forest's grid (`SegmenterConfig` fields `stride`, `adaptive`, `early_exit`; `grid_config`).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).

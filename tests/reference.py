@@ -387,17 +387,44 @@ def apply_reference(forest: Forest, frame) -> np.ndarray:
     return np.array(leaves)
 
 
-def predict_reference(forest: Forest, frame) -> np.ndarray:
-    """Walk every walked pixel through every tree with numpy, then average (float32, tree
+def tree_sums_reference(forest: Forest, frame, early_exit=None, early_trees=2):
+    """(sums, trees) of each walked pixel (`walked_pixels`): the float32 sum of the leaf
+    posteriors of the trees it walks, in tree order, and how many it walks. Every tree when
+    `early_exit` is None; else a pixel stops before tree t >= `early_trees` when its best
+    class's sum reaches early_exit * t (float32), i.e. its average reaches early_exit."""
+    rows, _ = walked_pixels(frame)
+    acc = np.zeros((rows.size, forest.posteriors.shape[1]), np.float32)
+    trees = np.full(rows.size, forest.n_trees, np.int64)
+    for t, node in enumerate(apply_reference(forest, frame)):
+        walking = trees == forest.n_trees
+        if early_exit is not None and t >= early_trees:
+            stop = walking & (acc.max(axis=1) >= np.float32(early_exit) * np.float32(t))
+            trees[stop] = t
+            walking &= ~stop
+        acc[walking] += forest.posteriors[forest.leaf[node[walking]]]
+    return acc, trees
+
+
+def predict_reference(forest: Forest, frame, early_exit=None, early_trees=2) -> np.ndarray:
+    """Walk every walked pixel through the trees with numpy (`tree_sums_reference`: every
+    tree, or until the early exit), then average over the trees walked (float32, tree
     order); zeros without a value, background with probability 1 on the floor."""
     values, _, floor = reference_input(frame)
     rows, cols = walked_pixels(frame)
-    acc = np.zeros((rows.size, forest.posteriors.shape[1]), np.float32)
-    for node in apply_reference(forest, frame):
-        acc += forest.posteriors[forest.leaf[node]]
+    acc, trees = tree_sums_reference(forest, frame, early_exit, early_trees)
     out = np.zeros((*values.shape, forest.posteriors.shape[1]), np.float32)
-    out[rows, cols] = acc * (np.float32(1.0) / np.float32(forest.n_trees))
+    out[rows, cols] = acc * (np.float32(1.0) / trees.astype(np.float32))[:, None]
     out[(values > 0) & floor, labels.BACKGROUND] = 1.0
+    return out
+
+
+def trees_walked_reference(forest: Forest, frame, early_exit=None, early_trees=2):
+    """(H, W) uint8: how many trees each walked pixel walks (`tree_sums_reference`), 0
+    elsewhere."""
+    values, _, _ = reference_input(frame)
+    rows, cols = walked_pixels(frame)
+    out = np.zeros(values.shape, np.uint8)
+    out[rows, cols] = tree_sums_reference(forest, frame, early_exit, early_trees)[1]
     return out
 
 
@@ -482,25 +509,30 @@ def bounded_second_reference(summary, values, floor, stride, sigma_mm) -> np.nda
     return out
 
 
-def adaptive_reference(forest: Forest, frame, stride, levels, confidence, reach_mm, sigma_mm):
-    """`predict_proba(..., stride, adaptive=levels)` in numpy: (posteriors, walked).
+def adaptive_reference(
+    forest: Forest, frame, stride, levels, confidence, reach_mm, sigma_mm, early_exit=None
+):
+    """`predict_proba(..., stride, adaptive=levels, early_exit=)` in numpy: (posteriors,
+    walked).
 
-    Every pixel's exact posterior comes from `predict_reference`. The grid stride * 2**levels
+    Every pixel's exact posterior comes from `predict_reference` (with `early_exit`). The grid stride * 2**levels
     keeps them; each finer grid, down to `stride`, keeps them at its pixels between the
     coarser grid's points unless that grid settles the pixel: all of its up-to-four
     surrounding coarser points have a value within `reach_mm` of the pixel's and the same
     argmax with posterior >= `confidence`; a settled pixel takes the coarser grid's
     `upsample_reference` posterior. The finest grid is then upsampled to every pixel.
-    `walked` marks the grid pixels that kept their exact posterior (value, not floor)."""
+    `walked` (uint8) holds the trees walked (`trees_walked_reference`) at the grid pixels that
+    kept their exact posterior (value, not floor), 0 elsewhere."""
     values, _, floor = reference_input(frame)
-    exact = predict_reference(forest, frame).astype(np.float64)
+    exact = predict_reference(forest, frame, early_exit).astype(np.float64)
+    trees = trees_walked_reference(forest, frame, early_exit)
     h, w = values.shape
     walkable = (values > 0) & ~floor
     s = stride << levels
     grid = np.zeros_like(exact)
     grid[::s, ::s] = exact[::s, ::s]
-    walked = np.zeros(values.shape, bool)
-    walked[::s, ::s] = walkable[::s, ::s]
+    walked = np.zeros(values.shape, np.uint8)
+    walked[::s, ::s] = trees[::s, ::s]
     while s > stride:
         coarse, s = s, s // 2
         between = upsample_reference(grid, values, floor, coarse, sigma_mm)
@@ -526,7 +558,7 @@ def adaptive_reference(forest: Forest, frame, stride, levels, confidence, reach_
                     and all(grid[g].max() >= confidence for g in corners)
                 )
                 grid[r, c] = between[r, c] if settled else exact[r, c]
-                walked[r, c] = not settled
+                walked[r, c] = 0 if settled else trees[r, c]
     if stride > 1:
         return upsample_reference(grid, values, floor, stride, sigma_mm), walked
     return grid, walked

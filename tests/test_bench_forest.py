@@ -43,3 +43,7 @@ def test_default_times_the_bundled_model_on_rendered_frames(capsys):
     plain = _figures(capsys, "--frames", "2", "--adaptive", "0")
     assert figures["node_visits_per_frame_stride4"] < 0.9 * plain["node_visits_per_frame_stride4"]
     assert figures["node_visits_per_frame_stride1"] == plain["node_visits_per_frame_stride1"]
+    # the early exit (default) walks fewer trees at the grid pixels than --early-exit off
+    every = _figures(capsys, "--frames", "2", "--early-exit", "off")
+    assert figures["node_visits_per_frame_stride4"] < 0.9 * every["node_visits_per_frame_stride4"]
+    assert figures["node_visits_per_frame_stride1"] == every["node_visits_per_frame_stride1"]

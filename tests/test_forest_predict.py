@@ -9,6 +9,7 @@ from reference import (
     apply_reference,
     bounded_second_reference,
     predict_reference,
+    trees_walked_reference,
     upsample_reference,
 )
 
@@ -352,29 +353,42 @@ def short_forest(seed):
     return Forest.from_trees([random_tree(rng, d, 2, 4 * 2500.0, 150.0) for d in (4, 6, 5)])
 
 
+@pytest.mark.parametrize("early", [False, True])
 @pytest.mark.parametrize(("stride", "levels"), [(2, 1), (3, 1), (2, 2), (4, 1), (1, 2)])
-def test_adaptive_grid_matches_reference(stride, levels, monkeypatch):
+def test_adaptive_grid_matches_reference(stride, levels, early, monkeypatch):
     # three random trees rarely agree on more than a fifth of the posterior
     monkeypatch.setattr(predict_module, "SETTLE_CONFIDENCE", 0.15)
     forest = short_forest(300 + stride)
     inp = blocky_input(310 + stride + levels)
-    walked = np.zeros(inp.shape, bool)
-    got = predict_proba(forest, inp, stride=stride, adaptive=levels, walked=walked)
+    early_exit = median_confidence(forest, inp) if early else None
+    walked = np.zeros(inp.shape, np.uint8)
+    got = predict_proba(
+        forest, inp, stride=stride, adaptive=levels, walked=walked, early_exit=early_exit
+    )
     want, want_walked = adaptive_reference(
-        forest, inp, stride, levels if stride > 1 else 0, 0.15, SETTLE_REACH_MM, UPSAMPLE_SIGMA_MM
+        forest,
+        inp,
+        stride,
+        levels if stride > 1 else 0,
+        0.15,
+        SETTLE_REACH_MM,
+        UPSAMPLE_SIGMA_MM,
+        early_exit,
     )
     np.testing.assert_array_equal(walked, want_walked)
     np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6)
+    if early:  # some walked grid pixels stopped after two trees, some walked all three
+        assert {2, 3} <= set(np.unique(walked))
     if stride > 1:  # both branches ran: some grid pixels settled, some walked
         grid = np.zeros(inp.shape, bool)
         grid[::stride, ::stride] = True
         walkable = grid & (inp.values > 0) & ~inp.floor
-        assert 0.1 < walked.sum() / walkable.sum() < 0.9
-        plain = np.zeros(inp.shape, bool)
+        assert 0.1 < np.count_nonzero(walked) / walkable.sum() < 0.9
+        plain = np.zeros(inp.shape, np.uint8)
         predict_proba(forest, inp, stride=stride, walked=plain)
-        np.testing.assert_array_equal(plain, walkable)
+        np.testing.assert_array_equal(plain > 0, walkable)
     else:  # every pixel is walked at stride 1: there is no grid to adapt
-        np.testing.assert_array_equal(got, predict_proba(forest, inp))
+        np.testing.assert_array_equal(got, predict_proba(forest, inp, early_exit=early_exit))
 
 
 @pytest.mark.parametrize("levels", [1, 2])
@@ -401,13 +415,52 @@ def test_adaptive_grid_summary_and_lazy_fill_are_the_eager_ones(levels, monkeypa
     np.testing.assert_array_equal(lazy, eager)
 
 
+def median_confidence(forest, frame, trees=2):
+    """An early-exit confidence that stops about half the walked pixels after `trees` trees:
+    of the averages the pixels reach there, the one closest to halving them (they tie often)."""
+    leaves = apply_reference(forest, frame)[:trees]
+    best = (sum(forest.posteriors[forest.leaf[node]] for node in leaves) / trees).max(axis=1)
+    candidates = np.unique(best)
+    stopped = np.array([np.mean(best >= c) for c in candidates])
+    return float(candidates[np.argmin(np.abs(stopped - 0.5))])
+
+
+@pytest.mark.parametrize("k", [1, 2])
+@pytest.mark.parametrize("seed", range(3))
+def test_early_exit_matches_reference(k, seed):
+    """A pixel whose first two (or three) trees agree stops; its posterior is the average of
+    the trees it walked, bit for bit as numpy's, and `walked` counts them."""
+    forest = random_forest(60 + seed, k, depths=(3, 6, 5, 4))
+    inp = random_input(70 + seed)
+    for early_exit in (median_confidence(forest, inp), 1.0):
+        walked = np.zeros(inp.shape, np.uint8)
+        got = predict_proba(forest, inp, walked=walked, early_exit=early_exit)
+        np.testing.assert_array_equal(got, predict_reference(forest, inp, early_exit))
+        trees = trees_walked_reference(forest, inp, early_exit)
+        np.testing.assert_array_equal(walked, trees)
+        if early_exit < 1.0:  # both kinds of pixel: stopped after two trees, walked on
+            assert np.count_nonzero(trees == 2) > 0.2 * np.count_nonzero(trees)
+            assert np.count_nonzero(trees > 2) > 0.2 * np.count_nonzero(trees)
+    walked = np.zeros(inp.shape, np.uint8)
+    np.testing.assert_array_equal(
+        predict_proba(forest, inp, walked=walked), predict_reference(forest, inp)
+    )
+    np.testing.assert_array_equal(walked, trees_walked_reference(forest, inp))
+    assert set(np.unique(walked)) == {0, 4}
+
+
 def test_adaptive_grid_refuses_bad_arguments():
     forest = random_forest(350, 2)
     inp = blocky_input(351)
     with pytest.raises(ValueError, match="adaptive"):
         predict_proba(forest, inp, stride=2, adaptive=-1)
     with pytest.raises(ValueError, match="walked"):
-        predict_proba(forest, inp, stride=2, walked=np.zeros((3, 3), bool))
+        predict_proba(forest, inp, stride=2, walked=np.zeros((3, 3), np.uint8))
+    with pytest.raises(ValueError, match="walked"):
+        predict_proba(forest, inp, stride=2, walked=np.zeros(inp.shape, bool))
+    for bad in (0.0, -0.1, 1.5):
+        with pytest.raises(ValueError, match="early_exit"):
+            predict_proba(forest, inp, stride=2, early_exit=bad)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

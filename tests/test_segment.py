@@ -127,9 +127,12 @@ def height_model(tmp_path_factory):
     return path, trained, cfg.features
 
 
-@pytest.mark.parametrize("option", ["--stride", "--adaptive"])
-def test_segment_refuses_a_bad_grid(tmp_path, option):
-    r = segment(tmp_path, option, "-1", "--out", tmp_path / "o")
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--stride", "-1"), ("--adaptive", "-1"), ("--early-exit", "0"), ("--early-exit", "1.5")],
+)
+def test_segment_refuses_a_bad_grid(tmp_path, option, value):
+    r = segment(tmp_path, option, value, "--out", tmp_path / "o")
     assert r.returncode == 2 and option in r.stderr and "Traceback" not in r.stderr
 
 

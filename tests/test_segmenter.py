@@ -13,7 +13,7 @@ from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
 from topseg.core.scoring import score
-from topseg.core.segmenter import ADAPTIVE_LEVELS, Segmenter, SegmenterConfig
+from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = KINECT_V1.scaled_to(40, 30)
@@ -105,7 +105,9 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         depth = np.ascontiguousarray(depth[::4, ::4])
         got = seg.label(depth)
         inp = model_input(depth, mount, seg.features)
-        proba = forest.predict_proba(seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS)
+        proba = forest.predict_proba(
+            seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS, early_exit=EARLY_EXIT
+        )
         np.testing.assert_array_equal(got.labels, crf.segment_crf(proba, depth, seg.config.crf))
         np.testing.assert_array_equal(got.proba, proba)
     stale = seg.label(depth)
@@ -261,6 +263,21 @@ def test_the_adaptive_grid_is_a_config_field_checked_up_front():
     got, want = adaptive.label(depth), plain.label(depth)
     assert (got.labels == want.labels).mean() > 0.9  # the same scene ...
     assert not np.array_equal(got.proba, want.proba)  # ... and not the same walk
+
+
+def test_the_early_exit_is_a_config_field_checked_up_front():
+    assert SegmenterConfig().early_exit == EARLY_EXIT
+    for bad in (0.0, -0.5, 1.01):
+        with pytest.raises(TopsegError, match="early_exit"):
+            SegmenterConfig(early_exit=bad)
+    k = KINECT_V1.scaled_to(160, 120)
+    mount = TopViewMount(k, PAPER_MOUNT.height_mm)
+    every = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2, early_exit=None))
+    early = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2))
+    depth = np.ascontiguousarray(demo_frames(1)[0][0][::4, ::4])
+    got, want = early.label(depth), every.label(depth)
+    assert (got.labels == want.labels).mean() > 0.97  # the same scene ...
+    assert not np.array_equal(got.proba, want.proba)  # ... from fewer trees at some pixels
 
 
 def test_warm_up_compiles_what_a_first_large_frame_runs():

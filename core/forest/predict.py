@@ -15,6 +15,11 @@ no records for leaves, a uint16 probe image; a pixel that has arrived at a leaf 
 stand-in record and keeps its state, and a row's tree is done when every pixel has arrived.
 Results are bit-identical to a plain walk (`apply`, `tests/reference.py`).
 
+With an early exit (`predict_proba(..., early_exit=)`, on in the Segmenter), a pixel whose
+first EARLY_TREES trees (or more) already agree stops: before each further tree, the pixels
+whose best class averages at least the early-exit posterior leave the row's walk, and their
+posterior is the average of the trees they walked (`_keep_unsure`).
+
 Only pixels with depth that the floor gate lets through are walked (a row's pixels to walk
 are gathered first, from the grid's plan: `_grid_plan`, or `_settle` on an adaptive grid,
 where a pixel that the coarser grid around it settles is upsampled instead of walked). Pixels without depth get an all-zero posterior row (not a
@@ -66,6 +71,10 @@ SETTLE_CONFIDENCE = 0.5
 #: ... and probe values within this many mm of its own (2 UPSAMPLE_SIGMA_MM: the upsampling
 #: weighs a point farther than that by less than exp(-4)); it takes their upsampled posterior
 SETTLE_REACH_MM = 80
+
+#: early exit (`predict_proba(..., early_exit=)`): a walked pixel may stop walking trees once
+#: it has walked this many (`SegmenterConfig.early_exit` says at what confidence)
+EARLY_TREES = 2
 
 
 def _record_words(k: int) -> int:
@@ -227,28 +236,33 @@ def _row_pixels(plan, scale, i, r, stride):
 
 
 @numba.njit(cache=True, inline="always")
-def _accumulate(acc, cur, n_splits, posteriors):
-    """Add each arrived pixel's leaf posterior (state `n_splits` + its row) to its sum."""
-    for j in range(cur.shape[0]):
-        row = cur[j] - n_splits
+def _accumulate(acc, cur, pix, m, n_splits, posteriors):
+    """Add each of the m arrived pixels' leaf posterior (state `n_splits` + its row) to its
+    sum (row `pix[a]` of `acc`)."""
+    for a in range(m):
+        row = cur[a] - n_splits
+        j = pix[a]
         for q in range(posteriors.shape[1]):
             acc[j, q] += posteriors[row, q]
 
 
 @numba.njit(cache=True, inline="always")
-def _write_row(out, plan, i, r, stride, cols, acc, n_trees, amax, pmax, psecond):
-    """Grid row i's pixels as its plan says: the tree average for the walked ones, background
-    for the floor, zeros without a value, nothing for those already written; and the
-    summary (`crf.argmax.Summary`) of each one written."""
-    scale = np.float32(1.0) / np.float32(n_trees)
-    walked = 0
+def _write_row(out, plan, i, r, stride, acc, trees, walked, amax, pmax, psecond):
+    """Grid row i's pixels as its plan says: the average of the trees each walked one went
+    through, background for the floor, zeros without a value, nothing for those already
+    written; and the summary (`crf.argmax.Summary`) of each one written. `walked`, unless
+    empty, gets the number of trees of each walked pixel."""
+    j_walked = 0
     for j in range(plan.shape[1]):
         c = j * stride
         step = plan[i, j]
         if step == WALK:
+            scale = np.float32(1.0) / np.float32(trees[j_walked])
             for q in range(acc.shape[1]):
-                out[r, c, q] = acc[walked, q] * scale
-            walked += 1
+                out[r, c, q] = acc[j_walked, q] * scale
+            if walked.size:
+                walked[r, c] = trees[j_walked]
+            j_walked += 1
             summarise_pixel(out, r, c, amax, pmax, psecond)
         elif step == FLOOR or step == NO_VALUE:
             _write_fixed(out, r, c, step == FLOOR)
@@ -256,6 +270,29 @@ def _write_row(out, plan, i, r, stride, cols, acc, n_trees, amax, pmax, psecond)
                 summarise_pixel(out, r, c, amax, pmax, psecond)
             else:
                 summarise_no_depth(r, c, amax, pmax, psecond)
+
+
+@numba.njit(cache=True, inline="always")
+def _keep_unsure(acc, trees, t, confidence, pix, cols, inv, m):
+    """Early exit after t trees: of the m pixels still walking (`pix` their rows of `acc`,
+    the sums of their first t posteriors), those whose best class averages at least
+    `confidence` stop (`trees` = t); the rest are moved to the front of `pix`, `cols` and
+    `inv`. Returns how many walk on."""
+    bar = confidence * np.float32(t)
+    kept = 0
+    for a in range(m):
+        j = pix[a]
+        best = acc[j, 0]
+        for q in range(1, acc.shape[1]):
+            best = max(best, acc[j, q])
+        if best >= bar:
+            trees[j] = t
+        else:
+            pix[kept] = j
+            cols[kept] = cols[a]
+            inv[kept] = inv[a]
+            kept += 1
+    return kept
 
 
 @functools.cache
@@ -276,44 +313,53 @@ def _kernel(k: int):
         posteriors,
         roots,
         stride,
+        early_trees,
+        confidence,
         out,
         amax,
         pmax,
         psecond,
+        walked,
     ):
         """Posteriors of the grid pixels that `plan` walks or fixes. Within a row the trees
         are walked one level at a time for all pixels to walk, until all have arrived at a
         leaf; an arrived pixel reads the stand-in record and keeps its state (a select, not
-        a branch)."""
+        a branch). From tree `early_trees` on, before each tree, the pixels whose average so
+        far reaches `confidence` stop (`_keep_unsure`)."""
         h, w = _i32(scale.shape[0]), _i32(scale.shape[1])
         n_splits = _i32(words.shape[0] - 1)
+        n_trees = roots.shape[0]
         for i in numba.prange(plan.shape[0]):
             r = _i32(i * stride)
             cols, inv = _row_pixels(plan, scale, i, r, stride)
             m = cols.shape[0]
             cur = np.empty(m, np.int32)
+            pix = np.arange(m).astype(np.int32)  # the acc row of each pixel still walking
+            trees = np.full(m, n_trees, np.int32)
             acc = np.zeros((m, posteriors.shape[1]), np.float32)
-            for t in range(roots.shape[0]):
-                for j in range(m):
-                    cur[j] = roots[t]
+            for t in range(n_trees):
+                if t >= early_trees:
+                    m = _keep_unsure(acc, trees, t, confidence, pix, cols, inv, m)
+                for a in range(m):
+                    cur[a] = roots[t]
                 walking = _i32(m) if roots[t] < n_splits else _i32(0)
                 while walking > 0:
                     walking = 0
                     fetched = _i32(-1)
-                    for j in range(m):
-                        n = cur[j]
+                    for a in range(m):
+                        n = cur[a]
                         rec = min(n, n_splits)
-                        nxt = _step(padded, r, cols[j], inv[j], fields, words, rec, k, h, w)
+                        nxt = _step(padded, r, cols[a], inv[a], fields, words, rec, k, h, w)
                         nxt = nxt if n < n_splits else n
                         walking += _i32(nxt < n_splits)
-                        cur[j] = nxt
+                        cur[a] = nxt
                         # the record the next level reads; not when the pixel before went there
                         # too (at stride 1 such repeats made prefetching cost more than it saved)
                         if nxt != fetched:
                             _prefetch_row(words, min(nxt, n_splits))
                             fetched = nxt
-                _accumulate(acc, cur, n_splits, posteriors)
-            _write_row(out, plan, i, r, stride, cols, acc, roots.shape[0], amax, pmax, psecond)
+                _accumulate(acc, cur, pix, m, n_splits, posteriors)
+            _write_row(out, plan, i, r, stride, acc, trees, walked, amax, pmax, psecond)
 
     return predict
 
@@ -634,6 +680,7 @@ def predict_proba(
     lazy: bool = False,
     adaptive: int = 0,
     walked: np.ndarray | None = None,
+    early_exit: float | None = None,
 ) -> np.ndarray:
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
@@ -648,7 +695,11 @@ def predict_proba(
     finer grid down to `stride` only at the pixels that the coarser one around them does not
     settle (`_settle`: the same argmax with posterior >= SETTLE_CONFIDENCE, probe values
     within SETTLE_REACH_MM); a settled pixel takes their upsampled posterior.
-    `walked`, an (H, W) bool array when given, is set True at the pixels walked.
+    `early_exit` (None: every pixel walks every tree) lets a walked pixel stop once the
+    average of its first EARLY_TREES or more trees gives one class at least this posterior;
+    its posterior is the average of the trees it walked (`_keep_unsure`).
+    `walked`, an (H, W) uint8 array when given, gets the number of trees walked at each
+    pixel walked (other pixels keep their value).
     `summary` (`crf.argmax.Summary` of (H, W) buffers), when given, is filled with every
     pixel's argmax and top two posteriors as the posteriors are written: what the CRF reads,
     without another pass over them (`crf.segment_crf(..., summary=)`).
@@ -664,8 +715,12 @@ def predict_proba(
         raise ValueError(f"stride must be >= 1, got {stride}")
     if adaptive < 0:
         raise ValueError(f"adaptive must be >= 0 levels, got {adaptive}")
-    if walked is not None and (walked.shape != inp.shape or walked.dtype != np.bool_):
-        raise ValueError(f"walked must be a bool array of shape {inp.shape}")
+    if walked is not None and (
+        walked.shape != inp.shape or walked.dtype != np.uint8 or not walked.flags.c_contiguous
+    ):
+        raise ValueError(f"walked must be a C-contiguous uint8 array of shape {inp.shape}")
+    if early_exit is not None and not 0.0 < early_exit <= 1.0:
+        raise ValueError(f"early_exit must be in (0, 1] (or None), got {early_exit}")
     shape = (*inp.shape, forest.posteriors.shape[1])
     if out is None:
         out = np.empty(shape, np.float32)
@@ -679,12 +734,16 @@ def predict_proba(
     walk = _kernel(table.k)
     padded = _padded(inp.values, np.int32(forest.background_mm))
     tables = (table.fields, table.words, forest.posteriors, table.roots)
+    early = (
+        (np.int32(forest.n_trees), np.float32(1.0))
+        if early_exit is None
+        else (np.int32(EARLY_TREES), np.float32(early_exit))
+    )
+    counts = np.empty((0, 0), np.uint8) if walked is None else walked
     s = stride << (adaptive if stride > 1 else 0)
     plan = _grid_plan(inp.values, inp.floor, s)
     while True:
-        walk(padded, inp.scale, plan, *tables, s, out, *summary)
-        if walked is not None:
-            walked[::s, ::s] |= plan == WALK
+        walk(padded, inp.scale, plan, *tables, s, *early, out, *summary, counts)
         if s == stride:
             break
         s //= 2

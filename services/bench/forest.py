@@ -105,16 +105,25 @@ def _time_frames(predict, frames, repeats):
     return 1000 * float(np.median(wall)), 1000 * float(np.median(cpu))
 
 
-def _walked(model, segmenter, frame, stride: int):
-    """(H, W) bool: the pixels `segmenter`'s forest walks on `frame` at `stride` (its
-    adaptive grid's settled pixels are not walked)."""
+def _trees_walked(model, segmenter, frame, stride: int):
+    """(H, W) uint8: how many trees `segmenter`'s forest walks at each pixel of `frame` at
+    `stride` (0 where it does not walk: between grid pixels, the adaptive grid's settled
+    pixels; fewer than all where the early exit stops a pixel)."""
     import numpy as np
 
     from topseg.core.forest.predict import predict_proba
 
-    walked = np.zeros(frame.shape, np.bool_)
+    walked = np.zeros(frame.shape, np.uint8)
     inp = segmenter.model_input(frame)
-    predict_proba(model, inp, stride=stride, adaptive=segmenter.config.adaptive, walked=walked)
+    config = segmenter.config
+    predict_proba(
+        model,
+        inp,
+        stride=stride,
+        adaptive=config.adaptive,
+        walked=walked,
+        early_exit=config.early_exit,
+    )
     return walked
 
 
@@ -146,7 +155,10 @@ def measure(args: argparse.Namespace) -> dict:
     # upsampled summary; on a grid the posteriors between grid pixels are left to the CRF's
     # band); no camera check: a model file's camera need not be these frames'
     full = Segmenter(
-        model, header, SegmenterConfig(check_camera=False, mount=mount, stride=1), crf="none"
+        model,
+        header,
+        SegmenterConfig(check_camera=False, mount=mount, stride=1, early_exit=None),
+        crf="none",
     )
     grid = Segmenter(model, header, replace(full.config, **grid_config(args)), crf="none")
     stride = grid.stride_for(frames[0])
@@ -165,7 +177,9 @@ def measure(args: argparse.Namespace) -> dict:
     figures["mean_levels_walked"] = round(float(levels[leaves[leaves >= 0]].mean()), 2)
     for s, segmenter in {1: full, stride: grid}.items():
         wall, cpu = _time_frames(segmenter.label, frames, args.repeats)
-        visits = int(levels[leaves[:, _walked(model, segmenter, frames[0], s)]].sum())
+        trees = _trees_walked(model, segmenter, frames[0], s)
+        # trees are walked in order: a pixel that walked n went through the first n
+        visits = sum(int(levels[leaves[t][trees > t]].sum()) for t in range(model.n_trees))
         figures[f"forest_ms_per_frame_stride{s}"] = round(wall, 2)
         figures[f"forest_cpu_ms_per_frame_stride{s}"] = round(cpu, 2)
         figures[f"node_visits_per_frame_stride{s}"] = visits

@@ -70,6 +70,7 @@ def measure(args: argparse.Namespace) -> dict:
         args.lossless,
         stride=args.stride,
         adaptive=args.adaptive,
+        early_exit=args.early_exit,
         cameras=args.cameras,
     )
     scores = figures.pop("scores")
