@@ -73,9 +73,9 @@ def early_exit(text: str) -> float | None:
     (0, 1]."""
     if text == "off":
         return None
-    value = finite(0.0, 1.0)(text)
-    if value == 0.0:
-        raise argparse.ArgumentTypeError("must be > 0 (or off), got 0")
+    value = finite()(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1] or off, got {text}")
     return value
 
 
