@@ -14,7 +14,9 @@ bit (as stumpy keeps its naive versions in one test module).
 - `probe_reference`, `extract_reference`, `response_reference`: the depth-difference features.
 - `apply_reference`, `predict_reference`, `upsample_reference`, `adaptive_reference`: forest
   inference (`predict.apply`, `predict_proba` at full resolution, on a grid, on an adaptive one);
-  `bounded_second_reference`: the lazy grid's bounded second posterior (`_summarise_agreed`).
+  `tree_sums_reference`, `trees_walked_reference`: the trees each pixel walks with or without
+  the early exit (`_keep_unsure`); `bounded_second_reference`: the lazy grid's bounded second
+  posterior (`_summarise_agreed`).
 - `SplitMix`, `responses_reference`, `gains_reference`, `best_split_reference`: training's
   per-node random stream, criterion and splitter.
 - `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
@@ -515,10 +517,10 @@ def adaptive_reference(
     """`predict_proba(..., stride, adaptive=levels, early_exit=)` in numpy: (posteriors,
     walked).
 
-    Every pixel's exact posterior comes from `predict_reference` (with `early_exit`). The grid stride * 2**levels
-    keeps them; each finer grid, down to `stride`, keeps them at its pixels between the
-    coarser grid's points unless that grid settles the pixel: all of its up-to-four
-    surrounding coarser points have a value within `reach_mm` of the pixel's and the same
+    Every pixel's exact posterior comes from `predict_reference` (with `early_exit`). The
+    grid stride * 2**levels keeps them; each finer grid, down to `stride`, keeps them at its
+    pixels between the coarser grid's points unless that grid settles the pixel: all of its
+    up-to-four surrounding coarser points have a value within `reach_mm` of the pixel's and the same
     argmax with posterior >= `confidence`; a settled pixel takes the coarser grid's
     `upsample_reference` posterior. The finest grid is then upsampled to every pixel.
     `walked` (uint8) holds the trees walked (`trees_walked_reference`) at the grid pixels that
