@@ -15,6 +15,7 @@ from pathlib import Path
 
 from topseg.services.cli_types import (
     add_grid_arguments,
+    finite,
     grid_config,
     non_negative_int,
     positive_int,
@@ -22,12 +23,20 @@ from topseg.services.cli_types import (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--model (default: the bundled model), --data, --crf and what to write."""
+    """--model (default: the bundled model), --data, --crf, --smoothness and what to write."""
+    from topseg.core.crf.energy import DEFAULT_SMOOTHNESS, MAX_SMOOTHNESS
     from topseg.core.segmenter import MODEL_HELP
 
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
+    parser.add_argument(
+        "--smoothness",
+        type=finite(0, MAX_SMOOTHNESS),
+        default=DEFAULT_SMOOTHNESS,
+        help="the CRF's Potts weight per cut edge, in nats (default: %(default)s, chosen on "
+        "validation frames: docs/crf.md); tune it with evaluate on a validation dataset",
+    )
     add_grid_arguments(parser)
     parser.add_argument(
         "--frames", type=positive_int, default=None, help="score only the first N frames"
@@ -44,11 +53,13 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from topseg.core import metrics
+    from topseg.core.crf import CRFConfig
     from topseg.core.formats.dataset import open_dataset
     from topseg.core.scoring import dataset_frames, score
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    segmenter = Segmenter.from_file(args.model, SegmenterConfig(**grid_config(args)), crf=args.crf)
+    crf = CRFConfig(mode=args.crf, smoothness=args.smoothness)
+    segmenter = Segmenter.from_file(args.model, SegmenterConfig(**grid_config(args)), crf=crf)
     ds = open_dataset(args.data)
     if args.json_out:  # before the scoring: a folder we cannot write costs no work
         _check_writable(args.json_out.parent, args.json_out)
@@ -64,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     print(metrics.format_table(forest_scores, title=f"forest alone, {n} frames of {args.data}"))
     if args.crf != "none":
         print()
-        print(metrics.format_table(final_scores, title=f"forest + CRF ({args.crf})"))
+        title = f"forest + CRF ({args.crf}, smoothness {args.smoothness:g})"
+        print(metrics.format_table(final_scores, title=title))
     timing = result.ms_per_frame()
     stride = "auto (from each frame's mount)" if args.stride is None else str(args.stride)
     print(
@@ -79,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         doc = json.loads(metrics.to_json(final_scores))
         doc.update(
             crf=args.crf,
+            smoothness=args.smoothness,
             stride="auto" if args.stride is None else args.stride,
             adaptive=args.adaptive,
             model=str(segmenter.path),

@@ -66,6 +66,8 @@ OTHERS = [
     ("record", "--duration", "nan"),
     ("status", "--timeout", "inf"),
     ("evaluate", "--frames", "0"),
+    ("evaluate", "--smoothness", "nan"),
+    ("evaluate", "--smoothness", "-1"),
     ("worker", "--mount-check", "nan"),
 ]
 

@@ -126,3 +126,35 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
     doc = json.loads((tmp_path / "s.json").read_text())
     assert doc["stride"] == "auto" and doc["adaptive"] == ADAPTIVE_LEVELS
     np.testing.assert_array_equal(np.array(doc["confusion"]), cm)
+
+
+def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
+    from topseg.core.crf import CRFConfig
+    from topseg.core.scoring import dataset_frames, score
+    from topseg.core.segmenter import Segmenter
+
+    ds = D.open_dataset(data)
+    config = TrainConfig(
+        n_trees=1, max_depth=6, frames_per_tree=6, pixels_per_frame=300, n_candidates=10,
+        n_thresholds=10,
+    )  # fmt: skip
+    model = forest.train_forest(ds.depth, ds.labels, config, seed=1)
+    forest.save_model(tmp_path / "m.npz", model, {})
+    docs = {}
+    for s in ("0", "5"):
+        subprocess.run(
+            [sys.executable, "-m", "topseg.services.cli", "evaluate", "--model",
+             str(tmp_path / "m.npz"), "--data", str(data), "--frames", "3", "--smoothness", s,
+             "--json", str(tmp_path / f"s{s}.json")],
+            capture_output=True, text=True, timeout=300, check=True,
+        )  # fmt: skip
+        docs[s] = json.loads((tmp_path / f"s{s}.json").read_text())
+    # no weight on a cut edge: the CRF keeps the forest's argmax
+    assert docs["0"]["smoothness"] == 0.0
+    assert docs["0"]["per_class"] == docs["0"]["forest_only"]["per_class"]
+    # a weight of 5 nats: what the Segmenter labels with that CRF, and not the argmax
+    segmenter = Segmenter(model, {}, crf=CRFConfig(mode="realtime", smoothness=5.0))
+    want = score(segmenter, dataset_frames(ds, range(3))).crf.confusion
+    assert docs["5"]["smoothness"] == 5.0
+    np.testing.assert_array_equal(np.array(docs["5"]["confusion"]), want)
+    assert docs["5"]["confusion"] != docs["0"]["confusion"]

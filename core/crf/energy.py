@@ -16,6 +16,9 @@ from topseg.core.errors import TopsegError
 ENERGY_SCALE = 1000.0
 #: Largest smoothness accepted: keeps every scaled term far inside int32.
 MAX_SMOOTHNESS = 1000.0
+#: The Potts weight CRFConfig defaults to (nats per cut edge), chosen on validation frames of
+#: the bundled model across mounts and sensors (`topseg evaluate --smoothness`, docs/crf.md)
+DEFAULT_SMOOTHNESS = 1.0
 
 Mode = Literal["none", "exact", "realtime"]
 MODES: tuple[str, ...] = ("none", "exact", "realtime")
@@ -37,7 +40,7 @@ class CRFConfig:
     """
 
     mode: Mode = "realtime"
-    smoothness: float = 1.0
+    smoothness: float = DEFAULT_SMOOTHNESS
     depth_sigma_mm: float = 0.0
     eps: float = 1e-6
     confidence: float = 0.4
