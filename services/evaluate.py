@@ -14,8 +14,9 @@ import json
 from pathlib import Path
 
 from topseg.services.cli_types import (
+    add_crf_arguments,
     add_grid_arguments,
-    finite,
+    crf_config,
     grid_config,
     non_negative_int,
     positive_int,
@@ -24,19 +25,11 @@ from topseg.services.cli_types import (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the bundled model), --data, --crf, --smoothness and what to write."""
-    from topseg.core.crf.energy import DEFAULT_SMOOTHNESS, MAX_SMOOTHNESS
     from topseg.core.segmenter import MODEL_HELP
 
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
-    parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
-    parser.add_argument(
-        "--smoothness",
-        type=finite(0, MAX_SMOOTHNESS),
-        default=DEFAULT_SMOOTHNESS,
-        help="the CRF's Potts weight per cut edge, in nats (default: %(default)s, chosen on "
-        "validation frames: docs/crf.md); tune it with evaluate on a validation dataset",
-    )
+    add_crf_arguments(parser)
     add_grid_arguments(parser)
     parser.add_argument(
         "--frames", type=positive_int, default=None, help="score only the first N frames"
@@ -53,13 +46,12 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from topseg.core import metrics
-    from topseg.core.crf import CRFConfig
     from topseg.core.formats.dataset import open_dataset
     from topseg.core.scoring import dataset_frames, score
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    crf = CRFConfig(mode=args.crf, smoothness=args.smoothness)
-    segmenter = Segmenter.from_file(args.model, SegmenterConfig(**grid_config(args)), crf=crf)
+    config = SegmenterConfig(**grid_config(args))
+    segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
     ds = open_dataset(args.data)
     if args.json_out:  # before the scoring: a folder we cannot write costs no work
         _check_writable(args.json_out.parent, args.json_out)

@@ -34,7 +34,12 @@ import sys
 import threading
 from pathlib import Path
 
-from topseg.services.cli_types import add_grid_arguments, grid_config
+from topseg.services.cli_types import (
+    add_crf_arguments,
+    add_grid_arguments,
+    crf_config,
+    grid_config,
+)
 from topseg.services.lifecycle import stop_between_steps
 
 log = logging.getLogger("topseg.segment")
@@ -44,7 +49,7 @@ ESTIMATE_FRAMES = 30
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Inputs, --model (default: the bundled model), --out and --crf."""
+    """Inputs, --model (default: the bundled model), --out, --crf and --smoothness."""
     from topseg.core.segmenter import MODEL_HELP
 
     parser.add_argument(
@@ -54,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
     )
-    parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
+    add_crf_arguments(parser)
     add_grid_arguments(parser)
     parser.add_argument(
         "--mount",
@@ -99,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.errors import TopsegError
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    segmenter = Segmenter.from_file(args.model, SegmenterConfig(**grid_config(args)), crf=args.crf)
+    config = SegmenterConfig(**grid_config(args))
+    segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
     given = None
     if args.mount is not None and segmenter.reads_height:
         from topseg.core.calibration import read_mount_file

@@ -60,12 +60,20 @@ from typing import TYPE_CHECKING, Any
 
 from topseg.core.errors import TopsegError
 from topseg.services import identity, zenoh_session
-from topseg.services.cli_types import add_grid_arguments, finite, grid_config, int_range
+from topseg.services.cli_types import (
+    add_crf_arguments,
+    add_grid_arguments,
+    crf_config,
+    finite,
+    grid_config,
+    int_range,
+)
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.worker_mount import warm_up as mount_warm_up
 
 if TYPE_CHECKING:
+    from topseg.core.crf import CRFConfig
     from topseg.core.segmenter import Segmenter
 
 log = logging.getLogger("topseg.worker")
@@ -90,12 +98,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from topseg.core.segmenter import MODEL_HELP
 
     parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
-    parser.add_argument(
-        "--crf",
-        choices=("none", "exact", "realtime"),
-        default="realtime",
-        help="CRF smoothing after the forest (default: %(default)s)",
-    )
+    add_crf_arguments(parser)
     add_grid_arguments(parser)
     parser.add_argument(
         "--threads",
@@ -706,9 +709,9 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
     return MountWatchConfig(recheck_s=check, sensor=sensor)
 
 
-def load_segmenter(model: str | None, crf_mode: str, **grid: Any) -> Segmenter:
-    """The worker's Segmenter: `model` (None = the bundled one) with the CRF in `crf_mode`
-    and the forest's grid (`SegmenterConfig` fields `stride`, `adaptive`, `early_exit`; `grid_config`).
+def load_segmenter(model: str | None, crf: CRFConfig | str, **grid: Any) -> Segmenter:
+    """The worker's Segmenter: `model` (None = the bundled one) with the CRF `crf` (settings,
+    or a mode with the default settings) and the forest's grid (`SegmenterConfig` fields `stride`, `adaptive`, `early_exit`; `grid_config`).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).
@@ -716,7 +719,7 @@ def load_segmenter(model: str | None, crf_mode: str, **grid: Any) -> Segmenter:
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
     config = SegmenterConfig(check_camera=False, **grid)
-    return Segmenter.from_file(model, config, crf=crf_mode)
+    return Segmenter.from_file(model, config, crf=crf)
 
 
 def refuse_if_labelled(session, cameras: list[tuple[str, str]], me: identity.Identity) -> None:
@@ -750,7 +753,7 @@ def run(args: argparse.Namespace) -> int:
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     # ModelFileError: one line, exit 2
-    segmenter = load_segmenter(args.model, args.crf, **grid_config(args))
+    segmenter = load_segmenter(args.model, crf_config(args), **grid_config(args))
     t0 = time.perf_counter()
     segmenter.warm_up()
     mount_warm_up()

@@ -69,6 +69,7 @@ OTHERS = [
     ("evaluate", "--smoothness", "nan"),
     ("evaluate", "--smoothness", "-1"),
     ("worker", "--mount-check", "nan"),
+    ("worker", "--smoothness", "inf"),
 ]
 
 
