@@ -15,6 +15,17 @@ SMALL_K = KINECT_V1.scaled_to(160, 120)
 SMALL_FPS = 30
 
 
+@pytest.fixture(autouse=True)
+def _collector_unfrozen():
+    """A service run in the test process freezes its objects out of the garbage collector
+    when it is ready (`ServiceLifecycle.ready`); give them back after each test, so the
+    suite's own cycles stay collectable."""
+    import gc
+
+    yield
+    gc.unfreeze()
+
+
 @pytest.fixture(scope="session")
 def data(tmp_path_factory):
     """A 12-frame procedural dataset written through the real dataset writer."""

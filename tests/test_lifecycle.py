@@ -150,3 +150,23 @@ def test_zenoh_open_error_is_one_line_and_restores_signals():
             pass
     assert "\n" not in str(info.value)
     assert handlers() == before
+
+
+def test_ready_freezes_what_the_service_loaded_out_of_the_collector(notify):
+    import gc
+
+    gc.unfreeze()
+    svc = ServiceLifecycle("lc-gc", args(), notifier=notifier(notify))
+    try:
+        with svc:
+            loaded = [[i] for i in range(1000)]  # tracked objects the service holds
+            svc.ready("serving lc-gc")
+            frozen = gc.get_freeze_count()
+            assert frozen >= len(loaded)
+            oldest = {id(o) for o in gc.get_objects(2)}  # what full collections scan
+            assert not any(id(o) in oldest for o in loaded)
+            more = [[i] for i in range(1000)]
+            svc.ready("still serving")  # STATUS= only: nothing frozen again
+            assert gc.get_freeze_count() == frozen and more
+    finally:
+        gc.unfreeze()  # the test process's own objects back under the collector
