@@ -161,12 +161,12 @@ def test_ready_freezes_what_the_service_loaded_out_of_the_collector(notify):
         with svc:
             loaded = [[i] for i in range(1000)]  # tracked objects the service holds
             svc.ready("serving lc-gc")
-            frozen = gc.get_freeze_count()
-            assert frozen >= len(loaded)
-            oldest = {id(o) for o in gc.get_objects(2)}  # what full collections scan
-            assert not any(id(o) in oldest for o in loaded)
+            assert gc.get_freeze_count() >= len(loaded)
+            scanned = {id(o) for o in gc.get_objects()}  # every generation but the frozen
+            assert not any(id(o) in scanned for o in loaded)
             more = [[i] for i in range(1000)]
             svc.ready("still serving")  # STATUS= only: nothing frozen again
-            assert gc.get_freeze_count() == frozen and more
+            scanned = {id(o) for o in gc.get_objects()}
+            assert all(id(o) in scanned for o in more)
     finally:
         gc.unfreeze()  # the test process's own objects back under the collector
