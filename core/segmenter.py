@@ -42,8 +42,6 @@ if TYPE_CHECKING:
 #: Levels of the forest's adaptive grid by default (`SegmenterConfig.adaptive`): one, the grid
 #: twice as coarse first; measured in docs/performance.md
 ADAPTIVE_LEVELS = 1
-#: (rows, cols) of the full-size frame `Segmenter.warm_up` labels: the largest supported sensor
-WARM_UP_SHAPE = (480, 640)
 #: A walked pixel stops walking trees once its first two (or more) give one class this
 #: average posterior (`SegmenterConfig.early_exit`); measured in docs/performance.md
 EARLY_EXIT = 0.9
@@ -413,29 +411,24 @@ class Segmenter:
         )
 
     def warm_up(self) -> None:
-        """Compile (or load from numba's cache) the kernels on a small frame, then label one
-        frame of the largest supported size, before the first real one.
+        """Compile (or load from numba's cache) the kernels on a small frame, before the
+        first real one; the frame is not checked against the model's camera."""
+        from topseg.core.camera import KINECT_V1, TopViewMount
 
-        The full-size frame settles the buffers: in one process the first 640x480 frame
-        after a small warm-up took forest 13 / CRF 16 ms against 5 / 5 after (the posterior
-        buffer's fresh pages, and the allocator's first large arrays mapped fresh); in the
-        worker that first frame took 45-67 ms, and the camera's next frame, replaced in the
-        newest-only queue meanwhile, was never labelled. No frame is checked against the
-        model's camera here."""
+        depth = np.full((48, 64), 3000, np.uint16)
+        mount = None
+        if self.features is not None:
+            # a virtual camera at the model's canonical height (a constant of the model, not
+            # a mount); a floor strip so that the floor gate's path is compiled too
+            mount = TopViewMount(KINECT_V1.scaled_to(64, 48), self.features.canonical_height_mm)
+            depth[:] = int(mount.height_mm * 0.6)
+            depth[:, :8] = int(mount.height_mm)
         from topseg.core.crf import segment_crf
         from topseg.core.forest.inputs import legacy_input
         from topseg.core.forest.predict import fill_posteriors
 
-        small, full = self._warm_up_frame((48, 64)), self._warm_up_frame(WARM_UP_SHAPE)
-        # the small frame: both paths, every pixel walked and a lazy grid upsampled; the
-        # full-size one on the grid a real frame of that size gets
-        runs = [(*small, 1), (*small, 2), (*full, self.stride_for(full[0], mount=full[1]))]
-        for depth, mount, stride in runs:
-            inp = (
-                legacy_input(depth)
-                if self.features is None
-                else self.model_input(depth, mount=mount)
-            )
+        inp = legacy_input(depth) if self.features is None else self.model_input(depth, mount=mount)
+        for stride in (1, 2):  # both paths: every pixel walked, and a lazy grid upsampled
             proba = self._predict(inp, stride, lazy=stride > 1)
             fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
             segment_crf(proba, depth, self.config.crf, self._summary, fill)
@@ -443,24 +436,6 @@ class Segmenter:
             from topseg.core.crf import realtime
 
             realtime.warm_up(L.NUM_CLASSES)  # the solve of a large band, in parallel
-
-    def _warm_up_frame(self, shape: tuple[int, int]) -> tuple[np.ndarray, TopViewMount | None]:
-        """A synthetic frame of `shape` with a raised block on a floor strip (the floor
-        gate's path and a band for the CRF), and for a height model the mount it is seen
-        from: a Kinect v1 scaled to the shape, at the model's canonical height (a constant
-        of the model, not a camera's mount)."""
-        from topseg.core.camera import KINECT_V1, TopViewMount
-
-        h, w = shape
-        depth = np.full(shape, 3000, np.uint16)
-        mount = None
-        if self.features is not None:
-            mount = TopViewMount(KINECT_V1.scaled_to(w, h), self.features.canonical_height_mm)
-            depth[:] = int(mount.height_mm)
-            depth[h // 4 : 3 * h // 4, w // 4 : 3 * w // 4] = int(mount.height_mm * 0.6)
-        else:
-            depth[h // 4 : 3 * h // 4, w // 4 : 3 * w // 4] = 2000
-        return depth, mount
 
 
 def model_features(header: dict | None, forest: Forest | None = None) -> FeatureConfig | None:
