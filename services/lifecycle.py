@@ -18,10 +18,11 @@ short (a sensor read); the `with svc:` block swallows it.
 
 Once a service is ready, what it loaded is frozen out of the garbage collector
 (`gc.freeze()`, after one last collection): a warmed worker holds ~120 000 tracked objects
-(numba, Zenoh, the model's header), and each full collection of them stopped the main loop
-for ~36 ms, more than a frame at 30 fps: a frame dropped from its newest-only queue and a
-latency spike, at start-up and now and then after. Later full collections scan only what
-came after `ready`.
+(numba, Zenoh, the model's header), and a full collection of them stopped it for 68-84 ms
+(the viewer 42-54, the driver 30-35) in the middle of a run, two or three frames at 30 fps.
+That collection now runs in `ready`, before the first frame, and later full collections
+scan only what came after it. (It did not change the demo path's or `bench pipeline`'s
+figures measurably: in runs of 10-20 s that collection came once, near the end.)
 
 A session that has met no Zenoh peer or router `ISOLATION_WARN_S` after opening, though it
 should have (it connects to a rendezvous port it does not hold, or to configured endpoints),
