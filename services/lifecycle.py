@@ -69,7 +69,6 @@ class ServiceStopped(BaseException):
     `except Exception` of a source or a library does not swallow it."""
 
 
-@contextlib.contextmanager
 def freeze_loaded_objects() -> int:
     """Collect once, then move every object still tracked into the collector's permanent
     generation (`gc.freeze`), so full collections stop rescanning what a service loaded at
@@ -81,6 +80,7 @@ def freeze_loaded_objects() -> int:
     return gc.get_freeze_count()
 
 
+@contextlib.contextmanager
 def stop_between_steps() -> Iterator[threading.Event]:
     """Within: the first SIGINT or SIGTERM sets the returned Event instead of raising
     KeyboardInterrupt wherever the main thread is (inside numba's compiled code that ended in
