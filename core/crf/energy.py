@@ -16,8 +16,9 @@ from topseg.core.errors import TopsegError
 ENERGY_SCALE = 1000.0
 #: Largest smoothness accepted: keeps every scaled term far inside int32.
 MAX_SMOOTHNESS = 1000.0
-#: The Potts weight CRFConfig defaults to (nats per cut edge), chosen on validation frames of
-#: the bundled model across mounts and sensors (`topseg evaluate --smoothness`, docs/crf.md)
+#: The Potts weight CRFConfig defaults to (nats per cut edge). On validation frames 3 scores
+#: ~0.015 avg F1 higher, but costs the realtime CRF ~2 ms a frame that the 30 fps budget does
+#: not have (docs/crf.md; `--smoothness` chooses per command)
 DEFAULT_SMOOTHNESS = 1.0
 
 Mode = Literal["none", "exact", "realtime"]
