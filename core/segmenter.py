@@ -412,7 +412,13 @@ class Segmenter:
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels on a small frame, before the
-        first real one; the frame is not checked against the model's camera."""
+        first real one; the frame is not checked against the model's camera.
+
+        The frame goes through twice: writable (a PNG, a synthetic frame) and read-only
+        (what `wire.decode_depth` gives the worker). Numba compiles a kernel apart for
+        read-only arrays: without the second pass, the model input's and the CRF's edge
+        kernels were compiled on a worker's first real frame, and with numba's cache cold
+        (after an upgrade) the worker dropped its first 10 frames meanwhile."""
         from topseg.core.camera import KINECT_V1, TopViewMount
 
         depth = np.full((48, 64), 3000, np.uint16)
@@ -427,11 +433,17 @@ class Segmenter:
         from topseg.core.forest.inputs import legacy_input
         from topseg.core.forest.predict import fill_posteriors
 
-        inp = legacy_input(depth) if self.features is None else self.model_input(depth, mount=mount)
-        for stride in (1, 2):  # both paths: every pixel walked, and a lazy grid upsampled
-            proba = self._predict(inp, stride, lazy=stride > 1)
-            fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
-            segment_crf(proba, depth, self.config.crf, self._summary, fill)
+        read_only = depth.copy()
+        read_only.flags.writeable = False
+        for frame in (depth, read_only):
+            if self.features is None:
+                inp = legacy_input(frame)
+            else:
+                inp = self.model_input(frame, mount=mount)
+            for stride in (1, 2):  # both paths: every pixel walked, and a lazy grid upsampled
+                proba = self._predict(inp, stride, lazy=stride > 1)
+                fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
+                segment_crf(proba, frame, self.config.crf, self._summary, fill)
         if self.config.crf.mode == "realtime":
             from topseg.core.crf import realtime
 

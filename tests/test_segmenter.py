@@ -291,3 +291,43 @@ def test_warm_up_compiles_what_a_first_large_frame_runs():
     seg.warm_up()
     for kernel in (predict._fill, realtime._solve_parts, realtime.band_parts):
         assert kernel.signatures, kernel
+
+
+def test_warm_up_compiles_what_a_frame_off_the_wire_runs():
+    """Frames decoded from the wire are read-only arrays, for which numba compiles its own
+    kernels: after warm_up, labelling one must compile nothing (with a cold cache, that
+    compile on a worker's first frames dropped 10 of them). In a fresh interpreter: this
+    one's kernels may hold those signatures from earlier tests."""
+    import subprocess
+    import sys
+
+    script = """
+import numba, numpy as np
+from topseg.core import crf
+from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.crf import energy
+from topseg.core.formats import wire
+from topseg.core.forest import inputs, predict
+from topseg.core.segmenter import Segmenter, SegmenterConfig
+
+seg = Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="realtime")
+seg.warm_up()
+kernels = [
+    v
+    for module in (energy, inputs, predict, crf.realtime, crf.argmax)
+    for v in vars(module).values()
+    if isinstance(v, numba.core.dispatcher.Dispatcher)
+]
+before = [set(k.signatures) for k in kernels]
+depth = np.full((120, 160), 2500, np.uint16)
+depth[40:80, 50:110] = 1500  # something standing on the floor
+mount = TopViewMount(KINECT_V1.scaled_to(160, 120), 3000.0)
+frame = wire.decode_depth(wire.encode_depth(wire.DepthFrame(depth, mount.intrinsics, mount=mount)))
+assert not frame.depth.flags.writeable
+seg.label(frame.depth, frame.intrinsics, mount=frame.mount)
+print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) != b])
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True
+    )
+    assert out.stdout.strip().splitlines()[-1] == "[]"
