@@ -139,6 +139,27 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_head_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--min-head-cm2 A`: after the CRF, head blobs smaller than A cm2 take their border's
+    label (`SegmenterConfig.min_head_cm2`; `head_config` reads it back)."""
+    from topseg.core.segmenter import MIN_HEAD_CM2
+
+    parser.add_argument(
+        "--min-head-cm2",
+        type=finite(0, 10000),
+        default=MIN_HEAD_CM2,
+        metavar="A",
+        help="after the CRF, blobs labelled head smaller than A cm2 on the surface (a whole "
+        "head seen from above is 200-300) take their border's label; 0 keeps them "
+        "(default: %(default)s)",
+    )
+
+
+def head_config(args: argparse.Namespace) -> dict:
+    """The `SegmenterConfig` field of `add_head_arguments`' option."""
+    return {"min_head_cm2": args.min_head_cm2}
+
+
 def crf_config(args: argparse.Namespace):
     """The `CRFConfig` of `add_crf_arguments`' options."""
     from topseg.core.crf import CRFConfig

@@ -37,8 +37,10 @@ from pathlib import Path
 from topseg.services.cli_types import (
     add_crf_arguments,
     add_grid_arguments,
+    add_head_arguments,
     crf_config,
     grid_config,
+    head_config,
 )
 from topseg.services.lifecycle import stop_between_steps
 
@@ -61,6 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_crf_arguments(parser)
     add_grid_arguments(parser)
+    add_head_arguments(parser)
     parser.add_argument(
         "--mount",
         type=Path,
@@ -104,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.errors import TopsegError
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    config = SegmenterConfig(**grid_config(args))
+    config = SegmenterConfig(**grid_config(args), **head_config(args))
     segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
     given = None
     if args.mount is not None and segmenter.reads_height:

@@ -63,9 +63,11 @@ from topseg.services import identity, zenoh_session
 from topseg.services.cli_types import (
     add_crf_arguments,
     add_grid_arguments,
+    add_head_arguments,
     crf_config,
     finite,
     grid_config,
+    head_config,
     int_range,
 )
 from topseg.services.lifecycle import ServiceLifecycle
@@ -100,6 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
     add_crf_arguments(parser)
     add_grid_arguments(parser)
+    add_head_arguments(parser)
     parser.add_argument(
         "--threads",
         type=int_range(0, 256),
@@ -711,7 +714,8 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
 
 def load_segmenter(model: str | None, crf: CRFConfig | str, **grid: Any) -> Segmenter:
     """The worker's Segmenter: `model` (None = the bundled one) with the CRF `crf` (settings,
-    or a mode with the default settings) and the forest's grid (`SegmenterConfig` fields `stride`, `adaptive`, `early_exit`; `grid_config`).
+    or a mode with the default settings) and the other `SegmenterConfig` fields in `grid`
+    (the forest's grid, `grid_config`; the head blobs' minimum area, `head_config`).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).
@@ -753,7 +757,9 @@ def run(args: argparse.Namespace) -> int:
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     # ModelFileError: one line, exit 2
-    segmenter = load_segmenter(args.model, crf_config(args), **grid_config(args))
+    segmenter = load_segmenter(
+        args.model, crf_config(args), **grid_config(args), **head_config(args)
+    )
     t0 = time.perf_counter()
     segmenter.warm_up()
     mount_warm_up()

@@ -12,6 +12,7 @@ from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
+from topseg.core.islands import relabel_small_heads
 from topseg.core.scoring import score
 from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
 
@@ -82,10 +83,13 @@ def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
         got = seg.label(depth, name="demo")
         proba = forest.predict_proba(model, depth)
         if mode == "none":
-            expected = numpy_argmax(proba, depth)
+            expected, small = numpy_argmax(proba, depth), 0  # the forest's argmax, as it is
         else:
             expected = crf.segment_crf(proba, depth, crf.CRFConfig(mode=mode))
+            k = seg.camera
+            small = relabel_small_heads(expected, depth, k.fx, k.fy, S.MIN_HEAD_CM2)
         np.testing.assert_array_equal(got.labels, expected)
+        assert got.small_heads == small
         np.testing.assert_array_equal(got.proba, proba)
         assert got.labels.dtype == np.uint8 and got.proba.dtype == np.float32
         t = got.timings
@@ -179,7 +183,9 @@ def test_score_equals_the_confusion_computed_by_hand():
     for depth, truth in frames:
         proba = forest.predict_proba(model, depth)
         forest_pred.append((truth, numpy_argmax(proba, depth)))
-        crf_pred.append((truth, crf.segment_crf(proba, depth, config)))
+        labels = crf.segment_crf(proba, depth, config)
+        relabel_small_heads(labels, depth, SMALL.fx, SMALL.fy, S.MIN_HEAD_CM2)
+        crf_pred.append((truth, labels))
     np.testing.assert_array_equal(result.forest.confusion, hand_confusion(forest_pred))
     np.testing.assert_array_equal(result.crf.confusion, hand_confusion(crf_pred))
     assert result.frames == result.forest.frames == 4 and result.crf_mode == "realtime"
@@ -307,6 +313,7 @@ from topseg.core import crf
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.crf import energy
 from topseg.core.formats import wire
+from topseg.core import islands
 from topseg.core.forest import inputs, predict
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 
@@ -314,7 +321,7 @@ seg = Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="realti
 seg.warm_up()
 kernels = [
     v
-    for module in (energy, inputs, predict, crf.realtime, crf.argmax)
+    for module in (energy, inputs, predict, crf.realtime, crf.argmax, islands)
     for v in vars(module).values()
     if isinstance(v, numba.core.dispatcher.Dispatcher)
 ]
@@ -331,3 +338,25 @@ print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) 
         [sys.executable, "-c", script], capture_output=True, text=True, timeout=300, check=True
     )
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_small_head_blobs_take_their_borders_label_after_the_crf():
+    """`min_head_cm2`: the CRF's labels, then head blobs under it relabelled with the frame's
+    own focal lengths; 0 keeps the CRF's labels as they are."""
+    assert SegmenterConfig().min_head_cm2 == S.MIN_HEAD_CM2 > 0
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(TopsegError, match="min_head_cm2"):
+            SegmenterConfig(min_head_cm2=bad)
+    kept = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, min_head_cm2=0))
+    cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
+    k = PAPER_MOUNT.intrinsics
+    relabelled = 0
+    for depth, _ in demo_frames(6):
+        raw = kept.label(depth)
+        want = raw.labels.copy()
+        n = relabel_small_heads(want, depth, k.fx, k.fy, S.MIN_HEAD_CM2)
+        got = cleaned.label(depth)
+        np.testing.assert_array_equal(got.labels, want)
+        assert raw.small_heads == 0 and got.small_heads == n
+        relabelled += n
+    assert relabelled > 0  # the demo's frames hold some
