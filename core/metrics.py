@@ -11,12 +11,15 @@ Conventions (the same everywhere scores are printed):
   that never occurs, F1 of a class in neither, come out NaN (null in JSON, "-" in
   tables), and the means run over the classes where the value is defined. This is
   scikit-learn's `zero_division=np.nan`.
+- Heads are also counted as blobs (`head_detections`), as a people counter downstream sees
+  them: a patch of `head` on a shoulder is a false head there however few pixels it has.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -142,6 +145,88 @@ def person_scores(confusion: np.ndarray) -> dict:
         "person_f1": float(f1),
         "furniture_on_person": float(furn),
     }
+
+
+#: Blobs smaller than this (pixels) are not counted as heads, found or predicted: the size
+#: of a fingertip from 3 m, below what a head detector downstream would report
+MIN_HEAD_BLOB_PX = 30
+#: A predicted head blob is a correct detection when at least this share of it is true head
+HEAD_HIT_SHARE = 0.5
+#: A true head is found when at least this share of it is labelled head
+HEAD_FOUND_SHARE = 0.3
+
+
+def head_detections(truth: np.ndarray, pred: np.ndarray) -> tuple[int, int, int, int]:
+    """Heads as blobs, as a people counter downstream sees them: (correct, predicted, found,
+    true) for one frame. Blobs are 4-connected regions of `head` of MIN_HEAD_BLOB_PX pixels
+    or more; a predicted blob is correct when HEAD_HIT_SHARE of it is true head, and a true
+    head is found when HEAD_FOUND_SHARE of it is labelled head."""
+    from scipy import ndimage
+
+    truth, pred = _check("truth", truth), _check("predicted", pred)
+    if truth.shape != pred.shape:
+        raise TopsegError(f"truth shape {truth.shape} differs from prediction {pred.shape}")
+    true_head, pred_head = truth == L.HEAD, pred == L.HEAD
+
+    def blob_shares(blobs_of: np.ndarray, other: np.ndarray) -> np.ndarray:
+        blobs, n = ndimage.label(blobs_of)
+        if n == 0:
+            return np.zeros(0)
+        size = np.bincount(blobs.ravel(), minlength=n + 1)[1:]
+        hits = np.bincount(blobs.ravel(), weights=other.ravel(), minlength=n + 1)[1:]
+        return (hits / np.maximum(size, 1))[size >= MIN_HEAD_BLOB_PX]
+
+    predicted = blob_shares(pred_head, true_head)
+    true = blob_shares(true_head, pred_head)
+    return (
+        int((predicted >= HEAD_HIT_SHARE).sum()),
+        int(predicted.size),
+        int((true >= HEAD_FOUND_SHARE).sum()),
+        int(true.size),
+    )
+
+
+@dataclass
+class HeadDetections:
+    """`head_detections` summed over frames: precision (correct / predicted) and recall
+    (found / true) of heads as blobs."""
+
+    correct: int = 0
+    predicted: int = 0
+    found: int = 0
+    true: int = 0
+
+    def add(self, truth: np.ndarray, pred: np.ndarray) -> None:
+        """Count one frame's head blobs."""
+        c, p, f, t = head_detections(truth, pred)
+        self.correct, self.predicted = self.correct + c, self.predicted + p
+        self.found, self.true = self.found + f, self.true + t
+
+    @property
+    def precision(self) -> float:
+        """Share of the predicted head blobs that are heads (NaN with none predicted)."""
+        return self.correct / self.predicted if self.predicted else math.nan
+
+    @property
+    def recall(self) -> float:
+        """Share of the true heads found (NaN with none in the truth)."""
+        return self.found / self.true if self.true else math.nan
+
+    def to_dict(self) -> dict:
+        """Counts, precision and recall as JSON-able numbers (None for NaN)."""
+        return {
+            **asdict(self),
+            "precision": _nan_to_none(self.precision),
+            "recall": _nan_to_none(self.recall),
+        }
+
+    def summary(self) -> str:
+        """One line: precision and recall with their counts."""
+        return (
+            f"head detections (blobs >= {MIN_HEAD_BLOB_PX} px): precision {_fmt(self.precision)} "
+            f"({self.correct} of {self.predicted}), recall {_fmt(self.recall)} "
+            f"({self.found} of {self.true})"
+        )
 
 
 def _fmt(x: float) -> str:

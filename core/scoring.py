@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from topseg.core import crf
-from topseg.core.metrics import ConfusionAccumulator
+from topseg.core.metrics import ConfusionAccumulator, HeadDetections
 from topseg.core.segmenter import Segmenter
 
 if TYPE_CHECKING:
@@ -28,6 +28,7 @@ class Scores:
 
     forest       confusion of the forest's argmax
     crf          confusion of the Segmenter's labels (the same as `forest` when mode is none)
+    heads        the Segmenter's labels' heads counted as blobs (`metrics.head_detections`)
     examples     (depth, truth, forest labels, CRF labels) of the first frames, for pictures
     floor_share  summed floor-gated shares (mean: `floor_share / frames`)
     """
@@ -35,6 +36,7 @@ class Scores:
     crf_mode: str
     forest: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
     crf: ConfusionAccumulator = field(default_factory=ConfusionAccumulator)
+    heads: HeadDetections = field(default_factory=HeadDetections)
     frames: int = 0
     forest_ms: float = 0.0
     crf_ms: float = 0.0
@@ -74,6 +76,7 @@ def score(
         out.floor_share += result.floor_share
         out.forest.add(truth, pred)
         out.crf.add(truth, final)
+        out.heads.add(truth, final)
         out.frames += 1
         if len(out.examples) < examples:
             out.examples.append((depth, truth, pred, final))

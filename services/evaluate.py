@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
         f"\nms per frame: forest {timing['forest']:.1f} (stride {stride}, adaptive "
         f"{args.adaptive}), crf {timing['crf']:.1f}"
     )
+    print(result.heads.summary())
     if segmenter.reads_height and result.frames:
         share = result.floor_share / result.frames
         print(f"floor skipped: {100 * share:.1f} % of the pixels with depth (each frame's mount)")
@@ -94,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
             forest_only=json.loads(metrics.to_json(forest_scores)),
             ms_per_frame=timing,
             confusion=result.crf.confusion.tolist(),
+            head_detections=result.heads.to_dict(),
         )
         _writing(args.json_out, lambda: _write_text(args.json_out, json.dumps(doc, indent=2)))
     if args.plots:

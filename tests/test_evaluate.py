@@ -11,6 +11,7 @@ from topseg.core import forest
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import dataset as D
 from topseg.core.labels import LABELS, NO_DEPTH, NUM_CLASSES
+from topseg.core.metrics import HeadDetections
 
 
 def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
@@ -66,6 +67,10 @@ def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
             cm.shape
         )
     np.testing.assert_array_equal(np.array(doc["confusion"]), cm)
+    heads = HeadDetections()
+    for i in range(5):
+        heads.add(np.asarray(ds.labels[i]), forest.predict_labels(model, np.asarray(ds.depth[i])))
+    assert doc["head_detections"] == heads.to_dict()
 
     # the scores of that matrix, by hand: 0/0 is undefined and left out of the means
     tp = np.diag(cm).astype(float)
@@ -80,6 +85,7 @@ def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
         else:
             assert got["precision"] == pytest.approx(precision[c], abs=1e-12)
     assert "mean (1-10)" in r.stdout
+    assert heads.summary() in r.stdout
     assert (out / "confusion.png").stat().st_size > 10_000
     assert (out / "frames.png").stat().st_size > 10_000
 
@@ -131,7 +137,7 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
 def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
     from topseg.core.crf import CRFConfig
     from topseg.core.scoring import dataset_frames, score
-    from topseg.core.segmenter import Segmenter
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
 
     ds = D.open_dataset(data)
     config = TrainConfig(
@@ -145,15 +151,17 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
         subprocess.run(
             [sys.executable, "-m", "topseg.services.cli", "evaluate", "--model",
              str(tmp_path / "m.npz"), "--data", str(data), "--frames", "3", "--smoothness", s,
-             "--json", str(tmp_path / f"s{s}.json")],
+             "--min-head-cm2", "0", "--json", str(tmp_path / f"s{s}.json")],
             capture_output=True, text=True, timeout=300, check=True,
         )  # fmt: skip
         docs[s] = json.loads((tmp_path / f"s{s}.json").read_text())
-    # no weight on a cut edge: the CRF keeps the forest's argmax
+    # no weight on a cut edge (and every head blob kept): the CRF keeps the forest's argmax
     assert docs["0"]["smoothness"] == 0.0
     assert docs["0"]["per_class"] == docs["0"]["forest_only"]["per_class"]
     # a weight of 5 nats: what the Segmenter labels with that CRF, and not the argmax
-    segmenter = Segmenter(model, {}, crf=CRFConfig(mode="realtime", smoothness=5.0))
+    segmenter = Segmenter(
+        model, {}, SegmenterConfig(min_head_cm2=0), crf=CRFConfig(mode="realtime", smoothness=5.0)
+    )
     want = score(segmenter, dataset_frames(ds, range(3))).crf.confusion
     assert docs["5"]["smoothness"] == 5.0
     np.testing.assert_array_equal(np.array(docs["5"]["confusion"]), want)

@@ -23,10 +23,12 @@ def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path
         assert {c["sensor"] for c in cells} == {"kinect_v1", "oak_d"}
         for c in cells:
             assert 0.0 <= c["avg_f1"] <= 1.0 and c["frames"] == 1
+            assert "head_detection_precision" in c and "head_detection_recall" in c
     v = doc["verdict"]
     assert 0.0 <= v["lowest_f1"] <= v["reference_f1"] + v["largest_gap"] + 1e-9
     md = (out / "mounts.md").read_text()
-    assert md.count("| oak_d |") == 4 and "largest gap" in md  # two tables per model
+    assert md.count("| oak_d |") == 6 and "largest gap" in md  # three tables per model
+    assert "Heads as blobs" in md
     assert (out / "mounts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

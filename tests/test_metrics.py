@@ -12,8 +12,10 @@ from topseg.core import labels as L
 from topseg.core.errors import TopsegError
 from topseg.core.metrics import (
     ConfusionAccumulator,
+    HeadDetections,
     confusion_matrix,
     format_table,
+    head_detections,
     scores,
     to_json,
 )
@@ -163,3 +165,43 @@ def test_person_scores_pool_every_body_part_against_the_rest():
     assert s["person_f1"] == pytest.approx(2 * tp / (2 * tp + fp + fn))
     assert s["furniture_on_person"] == pytest.approx(10 / 100)
     assert np.isnan(person_scores(np.zeros_like(c))["person_f1"])
+
+
+def heads_scene():
+    """Truth: two heads (a 10 x 10 and an 8 x 8) and a head cut to 4 x 4 by the frame's edge
+    (too small to count); the prediction finds the first head (60 % of it labelled head:
+    found), misses the second, adds a patch on a shoulder (6 x 6), a speck (2 x 2, too small
+    to count) and a blob mostly on the body that covers the first head's right edge."""
+    truth = np.full((40, 60), L.BODY, np.uint8)
+    pred = truth.copy()
+    truth[2:12, 2:12] = L.HEAD
+    truth[20:28, 30:38] = L.HEAD
+    truth[0:4, 56:60] = L.HEAD
+    pred[2:12, 2:6] = L.HEAD  # 40 px, all true head: a correct detection
+    pred[30:36, 10:16] = L.HEAD  # 36 px on the body: a false head
+    pred[38:40, 50:52] = L.HEAD  # 4 px: not counted
+    pred[2:12, 10:18] = L.HEAD  # 80 px, 20 of them on the head: under half, a false head
+    return truth, pred
+
+
+def test_head_detections_count_blobs_not_pixels():
+    truth, pred = heads_scene()
+    assert head_detections(truth, pred) == (1, 3, 1, 2)
+    assert head_detections(truth, truth) == (2, 2, 2, 2)
+    none = np.full_like(truth, L.BODY)
+    assert head_detections(none, none) == (0, 0, 0, 0)
+    with pytest.raises(TopsegError, match="differs"):
+        head_detections(truth, pred[:, :10])
+
+
+def test_head_detections_accumulate_and_say_nan_for_nothing_to_count():
+    truth, pred = heads_scene()
+    heads = HeadDetections()
+    assert np.isnan(heads.precision) and np.isnan(heads.recall)
+    assert heads.to_dict()["precision"] is None
+    heads.add(truth, pred)
+    heads.add(truth, truth)
+    assert (heads.correct, heads.predicted, heads.found, heads.true) == (3, 5, 3, 4)
+    assert heads.precision == pytest.approx(0.6) and heads.recall == pytest.approx(0.75)
+    assert json.loads(json.dumps(heads.to_dict()))["recall"] == pytest.approx(0.75)
+    assert "precision 0.600 (3 of 5), recall 0.750 (3 of 4)" in heads.summary()

@@ -53,6 +53,8 @@ class Cell:
     head_precision: float = math.nan
     head_recall: float = math.nan
     furniture_on_person: float = math.nan
+    head_detection_precision: float = math.nan
+    head_detection_recall: float = math.nan
 
 
 def cell_mount(sensor_name: str, height_m: float, tilt_deg: float):
@@ -89,7 +91,7 @@ def render_cell(mount, frames: int, seed: int = TEST_SEED) -> list[tuple]:
 def score_cell(segmenter, frames: list[tuple]) -> dict:
     """Scores of `segmenter` (its CRF) on `frames`: avg F1, forest-alone avg F1, mean floor
     share, and the person-level figures real frames are judged by (person-pixel F1, head
-    precision and recall, furniture on a person)."""
+    precision and recall, furniture on a person, heads as blobs: `metrics.head_detections`)."""
     from topseg.core.metrics import person_scores
     from topseg.core.scoring import score
 
@@ -105,6 +107,8 @@ def score_cell(segmenter, frames: list[tuple]) -> dict:
         "head_precision": float(head["precision"]),
         "head_recall": float(head["recall"]),
         "furniture_on_person": person["furniture_on_person"],
+        "head_detection_precision": result.heads.precision,
+        "head_detection_recall": result.heads.recall,
     }
 
 
@@ -129,7 +133,8 @@ def run_mounts(model, baseline, sensors, frames: int, out: Path, progress=print)
                     f"  {name:8s} {sensor:15s} {height:.1f} m {tilt:3.0f} deg: "
                     f"avg F1 {got['avg_f1']:.3f} (forest {got['forest_f1']:.3f}), person F1 "
                     f"{got['person_f1']:.3f}, head P/R {got['head_precision']:.2f}/"
-                    f"{got['head_recall']:.2f}, floor {got['floor_share']:.0%}"
+                    f"{got['head_recall']:.2f} (blobs {got['head_detection_precision']:.2f}/"
+                    f"{got['head_detection_recall']:.2f}), floor {got['floor_share']:.0%}"
                 )
     report = {
         "mounts": [list(m) for m in MOUNTS],
@@ -205,6 +210,21 @@ def markdown(report: dict) -> str:
                 + " | ".join(
                     f"{c['person_f1']:.2f} / {c['head_precision']:.2f} / {c['head_recall']:.2f}"
                     f" / {c['furniture_on_person']:.1%}"
+                    for c in row
+                )
+                + " |"
+            )
+        lines.append("")
+        lines.append("Heads as blobs (`metrics.head_detections`): precision / recall:")
+        lines.append("")
+        lines += [head + " |", "|---" * (len(report["mounts"]) + 1) + "|"]
+        for sensor in report["sensors"]:
+            row = [c for c in cells if c["sensor"] == sensor]
+            lines.append(
+                f"| {sensor} | "
+                + " | ".join(
+                    f"{c.get('head_detection_precision', math.nan):.2f} / "
+                    f"{c.get('head_detection_recall', math.nan):.2f}"
                     for c in row
                 )
                 + " |"
