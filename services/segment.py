@@ -22,8 +22,9 @@ takes only frames of its own camera (size and focal length) and needs no mount.
 A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a file that is
 not a recording, frames whose floor cannot be found) is skipped with one line on stderr and
 the others are still segmented; the exit status is then 2. A recording cut short or with
-damaged messages gives what it holds. The share of pixels the floor gate sent to
-background without the forest is printed at the end.
+damaged messages gives what it holds. The end prints the share of pixels the floor gate sent
+to background without the forest, and how many head blobs were too small to be heads
+(`--min-head-cm2`) and took their border's label.
 """
 
 from __future__ import annotations
@@ -145,6 +146,11 @@ def run(args: argparse.Namespace) -> int:
             f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
             "depth went to background without the forest"
         )
+    if segmenter.config.min_head_cm2 > 0 and segmenter.crf_mode != "none" and run_.count:
+        print(
+            f"head blobs under {segmenter.config.min_head_cm2:g} cm2 relabelled: "
+            f"{run_.small_heads} in {run_.count} frames"
+        )
     if run_.refused:
         raise TopsegError(
             f"{run_.refused} frames not written: their output names were taken (see above)"
@@ -209,6 +215,7 @@ class _Run:
         self.count = 0
         self.refused = 0
         self.floor_share = 0.0
+        self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
@@ -257,6 +264,7 @@ class _Run:
             entry[2] = name
             self.count += 1
             self.floor_share += result.floor_share
+            self.small_heads += result.small_heads
 
     def summary(self) -> None:
         """How many frames went where, per camera (a folder of PNGs is one camera)."""

@@ -129,7 +129,13 @@ def height_model(tmp_path_factory):
 
 @pytest.mark.parametrize(
     ("option", "value"),
-    [("--stride", "-1"), ("--adaptive", "-1"), ("--early-exit", "0"), ("--early-exit", "1.5")],
+    [
+        ("--stride", "-1"),
+        ("--adaptive", "-1"),
+        ("--early-exit", "0"),
+        ("--early-exit", "1.5"),
+        ("--min-head-cm2", "-1"),
+    ],
 )
 def test_segment_refuses_a_bad_grid(tmp_path, option, value):
     r = segment(tmp_path, option, value, "--out", tmp_path / "o")
@@ -197,3 +203,33 @@ def test_height_model_skips_an_input_without_a_floor(height_model, tmp_path):
     assert r.returncode == 2
     assert "skipped" in r.stderr and "Traceback" not in r.stderr
     assert len([ln for ln in r.stderr.splitlines() if "skipped" in ln]) == 1
+
+
+def test_small_head_blobs_are_relabelled_and_counted(tmp_path):
+    """The bundled model on the demo's frames as PNGs (mount estimated): the labels are those
+    with every head blob kept, then the small ones relabelled; the count is printed."""
+    from pathlib import Path
+
+    from topseg.core.islands import relabel_small_heads
+    from topseg.core.segmenter import MIN_HEAD_CM2
+
+    demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.mcap"
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    depths = []
+    for msg in recording.read_messages(demo):
+        if msg.key.endswith("/depth") and len(depths) < 4:
+            depths.append(wire.decode_depth(msg.data).depth)
+            Image.fromarray(depths[-1]).save(folder / f"f{len(depths)}.png")
+    kept = segment(folder, "--out", tmp_path / "kept", "--min-head-cm2", "0")
+    cleaned = segment(folder, "--out", tmp_path / "cleaned")
+    assert kept.returncode == 0 == cleaned.returncode, kept.stderr + cleaned.stderr
+    assert "relabelled" not in kept.stdout
+    relabelled = 0
+    for i, depth in enumerate(depths, 1):
+        want = np.array(Image.open(tmp_path / "kept" / f"f{i}_labels.png"))
+        relabelled += relabel_small_heads(want, depth, KINECT_V1.fx, KINECT_V1.fy, MIN_HEAD_CM2)
+        got = np.asarray(Image.open(tmp_path / "cleaned" / f"f{i}_labels.png"))
+        np.testing.assert_array_equal(got, want)
+    assert relabelled > 0
+    assert f"head blobs under 50 cm2 relabelled: {relabelled} in 4 frames" in cleaned.stdout
