@@ -181,55 +181,44 @@ def verdict(cells: list[Cell]) -> dict:
     }
 
 
+def _table(report: dict, cells: list[dict], cell_text) -> list[str]:
+    """Markdown lines of one table: a row per sensor, a column per mount, `cell_text(cell)`."""
+    head = "| sensor | " + " | ".join(f"{h:.1f} m / {t:.0f} deg" for h, t in report["mounts"])
+    lines = [head + " |", "|---" * (len(report["mounts"]) + 1) + "|"]
+    for sensor in report["sensors"]:
+        row = [c for c in cells if c["sensor"] == sensor]
+        lines.append(f"| {sensor} | " + " | ".join(cell_text(c) for c in row) + " |")
+    return [*lines, ""]
+
+
 def markdown(report: dict) -> str:
-    """The report as a markdown table: rows = sensors, columns = mounts, per model."""
+    """The report as markdown tables: rows = sensors, columns = mounts, per model."""
     lines = [
         f"# Avg F1 (realtime CRF) across mounts and sensors, {report['frames_per_cell']} "
         f"held-out modeled frames per cell (seed {report['test_seed']})",
         "",
     ]
-    head = "| sensor | " + " | ".join(f"{h:.1f} m / {t:.0f} deg" for h, t in report["mounts"])
     for name, cells in report["cells"].items():
-        lines += [
-            f"## {name}: {report['models'][name]['path']}",
-            "",
-            head + " |",
-            "|---" * (len(report["mounts"]) + 1) + "|",
-        ]
-        for sensor in report["sensors"]:
-            row = [c for c in cells if c["sensor"] == sensor]
-            lines.append(f"| {sensor} | " + " | ".join(f"{c['avg_f1']:.3f}" for c in row) + " |")
-        lines.append("")
-        lines.append("Person-pixel F1 / head precision / head recall / furniture on a person:")
-        lines.append("")
-        lines += [head + " |", "|---" * (len(report["mounts"]) + 1) + "|"]
-        for sensor in report["sensors"]:
-            row = [c for c in cells if c["sensor"] == sensor]
-            lines.append(
-                f"| {sensor} | "
-                + " | ".join(
-                    f"{c['person_f1']:.2f} / {c['head_precision']:.2f} / {c['head_recall']:.2f}"
-                    f" / {c['furniture_on_person']:.1%}"
-                    for c in row
-                )
-                + " |"
-            )
-        lines.append("")
-        lines.append("Heads as blobs (`metrics.head_detections`): precision / recall:")
-        lines.append("")
-        lines += [head + " |", "|---" * (len(report["mounts"]) + 1) + "|"]
-        for sensor in report["sensors"]:
-            row = [c for c in cells if c["sensor"] == sensor]
-            lines.append(
-                f"| {sensor} | "
-                + " | ".join(
-                    f"{c.get('head_detection_precision', math.nan):.2f} / "
-                    f"{c.get('head_detection_recall', math.nan):.2f}"
-                    for c in row
-                )
-                + " |"
-            )
-        lines.append("")
+        lines += [f"## {name}: {report['models'][name]['path']}", ""]
+        lines += _table(report, cells, lambda c: f"{c['avg_f1']:.3f}")
+        lines += ["Person-pixel F1 / head precision / head recall / furniture on a person:", ""]
+        lines += _table(
+            report,
+            cells,
+            lambda c: (
+                f"{c['person_f1']:.2f} / {c['head_precision']:.2f} / "
+                f"{c['head_recall']:.2f} / {c['furniture_on_person']:.1%}"
+            ),
+        )
+        lines += ["Heads as blobs (`metrics.head_detections`): precision / recall:", ""]
+        lines += _table(
+            report,
+            cells,
+            lambda c: (
+                f"{c.get('head_detection_precision', math.nan):.2f} / "
+                f"{c.get('head_detection_recall', math.nan):.2f}"
+            ),
+        )
     v = report["verdict"]
     lines += [
         f"Model: reference cell (Kinect v1, 3.5 m, 0 deg) {v['reference_f1']:.3f}; largest gap "
