@@ -6,8 +6,8 @@ runs the forest and the CRF on the newest depth frame and publishes
 - labels on `topseg/<cell>/<camera>/labels` (the depth frame's `seq`, `stamp_ns`, `frame_id`);
 - stats on `.../stats`: ms per stage (receive = copy + decode, mount = estimating or checking
   the mount, forest, crf, publish, total),
-  latency (depth stamp to labels published), fps, the counts processed / dropped / rejected,
-  the share of pixels the floor gate skipped (`floor_share`) and the mount in use (`mount`:
+  latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
+  / small_heads (head blobs relabelled as too small to be heads), the share of pixels the floor gate skipped (`floor_share`) and the mount in use (`mount`:
   height, pitch, roll, sensor, source "frame" | "estimated", times the camera was seen to move).
 
 Each frame is labelled with its camera's mount (`services/worker_mount.py`): the one the
@@ -180,7 +180,9 @@ class CameraState:
     stats_pub: Any = None
     token: Any = None
     subscriber: Any = None
-    counts: dict = field(default_factory=lambda: {"processed": 0, "dropped": 0, "rejected": 0})
+    counts: dict = field(
+        default_factory=lambda: {"processed": 0, "dropped": 0, "rejected": 0, "small_heads": 0}
+    )
     last_seq: int | None = None
     last_time: float | None = None
     fps: float = 0.0
@@ -619,6 +621,7 @@ class Worker:
         t4 = time.perf_counter()
         state.note_seq(frame.seq)
         state.counts["processed"] += 1
+        state.counts["small_heads"] += result.small_heads
         state.note_done(t4)
         timings = {
             "receive": 1000 * (t1 - t0),

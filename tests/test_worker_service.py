@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import time
+from unittest import mock
 
 import msgpack
 import numpy as np
@@ -31,12 +32,11 @@ def frames(seed, n):
 
 def labelled_as_the_worker(model, depth):
     """The worker's labels by hand: forest, realtime CRF, then head blobs too small to be a
-    head relabelled (frames carry K)."""
+    head relabelled (frames carry K); and how many blobs were."""
     labels = crf.segment_crf(
         forest.predict_proba(model, depth), depth, crf.CRFConfig(mode="realtime")
     )
-    relabel_small_heads(labels, depth, K.fx, K.fy, MIN_HEAD_CM2)
-    return labels
+    return labels, relabel_small_heads(labels, depth, K.fx, K.fy, MIN_HEAD_CM2)
 
 
 @pytest.fixture(scope="module")
@@ -136,15 +136,20 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     got = [wire.decode_labels(b) for b in peer.labels]
     assert [g.seq for g in got] == seqs
     scores = metrics.ConfusionAccumulator()
+    small_heads = 0
     for g, (depth, truth), seq in zip(got, test, seqs, strict=True):
-        np.testing.assert_array_equal(g.labels, labelled_as_the_worker(model, depth))
+        labels, small = labelled_as_the_worker(model, depth)
+        np.testing.assert_array_equal(g.labels, labels)
+        small_heads += small
         assert (g.stamp_ns, g.frame_id) == (1000 + seq, "cam0")
         scores.add(truth, g.labels)
     s = scores.scores()
     assert s["avg_f1"] > 0.15 and s["accuracy"] > 0.5, s
 
     last = peer.stats[-1]
-    assert last["counts"] == {"processed": 6, "dropped": 2, "rejected": 0}
+    assert last["counts"] == {
+        "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads
+    }  # fmt: skip
     assert last["role"] == "worker" and last["model_id"] == model_path.name
     assert set(last["timings_ms"]) == {
         "receive", "mount", "forest", "crf", "publish", "total", "latency"
@@ -195,7 +200,12 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
     expected = forest.predict_labels(model, depth2)
     np.testing.assert_array_equal(wire.decode_labels(peer.labels[1]).labels, expected)
     wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == 2, 10, "stats")
-    assert peer.stats[-1]["counts"] == {"processed": 2, "dropped": 0, "rejected": len(bad)}
+    assert peer.stats[-1]["counts"] == {
+        "processed": 2,
+        "dropped": 0,
+        "rejected": len(bad),
+        "small_heads": 0,
+    }
     assert "rejected" in err
 
 
@@ -279,7 +289,7 @@ def test_worker_labels_a_driver_replay_frame_for_frame(tmp_path, peers, model_pa
     got = [wire.decode_labels(b) for b in peer.labels]
     assert [g.seq for g in got] == list(range(len(test)))
     for g, (depth, _) in zip(got, test, strict=True):
-        np.testing.assert_array_equal(g.labels, labelled_as_the_worker(model, depth))
+        np.testing.assert_array_equal(g.labels, labelled_as_the_worker(model, depth)[0])
 
 
 def cpu_seconds(pid):
@@ -320,7 +330,8 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     assert rc == 0, err
     assert [wire.decode_labels(b).seq for b in peer.labels] == list(range(n))
     wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == n, 10, "stats")
-    assert peer.stats[-1]["counts"] == {"processed": n, "dropped": 0, "rejected": 0}
+    counts = peer.stats[-1]["counts"]
+    assert counts == {"processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY}
 
 
 # ---------------------------------------------------------------------------- the mount
@@ -524,5 +535,8 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
     assert first < 10, seqs
     assert seqs == list(range(first, n)), f"labels {seqs}\n{worker.err}"
     counts = tap.stats[-1]["counts"]
-    assert counts == {"processed": n - first, "dropped": 0, "rejected": 0}, worker.err
+    # crf none: the forest's argmax, no head blob relabelled
+    assert counts == {"processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0}, (
+        worker.err
+    )
     assert "not a msgpack" not in worker.err
