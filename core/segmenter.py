@@ -428,6 +428,12 @@ class Segmenter:
             small_heads,
         )
 
+    @property
+    def relabels_small_heads(self) -> bool:
+        """Whether `label` relabels head blobs under `min_head_cm2` after the CRF (never in
+        CRF mode none: that is the forest's argmax, as it is)."""
+        return self.config.min_head_cm2 > 0 and self.config.crf.mode != "none"
+
     def _relabel_small_heads(
         self,
         labels: np.ndarray,
@@ -440,8 +446,8 @@ class Segmenter:
         frame's focal lengths; how many."""
         from topseg.core.islands import relabel_small_heads
 
-        if self.config.min_head_cm2 <= 0 or self.config.crf.mode == "none":
-            return 0  # mode none is the forest's argmax, as it is
+        if not self.relabels_small_heads:
+            return 0
         if self.features is None:
             k = intrinsics if intrinsics is not None else self.camera
         else:

@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
             f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
             "depth went to background without the forest"
         )
-    if segmenter.config.min_head_cm2 > 0 and segmenter.crf_mode != "none" and run_.count:
+    if segmenter.relabels_small_heads and run_.count:
         print(
             f"head blobs under {segmenter.config.min_head_cm2:g} cm2 relabelled: "
             f"{run_.small_heads} in {run_.count} frames"

@@ -7,8 +7,9 @@ runs the forest and the CRF on the newest depth frame and publishes
 - stats on `.../stats`: ms per stage (receive = copy + decode, mount = estimating or checking
   the mount, forest, crf, publish, total),
   latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
-  / small_heads (head blobs relabelled as too small to be heads), the share of pixels the floor gate skipped (`floor_share`) and the mount in use (`mount`:
-  height, pitch, roll, sensor, source "frame" | "estimated", times the camera was seen to move).
+  / small_heads (head blobs relabelled as too small to be heads), the share of pixels the
+  floor gate skipped (`floor_share`) and the mount in use (`mount`: height, pitch, roll,
+  sensor, source "frame" | "estimated", times the camera was seen to move).
 
 Each frame is labelled with its camera's mount (`services/worker_mount.py`): the one the
 frames carry (`topseg driver --mount`), or, when they carry none, one the worker estimates
