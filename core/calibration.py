@@ -3,6 +3,7 @@
     estimate = estimate_mount(frames, intrinsics, sensor="kinect_v1")
     estimate.mount        # TopViewMount: height above the floor, pitch, roll, intrinsics
     estimate.residual_mm  # RMS distance of the floor inliers from the fitted plane
+    estimate.mount.noise_scale  # that residual over the sensor model's noise at those depths
 
 Pure: arrays in, results out (the mount file lives in `core/formats/mount_file.py`).
 
@@ -29,11 +30,11 @@ import datetime as dt
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from topseg.core.camera import Intrinsics, TopViewMount, check_depth
+from topseg.core.camera import NOISE_SCALE_RANGE, Intrinsics, TopViewMount, check_depth
 from topseg.core.errors import TopsegError
 
 
@@ -167,7 +168,8 @@ class MountEstimate:
                 f"pitch      {m.pitch_deg:+8.2f} deg",
                 f"roll       {m.roll_deg:+8.2f} deg",
                 f"tilt       {m.tilt_deg():8.2f} deg from straight down",
-                f"residual   {self.residual_mm:8.1f} mm RMS",
+                f"residual   {self.residual_mm:8.1f} mm RMS "
+                f"(x{m.noise_scale:.2f} the {m.sensor} noise model: the floor gate's scale)",
                 f"floor      {100 * self.inlier_share:8.1f} % of the valid pixels",
                 f"frames     {self.frames_used} of {self.frames_given} "
                 f"(spread {self.height_spread_mm:.1f} mm, {self.angle_spread_deg:.2f} deg)",
@@ -416,6 +418,7 @@ def estimate_mount(
         )
     x_mm = pooled.z_mm[inl, None] * _design(pooled.rays[inl])
     residual = float(np.sqrt(np.mean((mount.height_mm + x_mm @ n) ** 2)))
+    mount = replace(mount, noise_scale=noise_scale(residual, pooled.z_mm[inl], sensor))
     return MountEstimate(
         mount=mount,
         residual_mm=residual,
@@ -443,6 +446,21 @@ def floor_mask(
     with np.errstate(invalid="ignore", divide="ignore"):
         along_ray = np.abs(h) / np.abs(n_dot_r)
     return (depth > 0) & (along_ray <= cfg.threshold(mount.sensor)(depth))
+
+
+def noise_scale(residual_mm: float, floor_depth_mm: np.ndarray, sensor: str) -> float:
+    """The floor's measured noise (`residual_mm`, RMS) over the sensor model's RMS noise at the
+    floor points' depths, to 2 decimals, within `NOISE_SCALE_RANGE`: 1 on a camera that
+    matches its model, below 1 on a quieter one (a time-of-flight camera taken for a Kinect v1).
+    """
+    from topseg.core.forest.inputs import depth_sigma_mm
+
+    sigma = depth_sigma_mm(np.asarray(floor_depth_mm, np.float32), sensor).astype(np.float64)
+    model = math.sqrt(float(np.mean(sigma * sigma))) if sigma.size else 0.0
+    if not (model > 0 and math.isfinite(residual_mm)):
+        return 1.0
+    lo, hi = NOISE_SCALE_RANGE
+    return round(min(max(residual_mm / model, lo), hi), 2)
 
 
 def mount_difference(a: TopViewMount, b: TopViewMount) -> tuple[float, float]:

@@ -151,6 +151,8 @@ def _rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
 
 #: the largest tilt (degrees) a mount may have: a top-view camera, not a wall camera
 MAX_MOUNT_TILT_DEG = 60.0
+#: the measured-over-modelled depth noise a mount may have (`TopViewMount.noise_scale`)
+NOISE_SCALE_RANGE = (0.01, 100.0)
 
 
 @dataclass(frozen=True)
@@ -168,6 +170,9 @@ class TopViewMount:
     `height_mm` has no default: a mount comes from calibration (`core/calibration.py`),
     from the frames' own metadata, or from a training distribution, never from a constant.
     `sensor` names a sensor model in `core/sensors.py` (its noise family and ranges).
+    `noise_scale` is the depth noise measured on this camera's floor (the calibration's
+    residual) over the sensor model's at those depths: it scales the floor gate's margin,
+    so a quieter camera than its sensor model keeps more of the feet. 1 when not measured.
     """
 
     intrinsics: Intrinsics
@@ -175,6 +180,7 @@ class TopViewMount:
     pitch_deg: float = 0.0
     roll_deg: float = 0.0
     sensor: str = "kinect_v1"
+    noise_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.height_mm) and self.height_mm > 0):
@@ -187,6 +193,11 @@ class TopViewMount:
                 )
         if not self.sensor:
             raise ValueError("mount sensor must be a sensor name, got an empty string")
+        lo, hi = NOISE_SCALE_RANGE
+        if not (np.isfinite(self.noise_scale) and lo <= self.noise_scale <= hi):
+            raise ValueError(
+                f"mount noise_scale must be within {lo:g}..{hi:g}, got {self.noise_scale}"
+            )
 
     # --- geometry ------------------------------------------------------------------------
 
@@ -283,13 +294,14 @@ class TopViewMount:
             "pitch_deg": float(self.pitch_deg),
             "roll_deg": float(self.roll_deg),
             "sensor": self.sensor,
+            "noise_scale": float(self.noise_scale),
         }
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "camera mount") -> TopViewMount:
         """The mount in `d` (`to_dict`'s form). `intrinsics` and `height_mm` are required;
-        the tilt and sensor default (straight down, Kinect v1), so dicts written before
-        they existed still load."""
+        the tilt, sensor and noise scale default (straight down, Kinect v1, as modelled),
+        so dicts written before they existed still load."""
         from topseg.core.config import from_dict
 
         return from_dict(cls, d, source, required=("intrinsics", "height_mm"))

@@ -147,7 +147,7 @@ def picture(path: Path, depth, estimate) -> None:
     fig.suptitle(
         f"{mount.sensor}: {mount.height_mm:.0f} mm above the floor, pitch "
         f"{mount.pitch_deg:+.2f} deg, roll {mount.roll_deg:+.2f} deg, residual "
-        f"{estimate.residual_mm:.1f} mm"
+        f"{estimate.residual_mm:.1f} mm (x{mount.noise_scale:.2f} the noise model)"
     )
     fig.tight_layout()
     with atomic_write(path) as f:

@@ -14,9 +14,11 @@ from topseg.core.calibration import (
     estimate_mount,
     floor_mask,
     mount_difference,
+    noise_scale,
 )
-from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount
+from topseg.core.camera import KINECT_V1, NOISE_SCALE_RANGE, Intrinsics, TopViewMount
 from topseg.core.errors import ConfigError
+from topseg.core.forest.inputs import depth_sigma_mm
 from topseg.core.formats.mount_file import read_mount_document, read_mount_file, write_mount_file
 
 K = KINECT_V1.scaled_to(320, 240)
@@ -107,6 +109,26 @@ def test_a_sensor_with_more_noise_gets_a_wider_inlier_band():
     assert abs(est.mount.height_mm - 4200.0) < 10.0
     assert abs(est.mount.pitch_deg + 6.0) < 0.2 and abs(est.mount.roll_deg - 5.0) < 0.2
     assert est.inlier_share > 0.5
+
+
+@pytest.mark.parametrize("quieter", [1.0, 0.35])
+def test_the_noise_scale_is_the_floors_noise_over_the_sensor_models(quieter):
+    # a camera as noisy as its model gets 1; a time-of-flight camera taken for a Kinect v1
+    # (a third of its noise) gets about a third, and so a narrower floor gate
+    height = 3300.0
+    model = float(depth_sigma_mm(np.float32(height), "kinect_v1"))
+    truth = TopViewMount(K, height, 2.0, -1.0, "kinect_v1")
+    per_m2 = quieter * model / (height / 1000.0) ** 2
+    est = estimate_mount(frames_of(truth, sigma_mm_per_m2=per_m2), K, "kinect_v1")
+    assert est.mount.noise_scale == pytest.approx(quieter, rel=0.15)
+    assert est.mount.noise_scale == round(est.mount.noise_scale, 2)
+    assert f"x{est.mount.noise_scale:.2f} the kinect_v1 noise model" in est.summary()
+
+
+def test_noise_scale_is_bounded_and_1_without_a_model():
+    assert noise_scale(10.0, np.array([]), "kinect_v1") == 1.0
+    assert noise_scale(1e-9, np.array([3000.0]), "kinect_v1") == NOISE_SCALE_RANGE[0]
+    assert noise_scale(1e9, np.array([3000.0]), "kinect_v1") == NOISE_SCALE_RANGE[1]
 
 
 def test_floor_mask_marks_the_floor():

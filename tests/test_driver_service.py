@@ -284,11 +284,12 @@ def test_driver_with_a_mount_file_sends_it_with_every_frame_and_in_info(
     assert "mount from" in err and "3120 mm" in err
     for b in listener.depth:
         msg = msgpack.unpackb(b)  # read apart from topseg's decoder: the documented map
-        assert msg["v"] == 2
+        assert msg["v"] == wire.SCHEMA_VERSION
         assert msg["mount"] == {
             "intrinsics": {"width": 160, "height": 120, "fx": K.fx, "fy": K.fy, "cx": K.cx,
                            "cy": K.cy},
             "height_mm": 3120.0, "pitch_deg": 4.5, "roll_deg": -1.25, "sensor": "kinect_v1",
+            "noise_scale": 1.0,
         }  # fmt: skip
         assert wire.decode_depth(b).mount == TILTED
 

@@ -1,6 +1,8 @@
 """The forest's input: heights and metric offsets from any mount, the floor gate, the legacy
 path, and a model trained at one mount labelling scenes seen from another."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from reference import model_input_float32_reference, model_input_reference
@@ -9,7 +11,9 @@ from topseg.core import labels
 from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount, metres_to_mm
 from topseg.core.forest import FeatureConfig, TrainConfig, train_forest
 from topseg.core.forest.inputs import (
+    FLOOR_SIGMAS,
     MIN_FLOOR_MARGIN_MM,
+    depth_sigma_mm,
     floor_margin_mm,
     header_fields,
     legacy_input,
@@ -122,6 +126,11 @@ def test_floor_gate_is_noise_aware():
     assert kinect[-1] > MIN_FLOOR_MARGIN_MM  # a few sigma of 25 mm at 4.5 m
     stereo = floor_margin_mm(z, "oak_d")
     assert np.all(stereo >= kinect)  # stereo is noisier at range
+    # a camera measured quieter than its model: the margin shrinks with it, to the minimum
+    half = floor_margin_mm(z, "oak_d", 0.5)
+    expected = np.clip(0.5 * FLOOR_SIGMAS * depth_sigma_mm(z, "oak_d"), MIN_FLOOR_MARGIN_MM, 150)
+    np.testing.assert_allclose(half, expected, rtol=1e-6)
+    assert np.all(half <= stereo) and half[-1] < stereo[-1]
     # a 100 mm step above the floor is not gated at 3 m, the floor with 15 mm noise mostly is
     mount = TopViewMount(SMALL_K1, 3000.0)
     rng = np.random.default_rng(0)
@@ -130,6 +139,22 @@ def test_floor_gate_is_noise_aware():
     inp = model_input(depth, mount, FEATURES)
     assert inp.floor[lab == labels.BACKGROUND].mean() > 0.97
     assert inp.floor[lab == labels.TABLE].mean() < 0.01
+
+
+def test_the_floor_gate_follows_the_mounts_measured_noise_scale():
+    # 60 mm shoes 4.5 m below a Kinect v1: within its modelled 3 sigma (~75 mm), so gated;
+    # measured three times quieter (a time-of-flight camera), the gate is 40 mm: kept
+    mount = TopViewMount(SMALL_K1, 4500.0)
+    shoes = procedural.Box(0.0, 0.0, 1.0, 1.0, 0.0, 0.06, labels.LEGS)
+    depth, lab = render([shoes], mount)
+    on = lab == labels.LEGS
+    assert model_input(depth, mount, FEATURES).floor[on].mean() > 0.99
+    quiet = replace(mount, noise_scale=0.33)
+    assert model_input(depth, quiet, FEATURES).floor[on].mean() < 0.01
+    _, _, floor = model_input_float32_reference(
+        depth, quiet, FEATURES, lambda d: floor_margin_mm(d, "kinect_v1", 0.33)
+    )
+    np.testing.assert_array_equal(model_input(depth, quiet, FEATURES).floor, floor)
 
 
 def test_legacy_input_is_depth():

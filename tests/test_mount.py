@@ -125,15 +125,19 @@ def test_height_map_refuses_another_camera():
 
 
 def test_mount_dict_round_trip_and_old_dicts_load():
-    m = TopViewMount(SMALL, 3123.5, 4.25, -7.5, "realsense_d435")
+    m = TopViewMount(SMALL, 3123.5, 4.25, -7.5, "realsense_d435", 0.42)
     assert TopViewMount.from_dict(m.to_dict()) == m
     old = {"intrinsics": KINECT_V1.to_dict(), "height_mm": 3000}
     back = TopViewMount.from_dict(old)
     assert back == TopViewMount(KINECT_V1, 3000.0)
     assert (back.pitch_deg, back.roll_deg, back.sensor) == (0.0, 0.0, "kinect_v1")
+    assert back.noise_scale == 1.0  # not measured: as the sensor model says
     with pytest.raises(ConfigError, match="height_mm"):
         TopViewMount.from_dict({"intrinsics": KINECT_V1.to_dict()})
     with pytest.raises(ConfigError, match="pitch_deg"):
         TopViewMount.from_dict({**old, "pitch_deg": 95.0})
     with pytest.raises(ConfigError, match="height"):
         TopViewMount.from_dict({**old, "height_mm": -1})
+    for bad in (0.0, -1.0, float("nan"), 1e9):
+        with pytest.raises(ConfigError, match="noise_scale"):
+            TopViewMount.from_dict({**old, "noise_scale": bad})

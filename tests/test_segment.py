@@ -154,6 +154,7 @@ def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path
     )
     assert r.returncode == 0, r.stderr
     assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" in r.stdout
+    assert "floor noise" in r.stdout and "the kinect_v1 model)" in r.stdout
     assert "segmented 3 frames" in r.stdout and "floor skipped:" in r.stdout
     assert "warning" not in r.stderr
     depth = frames[0][0]

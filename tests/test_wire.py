@@ -48,7 +48,7 @@ def test_full_size_depth_round_trip_and_layout():
     # the raw layout is the documented one: little-endian, row-major
     msg = msgpack.unpackb(data)
     assert msg["data"] == depth.astype("<u2").tobytes()
-    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 2)
+    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 3)
     assert "mount" not in msg  # no mount known, none sent
     assert not back.depth.flags.writeable  # a view of the message, not a copy
 
@@ -99,7 +99,7 @@ def test_stats_round_trip():
         "counts": {"processed": 100, "dropped": 3, "rejected": 1},
     }
     back = wire.decode_stats(wire.encode_stats(stats))
-    assert back == {"v": 2, **stats}
+    assert back == {"v": wire.SCHEMA_VERSION, **stats}
 
 
 # ----------------------------------------------------------------------------- rejections
@@ -143,7 +143,7 @@ def test_every_byte_value_is_judged_by_the_label_table():
         ("data", b"\0" * 7, "bytes"),
         ("data", "text", "binary"),
         ("encoding", "8UC1", "encoding"),
-        ("v", 3, "newer"),
+        ("v", wire.SCHEMA_VERSION + 1, "newer"),
         ("v", 0, "version"),
         ("v", True, "version"),
         ("seq", -1, "seq"),
@@ -347,11 +347,12 @@ def test_intrinsics_survive_exactly():
 # ----------------------------------------------------------------------------- the mount (v2)
 
 
-def a_mount(k=None, height=3312.5, pitch=4.25, roll=-1.5, sensor="kinect_v2"):
-    """A tilted mount for frames of intrinsics `k` (small ones by default)."""
+def a_mount(k=None, height=3312.5, pitch=4.25, roll=-1.5, sensor="kinect_v2", noise=0.37):
+    """A tilted mount with a measured noise scale for frames of intrinsics `k` (small ones by
+    default)."""
     from topseg.core.camera import TopViewMount
 
-    return TopViewMount(k or KINECT_V1.scaled_to(9, 6), height, pitch, roll, sensor)
+    return TopViewMount(k or KINECT_V1.scaled_to(9, 6), height, pitch, roll, sensor, noise)
 
 
 def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
@@ -361,11 +362,23 @@ def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
     framed = DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", m)
     data = wire.encode_depth(framed)
     msg = msgpack.unpackb(data)
-    assert msg["v"] == 2 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
+    assert msg["v"] == 3 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
+    assert msg["mount"]["noise_scale"] == 0.37
     back = wire.decode_depth(data)
     assert_same_depth(framed, back)
     assert back.mount == m
     assert wire.decode_depth(wire.encode_depth(f)).mount is None
+
+
+def test_version_2_mounts_without_a_noise_scale_decode_as_modelled():
+    rng = np.random.default_rng(13)
+    f = small_depth(rng)
+    msg = msgpack.unpackb(wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=a_mount())))
+    msg["v"] = 2
+    del msg["mount"]["noise_scale"]
+    back = wire.decode_depth(msgpack.packb(msg))
+    assert back.mount.noise_scale == 1.0
+    assert back.mount == a_mount(noise=1.0)
 
 
 def test_version_1_depth_messages_still_decode():
@@ -383,18 +396,18 @@ def test_an_old_reader_refuses_a_new_message_and_a_new_reader_says_upgrade(monke
     f = small_depth(rng)
     data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=a_mount(f.intrinsics)))
     stats = wire.encode_stats({"stamp_ns": 1, "timings_ms": {}, "counts": {}, "floor_share": 0.5})
-    # what a version-1 topseg is: one readable version; it names the version and refuses
-    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1,))
+    # what a version-2 topseg is: versions 1 and 2; it names the version and refuses
+    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2))
     for decode, payload in ((wire.decode_depth, data), (wire.decode_stats, stats)):
-        with pytest.raises(WireError, match=r"schema version 2 is newer .*upgrade topseg"):
+        with pytest.raises(WireError, match=r"schema version 3 is newer .*upgrade topseg"):
             decode(payload)
     monkeypatch.undo()
     msg = msgpack.unpackb(data)
-    msg["v"] = 3
+    msg["v"] = 4
     with pytest.raises(WireError) as err:
         wire.decode_depth(msgpack.packb(msg))
     assert str(err.value) == (
-        "schema version 3 is newer than this topseg reads (1, 2): upgrade topseg on this host"
+        "schema version 4 is newer than this topseg reads (1, 2, 3): upgrade topseg on this host"
     )
 
 
@@ -428,6 +441,9 @@ def _mount_msg(**change):
         ({"sensor": ""}, "sensor"),
         ({"sensor": 7}, "sensor"),
         ({"sensor": "s" * 300}, "sensor"),
+        ({"noise_scale": 0.0}, "noise_scale"),
+        ({"noise_scale": 1e6}, "noise_scale"),
+        ({"noise_scale": "1"}, "number"),
         ({"colour": "red"}, "unknown"),
         ({"intrinsics": [1, 2]}, "map"),
         ({"intrinsics__width": 10}, "mount is for 10x6"),
@@ -479,7 +495,7 @@ def test_stats_carry_floor_share_and_the_mount_in_use():
         "source": "estimated", "moved": 1,
     }  # fmt: skip
     stats = {"stamp_ns": 5, "timings_ms": {}, "counts": {}, "floor_share": 0.62, "mount": mount}
-    assert wire.decode_stats(wire.encode_stats(stats)) == {"v": 2, **stats}
+    assert wire.decode_stats(wire.encode_stats(stats)) == {"v": wire.SCHEMA_VERSION, **stats}
     for bad, match in (
         ({"floor_share": 1.5}, "floor_share"),
         ({"mount": {**mount, "source": "guess"}}, "source"),

@@ -172,7 +172,7 @@ def garbage(rng):
     yield msgpack.packb({**good, "fx": float("nan")})
     yield msgpack.packb({**good, "seq": -1})
     yield msgpack.packb({k: v for k, v in good.items() if k != "encoding"})
-    yield msgpack.packb({**good, "v": 3})  # a newer version than this worker reads
+    yield msgpack.packb({**good, "v": wire.SCHEMA_VERSION + 1})  # newer than this worker reads
     yield msgpack.packb({**good, "data": "text"})
 
 

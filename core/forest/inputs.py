@@ -11,8 +11,9 @@ trained on heights (header `"input": "height"`) reads
 - offset scales `S = (fx / reference_focal_px) / D` (float32, 1/mm): a feature's offset u
   (pixel*mm at the reference focal length) moves a probe by round(u * S(s)) pixels, so the
   offsets span the same metric distance on any sensor, at any resolution and any range;
-- a floor gate: pixels with depth whose height is below `floor_margin_mm(D, sensor)` (a few
-  sigma of the sensor's depth noise at that range, at least `MIN_FLOOR_MARGIN_MM`) are
+- a floor gate: pixels with depth whose height is below `floor_margin_mm(D, sensor, s)` (a
+  few sigma of the sensor's depth noise at that range, times the mount's measured
+  `noise_scale` s, within [`MIN_FLOOR_MARGIN_MM`, `MAX_FLOOR_MARGIN_MM`]) are
   background without walking the forest. They stay probe targets (the floor is context).
 
 Models trained before this (no `"input"` in the header) read the legacy input: V = D,
@@ -90,19 +91,23 @@ def depth_sigma_mm(depth_mm: np.ndarray, sensor: str = "kinect_v1") -> np.ndarra
         return np.float32(KINECT_SIGMA_COEFF * 1e-3) * z * z  # (1.4e-3 / m) * z_mm^2
 
 
-def floor_margin_mm(depth_mm: np.ndarray, sensor: str = "kinect_v1") -> np.ndarray:
+def floor_margin_mm(
+    depth_mm: np.ndarray, sensor: str = "kinect_v1", noise_scale: float = 1.0
+) -> np.ndarray:
     """Height (mm) below which a pixel at this depth is floor: FLOOR_SIGMAS sigma of the
-    sensor's depth noise at that range, within [MIN_FLOOR_MARGIN_MM, MAX_FLOOR_MARGIN_MM];
-    float32."""
+    sensor's depth noise at that range, times `noise_scale` (the camera's measured noise over
+    the model's, `TopViewMount.noise_scale`), within [MIN_FLOOR_MARGIN_MM,
+    MAX_FLOOR_MARGIN_MM]; float32."""
     sigma = depth_sigma_mm(depth_mm, sensor)
-    margin = np.float32(FLOOR_SIGMAS) * sigma
+    margin = np.float32(FLOOR_SIGMAS * noise_scale) * sigma
     return np.clip(margin, np.float32(MIN_FLOOR_MARGIN_MM), np.float32(MAX_FLOOR_MARGIN_MM))
 
 
 @functools.lru_cache(maxsize=16)
-def _margin_table(sensor: str) -> np.ndarray:
-    """`floor_margin_mm` of every uint16 depth, for one sensor (a frame is one lookup)."""
-    table = floor_margin_mm(np.arange(65536, dtype=np.float32), sensor)
+def _margin_table(sensor: str, noise_scale: float) -> np.ndarray:
+    """`floor_margin_mm` of every uint16 depth, for one sensor and noise scale (a frame is one
+    lookup)."""
+    table = floor_margin_mm(np.arange(65536, dtype=np.float32), sensor, noise_scale)
     table.flags.writeable = False
     return table
 
@@ -129,7 +134,7 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
         np.float32(features.canonical_height_mm),
         np.float32(int(features.background_mm) - 1),
         np.float32(k.fx / features.reference_focal_px),
-        _margin_table(mount.sensor),
+        _margin_table(mount.sensor, float(mount.noise_scale)),
         values,
         scale,
         floor,

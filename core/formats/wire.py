@@ -12,11 +12,14 @@ A depth or label message is one msgpack map::
     fx, fy, cx, cy  pinhole intrinsics in pixels (depth only)
     mount     optional (depth only, version 2 on): where the camera hangs, as
               `TopViewMount.to_dict()`: {intrinsics: {width, height, fx, fy, cx, cy},
-              height_mm, pitch_deg, roll_deg, sensor}; its size is the frame's
+              height_mm, pitch_deg, roll_deg, sensor, noise_scale (version 3 on)}; its
+              size is the frame's
 
-Version 2 added `mount` and the worker's `floor_share` and `mount` stats. A reader accepts
-every version in `READABLE_VERSIONS` and refuses a newer one with a line that says to
-upgrade; a version-1 reader refuses version-2 messages ("schema version 2 is not 1").
+Version 2 added `mount` and the worker's `floor_share` and `mount` stats; version 3 the
+mount's measured `noise_scale` (the floor gate's scale). A reader accepts every version in
+`READABLE_VERSIONS` and refuses a newer one with a line that says to upgrade; a version-1
+reader refuses version-2 messages ("schema version 2 is not 1"), a version-2 reader
+version-3 ones.
 
 Labels carry the `seq` and `stamp_ns` of the depth frame they were computed from, and only
 valid label ids (`topseg.core.labels`). A stats message (`encode_stats`) is a small
@@ -39,13 +42,19 @@ import msgpack
 import numpy as np
 
 from topseg.core import labels as label_table
-from topseg.core.camera import KINECT_V1, MAX_MOUNT_TILT_DEG, Intrinsics, TopViewMount
+from topseg.core.camera import (
+    KINECT_V1,
+    MAX_MOUNT_TILT_DEG,
+    NOISE_SCALE_RANGE,
+    Intrinsics,
+    TopViewMount,
+)
 from topseg.core.errors import TopsegError
 
 #: The version every message is written with.
-SCHEMA_VERSION = 2
-#: The versions this reader decodes (1: no mount, no mount stats).
-READABLE_VERSIONS = (1, 2)
+SCHEMA_VERSION = 3
+#: The versions this reader decodes (1: no mount, no mount stats; 2: no mount noise scale).
+READABLE_VERSIONS = (1, 2, 3)
 MAX_SIDE = 4096
 MAX_FRAME_ID = 256
 DEPTH_ENCODING = "16UC1"
@@ -67,7 +76,9 @@ _DEPTH_FIELDS = frozenset((*_FRAME_FIELDS, "fx", "fy", "cx", "cy"))
 _DEPTH_OPTIONAL = frozenset(("mount",))
 _LABEL_FIELDS = frozenset(_FRAME_FIELDS)
 #: The fields of a mount map (`TopViewMount.to_dict()`); the last three default.
-_MOUNT_FIELDS = frozenset(("intrinsics", "height_mm", "pitch_deg", "roll_deg", "sensor"))
+_MOUNT_FIELDS = frozenset(
+    ("intrinsics", "height_mm", "pitch_deg", "roll_deg", "sensor", "noise_scale")
+)
 _MOUNT_REQUIRED = frozenset(("intrinsics", "height_mm"))
 _INTRINSICS_FIELDS = frozenset(("width", "height", "fx", "fy", "cx", "cy"))
 #: Bounds of a mount on the wire: sanity, not what a model supports (the worker judges that).
@@ -339,6 +350,12 @@ def check_mount_map(d: Any) -> dict:
                 f"mount.sensor {_short(d['sensor'])} must be 1-64 letters, digits, '_', '.', '-'"
             )
         out["sensor"] = d["sensor"]
+    if "noise_scale" in d:
+        scale = _float("mount.noise_scale", d["noise_scale"])
+        lo, hi = NOISE_SCALE_RANGE
+        if not lo <= scale <= hi:
+            raise WireError(f"mount.noise_scale={scale} is outside {lo:g}..{hi:g}")
+        out["noise_scale"] = scale
     return out
 
 
@@ -374,7 +391,7 @@ def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, 
 
 
 def decode_depth(data: bytes) -> DepthFrame:
-    """Bytes -> DepthFrame (version 1 or 2; `mount` None when the message has none), or
+    """Bytes -> DepthFrame (versions 1-3; `mount` None when the message has none), or
     WireError naming what is wrong."""
     msg = _unpack(data)
     _check_fields(msg, _DEPTH_FIELDS, "depth", _DEPTH_OPTIONAL)
@@ -499,7 +516,7 @@ def encode_stats(stats: Mapping[str, Any]) -> bytes:
 
 
 def decode_stats(data: bytes) -> dict:
-    """Bytes -> a validated, JSON-able stats dict (version 1 or 2), or WireError."""
+    """Bytes -> a validated, JSON-able stats dict (versions 1-3), or WireError."""
     return _check_stats(_unpack(data))
 
 
