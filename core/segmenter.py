@@ -28,6 +28,7 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.errors import TopsegError
+from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
 
 if TYPE_CHECKING:
     from topseg.core.camera import Intrinsics, TopViewMount
@@ -52,6 +53,11 @@ EARLY_EXIT = 0.95
 #: by the image's edge mostly keeps its label. On rendered time-of-flight frames it raised
 #: the share of head blobs that are heads from 0.31-0.54 to 0.79-0.92 (docs/results.md).
 MIN_HEAD_CM2 = 50.0
+#: After the CRF, blobs labelled chair, storage or table smaller than this on the surface
+#: (cm2) take their border's label: a fifth of a chair's seat seen from above (~1600 cm2).
+#: Measured in docs/crf.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
+#: person 1.1-1.4 points lower on rendered time-of-flight frames.
+MIN_FURNITURE_CM2 = 300.0
 #: Where `deploy/install.sh` puts the bundled model (below its --root).
 INSTALLED_MODEL = Path("/opt/topseg/models/default.npz")
 #: The bundled model inside a checkout, relative to its root.
@@ -127,8 +133,10 @@ class SegmenterConfig:
     early_exit    a walked pixel stops walking trees once the average of its first two (or
                   more) gives one class at least this posterior; None walks every tree
     min_head_cm2  after the CRF (realtime or exact), blobs labelled head smaller than this
-                  on the surface take their border's label (`islands.relabel_small_heads`);
+                  on the surface take their border's label (`islands.relabel_small_blobs`);
                   0 keeps them
+    min_furniture_cm2  the same for blobs of chair, storage and table
+                  (`islands.FURNITURE_ISLANDS`); 0 keeps them
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
@@ -138,6 +146,7 @@ class SegmenterConfig:
     adaptive: int = ADAPTIVE_LEVELS
     early_exit: float | None = EARLY_EXIT
     min_head_cm2: float = MIN_HEAD_CM2
+    min_furniture_cm2: float = MIN_FURNITURE_CM2
 
     def __post_init__(self) -> None:
         if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
@@ -146,8 +155,10 @@ class SegmenterConfig:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
         if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
             raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
-        if not (np.isfinite(self.min_head_cm2) and self.min_head_cm2 >= 0):
-            raise TopsegError(f"min_head_cm2 must be >= 0 cm2, got {self.min_head_cm2}")
+        for name in ("min_head_cm2", "min_furniture_cm2"):
+            area = getattr(self, name)
+            if not (np.isfinite(area) and area >= 0):
+                raise TopsegError(f"{name} must be >= 0 cm2, got {area}")
 
 
 @dataclass(frozen=True)
@@ -170,6 +181,7 @@ class Segmentation:
                  the forest (0 for a model that reads depth)
     small_heads  blobs labelled head by the CRF that were too small to be a head and took
                  their border's label (`SegmenterConfig.min_head_cm2`)
+    small_furniture  the same for chair, storage and table (`min_furniture_cm2`)
     """
 
     labels: np.ndarray
@@ -177,6 +189,7 @@ class Segmentation:
     floor_share: float
     _posteriors: Callable[[], np.ndarray] = field(repr=False)
     small_heads: int = 0
+    small_furniture: int = 0
 
     @property
     def proba(self) -> np.ndarray:
@@ -218,6 +231,7 @@ class Segmenter:
         self.camera = model_camera(self.header)
         self.features = model_features(self.header, forest)
         self.trained_for: dict[str, Any] | None = self.header.get("trained_for")
+        self._island_areas = island_areas(config.min_head_cm2, config.min_furniture_cm2)
         self._out: np.ndarray | None = None
         self._summary = None  # crf.argmax.Summary: the CRF's per-pixel view of _out
         self._frame = 0  # counts writes into _out (a Segmentation fills only its own)
@@ -417,7 +431,7 @@ class Segmenter:
         labels = segment_crf(
             proba, depth, self.config.crf, self._summary, None if filled[0] else fill
         )
-        small_heads = self._relabel_small_heads(labels, depth, intrinsics, name, mount)
+        islands = self._relabel_islands(labels, depth, intrinsics, name, mount)
         t2 = time.perf_counter()
         ms = 1000.0
         return Segmentation(
@@ -425,34 +439,35 @@ class Segmenter:
             Timings(ms * (t1 - t0), ms * (t2 - t1), ms * (t2 - t0)),
             inp.floor_share(),
             fill,
-            small_heads,
+            int(islands[L.HEAD]),
+            int(islands[list(FURNITURE_ISLANDS)].sum()),
         )
 
     @property
-    def relabels_small_heads(self) -> bool:
-        """Whether `label` relabels head blobs under `min_head_cm2` after the CRF (never in
-        CRF mode none: that is the forest's argmax, as it is)."""
-        return self.config.min_head_cm2 > 0 and self.config.crf.mode != "none"
+    def relabels_islands(self) -> bool:
+        """Whether `label` relabels head or furniture blobs under `min_head_cm2` or
+        `min_furniture_cm2` after the CRF (never in CRF mode none: that is the forest's
+        argmax, as it is)."""
+        cfg = self.config
+        return max(cfg.min_head_cm2, cfg.min_furniture_cm2) > 0 and cfg.crf.mode != "none"
 
-    def _relabel_small_heads(
+    def _relabel_islands(
         self,
         labels: np.ndarray,
         depth: np.ndarray,
         intrinsics: Intrinsics | None,
         name: str,
         mount: TopViewMount | None,
-    ) -> int:
-        """The CRF's head blobs under `min_head_cm2` relabelled in place, measured with the
-        frame's focal lengths; how many."""
-        from topseg.core.islands import relabel_small_heads
-
-        if not self.relabels_small_heads:
-            return 0
+    ) -> np.ndarray:
+        """The CRF's head and furniture blobs under their minimum areas relabelled in place,
+        measured with the frame's focal lengths; how many of each class (NUM_CLASSES)."""
+        if not self.relabels_islands:
+            return np.zeros(L.NUM_CLASSES, np.int64)
         if self.features is None:
             k = intrinsics if intrinsics is not None else self.camera
         else:
             k = self.frame_mount(depth, intrinsics, name, mount).intrinsics
-        return relabel_small_heads(labels, depth, k.fx, k.fy, self.config.min_head_cm2)
+        return relabel_small_blobs(labels, depth, k.fx, k.fy, self._island_areas)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels on a small frame, before the
@@ -488,7 +503,7 @@ class Segmenter:
                 proba = self._predict(inp, stride, lazy=stride > 1)
                 fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
                 labels = segment_crf(proba, frame, self.config.crf, self._summary, fill)
-                self._relabel_small_heads(labels, frame, None, "warm-up frame", mount)
+                self._relabel_islands(labels, frame, None, "warm-up frame", mount)
         if self.config.crf.mode == "realtime":
             from topseg.core.crf import realtime
 

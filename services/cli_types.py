@@ -139,10 +139,11 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_head_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--min-head-cm2 A`: after the CRF, head blobs smaller than A cm2 take their border's
-    label (`SegmenterConfig.min_head_cm2`; `head_config` reads it back)."""
-    from topseg.core.segmenter import MIN_HEAD_CM2
+def add_island_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--min-head-cm2 A`, `--min-furniture-cm2 A`: after the CRF, head and furniture blobs
+    smaller than A cm2 take their border's label (`SegmenterConfig.min_head_cm2`,
+    `min_furniture_cm2`; `island_config` reads them back)."""
+    from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
 
     parser.add_argument(
         "--min-head-cm2",
@@ -153,11 +154,19 @@ def add_head_arguments(parser: argparse.ArgumentParser) -> None:
         "head seen from above is 200-300) take their border's label; 0 keeps them "
         "(default: %(default)s)",
     )
+    parser.add_argument(
+        "--min-furniture-cm2",
+        type=finite(0, 100000),
+        default=MIN_FURNITURE_CM2,
+        metavar="A",
+        help="the same for blobs labelled chair, storage or table (a chair's seat seen from "
+        "above is ~1600 cm2; plants are left as they are) (default: %(default)s)",
+    )
 
 
-def head_config(args: argparse.Namespace) -> dict:
-    """The `SegmenterConfig` field of `add_head_arguments`' option."""
-    return {"min_head_cm2": args.min_head_cm2}
+def island_config(args: argparse.Namespace) -> dict:
+    """The `SegmenterConfig` fields of `add_island_arguments`' options."""
+    return {"min_head_cm2": args.min_head_cm2, "min_furniture_cm2": args.min_furniture_cm2}
 
 
 def crf_config(args: argparse.Namespace):

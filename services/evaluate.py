@@ -16,10 +16,10 @@ from pathlib import Path
 from topseg.services.cli_types import (
     add_crf_arguments,
     add_grid_arguments,
-    add_head_arguments,
+    add_island_arguments,
     crf_config,
     grid_config,
-    head_config,
+    island_config,
     non_negative_int,
     positive_int,
 )
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     add_crf_arguments(parser)
     add_grid_arguments(parser)
-    add_head_arguments(parser)
+    add_island_arguments(parser)
     parser.add_argument(
         "--frames", type=positive_int, default=None, help="score only the first N frames"
     )
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.scoring import dataset_frames, score
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    config = SegmenterConfig(**grid_config(args), **head_config(args))
+    config = SegmenterConfig(**grid_config(args), **island_config(args))
     segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
     ds = open_dataset(args.data)
     if args.json_out:  # before the scoring: a folder we cannot write costs no work

@@ -38,10 +38,10 @@ from pathlib import Path
 from topseg.services.cli_types import (
     add_crf_arguments,
     add_grid_arguments,
-    add_head_arguments,
+    add_island_arguments,
     crf_config,
     grid_config,
-    head_config,
+    island_config,
 )
 from topseg.services.lifecycle import stop_between_steps
 
@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_crf_arguments(parser)
     add_grid_arguments(parser)
-    add_head_arguments(parser)
+    add_island_arguments(parser)
     parser.add_argument(
         "--mount",
         type=Path,
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core.errors import TopsegError
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
-    config = SegmenterConfig(**grid_config(args), **head_config(args))
+    config = SegmenterConfig(**grid_config(args), **island_config(args))
     segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
     given = None
     if args.mount is not None and segmenter.reads_height:
@@ -146,10 +146,12 @@ def run(args: argparse.Namespace) -> int:
             f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
             "depth went to background without the forest"
         )
-    if segmenter.relabels_small_heads and run_.count:
+    if segmenter.relabels_islands and run_.count:
+        cfg = segmenter.config
         print(
-            f"head blobs under {segmenter.config.min_head_cm2:g} cm2 relabelled: "
-            f"{run_.small_heads} in {run_.count} frames"
+            f"blobs relabelled as too small: {run_.small_heads} head (under "
+            f"{cfg.min_head_cm2:g} cm2), {run_.small_furniture} furniture (under "
+            f"{cfg.min_furniture_cm2:g} cm2) in {run_.count} frames"
         )
     if run_.refused:
         raise TopsegError(
@@ -216,6 +218,7 @@ class _Run:
         self.refused = 0
         self.floor_share = 0.0
         self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
+        self.small_furniture = 0  # the same for chair, storage and table
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
@@ -265,6 +268,7 @@ class _Run:
             self.count += 1
             self.floor_share += result.floor_share
             self.small_heads += result.small_heads
+            self.small_furniture += result.small_furniture
 
     def summary(self) -> None:
         """How many frames went where, per camera (a folder of PNGs is one camera)."""

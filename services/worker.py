@@ -7,9 +7,10 @@ runs the forest and the CRF on the newest depth frame and publishes
 - stats on `.../stats`: ms per stage (receive = copy + decode, mount = estimating or checking
   the mount, forest, crf, publish, total),
   latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
-  / small_heads (head blobs relabelled as too small to be heads), the share of pixels the
-  floor gate skipped (`floor_share`) and the mount in use (`mount`: height, pitch, roll,
-  sensor, source "frame" | "estimated", times the camera was seen to move).
+  / small_heads / small_furniture (blobs relabelled as too small to be a head or a piece of
+  furniture), the share of pixels the floor gate skipped (`floor_share`) and the mount in
+  use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
+  was seen to move).
 
 Each frame is labelled with its camera's mount (`services/worker_mount.py`): the one the
 frames carry (`topseg driver --mount`), or, when they carry none, one the worker estimates
@@ -64,12 +65,12 @@ from topseg.services import identity, zenoh_session
 from topseg.services.cli_types import (
     add_crf_arguments,
     add_grid_arguments,
-    add_head_arguments,
+    add_island_arguments,
     crf_config,
     finite,
     grid_config,
-    head_config,
     int_range,
+    island_config,
 )
 from topseg.services.lifecycle import ServiceLifecycle
 from topseg.services.worker_mount import MountWatch, MountWatchConfig
@@ -103,7 +104,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
     add_crf_arguments(parser)
     add_grid_arguments(parser)
-    add_head_arguments(parser)
+    add_island_arguments(parser)
     parser.add_argument(
         "--threads",
         type=int_range(0, 256),
@@ -182,7 +183,13 @@ class CameraState:
     token: Any = None
     subscriber: Any = None
     counts: dict = field(
-        default_factory=lambda: {"processed": 0, "dropped": 0, "rejected": 0, "small_heads": 0}
+        default_factory=lambda: {
+            "processed": 0,
+            "dropped": 0,
+            "rejected": 0,
+            "small_heads": 0,
+            "small_furniture": 0,
+        }
     )
     last_seq: int | None = None
     last_time: float | None = None
@@ -623,6 +630,7 @@ class Worker:
         state.note_seq(frame.seq)
         state.counts["processed"] += 1
         state.counts["small_heads"] += result.small_heads
+        state.counts["small_furniture"] += result.small_furniture
         state.note_done(t4)
         timings = {
             "receive": 1000 * (t1 - t0),
@@ -719,7 +727,8 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
 def load_segmenter(model: str | None, crf: CRFConfig | str, **grid: Any) -> Segmenter:
     """The worker's Segmenter: `model` (None = the bundled one) with the CRF `crf` (settings,
     or a mode with the default settings) and the other `SegmenterConfig` fields in `grid`
-    (the forest's grid, `grid_config`; the head blobs' minimum area, `head_config`).
+    (the forest's grid, `grid_config`; the head and furniture blobs' minimum areas,
+    `island_config`).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).
@@ -762,7 +771,7 @@ def run(args: argparse.Namespace) -> int:
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     # ModelFileError: one line, exit 2
     segmenter = load_segmenter(
-        args.model, crf_config(args), **grid_config(args), **head_config(args)
+        args.model, crf_config(args), **grid_config(args), **island_config(args)
     )
     t0 = time.perf_counter()
     segmenter.warm_up()

@@ -21,8 +21,8 @@ bit (as stumpy keeps its naive versions in one test module).
   per-node random stream, criterion and splitter.
 - `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
 - `height_map_reference`: the mount's height above the floor (`TopViewMount.height_map_mm`).
-- `small_heads_reference`: head blobs too small to be a head relabelled
-  (`islands.relabel_small_heads`), with scipy's connected components.
+- `small_blobs_reference`: blobs too small to be a head or a piece of furniture relabelled
+  (`islands.relabel_small_blobs`), with scipy's connected components.
 """
 
 from __future__ import annotations
@@ -916,28 +916,33 @@ def raycast_world_reference(
     return depth, lab
 
 
-def small_heads_reference(labels, depth, fx, fy, min_area_cm2, head, no_depth, num_classes):
-    """(labels after, blobs relabelled): every 4-connected blob of `head` whose area (the sum
-    of (z / fx) (z / fy) over its pixels, mm2) is under `min_area_cm2` takes the label most
-    often found across its border (one vote per blob pixel - outside pixel 4-neighbour pair,
-    the outside pixel neither head nor no-depth; ties to the lower id); none: it keeps head."""
+def small_blobs_reference(labels, depth, fx, fy, min_area_cm2, no_depth):
+    """(labels after, blobs relabelled per class): every 4-connected blob of a class c whose
+    area (the sum of (z / fx) (z / fy) over its pixels, mm2) is under `min_area_cm2[c]`
+    (0: none) takes the label most often found across its border in the labels as given
+    (one vote per blob pixel - outside pixel 4-neighbour pair, the outside pixel neither c
+    nor no-depth; ties to the lower id); none: it keeps c."""
+    num_classes = len(min_area_cm2)
     out = np.array(labels, copy=True)
-    blobs, n = ndimage.label(labels == head)  # scipy's default structure: 4-connectivity
     z2 = np.asarray(depth, np.float64) ** 2
-    relabelled = 0
-    for b in range(1, n + 1):
-        inside = blobs == b
-        if z2[inside].sum() / (fx * fy) >= min_area_cm2 * 100.0:
+    relabelled = np.zeros(num_classes, np.int64)
+    for c in range(num_classes):
+        if not min_area_cm2[c] > 0:
             continue
-        votes = np.zeros(num_classes, np.int64)
-        for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-            # pairs (p in the blob, q = p + (dv, du) in the frame): q's label, where q is outside
-            src = _shift0(inside.astype(np.uint8), dv, du).astype(bool)  # q whose p is inside
-            q_labels = labels[src]
-            keep = (q_labels != head) & (q_labels != no_depth) & (q_labels < num_classes)
-            votes += np.bincount(q_labels[keep].astype(np.int64), minlength=num_classes)
-        if votes.max() == 0:
-            continue
-        out[inside] = int(np.argmax(votes))
-        relabelled += 1
+        blobs, n = ndimage.label(labels == c)  # scipy's default structure: 4-connectivity
+        for b in range(1, n + 1):
+            inside = blobs == b
+            if z2[inside].sum() / (fx * fy) >= min_area_cm2[c] * 100.0:
+                continue
+            votes = np.zeros(num_classes, np.int64)
+            for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                # pairs (p in the blob, q = p + (dv, du)): q's label, where q is outside
+                src = _shift0(inside.astype(np.uint8), dv, du).astype(bool)
+                q_labels = labels[src]
+                keep = (q_labels != c) & (q_labels != no_depth) & (q_labels < num_classes)
+                votes += np.bincount(q_labels[keep].astype(np.int64), minlength=num_classes)
+            if votes.max() == 0:
+                continue
+            out[inside] = int(np.argmax(votes))
+            relabelled[c] += 1
     return out, relabelled

@@ -151,16 +151,20 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
         subprocess.run(
             [sys.executable, "-m", "topseg.services.cli", "evaluate", "--model",
              str(tmp_path / "m.npz"), "--data", str(data), "--frames", "3", "--smoothness", s,
-             "--min-head-cm2", "0", "--json", str(tmp_path / f"s{s}.json")],
+             "--min-head-cm2", "0", "--min-furniture-cm2", "0", "--json",
+             str(tmp_path / f"s{s}.json")],
             capture_output=True, text=True, timeout=300, check=True,
         )  # fmt: skip
         docs[s] = json.loads((tmp_path / f"s{s}.json").read_text())
-    # no weight on a cut edge (and every head blob kept): the CRF keeps the forest's argmax
+    # no weight on a cut edge (and every blob kept): the CRF keeps the forest's argmax
     assert docs["0"]["smoothness"] == 0.0
     assert docs["0"]["per_class"] == docs["0"]["forest_only"]["per_class"]
     # a weight of 5 nats: what the Segmenter labels with that CRF, and not the argmax
     segmenter = Segmenter(
-        model, {}, SegmenterConfig(min_head_cm2=0), crf=CRFConfig(mode="realtime", smoothness=5.0)
+        model,
+        {},
+        SegmenterConfig(min_head_cm2=0, min_furniture_cm2=0),
+        crf=CRFConfig(mode="realtime", smoothness=5.0),
     )
     want = score(segmenter, dataset_frames(ds, range(3))).crf.confusion
     assert docs["5"]["smoothness"] == 5.0

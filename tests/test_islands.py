@@ -1,15 +1,21 @@
-"""Head blobs too small to be a head take their border's label (`core/islands.py`)."""
+"""Blobs too small to be a head or a piece of furniture take their border's label
+(`core/islands.py`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from reference import small_heads_reference
+from reference import small_blobs_reference
 
 from topseg.core import labels as L
-from topseg.core.islands import relabel_small_heads
+from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
 
 FX, FY = 570.3, 570.3
+
+
+def relabel_small_heads(labels, depth, fx, fy, min_head_cm2):
+    """`relabel_small_blobs` for heads only; how many head blobs it relabelled."""
+    return int(relabel_small_blobs(labels, depth, fx, fy, island_areas(min_head_cm2, 0.0))[L.HEAD])
 
 
 def blocky_labels(rng, shape, block, head_share):
@@ -32,15 +38,45 @@ def test_kernel_matches_the_scipy_reference_on_random_labels(seed):
     labels = blocky_labels(rng, shape, int(rng.integers(1, 7)), float(rng.uniform(0.1, 0.6)))
     depth = rng.integers(400, 5000, size=shape).astype(np.uint16)
     depth[labels == L.NO_DEPTH] = 0
-    for min_area in (5.0, 50.0, 400.0):
-        want, n_want = small_heads_reference(
-            labels, depth, FX, FY, min_area, L.HEAD, L.NO_DEPTH, L.NUM_CLASSES
-        )
+    for head, furniture in ((5.0, 0.0), (50.0, 0.0), (400.0, 0.0), (0.0, 300.0), (50.0, 300.0)):
+        areas = island_areas(head, furniture)
+        if seed % 2:  # any class may have a minimum, not only heads and furniture
+            areas = areas + rng.choice([0.0, 20.0, 200.0], size=L.NUM_CLASSES)
+        want, n_want = small_blobs_reference(labels, depth, FX, FY, areas, L.NO_DEPTH)
         got = labels.copy()
-        n_got = relabel_small_heads(got, depth, FX, FY, min_area)
+        n_got = relabel_small_blobs(got, depth, FX, FY, areas)
         np.testing.assert_array_equal(got, want)
-        assert n_got == n_want
-        assert 0 < n_got or min_area == 5.0  # the test exercises relabelling
+        np.testing.assert_array_equal(n_got, n_want)
+        assert n_got[L.HEAD] > 0 or head in (0.0, 5.0)  # the test exercises relabelling
+        assert n_got[list(FURNITURE_ISLANDS)].sum() > 0 or furniture == 0.0
+        off = areas == 0
+        assert not n_got[off].any()
+
+
+def test_blobs_are_judged_on_the_labels_as_given():
+    # a small chair blob in a table, a smaller storage blob in the chair's top left corner:
+    # the chair's border is mostly table; the storage's is half chair, half table, a tie
+    # that goes to chair (the lower id), in the labels as they came. So the chair becomes
+    # table and the storage chair, whichever is met first
+    labels = np.full((100, 100), L.TABLE, np.uint8)  # ~1900 cm2 at 2.5 m
+    labels[10:20, 10:20] = L.CHAIR  # ~19 cm2
+    labels[10:12, 10:12] = L.STORAGE  # met before the chair
+    depth = np.full((100, 100), 2500, np.uint16)
+    got = labels.copy()
+    n = relabel_small_blobs(got, depth, FX, FY, island_areas(0.0, 300.0))
+    assert (n[L.CHAIR], n[L.STORAGE], n[L.TABLE]) == (1, 1, 0)  # the table is large
+    want = np.full((100, 100), L.TABLE, np.uint8)
+    want[10:12, 10:12] = L.CHAIR
+    np.testing.assert_array_equal(got, want)
+    # the same frame turned half round: the chair is met first
+    got = np.rot90(labels, 2).copy()
+    relabel_small_blobs(got, depth, FX, FY, island_areas(0.0, 300.0))
+    np.testing.assert_array_equal(got, np.rot90(want, 2))
+
+
+def test_areas_must_be_one_per_class():
+    with pytest.raises(ValueError, match="areas"):
+        relabel_small_blobs(np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.uint16), FX, FY, [1.0])
 
 
 def person_from_above():

@@ -206,13 +206,14 @@ def test_height_model_skips_an_input_without_a_floor(height_model, tmp_path):
     assert len([ln for ln in r.stderr.splitlines() if "skipped" in ln]) == 1
 
 
-def test_small_head_blobs_are_relabelled_and_counted(tmp_path):
+def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     """The bundled model on the demo's frames as PNGs (mount estimated): the labels are those
-    with every head blob kept, then the small ones relabelled; the count is printed."""
+    with every blob kept, then the small head and furniture ones relabelled; the counts are
+    printed."""
     from pathlib import Path
 
-    from topseg.core.islands import relabel_small_heads
-    from topseg.core.segmenter import MIN_HEAD_CM2
+    from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
+    from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.mcap"
     folder = tmp_path / "frames"
@@ -222,15 +223,22 @@ def test_small_head_blobs_are_relabelled_and_counted(tmp_path):
         if msg.key.endswith("/depth") and len(depths) < 4:
             depths.append(wire.decode_depth(msg.data).depth)
             Image.fromarray(depths[-1]).save(folder / f"f{len(depths)}.png")
-    kept = segment(folder, "--out", tmp_path / "kept", "--min-head-cm2", "0")
+    kept = segment(
+        folder, "--out", tmp_path / "kept", "--min-head-cm2", "0", "--min-furniture-cm2", "0"
+    )
     cleaned = segment(folder, "--out", tmp_path / "cleaned")
     assert kept.returncode == 0 == cleaned.returncode, kept.stderr + cleaned.stderr
     assert "relabelled" not in kept.stdout
-    relabelled = 0
+    relabelled = np.zeros(11, np.int64)
+    areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
     for i, depth in enumerate(depths, 1):
         want = np.array(Image.open(tmp_path / "kept" / f"f{i}_labels.png"))
-        relabelled += relabel_small_heads(want, depth, KINECT_V1.fx, KINECT_V1.fy, MIN_HEAD_CM2)
+        relabelled += relabel_small_blobs(want, depth, KINECT_V1.fx, KINECT_V1.fy, areas)
         got = np.asarray(Image.open(tmp_path / "cleaned" / f"f{i}_labels.png"))
         np.testing.assert_array_equal(got, want)
-    assert relabelled > 0
-    assert f"head blobs under 50 cm2 relabelled: {relabelled} in 4 frames" in cleaned.stdout
+    heads, furniture = relabelled[1], relabelled[list(FURNITURE_ISLANDS)].sum()
+    assert heads > 0 and furniture > 0
+    assert (
+        f"blobs relabelled as too small: {heads} head (under 50 cm2), {furniture} furniture "
+        f"(under 300 cm2) in 4 frames"
+    ) in cleaned.stdout

@@ -12,12 +12,15 @@ from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
-from topseg.core.islands import relabel_small_heads
+from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
 from topseg.core.scoring import score
 from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = KINECT_V1.scaled_to(40, 30)
+
+#: the Segmenter's default minimum areas, per class
+AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
 
 
 def demo_frames(n):
@@ -83,13 +86,14 @@ def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
         got = seg.label(depth, name="demo")
         proba = forest.predict_proba(model, depth)
         if mode == "none":
-            expected, small = numpy_argmax(proba, depth), 0  # the forest's argmax, as it is
+            expected, small = numpy_argmax(proba, depth), np.zeros(L.NUM_CLASSES)  # as it is
         else:
             expected = crf.segment_crf(proba, depth, crf.CRFConfig(mode=mode))
             k = seg.camera
-            small = relabel_small_heads(expected, depth, k.fx, k.fy, S.MIN_HEAD_CM2)
+            small = relabel_small_blobs(expected, depth, k.fx, k.fy, AREAS)
         np.testing.assert_array_equal(got.labels, expected)
-        assert got.small_heads == small
+        assert got.small_heads == small[L.HEAD]
+        assert got.small_furniture == small[list(FURNITURE_ISLANDS)].sum()
         np.testing.assert_array_equal(got.proba, proba)
         assert got.labels.dtype == np.uint8 and got.proba.dtype == np.float32
         t = got.timings
@@ -112,7 +116,10 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         proba = forest.predict_proba(
             seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS, early_exit=EARLY_EXIT
         )
-        np.testing.assert_array_equal(got.labels, crf.segment_crf(proba, depth, seg.config.crf))
+        want = crf.segment_crf(proba, depth, seg.config.crf)
+        if mode != "none":
+            relabel_small_blobs(want, depth, k.fx, k.fy, AREAS)
+        np.testing.assert_array_equal(got.labels, want)
         np.testing.assert_array_equal(got.proba, proba)
     stale = seg.label(depth)
     seg.label(depth)
@@ -184,7 +191,7 @@ def test_score_equals_the_confusion_computed_by_hand():
         proba = forest.predict_proba(model, depth)
         forest_pred.append((truth, numpy_argmax(proba, depth)))
         labels = crf.segment_crf(proba, depth, config)
-        relabel_small_heads(labels, depth, SMALL.fx, SMALL.fy, S.MIN_HEAD_CM2)
+        relabel_small_blobs(labels, depth, SMALL.fx, SMALL.fy, AREAS)
         crf_pred.append((truth, labels))
     np.testing.assert_array_equal(result.forest.confusion, hand_confusion(forest_pred))
     np.testing.assert_array_equal(result.crf.confusion, hand_confusion(crf_pred))
@@ -340,23 +347,30 @@ print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) 
     assert out.stdout.strip().splitlines()[-1] == "[]"
 
 
-def test_small_head_blobs_take_their_borders_label_after_the_crf():
-    """`min_head_cm2`: the CRF's labels, then head blobs under it relabelled with the frame's
-    own focal lengths; 0 keeps the CRF's labels as they are."""
+def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf():
+    """`min_head_cm2`, `min_furniture_cm2`: the CRF's labels, then head and furniture blobs
+    under them relabelled with the frame's own focal lengths; 0 keeps the CRF's labels."""
     assert SegmenterConfig().min_head_cm2 == S.MIN_HEAD_CM2 > 0
-    for bad in (-1.0, float("nan"), float("inf")):
-        with pytest.raises(TopsegError, match="min_head_cm2"):
-            SegmenterConfig(min_head_cm2=bad)
-    kept = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, min_head_cm2=0))
+    assert SegmenterConfig().min_furniture_cm2 == S.MIN_FURNITURE_CM2 > 0
+    for name in ("min_head_cm2", "min_furniture_cm2"):
+        for bad in (-1.0, float("nan"), float("inf")):
+            with pytest.raises(TopsegError, match=name):
+                SegmenterConfig(**{name: bad})
+    kept = Segmenter.from_file(
+        None, SegmenterConfig(mount=PAPER_MOUNT, min_head_cm2=0, min_furniture_cm2=0)
+    )
+    assert not kept.relabels_islands
     cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
     k = PAPER_MOUNT.intrinsics
-    relabelled = 0
+    relabelled = np.zeros(L.NUM_CLASSES, np.int64)
     for depth, _ in demo_frames(6):
         raw = kept.label(depth)
         want = raw.labels.copy()
-        n = relabel_small_heads(want, depth, k.fx, k.fy, S.MIN_HEAD_CM2)
+        n = relabel_small_blobs(want, depth, k.fx, k.fy, AREAS)
         got = cleaned.label(depth)
         np.testing.assert_array_equal(got.labels, want)
-        assert raw.small_heads == 0 and got.small_heads == n
+        assert raw.small_heads == raw.small_furniture == 0
+        assert got.small_heads == n[L.HEAD]
+        assert got.small_furniture == n[list(FURNITURE_ISLANDS)].sum()
         relabelled += n
-    assert relabelled > 0  # the demo's frames hold some
+    assert relabelled[L.HEAD] > 0 and relabelled[list(FURNITURE_ISLANDS)].sum() > 0

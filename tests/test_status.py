@@ -80,7 +80,13 @@ def test_report_from_stats_messages():
             "model_id": "m",
             "fps": 9.0,
             "timings_ms": {"total": 5.0, "latency": float(10 + i)},
-            "counts": {"processed": 10 + i, "dropped": 2 * i, "rejected": 0, "small_heads": 3 * i},
+            "counts": {
+                "processed": 10 + i,
+                "dropped": 2 * i,
+                "rejected": 0,
+                "small_heads": 3 * i,
+                "small_furniture": i,
+            },
         }
         for i in range(11)
     ]
@@ -93,6 +99,7 @@ def test_report_from_stats_messages():
     assert cam["worker"]["latency_ms"] == {"p50": 15.0, "p99": 20.0}
     assert cam["worker"]["dropped"] == 20 and cam["worker"]["dropped_in_window"] == 20
     assert cam["worker"]["small_heads"] == 30 and cam["worker"]["small_heads_in_window"] == 30
+    assert cam["worker"]["small_furniture"] == 10
     assert cam["driver"]["fps"] == pytest.approx(20.0) and cam["driver"]["reconnects"] == 1
 
 

@@ -14,10 +14,11 @@ import zenoh
 from netutil import free_port, wait_for
 
 from topseg.core import crf, forest, metrics
+from topseg.core import labels as L
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
-from topseg.core.islands import relabel_small_heads
-from topseg.core.segmenter import MIN_HEAD_CM2
+from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
+from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
 
@@ -31,12 +32,14 @@ def frames(seed, n):
 
 
 def labelled_as_the_worker(model, depth):
-    """The worker's labels by hand: forest, realtime CRF, then head blobs too small to be a
-    head relabelled (frames carry K); and how many blobs were."""
+    """The worker's labels by hand: forest, realtime CRF, then blobs too small to be a head
+    or furniture relabelled (frames carry K); and how many head and furniture blobs were."""
     labels = crf.segment_crf(
         forest.predict_proba(model, depth), depth, crf.CRFConfig(mode="realtime")
     )
-    return labels, relabel_small_heads(labels, depth, K.fx, K.fy, MIN_HEAD_CM2)
+    areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
+    n = relabel_small_blobs(labels, depth, K.fx, K.fy, areas)
+    return labels, (int(n[L.HEAD]), int(n[list(FURNITURE_ISLANDS)].sum()))
 
 
 @pytest.fixture(scope="module")
@@ -136,11 +139,12 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     got = [wire.decode_labels(b) for b in peer.labels]
     assert [g.seq for g in got] == seqs
     scores = metrics.ConfusionAccumulator()
-    small_heads = 0
+    small_heads = small_furniture = 0
     for g, (depth, truth), seq in zip(got, test, seqs, strict=True):
-        labels, small = labelled_as_the_worker(model, depth)
+        labels, (heads, furniture) = labelled_as_the_worker(model, depth)
         np.testing.assert_array_equal(g.labels, labels)
-        small_heads += small
+        small_heads += heads
+        small_furniture += furniture
         assert (g.stamp_ns, g.frame_id) == (1000 + seq, "cam0")
         scores.add(truth, g.labels)
     s = scores.scores()
@@ -148,7 +152,8 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
 
     last = peer.stats[-1]
     assert last["counts"] == {
-        "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads
+        "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads,
+        "small_furniture": small_furniture,
     }  # fmt: skip
     assert last["role"] == "worker" and last["model_id"] == model_path.name
     assert set(last["timings_ms"]) == {
@@ -205,6 +210,7 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
         "dropped": 0,
         "rejected": len(bad),
         "small_heads": 0,
+        "small_furniture": 0,
     }
     assert "rejected" in err
 
@@ -331,7 +337,10 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     assert [wire.decode_labels(b).seq for b in peer.labels] == list(range(n))
     wait_for(lambda: peer.stats and peer.stats[-1]["counts"]["processed"] == n, 10, "stats")
     counts = peer.stats[-1]["counts"]
-    assert counts == {"processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY}
+    assert counts == {
+        "processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY,
+        "small_furniture": mock.ANY,
+    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- the mount
@@ -535,8 +544,9 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
     assert first < 10, seqs
     assert seqs == list(range(first, n)), f"labels {seqs}\n{worker.err}"
     counts = tap.stats[-1]["counts"]
-    # crf none: the forest's argmax, no head blob relabelled
-    assert counts == {"processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0}, (
-        worker.err
-    )
+    # crf none: the forest's argmax, no blob relabelled
+    assert counts == {
+        "processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0,
+        "small_furniture": 0,
+    }, worker.err  # fmt: skip
     assert "not a msgpack" not in worker.err

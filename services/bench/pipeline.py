@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from topseg.services.cli_types import add_grid_arguments, add_head_arguments, finite, int_range
+from topseg.services.cli_types import add_grid_arguments, add_island_arguments, finite, int_range
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--lossless", action="store_true", help="worker labels every frame (FIFO)")
     add_grid_arguments(parser)
-    add_head_arguments(parser)
+    add_island_arguments(parser)
     parser.add_argument(
         "--cameras",
         type=int_range(1, 16),
@@ -73,6 +73,7 @@ def measure(args: argparse.Namespace) -> dict:
         adaptive=args.adaptive,
         early_exit=args.early_exit,
         min_head_cm2=args.min_head_cm2,
+        min_furniture_cm2=args.min_furniture_cm2,
         cameras=args.cameras,
     )
     scores = figures.pop("scores")
