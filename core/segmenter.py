@@ -231,7 +231,6 @@ class Segmenter:
         self.camera = model_camera(self.header)
         self.features = model_features(self.header, forest)
         self.trained_for: dict[str, Any] | None = self.header.get("trained_for")
-        self._island_areas = island_areas(config.min_head_cm2, config.min_furniture_cm2)
         self._out: np.ndarray | None = None
         self._summary = None  # crf.argmax.Summary: the CRF's per-pixel view of _out
         self._frame = 0  # counts writes into _out (a Segmentation fills only its own)
@@ -467,7 +466,8 @@ class Segmenter:
             k = intrinsics if intrinsics is not None else self.camera
         else:
             k = self.frame_mount(depth, intrinsics, name, mount).intrinsics
-        return relabel_small_blobs(labels, depth, k.fx, k.fy, self._island_areas)
+        areas = island_areas(self.config.min_head_cm2, self.config.min_furniture_cm2)
+        return relabel_small_blobs(labels, depth, k.fx, k.fy, areas)
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels on a small frame, before the
