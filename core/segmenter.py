@@ -28,7 +28,6 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.errors import TopsegError
-from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
 
 if TYPE_CHECKING:
     from topseg.core.camera import Intrinsics, TopViewMount
@@ -58,6 +57,14 @@ MIN_HEAD_CM2 = 50.0
 #: Measured in docs/crf.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
 #: person 1.1-1.4 points lower on rendered time-of-flight frames.
 MIN_FURNITURE_CM2 = 300.0
+#: After the CRF, head blobs smaller than this (cm2) whose centre lies within
+#: SATELLITE_RADIUS_CM of a larger head blob's take their border's label: an arm or a hand
+#: beside a head, as large as a small head (`islands.relabel_islands`). Measured in
+#: docs/results.md on rendered time-of-flight frames.
+SATELLITE_HEAD_CM2 = 150.0
+#: Two people's heads are a shoulder's breadth apart (~40 cm between centres): a smaller head
+#: blob closer than this to a larger one is not a second head (`SATELLITE_HEAD_CM2`).
+SATELLITE_RADIUS_CM = 40.0
 #: Where `deploy/install.sh` puts the bundled model (below its --root).
 INSTALLED_MODEL = Path("/opt/topseg/models/default.npz")
 #: The bundled model inside a checkout, relative to its root.
@@ -133,10 +140,13 @@ class SegmenterConfig:
     early_exit    a walked pixel stops walking trees once the average of its first two (or
                   more) gives one class at least this posterior; None walks every tree
     min_head_cm2  after the CRF (realtime or exact), blobs labelled head smaller than this
-                  on the surface take their border's label (`islands.relabel_small_blobs`);
+                  on the surface take their border's label (`islands.relabel_islands`);
                   0 keeps them
     min_furniture_cm2  the same for blobs of chair, storage and table
                   (`islands.FURNITURE_ISLANDS`); 0 keeps them
+    satellite_head_cm2  after the CRF, head blobs smaller than this whose centre lies
+                  within SATELLITE_RADIUS_CM of a larger head blob's take their
+                  border's label; 0 keeps them
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
@@ -147,6 +157,7 @@ class SegmenterConfig:
     early_exit: float | None = EARLY_EXIT
     min_head_cm2: float = MIN_HEAD_CM2
     min_furniture_cm2: float = MIN_FURNITURE_CM2
+    satellite_head_cm2: float = SATELLITE_HEAD_CM2
 
     def __post_init__(self) -> None:
         if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
@@ -155,7 +166,7 @@ class SegmenterConfig:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
         if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
             raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
-        for name in ("min_head_cm2", "min_furniture_cm2"):
+        for name in ("min_head_cm2", "min_furniture_cm2", "satellite_head_cm2"):
             area = getattr(self, name)
             if not (np.isfinite(area) and area >= 0):
                 raise TopsegError(f"{name} must be >= 0 cm2, got {area}")
@@ -182,6 +193,8 @@ class Segmentation:
     small_heads  blobs labelled head by the CRF that were too small to be a head and took
                  their border's label (`SegmenterConfig.min_head_cm2`)
     small_furniture  the same for chair, storage and table (`min_furniture_cm2`)
+    satellite_heads  head blobs beside a larger head that took their border's label
+                 (`SegmenterConfig.satellite_head_cm2`)
     """
 
     labels: np.ndarray
@@ -190,6 +203,7 @@ class Segmentation:
     _posteriors: Callable[[], np.ndarray] = field(repr=False)
     small_heads: int = 0
     small_furniture: int = 0
+    satellite_heads: int = 0
 
     @property
     def proba(self) -> np.ndarray:
@@ -430,7 +444,7 @@ class Segmenter:
         labels = segment_crf(
             proba, depth, self.config.crf, self._summary, None if filled[0] else fill
         )
-        islands = self._relabel_islands(labels, depth, intrinsics, name, mount)
+        heads, furniture, satellites = self._relabel_islands(labels, depth, intrinsics, name, mount)
         t2 = time.perf_counter()
         ms = 1000.0
         return Segmentation(
@@ -438,17 +452,19 @@ class Segmenter:
             Timings(ms * (t1 - t0), ms * (t2 - t1), ms * (t2 - t0)),
             inp.floor_share(),
             fill,
-            int(islands[L.HEAD]),
-            int(islands[list(FURNITURE_ISLANDS)].sum()),
+            heads,
+            furniture,
+            satellites,
         )
 
     @property
     def relabels_islands(self) -> bool:
         """Whether `label` relabels head or furniture blobs under `min_head_cm2` or
-        `min_furniture_cm2` after the CRF (never in CRF mode none: that is the forest's
-        argmax, as it is)."""
+        `min_furniture_cm2`, or satellite heads, after the CRF (never in CRF mode none: that
+        is the forest's argmax, as it is)."""
         cfg = self.config
-        return max(cfg.min_head_cm2, cfg.min_furniture_cm2) > 0 and cfg.crf.mode != "none"
+        largest = max(cfg.min_head_cm2, cfg.min_furniture_cm2, cfg.satellite_head_cm2)
+        return largest > 0 and cfg.crf.mode != "none"
 
     def _relabel_islands(
         self,
@@ -457,17 +473,24 @@ class Segmenter:
         intrinsics: Intrinsics | None,
         name: str,
         mount: TopViewMount | None,
-    ) -> np.ndarray:
-        """The CRF's head and furniture blobs under their minimum areas relabelled in place,
-        measured with the frame's focal lengths; how many of each class (NUM_CLASSES)."""
+    ) -> tuple[int, int, int]:
+        """The CRF's head and furniture blobs under their minimum areas, and its satellite
+        heads, relabelled in place, measured with the frame's intrinsics: how many small
+        head blobs, small furniture blobs and satellite heads."""
         if not self.relabels_islands:
-            return np.zeros(L.NUM_CLASSES, np.int64)
+            return 0, 0, 0
+        from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
+
         if self.features is None:
             k = intrinsics if intrinsics is not None else self.camera
         else:
             k = self.frame_mount(depth, intrinsics, name, mount).intrinsics
-        areas = island_areas(self.config.min_head_cm2, self.config.min_furniture_cm2)
-        return relabel_small_blobs(labels, depth, k.fx, k.fy, areas)
+        cfg = self.config
+        areas = island_areas(cfg.min_head_cm2, cfg.min_furniture_cm2)
+        small, satellites = relabel_islands(
+            labels, depth, k, areas, cfg.satellite_head_cm2, SATELLITE_RADIUS_CM
+        )
+        return int(small[L.HEAD]), int(small[list(FURNITURE_ISLANDS)].sum()), satellites
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels on a small frame, before the

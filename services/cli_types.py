@@ -142,8 +142,14 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
 def add_island_arguments(parser: argparse.ArgumentParser) -> None:
     """`--min-head-cm2 A`, `--min-furniture-cm2 A`: after the CRF, head and furniture blobs
     smaller than A cm2 take their border's label (`SegmenterConfig.min_head_cm2`,
-    `min_furniture_cm2`; `island_config` reads them back)."""
-    from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
+    `min_furniture_cm2`); `--satellite-head-cm2 A`: so do head blobs smaller than A beside a
+    larger head (`satellite_head_cm2`). `island_config` reads them back."""
+    from topseg.core.segmenter import (
+        MIN_FURNITURE_CM2,
+        MIN_HEAD_CM2,
+        SATELLITE_HEAD_CM2,
+        SATELLITE_RADIUS_CM,
+    )
 
     parser.add_argument(
         "--min-head-cm2",
@@ -162,11 +168,24 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
         help="the same for blobs labelled chair, storage or table (a chair's seat seen from "
         "above is ~1600 cm2; plants are left as they are) (default: %(default)s)",
     )
+    parser.add_argument(
+        "--satellite-head-cm2",
+        type=finite(0, 10000),
+        default=SATELLITE_HEAD_CM2,
+        metavar="A",
+        help="after the CRF, head blobs smaller than A cm2 whose centre lies within "
+        f"{SATELLITE_RADIUS_CM:g} cm of a larger head blob's (an arm or a hand beside a head) "
+        "take their border's label; 0 keeps them (default: %(default)s)",
+    )
 
 
 def island_config(args: argparse.Namespace) -> dict:
     """The `SegmenterConfig` fields of `add_island_arguments`' options."""
-    return {"min_head_cm2": args.min_head_cm2, "min_furniture_cm2": args.min_furniture_cm2}
+    return {
+        "min_head_cm2": args.min_head_cm2,
+        "min_furniture_cm2": args.min_furniture_cm2,
+        "satellite_head_cm2": args.satellite_head_cm2,
+    }
 
 
 def crf_config(args: argparse.Namespace):

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core.errors import TopsegError
-from topseg.core.segmenter import EARLY_EXIT, MIN_FURNITURE_CM2, MIN_HEAD_CM2
+from topseg.core.segmenter import EARLY_EXIT
 
 CELL = "pipeline"
 CAMERA = "cam0"
@@ -220,8 +220,7 @@ def run_pipeline(
     adaptive: int | None = None,
     cameras: int = 1,
     early_exit: float | None = EARLY_EXIT,
-    min_head_cm2: float = MIN_HEAD_CM2,
-    min_furniture_cm2: float = MIN_FURNITURE_CM2,
+    islands: dict | None = None,
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
@@ -231,9 +230,9 @@ def run_pipeline(
     "frames_sent", "frames_labelled", "frames_scored", "scores" (ConfusionAccumulator.scores(),
     None without truth), "confusion", "exit_codes", "logs"}. `stride` is the worker's (None:
     auto), `adaptive` its adaptive grid's levels (None: its default), `early_exit` its trees'
-    early exit (`SegmenterConfig.early_exit`; None: off), `min_head_cm2` its head blobs'
-    minimum area (`SegmenterConfig.min_head_cm2`; 0: every blob kept), `min_furniture_cm2`
-    its furniture blobs'. `cameras` > 1 runs that many drivers of the same source (cameras
+    early exit (`SegmenterConfig.early_exit`; None: off), `islands` its blob rules
+    (`SegmenterConfig` fields min_head_cm2, min_furniture_cm2, satellite_head_cm2, as
+    `cli_types.island_config` gives them; None: the defaults). `cameras` > 1 runs that many drivers of the same source (cameras
     cam0, cam1, ...; each at `fps`) into the one worker; the figures are over all of them. `web` adds a second viewer serving Rerun's web
     viewer. `duration_s` None runs a finite source to its end (and a live one until
     SIGINT/SIGTERM reaches this process). `lossless` makes the whole path lossless:
@@ -284,8 +283,8 @@ def run_pipeline(
         worker += ["--stride", "auto" if stride is None else str(stride)]
         worker += [] if adaptive is None else ["--adaptive", str(adaptive)]
         worker += ["--early-exit", "off" if early_exit is None else str(early_exit)]
-        worker += ["--min-head-cm2", str(min_head_cm2)]
-        worker += ["--min-furniture-cm2", str(min_furniture_cm2)]
+        for name, value in (islands or {}).items():  # e.g. min_head_cm2 -> --min-head-cm2
+            worker += ["--" + name.replace("_", "-"), str(value)]
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
             kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))

@@ -23,8 +23,9 @@ A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a f
 not a recording, frames whose floor cannot be found) is skipped with one line on stderr and
 the others are still segmented; the exit status is then 2. A recording cut short or with
 damaged messages gives what it holds. The end prints the share of pixels the floor gate sent
-to background without the forest, and how many head blobs were too small to be heads
-(`--min-head-cm2`) and took their border's label.
+to background without the forest, and how many head and furniture blobs were too small to
+be what they were labelled (`--min-head-cm2`, `--min-furniture-cm2`) and how many head blobs
+lay beside a larger head (`--satellite-head-cm2`), and took their border's label.
 """
 
 from __future__ import annotations
@@ -151,7 +152,9 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"blobs relabelled as too small: {run_.small_heads} head (under "
             f"{cfg.min_head_cm2:g} cm2), {run_.small_furniture} furniture (under "
-            f"{cfg.min_furniture_cm2:g} cm2) in {run_.count} frames"
+            f"{cfg.min_furniture_cm2:g} cm2); head blobs beside a larger head: "
+            f"{run_.satellite_heads} (under {cfg.satellite_head_cm2:g} cm2) in {run_.count} "
+            "frames"
         )
     if run_.refused:
         raise TopsegError(
@@ -219,6 +222,7 @@ class _Run:
         self.floor_share = 0.0
         self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
         self.small_furniture = 0  # the same for chair, storage and table
+        self.satellite_heads = 0  # head blobs beside a larger head, relabelled
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
@@ -269,6 +273,7 @@ class _Run:
             self.floor_share += result.floor_share
             self.small_heads += result.small_heads
             self.small_furniture += result.small_furniture
+            self.satellite_heads += result.satellite_heads
 
     def summary(self) -> None:
         """How many frames went where, per camera (a folder of PNGs is one camera)."""

@@ -140,7 +140,15 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         out["floor_share"] = sum(shares) / len(shares)
     if "mount" in last:
         out["mount"] = last["mount"]
-    for name in ("processed", "dropped", "rejected", "foreign", "small_heads", "small_furniture"):
+    for name in (
+        "processed",
+        "dropped",
+        "rejected",
+        "foreign",
+        "small_heads",
+        "small_furniture",
+        "satellite_heads",
+    ):
         out[name] = last["counts"].get(name, 0)
         out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))
     return out

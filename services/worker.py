@@ -8,7 +8,7 @@ runs the forest and the CRF on the newest depth frame and publishes
   the mount, forest, crf, publish, total),
   latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
   / small_heads / small_furniture (blobs relabelled as too small to be a head or a piece of
-  furniture), the share of pixels the floor gate skipped (`floor_share`) and the mount in
+  furniture) / satellite_heads (head blobs beside a larger head, relabelled), the share of pixels the floor gate skipped (`floor_share`) and the mount in
   use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
   was seen to move).
 
@@ -189,6 +189,7 @@ class CameraState:
             "rejected": 0,
             "small_heads": 0,
             "small_furniture": 0,
+            "satellite_heads": 0,
         }
     )
     last_seq: int | None = None
@@ -631,6 +632,7 @@ class Worker:
         state.counts["processed"] += 1
         state.counts["small_heads"] += result.small_heads
         state.counts["small_furniture"] += result.small_furniture
+        state.counts["satellite_heads"] += result.satellite_heads
         state.note_done(t4)
         timings = {
             "receive": 1000 * (t1 - t0),
@@ -727,8 +729,8 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
 def load_segmenter(model: str | None, crf: CRFConfig | str, **grid: Any) -> Segmenter:
     """The worker's Segmenter: `model` (None = the bundled one) with the CRF `crf` (settings,
     or a mode with the default settings) and the other `SegmenterConfig` fields in `grid`
-    (the forest's grid, `grid_config`; the head and furniture blobs' minimum areas,
-    `island_config`).
+    (the forest's grid, `grid_config`; the head and furniture blobs' minimum areas and the
+    satellite heads' largest, `island_config`).
 
     Frames are not checked against the model's camera yet: the worker labels whatever size
     a camera sends (mount-aware checks come with the camera-mount work).

@@ -21,8 +21,9 @@ bit (as stumpy keeps its naive versions in one test module).
   per-node random stream, criterion and splitter.
 - `reference_settled`, `reference_free`: the real-time CRF's masks (`crf.realtime`).
 - `height_map_reference`: the mount's height above the floor (`TopViewMount.height_map_mm`).
-- `small_blobs_reference`: blobs too small to be a head or a piece of furniture relabelled
-  (`islands.relabel_small_blobs`), with scipy's connected components.
+- `islands_reference`: blobs too small to be a head or a piece of furniture relabelled,
+  and satellite heads beside a larger head (`islands.relabel_islands`), with scipy's
+  connected components.
 """
 
 from __future__ import annotations
@@ -916,33 +917,58 @@ def raycast_world_reference(
     return depth, lab
 
 
-def small_blobs_reference(labels, depth, fx, fy, min_area_cm2, no_depth):
-    """(labels after, blobs relabelled per class): every 4-connected blob of a class c whose
-    area (the sum of (z / fx) (z / fy) over its pixels, mm2) is under `min_area_cm2[c]`
-    (0: none) takes the label most often found across its border in the labels as given
-    (one vote per blob pixel - outside pixel 4-neighbour pair, the outside pixel neither c
-    nor no-depth; ties to the lower id); none: it keeps c."""
+def islands_reference(
+    labels, depth, k, min_area_cm2, no_depth, satellite_head_cm2=0.0, radius_cm=40.0, head=1
+):
+    """(labels after, small blobs relabelled per class, satellite heads relabelled), every
+    blob judged on the labels as given; a relabelled blob takes the label most often found
+    across its border (one vote per blob pixel - outside pixel 4-neighbour pair, the outside
+    pixel neither its class nor no-depth; ties to the lower id; none: it keeps its class):
+    - every 4-connected blob of a class c whose area (the sum of (z / fx) (z / fy) over its
+      pixels) is under `min_area_cm2[c]` (0: none);
+    - every other `head` blob under `satellite_head_cm2` whose mean position ((u - cx) z / fx,
+      (v - cy) z / fy) lies within `radius_cm` of a larger head blob's."""
     num_classes = len(min_area_cm2)
     out = np.array(labels, copy=True)
-    z2 = np.asarray(depth, np.float64) ** 2
+    z = np.asarray(depth, np.float64)
+    v, u = np.indices(z.shape)
+    x_mm, y_mm = (u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy
+    area_cm2 = z**2 / (k.fx * k.fy) / 100.0
     relabelled = np.zeros(num_classes, np.int64)
+    heads = []  # (area, x, y, mask) of head blobs not small
+
+    def border_label(inside, c):
+        votes = np.zeros(num_classes, np.int64)
+        for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            # pairs (p in the blob, q = p + (dv, du)): q's label, where q is outside
+            src = _shift0(inside.astype(np.uint8), dv, du).astype(bool)
+            q_labels = labels[src]
+            keep = (q_labels != c) & (q_labels != no_depth) & (q_labels < num_classes)
+            votes += np.bincount(q_labels[keep].astype(np.int64), minlength=num_classes)
+        return None if votes.max() == 0 else int(np.argmax(votes))
+
     for c in range(num_classes):
-        if not min_area_cm2[c] > 0:
+        if not (min_area_cm2[c] > 0 or (c == head and satellite_head_cm2 > 0)):
             continue
         blobs, n = ndimage.label(labels == c)  # scipy's default structure: 4-connectivity
         for b in range(1, n + 1):
             inside = blobs == b
-            if z2[inside].sum() / (fx * fy) >= min_area_cm2[c] * 100.0:
+            area = area_cm2[inside].sum()
+            if area >= min_area_cm2[c]:
+                if c == head:
+                    heads.append((area, x_mm[inside].mean(), y_mm[inside].mean(), inside))
                 continue
-            votes = np.zeros(num_classes, np.int64)
-            for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                # pairs (p in the blob, q = p + (dv, du)): q's label, where q is outside
-                src = _shift0(inside.astype(np.uint8), dv, du).astype(bool)
-                q_labels = labels[src]
-                keep = (q_labels != c) & (q_labels != no_depth) & (q_labels < num_classes)
-                votes += np.bincount(q_labels[keep].astype(np.int64), minlength=num_classes)
-            if votes.max() == 0:
-                continue
-            out[inside] = int(np.argmax(votes))
-            relabelled[c] += 1
-    return out, relabelled
+            label = border_label(inside, c)
+            if label is not None:
+                out[inside] = label
+                relabelled[c] += 1
+    satellites = 0
+    for area, x, y, inside in heads:
+        if area >= satellite_head_cm2:
+            continue
+        near = [a > area and np.hypot(x - ax, y - ay) < 10.0 * radius_cm for a, ax, ay, _ in heads]
+        label = border_label(inside, head)
+        if any(near) and label is not None:
+            out[inside] = label
+            satellites += 1
+    return out, relabelled, satellites

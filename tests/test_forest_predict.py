@@ -246,8 +246,14 @@ def test_legacy_path_is_bit_identical_to_before():
     gave: tests/data/legacy_model.npz and legacy_posteriors.npz were both made by that code
     (06e0f6e): the model trained on demo frames, its posteriors and realtime-CRF labels."""
     from topseg.core.forest.inputs import legacy_input
-    from topseg.core.islands import island_areas, relabel_small_blobs
-    from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2, Segmenter
+    from topseg.core.islands import island_areas, relabel_islands
+    from topseg.core.segmenter import (
+        MIN_FURNITURE_CM2,
+        MIN_HEAD_CM2,
+        SATELLITE_HEAD_CM2,
+        SATELLITE_RADIUS_CM,
+        Segmenter,
+    )
 
     fx = np.load(DATA / "legacy_posteriors.npz", allow_pickle=False)
     seg = Segmenter.from_file(DATA / "legacy_model.npz", crf="realtime")
@@ -258,11 +264,11 @@ def test_legacy_path_is_bit_identical_to_before():
         inp = legacy_input(depth)
         np.testing.assert_array_equal(predict_proba(seg.forest, inp)[r0:r1, c0:c1], proba)
         result = seg.label(depth)
-        # the labels of that code, then the blobs too small to be heads or furniture (added
-        # since)
+        # the labels of that code, then the blobs too small to be heads or furniture and the
+        # satellite heads (added since)
         want = lab.copy()
         areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
-        relabel_small_blobs(want, depth, seg.camera.fx, seg.camera.fy, areas)
+        relabel_islands(want, depth, seg.camera, areas, SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM)
         np.testing.assert_array_equal(result.labels, want)
         assert result.floor_share == 0.0
 

@@ -1,21 +1,30 @@
-"""Blobs too small to be a head or a piece of furniture take their border's label
-(`core/islands.py`)."""
+"""Blobs too small to be a head or a piece of furniture, and head blobs beside a larger
+head, take their border's label (`core/islands.py`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from reference import small_blobs_reference
+from reference import islands_reference
 
 from topseg.core import labels as L
-from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
+from topseg.core.camera import Intrinsics
+from topseg.core.islands import (
+    FURNITURE_ISLANDS,
+    MAX_HEAD_ANCHORS,
+    island_areas,
+    relabel_islands,
+)
+from topseg.core.segmenter import SATELLITE_RADIUS_CM
 
-FX, FY = 570.3, 570.3
+K = Intrinsics()  # Kinect v1: fx = fy = 570.3
 
 
-def relabel_small_heads(labels, depth, fx, fy, min_head_cm2):
-    """`relabel_small_blobs` for heads only; how many head blobs it relabelled."""
-    return int(relabel_small_blobs(labels, depth, fx, fy, island_areas(min_head_cm2, 0.0))[L.HEAD])
+def relabel_small_heads(labels, depth, k, min_head_cm2):
+    """`relabel_islands` for small heads only; how many head blobs it relabelled."""
+    small, satellites = relabel_islands(labels, depth, k, island_areas(min_head_cm2, 0.0))
+    assert satellites == 0
+    return int(small[L.HEAD])
 
 
 def blocky_labels(rng, shape, block, head_share):
@@ -42,9 +51,10 @@ def test_kernel_matches_the_scipy_reference_on_random_labels(seed):
         areas = island_areas(head, furniture)
         if seed % 2:  # any class may have a minimum, not only heads and furniture
             areas = areas + rng.choice([0.0, 20.0, 200.0], size=L.NUM_CLASSES)
-        want, n_want = small_blobs_reference(labels, depth, FX, FY, areas, L.NO_DEPTH)
+        want, n_want, _ = islands_reference(labels, depth, K, areas, L.NO_DEPTH)
         got = labels.copy()
-        n_got = relabel_small_blobs(got, depth, FX, FY, areas)
+        n_got, satellites = relabel_islands(got, depth, K, areas)
+        assert satellites == 0
         np.testing.assert_array_equal(got, want)
         np.testing.assert_array_equal(n_got, n_want)
         assert n_got[L.HEAD] > 0 or head in (0.0, 5.0)  # the test exercises relabelling
@@ -63,20 +73,20 @@ def test_blobs_are_judged_on_the_labels_as_given():
     labels[10:12, 10:12] = L.STORAGE  # met before the chair
     depth = np.full((100, 100), 2500, np.uint16)
     got = labels.copy()
-    n = relabel_small_blobs(got, depth, FX, FY, island_areas(0.0, 300.0))
+    n = relabel_islands(got, depth, K, island_areas(0.0, 300.0))[0]
     assert (n[L.CHAIR], n[L.STORAGE], n[L.TABLE]) == (1, 1, 0)  # the table is large
     want = np.full((100, 100), L.TABLE, np.uint8)
     want[10:12, 10:12] = L.CHAIR
     np.testing.assert_array_equal(got, want)
     # the same frame turned half round: the chair is met first
     got = np.rot90(labels, 2).copy()
-    relabel_small_blobs(got, depth, FX, FY, island_areas(0.0, 300.0))
+    relabel_islands(got, depth, K, island_areas(0.0, 300.0))
     np.testing.assert_array_equal(got, np.rot90(want, 2))
 
 
 def test_areas_must_be_one_per_class():
     with pytest.raises(ValueError, match="areas"):
-        relabel_small_blobs(np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.uint16), FX, FY, [1.0])
+        relabel_islands(np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.uint16), K, [1.0])
 
 
 def person_from_above():
@@ -98,7 +108,7 @@ def person_from_above():
 def test_a_patch_on_a_shoulder_becomes_body_and_the_head_stays():
     labels, depth = person_from_above()
     got = labels.copy()
-    assert relabel_small_heads(got, depth, FX, FY, 50.0) == 2
+    assert relabel_small_heads(got, depth, K, 50.0) == 2
     assert (got[80:124, 80:124] == L.HEAD).all()
     assert (got[62:72, 130:140] == L.BODY).all()
     assert (got[152:156, 12:15] == L.HAND).all()
@@ -109,7 +119,7 @@ def test_a_patch_on_a_shoulder_becomes_body_and_the_head_stays():
 def test_zero_area_keeps_every_head():
     labels, depth = person_from_above()
     got = labels.copy()
-    assert relabel_small_heads(got, depth, FX, FY, 0.0) == 0
+    assert relabel_small_heads(got, depth, K, 0.0) == 0
     np.testing.assert_array_equal(got, labels)
 
 
@@ -120,8 +130,8 @@ def test_the_area_is_measured_on_the_surface_not_in_pixels(side_px, z_mm):
     depth = np.full((60, 60), z_mm + 300, np.uint16)
     labels[5 : 5 + side_px, 5 : 5 + side_px] = L.HEAD
     depth[5 : 5 + side_px, 5 : 5 + side_px] = z_mm
-    assert relabel_small_heads(labels.copy(), depth, FX, FY, 150.0) == 0
-    assert relabel_small_heads(labels.copy(), depth, FX, FY, 155.0) == 1
+    assert relabel_small_heads(labels.copy(), depth, K, 150.0) == 0
+    assert relabel_small_heads(labels.copy(), depth, K, 155.0) == 1
 
 
 def test_a_head_with_nothing_around_it_keeps_its_label():
@@ -129,10 +139,171 @@ def test_a_head_with_nothing_around_it_keeps_its_label():
     depth = np.zeros((10, 10), np.uint16)
     labels[4:6, 4:6] = L.HEAD
     depth[4:6, 4:6] = 2000
-    assert relabel_small_heads(labels, depth, FX, FY, 50.0) == 0
+    assert relabel_small_heads(labels, depth, K, 50.0) == 0
     assert (labels[4:6, 4:6] == L.HEAD).all()
 
 
 def test_shapes_must_agree():
     with pytest.raises(ValueError, match="differ in shape"):
-        relabel_small_heads(np.zeros((4, 4), np.uint8), np.zeros((4, 5), np.uint16), FX, FY, 50.0)
+        relabel_small_heads(np.zeros((4, 4), np.uint8), np.zeros((4, 5), np.uint16), K, 50.0)
+
+
+def scattered_heads(rng, shape, n_heads):
+    """Labels of random body-part blocks with `n_heads` head discs of random sizes and
+    places (some overlapping, some touching), depth a head's height under 2.5-4.5 m."""
+    h, w = shape
+    labels = blocky_labels(rng, shape, 6, 0.0)
+    labels[labels == L.HEAD] = L.BODY
+    depth = rng.integers(1500, 3500, size=shape).astype(np.uint16)
+    v, u = np.indices(shape)
+    for _ in range(n_heads):
+        cv, cu, r = rng.integers(0, h), rng.integers(0, w), rng.uniform(2.0, 14.0)
+        disc = (v - cv) ** 2 + (u - cu) ** 2 <= r * r
+        labels[disc] = L.HEAD
+        depth[disc] = int(rng.integers(1000, 2500))
+    depth[labels == L.NO_DEPTH] = 0
+    return labels, depth
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_satellites_match_the_scipy_reference_on_random_heads(seed):
+    rng = np.random.default_rng(100 + seed)
+    shape = (int(rng.integers(60, 160)), int(rng.integers(60, 200)))
+    labels, depth = scattered_heads(rng, shape, int(rng.integers(3, 30)))
+    k = Intrinsics(shape[1], shape[0], 570.3, 570.3, rng.uniform(0, shape[1]), shape[0] / 2)
+    total = 0
+    for head, furniture, satellite, radius in (
+        (0.0, 0.0, 150.0, SATELLITE_RADIUS_CM),
+        (50.0, 300.0, 150.0, SATELLITE_RADIUS_CM),
+        (20.0, 0.0, 400.0, 60.0),
+        (50.0, 0.0, 0.0, SATELLITE_RADIUS_CM),
+    ):
+        areas = island_areas(head, furniture)
+        want, n_want, sat_want = islands_reference(
+            labels, depth, k, areas, L.NO_DEPTH, satellite, radius, L.HEAD
+        )
+        got = labels.copy()
+        n_got, sat_got = relabel_islands(got, depth, k, areas, satellite, radius)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(n_got, n_want)
+        assert sat_got == sat_want
+        assert sat_got == 0 or satellite > 0
+        total += sat_got
+    assert total > 0  # the test exercises satellites
+
+
+def person_with_an_arm(arm_offset_px, arm_side_px=26, second_head_px=0):
+    """A person 3.3 m under the camera: body at 1.4 m, a whole head (~230 cm2) at 1.6 m, a
+    head blob `arm_side_px` wide on the arm `arm_offset_px` right of the head's centre; a
+    second person's head `second_head_px` wide 60 cm left of it, if any."""
+    depth = np.full((300, 400), 3300, np.uint16)
+    labels = np.full((300, 400), L.BACKGROUND, np.uint8)
+    labels[100:200, 60:340] = L.BODY
+    depth[100:200, 60:340] = 1900
+    labels[128:172, 178:222] = L.HEAD  # 44 px at 1.7 m: (44 * 1.7 / 570 m)^2 ~ 172 cm2
+    depth[128:172, 178:222] = 1700
+    c = 200 + arm_offset_px
+    half = arm_side_px // 2
+    labels[150 - half : 150 + half, c - half : c + half] = L.HEAD
+    depth[150 - half : 150 + half, c - half : c + half] = 2000
+    if second_head_px:
+        c2, half2 = 200 - 170, second_head_px // 2  # 170 px at 2 m ~ 60 cm
+        labels[150 - half2 : 150 + half2, c2 - half2 : c2 + half2] = L.HEAD
+        depth[150 - half2 : 150 + half2, c2 - half2 : c2 + half2] = 2000
+    return labels, depth
+
+
+#: the camera of `person_with_an_arm`: its optical axis through the head's centre
+K_CELL = Intrinsics(400, 300, 570.3, 570.3, 199.5, 149.5)
+
+
+def px_cm(px, z_mm):
+    """Pixels at depth z (mm) as cm across."""
+    return px * z_mm / K.fx / 10.0
+
+
+def test_a_head_blob_on_the_arm_beside_a_head_takes_the_arms_label():
+    labels, depth = person_with_an_arm(80)  # 80 px at 2 m: 28 cm from the head's centre
+    assert px_cm(80, 2000) < SATELLITE_RADIUS_CM
+    got = labels.copy()
+    small, satellites = relabel_islands(
+        got, depth, K_CELL, island_areas(50.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+    )
+    assert (small[L.HEAD], satellites) == (0, 1)  # ~83 cm2: not small, but a satellite
+    assert (got[128:172, 178:222] == L.HEAD).all()
+    assert (got == L.HEAD).sum() == 44 * 44
+    np.testing.assert_array_equal(got[labels != L.HEAD], labels[labels != L.HEAD])
+
+
+def test_a_head_blob_further_off_or_as_large_as_a_head_stays():
+    labels, depth = person_with_an_arm(130)  # 46 cm off
+    assert px_cm(130, 2000) > SATELLITE_RADIUS_CM
+    assert (
+        relabel_islands(
+            labels.copy(), depth, K_CELL, island_areas(50.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+        )[1]
+        == 0
+    )
+    labels, depth = person_with_an_arm(80, arm_side_px=32)  # ~126 cm2
+    for limit, want in ((100.0, 0), (150.0, 1)):
+        got = labels.copy()
+        assert (
+            relabel_islands(
+                got, depth, K_CELL, island_areas(50.0, 0.0), limit, SATELLITE_RADIUS_CM
+            )[1]
+            == want
+        )
+
+
+def test_a_second_persons_head_is_not_a_satellite():
+    labels, depth = person_with_an_arm(80, second_head_px=30)  # ~85 cm2, 60 cm off
+    got = labels.copy()
+    assert (
+        relabel_islands(got, depth, K_CELL, island_areas(50.0, 0.0), 150.0, SATELLITE_RADIUS_CM)[1]
+        == 1
+    )  # the arm
+    assert (got[135:165, 15:45] == L.HEAD).all()
+
+
+def test_off_keeps_every_head_blob():
+    labels, depth = person_with_an_arm(80)
+    got = labels.copy()
+    small, satellites = relabel_islands(
+        got, depth, K_CELL, island_areas(0.0, 0.0), 0.0, SATELLITE_RADIUS_CM
+    )
+    assert satellites == 0 and not small.any()
+    np.testing.assert_array_equal(got, labels)
+
+
+def test_only_the_largest_head_blobs_claim_satellites():
+    """MAX_HEAD_ANCHORS + 1 heads 1 m apart, each a little smaller than the one before; a
+    satellite beside the largest is relabelled, beside the smallest (not an anchor) not."""
+    n = MAX_HEAD_ANCHORS + 1
+    cols = 9
+    rows = -(-n // cols)
+    step = 285  # px at 2 m: 1 m
+    labels = np.full((rows * step, cols * step), L.BODY, np.uint8)
+    depth = np.full(labels.shape, 2000, np.uint16)
+    centres = []
+    for i in range(n):
+        v, u = step // 2 + (i // cols) * step, step // 2 + (i % cols) * step
+        half = 30 - i // 4  # ~250 cm2 down to ~70: the last is the smallest
+        labels[v - half : v + half, u - 30 : u + 30] = L.HEAD
+        centres.append((v, u))
+    for v, u in (centres[0], centres[-1]):
+        labels[v - 5 : v + 5, u + 60 : u + 70] = L.HEAD  # ~12 cm2, 23 cm off
+    _, satellites = relabel_islands(
+        labels, depth, K, island_areas(0.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+    )
+    assert satellites == 1
+    v, u = centres[0]
+    assert (labels[v - 5 : v + 5, u + 60 : u + 70] == L.BODY).all()
+    v, u = centres[-1]
+    assert (labels[v - 5 : v + 5, u + 60 : u + 70] == L.HEAD).all()
+
+
+def test_satellite_options_are_checked():
+    labels, depth = person_with_an_arm(80)
+    for bad in ({"satellite_head_cm2": -1.0}, {"radius_cm": float("nan")}):
+        with pytest.raises(ValueError, match="must be >= 0"):
+            relabel_islands(labels, depth, K_CELL, island_areas(50.0, 0.0), **bad)

@@ -208,12 +208,12 @@ def test_height_model_skips_an_input_without_a_floor(height_model, tmp_path):
 
 def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     """The bundled model on the demo's frames as PNGs (mount estimated): the labels are those
-    with every blob kept, then the small head and furniture ones relabelled; the counts are
-    printed."""
+    with every blob kept, then the small head and furniture ones and the satellite heads
+    relabelled; the counts are printed."""
     from pathlib import Path
 
-    from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
-    from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
+    from topseg.core import segmenter as S
+    from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.mcap"
     folder = tmp_path / "frames"
@@ -224,21 +224,26 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
             depths.append(wire.decode_depth(msg.data).depth)
             Image.fromarray(depths[-1]).save(folder / f"f{len(depths)}.png")
     kept = segment(
-        folder, "--out", tmp_path / "kept", "--min-head-cm2", "0", "--min-furniture-cm2", "0"
-    )
+        folder, "--out", tmp_path / "kept", "--min-head-cm2", "0", "--min-furniture-cm2", "0",
+        "--satellite-head-cm2", "0",
+    )  # fmt: skip
     cleaned = segment(folder, "--out", tmp_path / "cleaned")
     assert kept.returncode == 0 == cleaned.returncode, kept.stderr + cleaned.stderr
     assert "relabelled" not in kept.stdout
-    relabelled = np.zeros(11, np.int64)
-    areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
+    relabelled, satellites = np.zeros(11, np.int64), 0
+    areas = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
     for i, depth in enumerate(depths, 1):
         want = np.array(Image.open(tmp_path / "kept" / f"f{i}_labels.png"))
-        relabelled += relabel_small_blobs(want, depth, KINECT_V1.fx, KINECT_V1.fy, areas)
+        small, n = relabel_islands(
+            want, depth, KINECT_V1, areas, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM
+        )
+        relabelled, satellites = relabelled + small, satellites + n
         got = np.asarray(Image.open(tmp_path / "cleaned" / f"f{i}_labels.png"))
         np.testing.assert_array_equal(got, want)
     heads, furniture = relabelled[1], relabelled[list(FURNITURE_ISLANDS)].sum()
     assert heads > 0 and furniture > 0
     assert (
         f"blobs relabelled as too small: {heads} head (under 50 cm2), {furniture} furniture "
-        f"(under 300 cm2) in 4 frames"
+        f"(under 300 cm2); head blobs beside a larger head: {satellites} (under 150 cm2) in 4 "
+        "frames"
     ) in cleaned.stdout

@@ -12,7 +12,7 @@ from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
-from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
+from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
 from topseg.core.scoring import score
 from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
 
@@ -21,6 +21,11 @@ SMALL = KINECT_V1.scaled_to(40, 30)
 
 #: the Segmenter's default minimum areas, per class
 AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
+
+
+def relabel_as_the_segmenter(labels, depth, k):
+    """The Segmenter's islands by hand, in place: (small blobs per class, satellite heads)."""
+    return relabel_islands(labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM)
 
 
 def demo_frames(n):
@@ -87,12 +92,13 @@ def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
         proba = forest.predict_proba(model, depth)
         if mode == "none":
             expected, small = numpy_argmax(proba, depth), np.zeros(L.NUM_CLASSES)  # as it is
+            satellites = 0
         else:
             expected = crf.segment_crf(proba, depth, crf.CRFConfig(mode=mode))
             k = seg.camera
-            small = relabel_small_blobs(expected, depth, k.fx, k.fy, AREAS)
+            small, satellites = relabel_as_the_segmenter(expected, depth, k)
         np.testing.assert_array_equal(got.labels, expected)
-        assert got.small_heads == small[L.HEAD]
+        assert got.small_heads == small[L.HEAD] and got.satellite_heads == satellites
         assert got.small_furniture == small[list(FURNITURE_ISLANDS)].sum()
         np.testing.assert_array_equal(got.proba, proba)
         assert got.labels.dtype == np.uint8 and got.proba.dtype == np.float32
@@ -118,7 +124,7 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         )
         want = crf.segment_crf(proba, depth, seg.config.crf)
         if mode != "none":
-            relabel_small_blobs(want, depth, k.fx, k.fy, AREAS)
+            relabel_as_the_segmenter(want, depth, k)
         np.testing.assert_array_equal(got.labels, want)
         np.testing.assert_array_equal(got.proba, proba)
     stale = seg.label(depth)
@@ -191,7 +197,7 @@ def test_score_equals_the_confusion_computed_by_hand():
         proba = forest.predict_proba(model, depth)
         forest_pred.append((truth, numpy_argmax(proba, depth)))
         labels = crf.segment_crf(proba, depth, config)
-        relabel_small_blobs(labels, depth, SMALL.fx, SMALL.fy, AREAS)
+        relabel_as_the_segmenter(labels, depth, SMALL)
         crf_pred.append((truth, labels))
     np.testing.assert_array_equal(result.forest.confusion, hand_confusion(forest_pred))
     np.testing.assert_array_equal(result.crf.confusion, hand_confusion(crf_pred))
@@ -352,12 +358,15 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
     under them relabelled with the frame's own focal lengths; 0 keeps the CRF's labels."""
     assert SegmenterConfig().min_head_cm2 == S.MIN_HEAD_CM2 > 0
     assert SegmenterConfig().min_furniture_cm2 == S.MIN_FURNITURE_CM2 > 0
-    for name in ("min_head_cm2", "min_furniture_cm2"):
+    for name in ("min_head_cm2", "min_furniture_cm2", "satellite_head_cm2"):
         for bad in (-1.0, float("nan"), float("inf")):
             with pytest.raises(TopsegError, match=name):
                 SegmenterConfig(**{name: bad})
     kept = Segmenter.from_file(
-        None, SegmenterConfig(mount=PAPER_MOUNT, min_head_cm2=0, min_furniture_cm2=0)
+        None,
+        SegmenterConfig(
+            mount=PAPER_MOUNT, min_head_cm2=0, min_furniture_cm2=0, satellite_head_cm2=0
+        ),
     )
     assert not kept.relabels_islands
     cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
@@ -366,10 +375,11 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
     for depth, _ in demo_frames(6):
         raw = kept.label(depth)
         want = raw.labels.copy()
-        n = relabel_small_blobs(want, depth, k.fx, k.fy, AREAS)
+        n, satellites = relabel_as_the_segmenter(want, depth, k)
         got = cleaned.label(depth)
         np.testing.assert_array_equal(got.labels, want)
-        assert raw.small_heads == raw.small_furniture == 0
+        assert raw.small_heads == raw.small_furniture == raw.satellite_heads == 0
+        assert got.satellite_heads == satellites
         assert got.small_heads == n[L.HEAD]
         assert got.small_furniture == n[list(FURNITURE_ISLANDS)].sum()
         relabelled += n

@@ -15,9 +15,10 @@ from netutil import free_port, wait_for
 
 from topseg.core import crf, forest, metrics
 from topseg.core import labels as L
+from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
-from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_small_blobs
+from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
 from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
@@ -33,13 +34,16 @@ def frames(seed, n):
 
 def labelled_as_the_worker(model, depth):
     """The worker's labels by hand: forest, realtime CRF, then blobs too small to be a head
-    or furniture relabelled (frames carry K); and how many head and furniture blobs were."""
+    or furniture and satellite heads relabelled (frames carry K); and how many head,
+    furniture and satellite head blobs were."""
     labels = crf.segment_crf(
         forest.predict_proba(model, depth), depth, crf.CRFConfig(mode="realtime")
     )
     areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
-    n = relabel_small_blobs(labels, depth, K.fx, K.fy, areas)
-    return labels, (int(n[L.HEAD]), int(n[list(FURNITURE_ISLANDS)].sum()))
+    n, satellites = relabel_islands(
+        labels, depth, K, areas, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM
+    )
+    return labels, (int(n[L.HEAD]), int(n[list(FURNITURE_ISLANDS)].sum()), satellites)
 
 
 @pytest.fixture(scope="module")
@@ -139,12 +143,13 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     got = [wire.decode_labels(b) for b in peer.labels]
     assert [g.seq for g in got] == seqs
     scores = metrics.ConfusionAccumulator()
-    small_heads = small_furniture = 0
+    small_heads = small_furniture = satellite_heads = 0
     for g, (depth, truth), seq in zip(got, test, seqs, strict=True):
-        labels, (heads, furniture) = labelled_as_the_worker(model, depth)
+        labels, (heads, furniture, satellites) = labelled_as_the_worker(model, depth)
         np.testing.assert_array_equal(g.labels, labels)
         small_heads += heads
         small_furniture += furniture
+        satellite_heads += satellites
         assert (g.stamp_ns, g.frame_id) == (1000 + seq, "cam0")
         scores.add(truth, g.labels)
     s = scores.scores()
@@ -153,7 +158,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     last = peer.stats[-1]
     assert last["counts"] == {
         "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads,
-        "small_furniture": small_furniture,
+        "small_furniture": small_furniture, "satellite_heads": satellite_heads,
     }  # fmt: skip
     assert last["role"] == "worker" and last["model_id"] == model_path.name
     assert set(last["timings_ms"]) == {
@@ -211,6 +216,7 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
         "rejected": len(bad),
         "small_heads": 0,
         "small_furniture": 0,
+        "satellite_heads": 0,
     }
     assert "rejected" in err
 
@@ -339,7 +345,7 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     counts = peer.stats[-1]["counts"]
     assert counts == {
         "processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY,
-        "small_furniture": mock.ANY,
+        "small_furniture": mock.ANY, "satellite_heads": mock.ANY,
     }  # fmt: skip
 
 
@@ -547,6 +553,6 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
     # crf none: the forest's argmax, no blob relabelled
     assert counts == {
         "processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0,
-        "small_furniture": 0,
+        "small_furniture": 0, "satellite_heads": 0,
     }, worker.err  # fmt: skip
     assert "not a msgpack" not in worker.err

@@ -16,7 +16,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from topseg.services.cli_types import add_grid_arguments, add_island_arguments, finite, int_range
+from topseg.services.cli_types import (
+    add_grid_arguments,
+    add_island_arguments,
+    finite,
+    int_range,
+    island_config,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,8 +78,7 @@ def measure(args: argparse.Namespace) -> dict:
         stride=args.stride,
         adaptive=args.adaptive,
         early_exit=args.early_exit,
-        min_head_cm2=args.min_head_cm2,
-        min_furniture_cm2=args.min_furniture_cm2,
+        islands=island_config(args),
         cameras=args.cameras,
     )
     scores = figures.pop("scores")
