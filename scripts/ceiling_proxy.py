@@ -37,8 +37,25 @@ from topseg.core.synth.density import DensityConfig
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
 
-def render(folder: Path, height_m: float, frames: int, seed: int, noise: str) -> None:
-    """`frames` frames from one mount `height_m` up into folder/frames (PNG) and folder/truth."""
+#: the scenes each stand-in renders: "cell" (a robot cell: 0-2 pieces of furniture, a person in
+#: any of the density function's poses, sitting on a chair included) or "walker" (the judging
+#: sequence's kind: one person walking or standing on an empty floor)
+SCENES = {
+    "cell": DensityConfig(n_objects=(0, 2), human_edge_share=0.3),
+    "walker": DensityConfig(
+        n_objects=(0, 0),
+        human_edge_share=0.3,
+        pose_weights={"walking": 3.0, "standing": 1.0},
+        ho_relation_weights={"free": 1.0},
+    ),
+}
+
+
+def render(
+    folder: Path, height_m: float, frames: int, seed: int, noise: str, scene: str = "cell"
+) -> None:
+    """`frames` frames from one mount `height_m` up into folder/frames (PNG) and folder/truth,
+    of the `scene` kind (a key of SCENES)."""
     depth_dir, truth_dir = folder / "frames", folder / "truth"
     if (truth_dir / f"{frames - 1:04d}.png").exists():
         return
@@ -46,8 +63,9 @@ def render(folder: Path, height_m: float, frames: int, seed: int, noise: str) ->
     truth_dir.mkdir(parents=True, exist_ok=True)
     k = get_sensor("kinect_v1").intrinsics
     mount = TopViewMount(k, 1000.0 * height_m, 1.0, -0.5, "kinect_v1")
-    density = DensityConfig(n_objects=(0, 2), human_edge_share=0.3)
-    config = SynthesisConfig(mode="modeled", noise=noise, seed=seed, camera=mount, density=density)
+    config = SynthesisConfig(
+        mode="modeled", noise=noise, seed=seed, camera=mount, density=SCENES[scene]
+    )
     synth = Synthesizer(config)
     for i in range(frames):
         frame = synth.render(frame_seed=i)
@@ -104,15 +122,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", default="tof")
     parser.add_argument("--seed", type=int, default=501, help="first height's seed; +1 a height")
     parser.add_argument("--model", default=None, help="default: the bundled model")
+    parser.add_argument("--scene", choices=sorted(SCENES), default="cell", help="what is in view")
     args = parser.parse_args(ours)
     for i, height in enumerate(float(h) for h in args.heights.split(",")):
         folder = args.out / f"{height:.1f}m"
-        render(folder, height, args.frames, args.seed + i, args.noise)
+        render(folder, height, args.frames, args.seed + i, args.noise, args.scene)
         segment(folder, args.model, extra)
         result = {
             k: round(v, 3) if isinstance(v, float) else v for k, v in score_folder(folder).items()
         }
-        print(json.dumps({"height_m": height, "noise": args.noise, **result}), flush=True)
+        line = {"height_m": height, "noise": args.noise, "scene": args.scene, **result}
+        print(json.dumps(line), flush=True)
     return 0
 
 
