@@ -30,12 +30,11 @@ import numpy as np
 from PIL import Image
 
 from topseg.core import labels as L
-from topseg.core.camera import TopViewMount
+from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.metrics import HeadDetections, confusion_matrix, person_scores, scores
 from topseg.core.sensors import get_sensor
 from topseg.core.synth.density import DensityConfig
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
-
 
 #: the scenes each stand-in renders: "cell" (a robot cell: 0-2 pieces of furniture, a person in
 #: any of the density function's poses, sitting on a chair included) or "walker" (the judging
@@ -51,30 +50,68 @@ SCENES = {
 }
 
 
+def resample_coords(src: Intrinsics, dst: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) float64 in `src`'s image of each pixel of `dst`'s, for two cameras with
+    the same centre and orientation: only the pixel grid changes, depth does not."""
+    v, u = np.mgrid[0 : dst.height, 0 : dst.width].astype(np.float64)
+    return src.cy + (v - dst.cy) * src.fy / dst.fy, src.cx + (u - dst.cx) * src.fx / dst.fx
+
+
+def resample(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, linear: bool) -> np.ndarray:
+    """`image` read at (rows, cols): nearest neighbour, or bilinear where all four
+    neighbours have depth (nearest elsewhere, so that no-depth does not spread); 0 outside."""
+    h, w = image.shape
+    inside = (rows > -0.5) & (rows < h - 0.5) & (cols > -0.5) & (cols < w - 0.5)
+    ri = np.clip(np.rint(rows), 0, h - 1).astype(np.intp)
+    ci = np.clip(np.rint(cols), 0, w - 1).astype(np.intp)
+    out = np.where(inside, image[ri, ci], 0).astype(image.dtype)
+    if not linear:
+        return out
+    r0 = np.clip(np.floor(rows), 0, h - 2).astype(np.intp)
+    c0 = np.clip(np.floor(cols), 0, w - 2).astype(np.intp)
+    fr, fc = np.clip(rows - r0, 0, 1), np.clip(cols - c0, 0, 1)
+    q = [image[r0 + dr, c0 + dc].astype(np.float64) for dr in (0, 1) for dc in (0, 1)]
+    blend = (q[0] * (1 - fc) + q[1] * fc) * (1 - fr) + (q[2] * (1 - fc) + q[3] * fc) * fr
+    whole = inside & (q[0] > 0) & (q[1] > 0) & (q[2] > 0) & (q[3] > 0)
+    return np.where(whole, np.rint(blend), out).astype(image.dtype)
+
+
 def render(
-    folder: Path, height_m: float, frames: int, seed: int, noise: str, scene: str = "cell"
+    folder: Path,
+    height_m: float,
+    frames: int,
+    seed: int,
+    noise: str,
+    scene: str = "cell",
+    native: str | None = None,
+    linear: bool = False,
 ) -> None:
-    """`frames` frames from one mount `height_m` up into folder/frames (PNG) and folder/truth,
-    of the `scene` kind (a key of SCENES)."""
+    """`frames` frames from one mount `height_m` up into folder/frames (PNG) and folder/truth
+    at Kinect v1 geometry, of the `scene` kind (a key of SCENES). With `native` (a sensor
+    name) they are rendered with that sensor's intrinsics and resampled to Kinect v1 geometry
+    (nearest neighbour, or bilinear with `linear`), as the judging frames were."""
     depth_dir, truth_dir = folder / "frames", folder / "truth"
     if (truth_dir / f"{frames - 1:04d}.png").exists():
         return
     depth_dir.mkdir(parents=True, exist_ok=True)
     truth_dir.mkdir(parents=True, exist_ok=True)
     k = get_sensor("kinect_v1").intrinsics
-    mount = TopViewMount(k, 1000.0 * height_m, 1.0, -0.5, "kinect_v1")
+    src = get_sensor(native).intrinsics if native else k
+    mount = TopViewMount(src, 1000.0 * height_m, 1.0, -0.5, native or "kinect_v1")
     config = SynthesisConfig(
         mode="modeled", noise=noise, seed=seed, camera=mount, density=SCENES[scene]
     )
     synth = Synthesizer(config)
+    rows, cols = resample_coords(src, k)
     for i in range(frames):
         frame = synth.render(frame_seed=i)
-        Image.fromarray(frame.depth[: k.height, : k.width].astype(np.uint16)).save(
-            depth_dir / f"{i:04d}.png"
-        )
-        Image.fromarray(frame.labels[: k.height, : k.width].astype(np.uint8)).save(
-            truth_dir / f"{i:04d}.png"
-        )
+        depth = frame.depth[: src.height, : src.width].astype(np.uint16)
+        truth = frame.labels[: src.height, : src.width].astype(np.uint8)
+        if native:
+            depth = resample(depth, rows, cols, linear)
+            truth = np.where(depth > 0, resample(truth, rows, cols, False), L.NO_DEPTH)
+        Image.fromarray(depth).save(depth_dir / f"{i:04d}.png")
+        Image.fromarray(truth.astype(np.uint8)).save(truth_dir / f"{i:04d}.png")
 
 
 def segment(folder: Path, model: str | None, extra: list[str]) -> None:
@@ -123,15 +160,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=501, help="first height's seed; +1 a height")
     parser.add_argument("--model", default=None, help="default: the bundled model")
     parser.add_argument("--scene", choices=sorted(SCENES), default="cell", help="what is in view")
+    parser.add_argument(
+        "--native",
+        default=None,
+        help="render at this sensor's geometry, then resample to Kinect v1's (e.g. kinect_v2)",
+    )
+    parser.add_argument(
+        "--linear", action="store_true", help="with --native: bilinear, not nearest neighbour"
+    )
     args = parser.parse_args(ours)
     for i, height in enumerate(float(h) for h in args.heights.split(",")):
         folder = args.out / f"{height:.1f}m"
-        render(folder, height, args.frames, args.seed + i, args.noise, args.scene)
+        render(
+            folder, height, args.frames, args.seed + i, args.noise, args.scene, args.native,
+            args.linear,
+        )  # fmt: skip
         segment(folder, args.model, extra)
         result = {
             k: round(v, 3) if isinstance(v, float) else v for k, v in score_folder(folder).items()
         }
         line = {"height_m": height, "noise": args.noise, "scene": args.scene, **result}
+        if args.native:
+            line["native"] = args.native + (" bilinear" if args.linear else " nearest")
         print(json.dumps(line), flush=True)
     return 0
 
