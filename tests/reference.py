@@ -699,6 +699,45 @@ def reference_free(amax, pmax, valid, confidence, ring, settled):
     return free
 
 
+def band_problem_reference(proba, amax, index, wh, wv, eps, scale):
+    """`crf.realtime.band_problem` in numpy: (pix, unary, nbr, nw, init) of the band pixels
+    (index >= 0, numbered row-major). The logs are float32 as in the kernel, but numpy's
+    float32 log may differ from libm's in the last place: unaries can differ by 1 where
+    -log(p) * scale lies within rounding of a half."""
+    h, w = amax.shape
+    c = proba.shape[2]
+    pix = np.flatnonzero(index.ravel() >= 0)
+    rows, cols = np.divmod(pix, w)
+    p = proba[rows, cols].astype(np.float32)
+    logs = (-np.log(np.maximum(p, np.float32(1e-30)))).astype(np.float64) * scale
+    cap = np.int32(np.rint(-np.log(np.float32(eps)).astype(np.float64) * scale))
+    unary = np.where(p <= eps, cap, np.rint(logs)).astype(np.int64)
+    nbr = np.full((pix.size, 4), -1, np.int64)
+    nw = np.zeros((pix.size, 4), np.int64)
+    wpad_h = np.zeros((h, w + 1), np.float64)  # wpad_h[i, j]: the edge left of (i, j)
+    wpad_h[:, 1:w] = wh
+    wpad_v = np.zeros((h + 1, w), np.float64)  # wpad_v[i, j]: the edge above (i, j)
+    wpad_v[1:h, :] = wv
+    steps = (
+        (0, -1, wpad_h[rows, cols]),
+        (0, 1, wpad_h[rows, cols + 1]),
+        (-1, 0, wpad_v[rows, cols]),
+        (1, 0, wpad_v[rows + 1, cols]),
+    )
+    for s, (di, dj, weight) in enumerate(steps):
+        iw = np.rint(weight * scale).astype(np.int64)
+        has = iw > 0
+        ni = np.clip(rows + di, 0, h - 1)
+        nj = np.clip(cols + dj, 0, w - 1)
+        q = index[ni, nj]
+        band = has & (q >= 0)
+        nbr[band, s], nw[band, s] = q[band], iw[band]
+        fixed = has & (q < 0)
+        other = np.arange(c)[None, :] != amax[ni, nj][:, None]
+        unary += np.where(fixed[:, None] & other, iw[:, None], 0)
+    return pix, unary, nbr, nw, amax.ravel()[pix].astype(np.int64)
+
+
 # --- the time-of-flight and stereo noise models (noise.ToFNoise, noise.StereoNoise) ------------
 
 

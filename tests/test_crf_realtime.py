@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from reference import reference_free, reference_settled
+from reference import band_problem_reference, reference_free, reference_settled
 from scipy import ndimage
 
 from topseg.core import labels as L
@@ -13,6 +13,8 @@ from topseg.core.crf.expansion import alpha_expansion, energy
 from topseg.core.crf.realtime import (
     BAND_PARTS,
     PARALLEL_BAND_PIXELS,
+    _band_problem_parallel,
+    _band_problem_serial,
     argmax_confidence,
     band_mask,
     band_parts,
@@ -128,6 +130,27 @@ def test_band_problem_keeps_the_frame_energy_up_to_a_constant():
         band = energy(x, unary.astype(np.int64), nbr.astype(np.int64), nw.astype(np.int64))
         offsets.append(potts_energy(frame, proba, depth, cfg) - band / scale)
     assert np.ptp(offsets) < 1e-2
+
+
+@pytest.mark.parametrize("shape", [(40, 50), (90, 120)])
+def test_band_problem_matches_the_reference_on_both_paths(shape):
+    """A small band is built serially, one of PARALLEL_BAND_PIXELS or more on numba's threads
+    (row by row): both give the numpy reference's problem."""
+    rng = np.random.default_rng(11)
+    cfg = CRFConfig(smoothness=0.9, depth_sigma_mm=300.0, confidence=0.8, ring=2)
+    proba, _, amax, wh, wv, index, n = band_of(rng, cfg, shape)
+    assert (n >= PARALLEL_BAND_PIXELS) == (shape == (90, 120))
+    eps, scale = np.float32(cfg.eps), 1000.0
+    got = band_problem(proba, amax, index, n, wh, wv, eps, scale)
+    want = band_problem_reference(proba, amax, index, wh, wv, eps, scale)
+    names = ("pix", "nbr", "nw", "init")
+    for name, a, b in zip(names, got[:1] + got[2:], want[:1] + want[2:], strict=True):
+        assert np.array_equal(a, b), name
+    diff = np.abs(got[1].astype(np.int64) - want[1])
+    assert diff.max() <= 1 and (diff > 0).mean() < 1e-3  # last-place log differences only
+    serial = _band_problem_serial(proba, amax, index, n, wh, wv, eps, scale)
+    parallel = _band_problem_parallel(proba, amax, index, n, wh, wv, eps, scale)
+    assert all(np.array_equal(a, b) for a, b in zip(serial, parallel, strict=True))
 
 
 def test_float_gain_is_the_energy_difference():

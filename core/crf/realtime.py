@@ -119,47 +119,80 @@ def _neighbour(i, j, s, wh, wv):
     return i + 1, j, np.float64(wv[i, j]) if i + 1 < h else 0.0
 
 
+@numba.njit(cache=True, inline="always")
+def _band_row(i, proba, amax, index, wh, wv, eps, cap, scale, pix, unary, nbr, nw, init):
+    """`band_problem`'s work for the band pixels of row i (each writes only its own rows)."""
+    w = amax.shape[1]
+    c = proba.shape[2]
+    for j in range(w):
+        r = index[i, j]
+        if r < 0:
+            continue
+        pix[r] = i * w + j
+        init[r] = amax[i, j]
+        for k in range(c):
+            pk = proba[i, j, k]
+            unary[r, k] = cap if pk <= eps else np.int32(np.rint(-np.log(pk) * scale))
+        for s in range(4):
+            ii, jj, wt = _neighbour(i, j, s, wh, wv)
+            iw = np.int32(np.rint(wt * scale))
+            if iw <= 0:
+                continue
+            q = index[ii, jj]
+            if q >= 0:
+                nbr[r, s] = q
+                nw[r, s] = iw
+            else:
+                fixed = amax[ii, jj]
+                for k in range(c):
+                    if k != fixed:
+                        unary[r, k] += iw
+
+
+@numba.njit(cache=True, inline="always")
+def _band_arrays(n, c):
+    """Empty outputs of `band_problem` for n band pixels and c labels."""
+    return (
+        np.empty(n, np.int64),
+        np.empty((n, c), np.int32),
+        np.full((n, 4), -1, np.int32),
+        np.zeros((n, 4), np.int32),
+        np.empty(n, np.int32),
+    )
+
+
 @numba.njit(cache=True)
+def _band_problem_serial(proba, amax, index, n, wh, wv, eps, scale):
+    cap = np.int32(np.rint(-np.log(eps) * scale))
+    pix, unary, nbr, nw, init = _band_arrays(n, proba.shape[2])
+    for i in range(amax.shape[0]):
+        _band_row(i, proba, amax, index, wh, wv, eps, cap, scale, pix, unary, nbr, nw, init)
+    return pix, unary, nbr, nw, init
+
+
+@numba.njit(cache=True, parallel=True)
+def _band_problem_parallel(proba, amax, index, n, wh, wv, eps, scale):
+    cap = np.int32(np.rint(-np.log(eps) * scale))
+    pix, unary, nbr, nw, init = _band_arrays(n, proba.shape[2])
+    for i in numba.prange(amax.shape[0]):
+        # a prange index may be unsigned: int64 keeps i - 1 an integer in the row's body
+        _band_row(
+            np.int64(i), proba, amax, index, wh, wv, eps, cap, scale, pix, unary, nbr, nw, init
+        )
+    return pix, unary, nbr, nw, init
+
+
 def band_problem(proba, amax, index, n, wh, wv, eps, scale):
     """The band's own CRF in gco-style integers (x `scale`, rounded).
 
     Returns the band pixels' flat ids, (N, C) unaries with the edges to fixed neighbours
     folded in (w [l != their argmax] is a constant per label), a neighbour table (N, 4)
-    (left, right, up, down; -1 = none) with its weights, and each pixel's argmax.
+    (left, right, up, down; -1 = none) with its weights, and each pixel's argmax. A band of
+    PARALLEL_BAND_PIXELS or more is built on numba's threads, row by row (the same
+    numbers: every pixel's entries depend on it and its neighbours only).
     """
-    h, w = amax.shape
-    c = proba.shape[2]
-    cap = np.int32(np.rint(-np.log(eps) * scale))
-    pix = np.empty(n, np.int64)
-    init = np.empty(n, np.int32)
-    unary = np.empty((n, c), np.int32)
-    nbr = np.full((n, 4), -1, np.int32)
-    nw = np.zeros((n, 4), np.int32)
-    for i in range(h):
-        for j in range(w):
-            r = index[i, j]
-            if r < 0:
-                continue
-            pix[r] = i * w + j
-            init[r] = amax[i, j]
-            for k in range(c):
-                pk = proba[i, j, k]
-                unary[r, k] = cap if pk <= eps else np.int32(np.rint(-np.log(pk) * scale))
-            for s in range(4):
-                ii, jj, wt = _neighbour(i, j, s, wh, wv)
-                iw = np.int32(np.rint(wt * scale))
-                if iw <= 0:
-                    continue
-                q = index[ii, jj]
-                if q >= 0:
-                    nbr[r, s] = q
-                    nw[r, s] = iw
-                else:
-                    fixed = amax[ii, jj]
-                    for k in range(c):
-                        if k != fixed:
-                            unary[r, k] += iw
-    return pix, unary, nbr, nw, init
+    kernel = _band_problem_parallel if n >= PARALLEL_BAND_PIXELS else _band_problem_serial
+    return kernel(proba, amax, index, n, wh, wv, eps, scale)
 
 
 @numba.njit(cache=True)
@@ -307,10 +340,16 @@ def solve_band(unary, nbr, nw, init, cycles):
 
 
 def warm_up(n_labels: int) -> None:
-    """Compile (or load from numba's cache) both solve paths, the parallel one included: a
-    small warm-up frame's band never reaches PARALLEL_BAND_PIXELS, and loading the parallel
-    kernel on the first real frame that does cost ~40 ms (frames dropped at a worker's start)."""
+    """Compile (or load from numba's cache) both paths of the band's problem and of its
+    solve, the parallel ones included: a small warm-up frame's band never reaches
+    PARALLEL_BAND_PIXELS, and loading a parallel kernel on the first real frame that does
+    cost ~40 ms (frames dropped at a worker's start)."""
     n = PARALLEL_BAND_PIXELS
+    proba = np.full((1, n, n_labels), 1.0 / n_labels, np.float32)
+    index = np.arange(n, dtype=np.int32).reshape(1, n)
+    wh, wv = np.ones((1, n - 1), np.float32), np.ones((0, n), np.float32)
+    amax = np.zeros((1, n), np.uint8)
+    band_problem(proba, amax, index, n, wh, wv, np.float32(1e-6), ENERGY_SCALE)
     unary = np.zeros((n, n_labels), np.int32)
     unary[:, 0] = 1  # every pixel moves to label 1: the moves run their whole path
     nbr = np.full((n, 4), -1, np.int32)
