@@ -4,7 +4,10 @@ Those frames (not shared) are a time-of-flight sequence from one ceiling, resamp
 v1 geometry (640x480, fx 570) and labelled by `topseg segment --out DIR FRAMES/` with no
 mount given. This script renders a folder of such frames per ceiling height: one mount for
 the folder (a little tilt), Kinect v1 intrinsics, time-of-flight noise, modeled scenes with
-few pieces of furniture and people walking in and out of view. It writes them as 16-bit PNGs
+few pieces of furniture and people walking in and out of view (`--scene walker`: one person
+walking or standing on an empty floor, the judging sequence's kind; `--native kinect_v2`:
+rendered at that sensor's geometry and noise, then resampled to Kinect v1's, as the judging
+frames were). It writes them as 16-bit PNGs
 with their truth beside them, runs `topseg segment` on the folder as a user would (the
 mount estimated from the frames), and scores what it wrote: person-pixel F1, furniture on a
 person, head pixels, and heads as blobs (`metrics.head_detections`).
