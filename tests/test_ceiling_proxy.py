@@ -34,3 +34,62 @@ def test_renders_segments_with_no_mount_and_scores_one_line_a_height(tmp_path):
     truth = np.asarray(Image.open(folder / "truth" / "0001.png"))
     assert labels.shape == truth.shape == depth.shape
     assert set(np.unique(labels)) <= set(range(L.NUM_CLASSES)) | {L.NO_DEPTH}
+
+
+def _script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ceiling_proxy", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_resampling_moves_only_the_pixel_grid():
+    """Kinect v2 pixels read at Kinect v1 geometry: the principal points meet, a pixel's ray
+    keeps its direction, bilinear blends only between four pixels with depth."""
+    from topseg.core.sensors import get_sensor
+
+    cp = _script()
+    src, dst = get_sensor("kinect_v2").intrinsics, get_sensor("kinect_v1").intrinsics
+    rows, cols = cp.resample_coords(src, dst)
+    assert rows.shape == (dst.height, dst.width)
+    v, u = 100, 600  # any pixel: same ray direction in both cameras
+    assert np.isclose((cols[v, u] - src.cx) / src.fx, (u - dst.cx) / dst.fx)
+    assert np.isclose((rows[v, u] - src.cy) / src.fy, (v - dst.cy) / dst.fy)
+    rng = np.random.default_rng(3)
+    image = rng.integers(1000, 4000, (src.height, src.width)).astype(np.uint16)
+    image[200:210, 250:260] = 0  # a hole
+    nearest = cp.resample(image, rows, cols, linear=False)
+    assert set(np.unique(nearest)) <= set(np.unique(image))
+    linear = cp.resample(image, rows, cols, linear=True)
+    # the same camera on both sides reads every pixel back unchanged, holes included
+    same_r, same_c = cp.resample_coords(src, src)
+    for mode in (False, True):
+        assert np.array_equal(cp.resample(image, same_r, same_c, linear=mode), image)
+    # next to the hole, bilinear falls back to the nearest pixel instead of blending in a 0
+    near_hole = (np.abs(rows - 204.5) < 7) & (np.abs(cols - 254.5) < 7)
+    assert (linear[near_hole] == 0).sum() == (nearest[near_hole] == 0).sum()
+    # between pixels with depth, bilinear lies between the four it blends
+    r0, c0 = np.floor(rows).astype(int), np.floor(cols).astype(int)
+    quad = np.stack([image[r0 + a, c0 + b] for a in (0, 1) for b in (0, 1)])
+    whole = (quad > 0).all(axis=0)
+    assert (linear[whole] >= quad.min(axis=0)[whole]).all()
+    assert (linear[whole] <= quad.max(axis=0)[whole]).all()
+
+
+def test_walker_frames_resampled_from_kinect_v2(tmp_path):
+    r = subprocess.run(
+        [sys.executable, str(SCRIPT), "--out", str(tmp_path), "--heights", "3.3", "--frames",
+         "2", "--scene", "walker", "--native", "kinect_v2", "--linear"],
+        capture_output=True, text=True, timeout=300, check=True,
+    )  # fmt: skip
+    got = json.loads(r.stdout.strip())
+    assert got["scene"] == "walker" and got["native"] == "kinect_v2 bilinear"
+    for i in range(2):
+        depth = np.asarray(Image.open(tmp_path / "3.3m" / "frames" / f"{i:04d}.png"))
+        truth = np.asarray(Image.open(tmp_path / "3.3m" / "truth" / f"{i:04d}.png"))
+        assert depth.shape == truth.shape == (480, 640)
+        assert 3100 < np.median(depth[depth > 0]) < 3500
+        assert not np.isin(truth, [L.CHAIR, L.PLANT, L.STORAGE, L.TABLE]).any()  # no furniture
+        assert (truth[depth == 0] == L.NO_DEPTH).all()
