@@ -72,6 +72,23 @@ def test_free_mask_matches_numpy(ring):
             assert not free[20, 25]
 
 
+def test_free_mask_reads_confidence_as_float32_like_numpy():
+    """A top posterior equal to the confidence rounded to float32 reaches it (0.7 rounds
+    down in float32): the kernel decides as the numpy reference does, at the boundary too."""
+    h, w = 3, 9
+    amax = np.zeros((h, w), np.uint8)
+    valid = np.ones((h, w), bool)
+    psecond = np.full((h, w), 0.2, np.float32)
+    for confidence in (0.3, 0.6, 0.7):
+        c = np.float32(confidence)
+        below, above = np.nextafter(c, np.float32(0)), np.nextafter(c, np.float32(1))
+        pmax = np.tile(np.array([below, c, above], np.float32), (h, 3))
+        settled = np.zeros((h, w), bool)
+        free = free_mask(amax, pmax, psecond, valid, confidence, 0, 1.0, 1e-6)
+        assert np.array_equal(free, reference_free(amax, pmax, valid, confidence, 0, settled))
+        assert np.array_equal(free[1], np.tile([True, False, False], 3))
+
+
 def test_settled_pixels_never_move_in_a_full_expansion():
     """Leaving settled pixels out is exact: expansion over every pixel never moves them."""
     rng = np.random.default_rng(9)

@@ -53,44 +53,51 @@ def settled(i, j, pmax, psecond, keep, eps):
     return max(psecond[i, j], eps) <= max(pmax[i, j], eps) * keep
 
 
+#: `free_mask`'s label for a pixel without depth (and the frame's border): agrees with any
+NO_LABEL = np.uint8(255)
+
+
 @numba.njit(cache=True)
 def free_mask(amax, pmax, psecond, valid, confidence, ring, smoothness, eps):
-    """The band: pixels with depth that are neither sure (top posterior >= `confidence`
-    and all 4 neighbours agree) nor settled, grown by `ring` steps into unsettled pixels."""
+    """The band: pixels with depth that are neither sure (top posterior >= `confidence`,
+    rounded to float32, and all 4 neighbours with depth share its argmax) nor settled, grown
+    by `ring` steps into unsettled pixels.
+
+    Branch-free passes over padded copies (no bounds tests), which LLVM vectorises: 0.5-0.6
+    against 1.7-3.4 ms a 640x480 frame for the same masks (docs/performance.md)."""
     h, w = amax.shape
     keep = np.float32(np.exp(-(4.0 * smoothness + SETTLED_MARGIN)))
     eps = np.float32(eps)
-    free = np.zeros((h, w), np.bool_)
+    conf = np.float32(confidence)  # a float32 comparison, as numpy's with a Python float
+    code = np.empty((h + 2, w + 2), np.uint8)  # the argmax; NO_LABEL off the frame or depth
+    code[0, :] = NO_LABEL
+    code[h + 1, :] = NO_LABEL
+    for i in range(h):
+        code[i + 1, 0] = NO_LABEL
+        code[i + 1, w + 1] = NO_LABEL
+        for j in range(w):
+            code[i + 1, j + 1] = amax[i, j] if valid[i, j] else NO_LABEL
+    movable = np.empty((h, w), np.bool_)  # with depth and not settled
     for i in range(h):
         for j in range(w):
-            if not valid[i, j]:
-                continue
-            a = amax[i, j]
-            sure = pmax[i, j] >= confidence
-            if sure and i > 0 and valid[i - 1, j] and amax[i - 1, j] != a:
-                sure = False
-            if sure and i + 1 < h and valid[i + 1, j] and amax[i + 1, j] != a:
-                sure = False
-            if sure and j > 0 and valid[i, j - 1] and amax[i, j - 1] != a:
-                sure = False
-            if sure and j + 1 < w and valid[i, j + 1] and amax[i, j + 1] != a:
-                sure = False
-            free[i, j] = not sure and not settled(i, j, pmax, psecond, keep, eps)
+            movable[i, j] = valid[i, j] & (not settled(i, j, pmax, psecond, keep, eps))
+    free = np.zeros((h + 2, w + 2), np.bool_)  # padded: the border is never free
+    for i in range(h):
+        for j in range(w):
+            a = code[i + 1, j + 1]
+            agree = True
+            for q in (code[i + 1, j], code[i + 1, j + 2], code[i, j + 1], code[i + 2, j + 1]):
+                agree &= (q == NO_LABEL) | (q == a)
+            sure = (pmax[i, j] >= conf) & agree
+            free[i + 1, j + 1] = movable[i, j] & (not sure)
     for _ in range(ring):
         grown = free.copy()
         for i in range(h):
             for j in range(w):
-                if free[i, j] or not valid[i, j]:
-                    continue
-                if (
-                    (i > 0 and free[i - 1, j])
-                    or (i + 1 < h and free[i + 1, j])
-                    or (j > 0 and free[i, j - 1])
-                    or (j + 1 < w and free[i, j + 1])
-                ) and not settled(i, j, pmax, psecond, keep, eps):
-                    grown[i, j] = True
+                near = free[i + 1, j] | free[i + 1, j + 2] | free[i, j + 1] | free[i + 2, j + 1]
+                grown[i + 1, j + 1] = free[i + 1, j + 1] | (movable[i, j] & near)
         free = grown
-    return free
+    return free[1:-1, 1:-1].copy()
 
 
 @numba.njit(cache=True)
