@@ -56,34 +56,32 @@ def expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
     #    the others do, so it is left out; that tightens its neighbours' bounds in turn.
     #    loc: -2 already alpha, -1 left out, 0 in the move, -3 left out, to propagate.
     m = 0
-    for p in range(n):
-        if x[p] == alpha:
-            loc[p] = -2
-            continue
+    for p in range(n):  # branch-free: every site written, the kept ones counted
+        is_alpha = x[p] == alpha
         sl = wsum[p] - (ua[p] - ux[p])
-        if sl > 0:
-            loc[p] = 0
-            slack[p] = sl
-            nodes[m] = p
-            m += 1
-        else:
-            loc[p] = -1
+        keep = (not is_alpha) & (sl > 0)
+        loc[p] = 0 if keep else (-2 if is_alpha else -1)
+        slack[p] = sl
+        nodes[m] = p
+        m += keep
     if m == 0:
         return 0
     stack = np.empty(m, np.int64)
     top = 0
-    for i in range(m):  # edges to sites left out in the first pass
+    for i in range(m):  # edges to sites left out in the first pass (branch-free)
         p = nodes[i]
+        xp = x[p]
         sl = slack[p]
         for s in range(d):
             q = nbr[p, s]
-            if q >= 0 and loc[q] == -1:
-                sl -= nw[p, s] * (2 if x[q] == x[p] else 1)
+            r = max(q, 0)
+            out = (q >= 0) & (loc[r] == -1)
+            sl -= out * nw[p, s] * (1 + (x[r] == xp))
         slack[p] = sl
-        if sl <= 0:
-            loc[p] = -3
-            stack[top] = p
-            top += 1
+        drop = sl <= 0
+        loc[p] = -3 if drop else 0
+        stack[top] = p
+        top += drop
     while top > 0:
         top -= 1
         p = stack[top]
@@ -100,10 +98,10 @@ def expansion_move(alpha, x, ux, unary_t, nbr, nw, wsum, loc, nodes, slack):
     k = 0
     for i in range(m):
         p = nodes[i]
-        if loc[p] == 0:
-            loc[p] = k
-            nodes[k] = p
-            k += 1
+        kept = loc[p] == 0
+        loc[p] = k if kept else loc[p]
+        nodes[k] = p
+        k += kept
     m = k
     if m == 0:
         return 0
