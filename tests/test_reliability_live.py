@@ -138,8 +138,13 @@ def watch_slow_worker(run, seconds: float, sample_s: float, cell: str) -> dict:
         rss.append((time.monotonic() - start, wk.rss_mb(), drv.rss_mb()))
         time.sleep(sample_s)
     labels = tap.labels_after(start)
-    stats = [s for s in tap.stats if "seq" in s]
     elapsed = time.monotonic() - start
+
+    def stats_of_labelled() -> bool:  # a frame's stats follow its labels on another key
+        return {seq for _, seq, _, _ in labels} <= {s["seq"] for s in tap.stats if "seq" in s}
+
+    wait_for(stats_of_labelled, 10, "the stats of every frame labelled")
+    stats = [s for s in tap.stats if "seq" in s]
     assert wk.stop() == 0 and drv.stop() == 0, wk.err + drv.err
 
     took = {s["seq"]: s["timings_ms"]["total"] / 1000 for s in stats}
@@ -156,7 +161,7 @@ def watch_slow_worker(run, seconds: float, sample_s: float, cell: str) -> dict:
     return {
         "rss": rss,
         "labels": rows,
-        "depth_fps": len([d for d in tap.depth if d[0] > start]) / elapsed,
+        "depth_fps": len([d for d in tap.depth if start < d[0] <= start + elapsed]) / elapsed,
     }
 
 
