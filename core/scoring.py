@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from topseg.core import crf
 from topseg.core.metrics import ConfusionAccumulator, HeadDetections
 from topseg.core.segmenter import Segmenter
 
@@ -67,10 +66,7 @@ def score(
         mount = item[2] if len(item) > 2 else None
         result = segmenter.label(depth, name=f"frame {i}", mount=mount)
         final = result.labels
-        if segmenter.crf_mode == "none":
-            pred = final
-        else:
-            pred = crf.segment_argmax(result.proba, np.asarray(depth) > 0)
+        pred = final if segmenter.crf_mode == "none" else result.forest_labels()
         out.forest_ms += result.timings.forest_ms
         out.crf_ms += result.timings.crf_ms
         out.floor_share += result.floor_share

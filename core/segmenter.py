@@ -147,6 +147,12 @@ class SegmenterConfig:
     satellite_head_cm2  after the CRF, head blobs smaller than this whose centre lies
                   within SATELLITE_RADIUS_CM of a larger head blob's take their
                   border's label; 0 keeps them
+    downsample    a height model labels every downsample-th pixel of every downsample-th
+                  row of a frame (`resolution.decimate`: forest, CRF and island rules at
+                  that resolution) and brings the labels back to the frame's by depth
+                  (`resolution.upsample_labels`); None: from each frame's mount
+                  (`resolution.auto_downsample`: 2 where a pixel spans at most 7.2 mm of
+                  the floor); 1 labels every pixel. Models that read depth work at 1
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)
@@ -158,10 +164,20 @@ class SegmenterConfig:
     min_head_cm2: float = MIN_HEAD_CM2
     min_furniture_cm2: float = MIN_FURNITURE_CM2
     satellite_head_cm2: float = SATELLITE_HEAD_CM2
+    downsample: int | None = None
 
     def __post_init__(self) -> None:
+        from topseg.core.resolution import MAX_DOWNSAMPLE
+
         if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
             raise TopsegError(f"stride must be >= 1 (or None: from the mount), got {self.stride}")
+        if self.downsample is not None and (
+            isinstance(self.downsample, bool) or not 1 <= self.downsample <= MAX_DOWNSAMPLE
+        ):
+            raise TopsegError(
+                f"downsample must be 1-{MAX_DOWNSAMPLE} (or None: from the mount), "
+                f"got {self.downsample}"
+            )
         if isinstance(self.adaptive, bool) or self.adaptive < 0:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
         if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
@@ -195,6 +211,8 @@ class Segmentation:
     small_furniture  the same for chair, storage and table (`min_furniture_cm2`)
     satellite_heads  head blobs beside a larger head that took their border's label
                  (`SegmenterConfig.satellite_head_cm2`)
+    downsample   the factor the frame was labelled at (`SegmenterConfig.downsample`); the
+                 labels are the frame's size whatever it is
     """
 
     labels: np.ndarray
@@ -204,13 +222,23 @@ class Segmentation:
     small_heads: int = 0
     small_furniture: int = 0
     satellite_heads: int = 0
+    downsample: int = 1
+    _forest_labels: Callable[[], np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def proba(self) -> np.ndarray:
-        """(H, W, C) float32 forest posteriors: the Segmenter's reused buffer, valid until
-        its next call (copy it to keep it). On a grid the Segmenter stores only the ones the
-        CRF reads; the first read of `proba` stores the rest (~1.5 ms a 640x480 frame)."""
+        """(h, W, C) float32 forest posteriors at the working resolution (the frame's size
+        divided by `downsample`): the Segmenter's reused buffer, valid until its next call
+        (copy it to keep it). On a grid the Segmenter stores only the ones the CRF reads;
+        the first read of `proba` stores the rest (~1.5 ms a 640x480 frame)."""
         return self._posteriors()
+
+    def forest_labels(self) -> np.ndarray:
+        """(H, W) uint8: the forest's own argmax (no CRF, no island rules) at the frame's
+        resolution, NO_DEPTH without depth; like `proba`, only until the next frame."""
+        if self._forest_labels is None:
+            raise TopsegError("this Segmentation keeps no forest labels")
+        return self._forest_labels()
 
 
 class Segmenter:
@@ -382,6 +410,47 @@ class Segmenter:
             return 1
         return grid_stride(self.frame_mount(depth, intrinsics, name, mount))
 
+    def downsample_for(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        name: str = "frame",
+        mount: TopViewMount | None = None,
+    ) -> int:
+        """The factor this frame is labelled at: the config's, else from the frame's mount
+        (`resolution.auto_downsample`); 1 for a model that reads depth (it is tied to its
+        camera's pixels)."""
+        from topseg.core.resolution import auto_downsample
+
+        if self.features is None:
+            return 1
+        if self.config.downsample is not None:
+            return self.config.downsample
+        return auto_downsample(self.frame_mount(depth, intrinsics, name, mount))
+
+    def working_frame(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        name: str = "frame",
+        mount: TopViewMount | None = None,
+    ) -> tuple[np.ndarray, TopViewMount | None, int]:
+        """(depth, mount, factor) of the frame as the Segmenter labels it: decimated by
+        `downsample_for`'s factor with its mount's optics decimated alike (the frame and
+        the mount it would be read with when the factor is 1). TopsegError naming the frame
+        when it is no depth frame or has no mount a height model can read it with."""
+        from topseg.core.resolution import decimate, decimated_mount
+
+        factor = self.downsample_for(depth, intrinsics, name, mount)
+        full = None if self.features is None else self.frame_mount(depth, intrinsics, name, mount)
+        if factor == 1:
+            return depth, full, 1
+        try:
+            small = decimate(depth, factor)
+        except ValueError as exc:
+            raise TopsegError(f"{name}: {exc}") from None
+        return small, decimated_mount(full, factor), factor
+
     def _predict(self, inp: ModelInput, stride: int, lazy: bool = False) -> np.ndarray:
         from topseg.core.crf.argmax import Summary
         from topseg.core.forest.predict import predict_proba
@@ -417,12 +486,44 @@ class Segmenter:
     ) -> Segmentation:
         """Labels, posteriors and timings of one uint16 depth frame, validated first (`name`
         names it in the error). A height model reads it through `mount` (the config's when
-        None) with the frame's `intrinsics` when given; the forest stage's time includes
-        building the model input."""
-        from topseg.core.crf import segment_crf
-        from topseg.core.forest.predict import fill_posteriors
+        None) with the frame's `intrinsics` when given, at the working resolution
+        (`working_frame`); the labels are the frame's size. The forest stage's time
+        includes decimating the frame and building the model input, the CRF stage's the
+        island rules and bringing the labels back to the frame's resolution."""
+        from topseg.core.resolution import upsample_labels
 
         t0 = time.perf_counter()
+        small, small_mount, factor = self.working_frame(depth, intrinsics, name, mount)
+        if factor == 1:
+            return self._label(depth, intrinsics, name, mount, t0)
+        work = self._label(small, None, name, small_mount, t0)
+        t1 = time.perf_counter()
+        labels = upsample_labels(depth, work.labels, small, factor)
+        ms = 1000.0 * (time.perf_counter() - t1)
+        timings = Timings(
+            work.timings.forest_ms, work.timings.crf_ms + ms, work.timings.total_ms + ms
+        )
+
+        def forest_labels() -> np.ndarray:
+            """The forest's argmax on the decimated frame, brought back to the frame's."""
+            return upsample_labels(depth, work.forest_labels(), small, factor)
+
+        return replace(
+            work, labels=labels, timings=timings, downsample=factor, _forest_labels=forest_labels
+        )
+
+    def _label(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None,
+        name: str,
+        mount: TopViewMount | None,
+        t0: float,
+    ) -> Segmentation:
+        """`label` at the frame's own resolution, timed from `t0`."""
+        from topseg.core.crf import segment_argmax, segment_crf
+        from topseg.core.forest.predict import fill_posteriors
+
         inp = self.model_input(depth, intrinsics, name, mount)
         stride = self.stride_for(depth, intrinsics, name, mount)
         proba = self._predict(inp, stride, lazy=stride > 1)
@@ -455,6 +556,7 @@ class Segmenter:
             heads,
             furniture,
             satellites,
+            _forest_labels=lambda: segment_argmax(fill(), inp.values > 0),
         )
 
     @property

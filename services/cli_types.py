@@ -68,6 +68,17 @@ def stride(text: str) -> int | None:
 stride.__name__ = "stride"
 
 
+def downsample(text: str) -> int | None:
+    """A `type=` for the Segmenter's `--downsample`: `auto` (None: from each frame's mount)
+    or a factor 1-4."""
+    if text == "auto":
+        return None
+    return int_range(1, 4)(text)
+
+
+downsample.__name__ = "downsample"
+
+
 def early_exit(text: str) -> float | None:
     """A `type=` for the forest's `--early-exit`: `off` (None: every tree) or a posterior in
     (0, 1]."""
@@ -83,10 +94,21 @@ early_exit.__name__ = "early exit"
 
 
 def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--stride auto|N`, `--adaptive N` and `--early-exit P|off`: where the forest walks
-    (`SegmenterConfig.stride`, `.adaptive` and `.early_exit`; `grid_config` reads them back)."""
+    """`--downsample auto|N`, `--stride auto|N`, `--adaptive N` and `--early-exit P|off`: the
+    resolution the Segmenter works at and where the forest walks (`SegmenterConfig.downsample`,
+    `.stride`, `.adaptive` and `.early_exit`; `grid_config` reads them back)."""
     from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT
 
+    parser.add_argument(
+        "--downsample",
+        type=downsample,
+        default=None,
+        metavar="auto|N",
+        help="label every N-th pixel of every N-th row (forest, CRF and blob rules) and give "
+        "each pixel the label of its nearest neighbour in depth among them; auto (default) "
+        "halves the resolution where a pixel spans at most 7.2 mm of the floor (a Kinect v1 "
+        "up to 4.1 m); 1: the frame's own resolution",
+    )
     parser.add_argument(
         "--stride",
         type=stride,
@@ -115,7 +137,12 @@ def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
 
 def grid_config(args: argparse.Namespace) -> dict:
     """The `SegmenterConfig` fields of `add_grid_arguments`' options."""
-    return {"stride": args.stride, "adaptive": args.adaptive, "early_exit": args.early_exit}
+    return {
+        "downsample": args.downsample,
+        "stride": args.stride,
+        "adaptive": args.adaptive,
+        "early_exit": args.early_exit,
+    }
 
 
 def add_crf_arguments(parser: argparse.ArgumentParser) -> None:

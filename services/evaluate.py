@@ -74,9 +74,10 @@ def run(args: argparse.Namespace) -> int:
         print(metrics.format_table(final_scores, title=title))
     timing = result.ms_per_frame()
     stride = "auto (from each frame's mount)" if args.stride is None else str(args.stride)
+    downsample = "auto" if args.downsample is None else str(args.downsample)
     print(
-        f"\nms per frame: forest {timing['forest']:.1f} (stride {stride}, adaptive "
-        f"{args.adaptive}), crf {timing['crf']:.1f}"
+        f"\nms per frame: forest {timing['forest']:.1f} (downsample {downsample}, stride "
+        f"{stride}, adaptive {args.adaptive}), crf {timing['crf']:.1f}"
     )
     print(result.heads.summary())
     if segmenter.reads_height and result.frames:
@@ -88,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         doc.update(
             crf=args.crf,
             smoothness=args.smoothness,
+            downsample="auto" if args.downsample is None else args.downsample,
             stride="auto" if args.stride is None else args.stride,
             adaptive=args.adaptive,
             model=str(segmenter.path),

@@ -219,6 +219,7 @@ def run_pipeline(
     stride: int | None = None,
     adaptive: int | None = None,
     cameras: int = 1,
+    downsample: int | None = None,
     early_exit: float | None = EARLY_EXIT,
     islands: dict | None = None,
 ) -> dict:
@@ -228,8 +229,8 @@ def run_pipeline(
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "worker_<stage>_p50_ms" and "_p99_ms"
     (the worker's own forest, crf and total: receive to publish, from its stats),
     "frames_sent", "frames_labelled", "frames_scored", "scores" (ConfusionAccumulator.scores(),
-    None without truth), "confusion", "exit_codes", "logs"}. `stride` is the worker's (None:
-    auto), `adaptive` its adaptive grid's levels (None: its default), `early_exit` its trees'
+    None without truth), "confusion", "exit_codes", "logs"}. `downsample` and `stride` are
+    the worker's (None: auto), `adaptive` its adaptive grid's levels (None: its default), `early_exit` its trees'
     early exit (`SegmenterConfig.early_exit`; None: off), `islands` its blob rules
     (`SegmenterConfig` fields min_head_cm2, min_furniture_cm2, satellite_head_cm2, as
     `cli_types.island_config` gives them; None: the defaults). `cameras` > 1 runs that many
@@ -281,6 +282,7 @@ def run_pipeline(
     try:
         worker = ["worker", "--model", str(model), "--crf", crf, "--cameras"]
         worker += [f"{CELL}/{name}" for name in names]
+        worker += ["--downsample", "auto" if downsample is None else str(downsample)]
         worker += ["--stride", "auto" if stride is None else str(stride)]
         worker += [] if adaptive is None else ["--adaptive", str(adaptive)]
         worker += ["--early-exit", "off" if early_exit is None else str(early_exit)]

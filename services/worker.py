@@ -197,6 +197,7 @@ class CameraState:
     fps: float = 0.0
     watch: MountWatch | None = None
     warned_outside: bool = False
+    downsample: int = 0  # the factor its frames were last labelled at (0: none yet)
     discovered: bool = False  # served because its depth came (not named by --cameras)
     last_seen: float = field(default_factory=time.monotonic)  # last depth message taken
     source: str | None = None  # the driver instance whose depth this camera follows
@@ -625,6 +626,19 @@ class Worker:
             self.reject(state, f"cannot label frame {frame.seq}: {type(exc).__name__}: {exc}")
             return
         t3 = time.perf_counter()
+        if result.downsample != state.downsample:  # said when it is known, or changes
+            state.downsample = f = result.downsample
+            h, w = result.labels.shape
+            log.info(
+                "camera %s/%s: %dx%d frames labelled at %s",
+                state.cell,
+                state.camera,
+                w,
+                h,
+                "their own resolution"
+                if f == 1
+                else f"{-(-w // f)}x{-(-h // f)}, the labels brought back to {w}x{h} by depth",
+            )
         out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
         state.labels_pub.put(wire.encode_labels(out), attachment=self.attachment)
         t4 = time.perf_counter()

@@ -24,6 +24,8 @@ bit (as stumpy keeps its naive versions in one test module).
 - `islands_reference`: blobs too small to be a head or a piece of furniture relabelled,
   and satellite heads beside a larger head (`islands.relabel_islands`), with scipy's
   connected components.
+- `upsample_labels_reference`: labels of a decimated frame brought back to the frame's
+  resolution by depth (`resolution.upsample_labels`).
 """
 
 from __future__ import annotations
@@ -1011,3 +1013,32 @@ def islands_reference(
             out[inside] = label
             satellites += 1
     return out, relabelled, satellites
+
+
+def upsample_labels_reference(depth, small_labels, small_depth, factor):
+    """`resolution.upsample_labels` in numpy: the four candidates of every pixel as whole
+    arrays, the first nearest in depth among those with a label (argmin keeps the first)."""
+    h, w = depth.shape
+    sh, sw = small_labels.shape
+    r = np.arange(h)
+    c = np.arange(w)
+    i0 = r // factor
+    i1 = np.minimum(i0 + (r % factor != 0), sh - 1)
+    j0 = c // factor
+    j1 = np.minimum(j0 + (c % factor != 0), sw - 1)
+    rows = [i0, i0, i1, i1]
+    cols = [j0, j1, j0, j1]
+    d = depth.astype(np.int64)
+    gaps, labs = [], []
+    for ri, ci in zip(rows, cols, strict=True):
+        s = small_depth[np.ix_(ri, ci)].astype(np.int64)
+        lab = small_labels[np.ix_(ri, ci)]
+        usable = (s != 0) & (lab != labels.NO_DEPTH)
+        gaps.append(np.where(usable, np.abs(s - d), np.iinfo(np.int64).max))
+        labs.append(lab)
+    gaps = np.stack(gaps)
+    best = np.argmin(gaps, axis=0)
+    out = np.take_along_axis(np.stack(labs), best[None], axis=0)[0].astype(np.uint8)
+    out[np.min(gaps, axis=0) == np.iinfo(np.int64).max] = labels.BACKGROUND
+    out[depth == 0] = labels.NO_DEPTH
+    return out

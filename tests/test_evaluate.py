@@ -93,6 +93,12 @@ def test_scores_match_a_hand_computed_confusion_matrix(data, tmp_path):
 def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
     from topseg.core.forest.inputs import dataset_mount, header_fields, model_input, trained_for
     from topseg.core.forest.predict import grid_stride
+    from topseg.core.resolution import (
+        auto_downsample,
+        decimate,
+        decimated_mount,
+        upsample_labels,
+    )
     from topseg.core.segmenter import ADAPTIVE_LEVELS
 
     ds = D.open_dataset(data)
@@ -122,15 +128,23 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
         h, w = m.intrinsics.shape
         depth = np.asarray(ds.depth[i])[:h, :w]
         truth = np.asarray(ds.labels[i])[:h, :w].ravel()
-        inp = model_input(depth, m, config.features)  # walked on the mount's grid, as default
-        pred = forest.predict_labels(model, inp, grid_stride(m), ADAPTIVE_LEVELS).ravel()
+        # at the working resolution (halved where a pixel spans little of the floor), walked
+        # on that mount's grid and brought back by depth, as by default
+        small, sm = depth, m
+        if auto_downsample(m) == 2:
+            small, sm = decimate(depth, 2), decimated_mount(m, 2)
+        inp = model_input(small, sm, config.features)
+        pred = forest.predict_labels(model, inp, grid_stride(sm), ADAPTIVE_LEVELS)
+        if small is not depth:
+            pred = upsample_labels(depth, pred, small, 2)
+        pred = pred.ravel()
         keep = truth != NO_DEPTH
         pred = np.where(pred[keep] == NO_DEPTH, 0, pred[keep])
         cm += np.bincount(truth[keep] * NUM_CLASSES + pred, minlength=NUM_CLASSES**2).reshape(
             cm.shape
         )
     doc = json.loads((tmp_path / "s.json").read_text())
-    assert doc["stride"] == "auto" and doc["adaptive"] == ADAPTIVE_LEVELS
+    assert doc["stride"] == doc["downsample"] == "auto" and doc["adaptive"] == ADAPTIVE_LEVELS
     np.testing.assert_array_equal(np.array(doc["confusion"]), cm)
 
 

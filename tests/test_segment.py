@@ -131,6 +131,8 @@ def height_model(tmp_path_factory):
     ("option", "value"),
     [
         ("--stride", "-1"),
+        ("--downsample", "0"),
+        ("--downsample", "5"),
         ("--adaptive", "-1"),
         ("--early-exit", "0"),
         ("--early-exit", "1.5"),
@@ -150,8 +152,9 @@ def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path
     for i, (depth, _) in enumerate(frames):
         Image.fromarray(depth).save(folder / f"f{i}.png")
     r = segment(
-        folder, "--model", path, "--out", tmp_path / "out", "--crf", "none", "--stride", "1"
-    )
+        folder, "--model", path, "--out", tmp_path / "out", "--crf", "none", "--stride", "1",
+        "--downsample", "1",
+    )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" in r.stdout
     assert "floor noise" in r.stdout and "the kinect_v1 model)" in r.stdout
@@ -176,7 +179,7 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     Image.fromarray(depth).save(tmp_path / "f.png")
     r = segment(
         tmp_path / "f.png", "--mount", tmp_path / "mount.json", "--model", path,
-        "--out", tmp_path / "a", "--crf", "none", "--stride", "1",
+        "--out", tmp_path / "a", "--crf", "none", "--stride", "1", "--downsample", "1",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "estimated" not in r.stdout
@@ -187,7 +190,9 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     w = recording.RecordingWriter(rec)
     w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, KINECT_V1, 3, mount=MOUNT)))
     w.close()
-    r = segment(rec, "--model", path, "--out", tmp_path / "b", "--crf", "none")  # stride auto
+    r = segment(  # stride auto, at the frame's own resolution (the reference's)
+        rec, "--model", path, "--out", tmp_path / "b", "--crf", "none", "--downsample", "1"
+    )
     assert r.returncode == 0, r.stderr
     assert "estimated" not in r.stdout
     inp = model_input(depth, MOUNT, features)
@@ -223,11 +228,13 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
         if msg.key.endswith("/depth") and len(depths) < 4:
             depths.append(wire.decode_depth(msg.data).depth)
             Image.fromarray(depths[-1]).save(folder / f"f{len(depths)}.png")
+    # at the frames' own resolution, where the rules run on the labels written (at half
+    # resolution they run before the labels are brought back: tests/test_segmenter.py)
     kept = segment(
         folder, "--out", tmp_path / "kept", "--min-head-cm2", "0", "--min-furniture-cm2", "0",
-        "--satellite-head-cm2", "0",
+        "--satellite-head-cm2", "0", "--downsample", "1",
     )  # fmt: skip
-    cleaned = segment(folder, "--out", tmp_path / "cleaned")
+    cleaned = segment(folder, "--out", tmp_path / "cleaned", "--downsample", "1")
     assert kept.returncode == 0 == cleaned.returncode, kept.stderr + cleaned.stderr
     assert "relabelled" not in kept.stdout
     relabelled, satellites = np.zeros(11, np.int64), 0

@@ -362,14 +362,20 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
         for bad in (-1.0, float("nan"), float("inf")):
             with pytest.raises(TopsegError, match=name):
                 SegmenterConfig(**{name: bad})
+    # at the frame's own resolution, where the rule runs on the labels it returns (at half
+    # resolution it runs before they are brought back: tested with the downsample below)
     kept = Segmenter.from_file(
         None,
         SegmenterConfig(
-            mount=PAPER_MOUNT, min_head_cm2=0, min_furniture_cm2=0, satellite_head_cm2=0
+            mount=PAPER_MOUNT,
+            min_head_cm2=0,
+            min_furniture_cm2=0,
+            satellite_head_cm2=0,
+            downsample=1,
         ),
     )
     assert not kept.relabels_islands
-    cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
+    cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1))
     k = PAPER_MOUNT.intrinsics
     relabelled = np.zeros(L.NUM_CLASSES, np.int64)
     for depth, _ in demo_frames(6):
@@ -384,3 +390,42 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
         assert got.small_furniture == n[list(FURNITURE_ISLANDS)].sum()
         relabelled += n
     assert relabelled[L.HEAD] > 0 and relabelled[list(FURNITURE_ISLANDS)].sum() > 0
+
+
+def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(legacy):
+    """By default a Kinect v1 3.5 m up (6 mm of floor a pixel) is labelled at half
+    resolution: the labels are those of the decimated frame seen through the decimated
+    optics, brought back to the frame's size by depth; the forest's own labels likewise."""
+    from topseg.core.resolution import decimate, decimated_mount, upsample_labels
+
+    depth = demo_frames(1)[0][0]
+    auto = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
+    one = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1))
+    got = auto.label(depth)
+    assert got.downsample == 2 and got.labels.shape == depth.shape
+    small = decimate(depth, 2)
+    want = one.label(small, mount=decimated_mount(PAPER_MOUNT, 2))
+    np.testing.assert_array_equal(got.labels, upsample_labels(depth, want.labels, small, 2))
+    forest_labels = upsample_labels(depth, want.forest_labels(), small, 2)
+    np.testing.assert_array_equal(got.forest_labels(), forest_labels)
+    assert got.proba.shape == (*small.shape, L.NUM_CLASSES)
+    np.testing.assert_array_equal(got.proba, want.proba)
+    assert got.floor_share == want.floor_share > 0
+    t = got.timings
+    assert t.forest_ms > 0 and t.crf_ms > 0 and t.total_ms >= t.forest_ms + t.crf_ms - 1e-6
+    # every pixel at the frame's own resolution when asked, or when the model reads depth
+    assert one.label(depth).downsample == 1 == one.downsample_for(depth)
+    assert legacy.downsample_for(depth) == 1
+    assert Segmenter(legacy.forest, legacy.header, SegmenterConfig(downsample=2)).label(
+        depth
+    ).labels.shape == (480, 640)
+
+
+def test_the_downsample_is_a_config_field_checked_up_front():
+    assert SegmenterConfig().downsample is None  # from each frame's mount
+    for bad in (0, 5, True, -1):
+        with pytest.raises(TopsegError, match="downsample"):
+            SegmenterConfig(downsample=bad)
+    seg = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
+    with pytest.raises(TopsegError, match=r"f9: .*uint16"):
+        seg.label(np.zeros((480, 640), np.float32), name="f9")

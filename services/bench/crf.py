@@ -11,12 +11,15 @@ realtime's energy comes to exact's:
   unaries of the floor alone make the ratio close to 1).
 
 Unaries are the bundled model's posteriors (or --model's), as the Segmenter makes them by
-default (on its grid, upsampled by height), on rendered modeled scenes with the sensor's own
+default (at its working resolution, `--downsample auto`: half the frame's for this camera; on
+its grid, upsampled by height), on rendered modeled scenes with the sensor's own
 noise (`bench/frames.py`; `--frames-from procedural` for procedural top views).
 `--unaries quick-forest` uses a small forest trained here on procedural frames (seeded,
 ~20 s), `--unaries synthetic` the stand-in forest-like posteriors of `bench.crf_standin`.
 The realtime CRF is timed as the Segmenter runs it: given the per-pixel argmax and top two
-posteriors that the forest computes as it writes the posteriors (`crf.Summary`). Timings
+posteriors that the forest computes as it writes the posteriors (`crf.Summary`), and with
+its labels brought back to the frame's resolution (`resolution.upsample_labels`); energies
+are those of the working resolution's problem, which both solvers solve. Timings
 are per-frame medians of --repeat runs, wall clock (*_ms_*) and this process's CPU time
 (*_cpu_ms_*: both solvers are single-threaded, so on an idle machine the two agree); the
 load average is reported beside them, since other processes on a 2-core machine inflate
@@ -91,8 +94,10 @@ def _quick_forest(rng: np.random.Generator):
 
 
 def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
-    """[(posteriors, depth, summary, fill)] and a sentence saying where the unaries came from
-    (`segment_crf`'s arguments; summary and fill None where the Segmenter has none)."""
+    """[(posteriors, depth, summary, fill, frame, factor)] and a sentence saying where the
+    unaries came from: `segment_crf`'s arguments at the resolution the Segmenter works at
+    (summary and fill None where the Segmenter has none), the frame at its own resolution
+    and the factor between the two (`Segmenter.working_frame`)."""
     rng = np.random.default_rng(args.seed)
     if args.unaries == "synthetic":
         from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
@@ -100,7 +105,7 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
         out = []
         for _ in range(args.frames):
             depth, truth = synthetic_scene(rng)
-            out.append((forest_like_posteriors(truth, rng), depth, None, None))
+            out.append((forest_like_posteriors(truth, rng), depth, None, None, depth, 1))
         return out, "stand-in forest-like posteriors on synthetic scenes (bench/crf_standin)"
     from topseg.core.crf import Summary, argmax_confidence
     from topseg.core.forest import FeatureConfig, fill_posteriors
@@ -118,20 +123,32 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
         segmenter = Segmenter.from_file(args.model, config)
         source = f"{'model ' + str(args.model) if args.model else 'the bundled model'}"
     pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1)
-    stride = segmenter.stride_for(pairs[0][0])
-    # the buffer is reused: copy
     out = []
-    for depth, _ in pairs:
-        proba = segmenter.posteriors(depth).copy()  # the buffer is reused
+    for frame, _ in pairs:
+        depth, mount, factor = segmenter.working_frame(frame)
+        stride = segmenter.stride_for(depth, mount=mount)
+        proba = segmenter.posteriors(depth, mount=mount).copy()  # the buffer is reused
         # what the forest hands the CRF beside the posteriors (it computes them as it writes)
         summary = Summary(*argmax_confidence(proba, depth > 0))
         # on a grid the Segmenter stores the band's posteriors when the CRF asks for them
         # (`Segmenter.label`): the realtime CRF's time includes that
         fill = None
         if stride > 1 and segmenter.reads_height:
-            fill = functools.partial(fill_posteriors, segmenter.model_input(depth), proba, stride)
-        out.append((proba, depth, summary, fill))
-    return out, f"{source} (stride {stride}) on {what}"
+            inp = segmenter.model_input(depth, mount=mount)
+            fill = functools.partial(fill_posteriors, inp, proba, stride)
+        out.append((proba, depth, summary, fill, frame, factor))
+    resolution = f"downsample {factor}, " if factor > 1 else ""
+    return out, f"{source} ({resolution}stride {stride}) on {what}"
+
+
+def _smooth(proba, depth, config, summary, fill, frame, factor):
+    """The CRF stage as the Segmenter runs it (less the island rules): `segment_crf` at the
+    working resolution, then the labels brought back to the frame's. Returns both labels."""
+    from topseg.core.crf import segment_crf
+    from topseg.core.resolution import upsample_labels
+
+    labels = segment_crf(proba, depth, config, summary, fill)
+    return labels, labels if factor == 1 else upsample_labels(frame, labels, depth, factor)
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -152,18 +169,18 @@ def measure(args: argparse.Namespace) -> dict:
     exact = CRFConfig(**{**realtime.to_dict(), "mode": "exact"})
     none = CRFConfig(**{**realtime.to_dict(), "mode": "none"})
     frames, source = _frames(args)
-    proba0, depth0, summary0, fill0 = frames[0]
-    segment_crf(proba0, depth0, realtime, summary0, fill0)  # compile / load the kernels
+    proba0, depth0, summary0, fill0, frame0, factor0 = frames[0]
+    _smooth(proba0, depth0, realtime, summary0, fill0, frame0, factor0)  # compile the kernels
     segment_crf(proba0, depth0, realtime)
     rows = []
-    for proba, depth, summary, fill in frames:
+    for proba, depth, summary, fill, frame, factor in frames:
         t0, c0 = time.perf_counter(), time.process_time()
-        lab_exact = segment_crf(proba, depth, exact)
+        lab_exact = _smooth(proba, depth, exact, None, None, frame, factor)[0]
         t_exact, c_exact = time.perf_counter() - t0, time.process_time() - c0
         times, cpu = [], []
         for _ in range(args.repeat):
             t0, c0 = time.perf_counter(), time.process_time()
-            lab_rt = segment_crf(proba, depth, realtime, summary, fill)
+            lab_rt = _smooth(proba, depth, realtime, summary, fill, frame, factor)[0]
             times.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         lab_none = segment_crf(proba, depth, none)
@@ -204,7 +221,8 @@ def measure(args: argparse.Namespace) -> dict:
         "crf_label_agreement": round(float(col("agree").mean()), 4),
         "crf_band_fraction": round(float(col("band").mean()), 4),
         "frames": len(rows),
-        "frame_shape": "x".join(str(s) for s in frames[0][1].shape[::-1]),
+        "frame_shape": "x".join(str(s) for s in frames[0][4].shape[::-1]),
+        "working_shape": "x".join(str(s) for s in frames[0][1].shape[::-1]),
         "unaries": source,
         "realtime_config": realtime.to_dict(),
         "load_average_1min": round(os.getloadavg()[0], 2),

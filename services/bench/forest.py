@@ -2,9 +2,12 @@
 
 By default the bundled model is timed on rendered modeled scenes with the sensor's own
 noise (640x480 Kinect v1 at the paper's 3.5 m; `bench/frames.py`), as the worker labels
-them: at full resolution (`stride 1`, every pixel the floor gate lets through) and on the
-grid the Segmenter walks by default (`--stride auto`, upsampled by height; `--adaptive 1`:
-the grid twice as coarse first, the grid itself only where that one is unsure). `--model` times
+them: at full resolution (`stride 1`, every pixel the floor gate lets through) and as the
+Segmenter runs by default: at its working resolution (`--downsample auto`: every other pixel
+of every other row for this camera, the labels brought back to the frame's by depth; the
+figures' suffix `_downsample2`) on its grid (`--stride auto`, upsampled by height;
+`--adaptive 1`: the grid twice as coarse first, the grid itself only where that one is
+unsure). `--model` times
 another model file, `--forest trained` a T=5, D=19 forest trained here on procedural frames
 (seconds), `--forest random` full binary trees of random splits (every pixel walks all D
 levels: the worst case). The figures say which forest was timed, how deep pixels walk, wall
@@ -105,16 +108,20 @@ def _time_frames(predict, frames, repeats):
     return 1000 * float(np.median(wall)), 1000 * float(np.median(cpu))
 
 
-def _trees_walked(model, segmenter, frame, stride: int):
-    """(H, W) uint8: how many trees `segmenter`'s forest walks at each pixel of `frame` at
-    `stride` (0 where it does not walk: between grid pixels, the adaptive grid's settled
-    pixels; fewer than all where the early exit stops a pixel)."""
+def _node_visits(model, segmenter, frame) -> tuple[int, int, float]:
+    """(node visits, stride, mean levels a walk takes) of `segmenter`'s forest on `frame`,
+    at the resolution it works at (`Segmenter.working_frame`): the trees each pixel walks
+    (none between grid pixels and at the adaptive grid's settled pixels, fewer than all where
+    the early exit stops it) times the levels of the leaf it reaches in each."""
     import numpy as np
 
-    from topseg.core.forest.predict import predict_proba
+    from topseg.core.forest.predict import apply, predict_proba
+    from topseg.core.forest.tree import node_depths
 
-    walked = np.zeros(frame.shape, np.uint8)
-    inp = segmenter.model_input(frame)
+    small, mount, _ = segmenter.working_frame(frame)
+    inp = segmenter.model_input(small, mount=mount)
+    stride = segmenter.stride_for(small, mount=mount)
+    walked = np.zeros(inp.shape, np.uint8)
     config = segmenter.config
     predict_proba(
         model,
@@ -124,7 +131,12 @@ def _trees_walked(model, segmenter, frame, stride: int):
         walked=walked,
         early_exit=config.early_exit,
     )
-    return walked
+    leaves = apply(model, inp)
+    levels = node_depths(model.left, model.roots)
+    # trees are walked in order: a pixel that walked n went through the first n
+    visits = sum(int(levels[leaves[t][walked > t]].sum()) for t in range(model.n_trees))
+    mean_levels = float(levels[leaves[leaves >= 0]].mean()) if np.any(leaves >= 0) else 0.0
+    return visits, stride, mean_levels
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -134,8 +146,6 @@ def measure(args: argparse.Namespace) -> dict:
 
     from topseg.core import forest as forest_mod
     from topseg.core.forest.inputs import header_fields
-    from topseg.core.forest.predict import apply
-    from topseg.core.forest.tree import node_depths
     from topseg.core.scoring import score
     from topseg.core.segmenter import Segmenter, SegmenterConfig, bundled_model_path
     from topseg.core.synth import procedural
@@ -157,11 +167,10 @@ def measure(args: argparse.Namespace) -> dict:
     full = Segmenter(
         model,
         header,
-        SegmenterConfig(check_camera=False, mount=mount, stride=1, early_exit=None),
+        SegmenterConfig(check_camera=False, mount=mount, stride=1, early_exit=None, downsample=1),
         crf="none",
     )
     grid = Segmenter(model, header, replace(full.config, **grid_config(args)), crf="none")
-    stride = grid.stride_for(frames[0])
     figures: dict = {
         "forest": kind,
         "frames": f"{len(frames)} {what}",
@@ -172,14 +181,14 @@ def measure(args: argparse.Namespace) -> dict:
         "threads": numba.get_num_threads(),
         "adaptive_levels": args.adaptive,
     }
-    leaves = apply(model, full.model_input(frames[0]))
-    levels = node_depths(model.left, model.roots)
-    figures["mean_levels_walked"] = round(float(levels[leaves[leaves >= 0]].mean()), 2)
-    for s, segmenter in {1: full, stride: grid}.items():
+    for segmenter in (full, grid):
+        factor = segmenter.downsample_for(frames[0])
+        visits, stride, mean_levels = _node_visits(model, segmenter, frames[0])
+        if segmenter is full:
+            figures["mean_levels_walked"] = round(mean_levels, 2)
+        # the figures' suffix: the grid's stride, and the resolution when not the frame's
+        s = str(stride) if factor == 1 else f"{stride}_downsample{factor}"
         wall, cpu = _time_frames(segmenter.label, frames, args.repeats)
-        trees = _trees_walked(model, segmenter, frames[0], s)
-        # trees are walked in order: a pixel that walked n went through the first n
-        visits = sum(int(levels[leaves[t][trees > t]].sum()) for t in range(model.n_trees))
         figures[f"forest_ms_per_frame_stride{s}"] = round(wall, 2)
         figures[f"forest_cpu_ms_per_frame_stride{s}"] = round(cpu, 2)
         figures[f"node_visits_per_frame_stride{s}"] = visits

@@ -75,6 +75,7 @@ def measure(args: argparse.Namespace) -> dict:
         args.crf,
         None,
         args.lossless,
+        downsample=args.downsample,
         stride=args.stride,
         adaptive=args.adaptive,
         early_exit=args.early_exit,

@@ -1,0 +1,132 @@
+"""The resolution the Segmenter works at, and its labels brought back to the frame's.
+
+A 640x480 Kinect v1 3.5 m above the floor sees 6 mm of floor in a pixel: four pixels across
+a finger, twelve across a hand. The forest already walks only a grid of pixels ~25 mm apart
+(`forest.predict.grid_stride`), but the posteriors' upsampling, the CRF's band and the island
+rules pay for every pixel of the frame. So where a pixel spans little of the floor the
+Segmenter labels every `factor`-th pixel of every `factor`-th row (`decimate`: the
+pixels themselves, no mixing of depths, so no new flying pixels), seen through the same
+optics at that resolution (`decimated_mount`), and `upsample_labels` gives each pixel of the
+frame the label of the nearest in depth of the up to four labelled pixels around it: a label
+edge follows the depth edge between them.
+
+`auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): 2 where a
+pixel spans at most `HALVE_BELOW_FLOOR_PX_MM` of the floor straight below, else 1. Measured
+in docs/performance.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numba
+import numpy as np
+
+from topseg.core.camera import Intrinsics, check_depth
+from topseg.core.labels import BACKGROUND, NO_DEPTH
+
+if TYPE_CHECKING:
+    from topseg.core.camera import TopViewMount
+
+#: `auto_downsample` halves the resolution where a pixel spans at most this much of the
+#: floor straight below the camera (mm): a Kinect v1 up to 4.1 m (fx 570), a Kinect v2 or a
+#: D435 up to 2.6 m, an OAK-D up to 3.2 m. The labelled pixel then spans at most twice that
+#: (~14 mm, a fifth of a hand's width).
+HALVE_BELOW_FLOOR_PX_MM = 7.2
+#: the largest factor `SegmenterConfig.downsample` takes
+MAX_DOWNSAMPLE = 4
+
+
+def auto_downsample(mount: TopViewMount) -> int:
+    """The factor the Segmenter works at on frames from `mount` by default: 2 where a pixel
+    spans at most HALVE_BELOW_FLOOR_PX_MM of the floor straight below, else 1."""
+    floor_px_mm = mount.height_mm / mount.intrinsics.fx
+    return 2 if floor_px_mm <= HALVE_BELOW_FLOOR_PX_MM else 1
+
+
+def decimated_intrinsics(k: Intrinsics, factor: int) -> Intrinsics:
+    """The optics of every `factor`-th pixel of every `factor`-th row of a frame from `k`
+    (pixel (i, j) of the result is pixel (factor i, factor j) of the frame)."""
+    return Intrinsics(
+        -(-k.width // factor),
+        -(-k.height // factor),
+        k.fx / factor,
+        k.fy / factor,
+        k.cx / factor,
+        k.cy / factor,
+    )
+
+
+def decimated_mount(mount: TopViewMount, factor: int) -> TopViewMount:
+    """`mount` with the intrinsics of its frames decimated by `factor` (`decimate`)."""
+    return replace(mount, intrinsics=decimated_intrinsics(mount.intrinsics, factor))
+
+
+def decimate(depth: np.ndarray, factor: int) -> np.ndarray:
+    """Every `factor`-th pixel of every `factor`-th row of a uint16 depth frame (C-contiguous
+    copy; the depths themselves, never averaged)."""
+    depth = check_depth(depth, "decimate")
+    return np.ascontiguousarray(depth[::factor, ::factor])
+
+
+@numba.njit(cache=True, parallel=True)
+def _upsample_labels(depth, small_labels, small_depth, factor, out):
+    """`upsample_labels`' kernel: each pixel with depth takes the label of the candidate
+    nearest to it in depth, candidates in the order (i0, j0), (i0, j1), (i1, j0), (i1, j1)
+    (the first wins a tie, so a pixel of the grid keeps its own label)."""
+    h, w = depth.shape
+    sh, sw = small_labels.shape
+    for r in numba.prange(h):
+        i0 = r // factor
+        i1 = min(i0 + (1 if r % factor else 0), sh - 1)
+        for c in range(w):
+            d = np.int32(depth[r, c])
+            if d == 0:
+                out[r, c] = NO_DEPTH
+                continue
+            j0 = c // factor
+            j1 = min(j0 + (1 if c % factor else 0), sw - 1)
+            best = np.int32(1 << 30)
+            label = np.uint8(BACKGROUND)
+            for k in range(4):
+                i = i0 if k < 2 else i1
+                j = j0 if k % 2 == 0 else j1
+                s = np.int32(small_depth[i, j])
+                lab = small_labels[i, j]
+                if s != 0 and lab != NO_DEPTH:
+                    gap = abs(s - d)
+                    if gap < best:
+                        best = gap
+                        label = lab
+            out[r, c] = label
+
+
+def upsample_labels(
+    depth: np.ndarray,
+    small_labels: np.ndarray,
+    small_depth: np.ndarray,
+    factor: int,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """(H, W) uint8 labels of the full frame `depth` from the labels of its decimation
+    (`small_depth` = `decimate(depth, factor)`, labelled `small_labels`).
+
+    Each pixel with depth takes the label of the one, among the up to four decimated pixels
+    around it (those on the rows and columns of the decimated grid on either side), nearest
+    to it in depth that has a label; a pixel of the grid keeps its own. Pixels without depth
+    are NO_DEPTH; a pixel with depth whose candidates have none is BACKGROUND."""
+    depth = check_depth(depth, "upsample_labels")
+    small_depth = check_depth(small_depth, "upsample_labels")
+    want = (-(-depth.shape[0] // factor), -(-depth.shape[1] // factor))
+    if small_depth.shape != want or np.shape(small_labels) != want:
+        raise ValueError(
+            f"a {depth.shape[1]}x{depth.shape[0]} frame decimated by {factor} is "
+            f"{want[1]}x{want[0]}; got depth {small_depth.shape[::-1]} and labels "
+            f"{np.shape(small_labels)[::-1]}"
+        )
+    small_labels = np.ascontiguousarray(small_labels, np.uint8)
+    if out is None:
+        out = np.empty(depth.shape, np.uint8)
+    _upsample_labels(depth, small_labels, small_depth, np.int64(factor), out)
+    return out
