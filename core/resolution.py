@@ -70,36 +70,79 @@ def decimate(depth: np.ndarray, factor: int) -> np.ndarray:
     return np.ascontiguousarray(depth[::factor, ::factor])
 
 
+#: `_blocks`' mark of a block whose candidates do not share one label (labels are 0-10, 255)
+_MIXED = np.uint8(254)
+
+
+@numba.njit(cache=True, inline="always")
+def _nearest_label(d, small_labels, small_depth, i0, i1, j0, j1):
+    """The label for a pixel of depth d among its candidates (i0, j0), (i0, j1), (i1, j0),
+    (i1, j1): of those with a label, the first nearest in depth (the first wins a tie, so a
+    pixel of the grid keeps its own label); BACKGROUND when none has one."""
+    best = np.int32(1 << 30)
+    label = np.uint8(BACKGROUND)
+    for k in range(4):
+        i = i0 if k < 2 else i1
+        j = j0 if k % 2 == 0 else j1
+        s = np.int32(small_depth[i, j])
+        lab = small_labels[i, j]
+        if s != 0 and lab != NO_DEPTH:
+            gap = abs(s - d)
+            if gap < best:
+                best = gap
+                label = lab
+    return label
+
+
+@numba.njit(cache=True, parallel=True)
+def _blocks(small_labels, small_depth):
+    """(h, w) uint8: the label every pixel of the block at decimated (i, j) takes when its
+    candidates (i, j), (i, j + 1), (i + 1, j) and (i + 1, j + 1) share it and (i, j) has
+    depth (`_nearest_label` would pick it for each), else _MIXED."""
+    sh, sw = small_labels.shape
+    out = np.empty((sh, sw), np.uint8)
+    for i in numba.prange(sh):
+        i1 = min(i + 1, sh - 1)
+        for j in range(sw):
+            j1 = min(j + 1, sw - 1)
+            a = small_labels[i, j]
+            same = (
+                (a != NO_DEPTH)
+                & (small_depth[i, j] != 0)
+                & (small_labels[i, j1] == a)
+                & (small_labels[i1, j] == a)
+                & (small_labels[i1, j1] == a)
+            )
+            out[i, j] = a if same else _MIXED
+    return out
+
+
 @numba.njit(cache=True, parallel=True)
 def _upsample_labels(depth, small_labels, small_depth, factor, out):
-    """`upsample_labels`' kernel: each pixel with depth takes the label of the candidate
-    nearest to it in depth, candidates in the order (i0, j0), (i0, j1), (i1, j0), (i1, j1)
-    (the first wins a tie, so a pixel of the grid keeps its own label)."""
+    """`upsample_labels`' kernel: a pixel of a block whose candidates share one label
+    (`_blocks`) takes it without comparing depths; the others choose (`_nearest_label`)."""
     h, w = depth.shape
     sh, sw = small_labels.shape
+    blocks = _blocks(small_labels, small_depth)
+    block_of = np.empty(w, np.int64)  # the decimated column of each column, and its offset
+    offset = np.empty(w, np.int64)
+    for c in range(w):
+        block_of[c] = c // factor
+        offset[c] = c % factor
     for r in numba.prange(h):
         i0 = r // factor
         i1 = min(i0 + (1 if r % factor else 0), sh - 1)
         for c in range(w):
             d = np.int32(depth[r, c])
+            j0 = block_of[c]
+            b = blocks[i0, j0]
             if d == 0:
                 out[r, c] = NO_DEPTH
-                continue
-            j0 = c // factor
-            j1 = min(j0 + (1 if c % factor else 0), sw - 1)
-            best = np.int32(1 << 30)
-            label = np.uint8(BACKGROUND)
-            for k in range(4):
-                i = i0 if k < 2 else i1
-                j = j0 if k % 2 == 0 else j1
-                s = np.int32(small_depth[i, j])
-                lab = small_labels[i, j]
-                if s != 0 and lab != NO_DEPTH:
-                    gap = abs(s - d)
-                    if gap < best:
-                        best = gap
-                        label = lab
-            out[r, c] = label
+            elif b != _MIXED:
+                out[r, c] = b
+            else:
+                j1 = min(j0 + (1 if offset[c] else 0), sw - 1)
+                out[r, c] = _nearest_label(d, small_labels, small_depth, i0, i1, j0, j1)
 
 
 def upsample_labels(
