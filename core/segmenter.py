@@ -616,6 +616,7 @@ class Segmenter:
         from topseg.core.crf import segment_crf
         from topseg.core.forest.inputs import legacy_input
         from topseg.core.forest.predict import fill_posteriors
+        from topseg.core.resolution import decimate, upsample_labels
 
         read_only = depth.copy()
         read_only.flags.writeable = False
@@ -629,6 +630,9 @@ class Segmenter:
                 fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
                 labels = segment_crf(proba, frame, self.config.crf, self._summary, fill)
                 self._relabel_islands(labels, frame, None, "warm-up frame", mount)
+            if self.features is not None:  # the half-resolution path's own two steps
+                small = decimate(frame, 2)
+                upsample_labels(frame, labels[::2, ::2], small, 2)
         if self.config.crf.mode == "realtime":
             from topseg.core.crf import realtime
 

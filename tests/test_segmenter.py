@@ -315,7 +315,8 @@ def test_warm_up_compiles_what_a_first_large_frame_runs():
 def test_warm_up_compiles_what_a_frame_off_the_wire_runs():
     """Frames decoded from the wire are read-only arrays, for which numba compiles its own
     kernels: after warm_up, labelling one must compile nothing (with a cold cache, that
-    compile on a worker's first frames dropped 10 of them). In a fresh interpreter: this
+    compile on a worker's first frames dropped 10 of them), at the frame's resolution or at
+    half of it. In a fresh interpreter: this
     one's kernels may hold those signatures from earlier tests."""
     import subprocess
     import sys
@@ -326,7 +327,7 @@ from topseg.core import crf
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.crf import energy
 from topseg.core.formats import wire
-from topseg.core import islands
+from topseg.core import islands, resolution
 from topseg.core.forest import inputs, predict
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 
@@ -334,7 +335,7 @@ seg = Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="realti
 seg.warm_up()
 kernels = [
     v
-    for module in (energy, inputs, predict, crf.realtime, crf.argmax, islands)
+    for module in (energy, inputs, predict, crf.realtime, crf.argmax, islands, resolution)
     for v in vars(module).values()
     if isinstance(v, numba.core.dispatcher.Dispatcher)
 ]
@@ -345,6 +346,12 @@ mount = TopViewMount(KINECT_V1.scaled_to(160, 120), 3000.0)
 frame = wire.decode_depth(wire.encode_depth(wire.DepthFrame(depth, mount.intrinsics, mount=mount)))
 assert not frame.depth.flags.writeable
 seg.label(frame.depth, frame.intrinsics, mount=frame.mount)
+# a Kinect v1 3 m up: labelled at half resolution, the labels brought back
+big = np.full((480, 640), 3000, np.uint16)
+big[160:320, 200:440] = 1800
+mount = TopViewMount(KINECT_V1, 3000.0)
+frame = wire.decode_depth(wire.encode_depth(wire.DepthFrame(big, mount.intrinsics, mount=mount)))
+assert seg.label(frame.depth, frame.intrinsics, mount=frame.mount).downsample == 2
 print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) != b])
 """
     out = subprocess.run(
