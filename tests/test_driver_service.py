@@ -176,11 +176,18 @@ def test_driver_reconnects_a_stalled_kinect_and_stops_mid_wait(listen, tmp_path)
             proc.kill()
     assert rc == 0, err
     assert "trying again in" in err  # the reconnect is logged
+    # every frame published is one of the dump's, whole: fakenect plays the dump by its
+    # timestamps and may skip a frame when the machine is loaded (in a loaded suite run seq 1
+    # was not the dump's second frame), so a frame is matched against each of them
     for b in listener.depth:
         d = wire.decode_depth(b)
-        orig = originals[d.seq % len(originals)]
-        step = fakenect_dump.quantisation_step_mm(orig)
-        assert np.all(np.abs(d.depth.astype(int) - orig) <= step // 2 + 1)
+        assert any(
+            np.all(
+                np.abs(d.depth.astype(int) - orig)
+                <= fakenect_dump.quantisation_step_mm(orig) // 2 + 1
+            )
+            for orig in originals
+        ), f"frame {d.seq} is none of the dump's frames"
 
 
 def test_bad_source_exits_2_with_one_line(tmp_path):
