@@ -10,9 +10,10 @@ optics at that resolution (`decimated_mount`), and `upsample_labels` gives each 
 frame the label of the nearest in depth of the up to four labelled pixels around it: a label
 edge follows the depth edge between them.
 
-`auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): 2 where a
-pixel spans at most `HALVE_BELOW_FLOOR_PX_MM` of the floor straight below, else 1. Measured
-in docs/performance.md.
+`auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): the largest
+factor at which a labelled pixel spans at most `MAX_WORKING_PX_MM` of the floor straight
+below (1 where a pixel of the frame already spans more than half of it). Measured in
+docs/performance.md (rung 29).
 """
 
 from __future__ import annotations
@@ -29,20 +30,22 @@ from topseg.core.labels import BACKGROUND, NO_DEPTH
 if TYPE_CHECKING:
     from topseg.core.camera import TopViewMount
 
-#: `auto_downsample` halves the resolution where a pixel spans at most this much of the
-#: floor straight below the camera (mm): a Kinect v1 up to 4.1 m (fx 570), a Kinect v2 or a
-#: D435 up to 2.6 m, an OAK-D up to 3.2 m. The labelled pixel then spans at most twice that
-#: (~14 mm, a fifth of a hand's width).
-HALVE_BELOW_FLOOR_PX_MM = 7.2
+#: the most floor (mm, straight below the camera) a pixel the Segmenter labels may span by
+#: default, a fifth of a hand's width: `auto_downsample` takes the largest factor that keeps
+#: it. Half resolution for a Kinect v1 (fx 570) from 2.74 to 4.1 m and a third below, half
+#: for a Kinect v2 or a D435 at 640x480 up to 2.6 m and an OAK-D up to 3.2 m, a third or a
+#: quarter for cameras of 1280 px across.
+MAX_WORKING_PX_MM = 14.4
 #: the largest factor `SegmenterConfig.downsample` takes
 MAX_DOWNSAMPLE = 4
 
 
 def auto_downsample(mount: TopViewMount) -> int:
-    """The factor the Segmenter works at on frames from `mount` by default: 2 where a pixel
-    spans at most HALVE_BELOW_FLOOR_PX_MM of the floor straight below, else 1."""
+    """The factor the Segmenter works at on frames from `mount` by default: the largest (up
+    to MAX_DOWNSAMPLE) at which a labelled pixel spans at most MAX_WORKING_PX_MM of the floor
+    straight below; 1 where a pixel of the frame spans more than half of that."""
     floor_px_mm = mount.height_mm / mount.intrinsics.fx
-    return 2 if floor_px_mm <= HALVE_BELOW_FLOOR_PX_MM else 1
+    return int(max(1, min(MAX_DOWNSAMPLE, MAX_WORKING_PX_MM // floor_px_mm)))
 
 
 def decimated_intrinsics(k: Intrinsics, factor: int) -> Intrinsics:

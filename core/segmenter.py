@@ -151,8 +151,9 @@ class SegmenterConfig:
                   row of a frame (`resolution.decimate`: forest, CRF and island rules at
                   that resolution) and brings the labels back to the frame's by depth
                   (`resolution.upsample_labels`); None: from each frame's mount
-                  (`resolution.auto_downsample`: 2 where a pixel spans at most 7.2 mm of
-                  the floor); 1 labels every pixel. Models that read depth work at 1
+                  (`resolution.auto_downsample`: the coarsest at which a labelled pixel
+                  spans at most 14.4 mm of the floor: 2 for a Kinect v1 at 3.5 m); 1
+                  labels every pixel. Models that read depth work at 1
     """
 
     crf: CRFConfig = field(default_factory=_crf_config)

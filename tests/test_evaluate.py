@@ -130,13 +130,12 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
         truth = np.asarray(ds.labels[i])[:h, :w].ravel()
         # at the working resolution (halved where a pixel spans little of the floor), walked
         # on that mount's grid and brought back by depth, as by default
-        small, sm = depth, m
-        if auto_downsample(m) == 2:
-            small, sm = decimate(depth, 2), decimated_mount(m, 2)
+        f = auto_downsample(m)
+        small, sm = (depth, m) if f == 1 else (decimate(depth, f), decimated_mount(m, f))
         inp = model_input(small, sm, config.features)
         pred = forest.predict_labels(model, inp, grid_stride(sm), ADAPTIVE_LEVELS)
-        if small is not depth:
-            pred = upsample_labels(depth, pred, small, 2)
+        if f > 1:
+            pred = upsample_labels(depth, pred, small, f)
         pred = pred.ravel()
         keep = truth != NO_DEPTH
         pred = np.where(pred[keep] == NO_DEPTH, 0, pred[keep])
