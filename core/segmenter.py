@@ -228,7 +228,7 @@ class Segmentation:
 
     @property
     def proba(self) -> np.ndarray:
-        """(h, W, C) float32 forest posteriors at the working resolution (the frame's size
+        """(h, w, C) float32 forest posteriors at the working resolution (the frame's size
         divided by `downsample`): the Segmenter's reused buffer, valid until its next call
         (copy it to keep it). On a grid the Segmenter stores only the ones the CRF reads;
         the first read of `proba` stores the rest (~1.5 ms a 640x480 frame)."""
