@@ -15,9 +15,12 @@ def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path
     out = tmp_path / "out"
     args = ["experiment", "mounts", "--out", str(out), "--test-frames", "1"]
     args += ["--sensors", "kinect_v1,oak_d", "--baseline", str(BUNDLED)]
+    args += ["--baseline-downsample", "1"]  # the same model at the frames' own resolution
     assert main(["-q", *args]) == 0
     doc = json.loads((out / "mounts.json").read_text())
     assert set(doc["cells"]) == {"model", "baseline"}
+    assert doc["models"]["model"]["downsample"] == "auto"
+    assert doc["models"]["baseline"]["downsample"] == 1
     for cells in doc["cells"].values():
         assert len(cells) == 2 * len(mounts.MOUNTS)
         assert {c["sensor"] for c in cells} == {"kinect_v1", "oak_d"}
@@ -28,6 +31,7 @@ def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path
     assert 0.0 <= v["lowest_f1"] <= v["reference_f1"] + v["largest_gap"] + 1e-9
     md = (out / "mounts.md").read_text()
     assert md.count("| oak_d |") == 6 and "largest gap" in md  # three tables per model
+    assert "(downsample auto)" in md and "(downsample 1)" in md
     assert "Heads as blobs" in md
     assert (out / "mounts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

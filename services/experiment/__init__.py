@@ -71,6 +71,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--baseline", type=Path, help="mounts: a second model scored on the same frames"
     )
+    from topseg.services.cli_types import downsample
+
+    parser.add_argument(
+        "--downsample",
+        type=downsample,
+        default=None,
+        metavar="auto|N",
+        help="mounts: the resolution --model labels at (`topseg evaluate --downsample`; "
+        "default auto)",
+    )
+    parser.add_argument(
+        "--baseline-downsample",
+        type=downsample,
+        default=None,
+        metavar="auto|N",
+        help="mounts: the same for --baseline (e.g. the same model at 1, the frames' own "
+        "resolution; default auto)",
+    )
     parser.add_argument(
         "--sensors",
         default="kinect_v1,kinect_v2,oak_d,realsense_d435",
@@ -192,7 +210,14 @@ def _run_mounts(args, frames: int, out: Path) -> int:
         f"{frames} held-out modeled frames a cell; results {out}",
         flush=True,
     )
-    report = mounts.run_mounts(args.model, args.baseline, sensors, frames, out)
+    report = mounts.run_mounts(
+        args.model,
+        args.baseline,
+        sensors,
+        frames,
+        out,
+        downsample=(args.downsample, args.baseline_downsample),
+    )
     v = report["verdict"]
     print(
         f"reference cell {v['reference_f1']:.3f}; largest gap {v['largest_gap']:.3f} "

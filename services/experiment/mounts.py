@@ -112,15 +112,18 @@ def score_cell(segmenter, frames: list[tuple]) -> dict:
     }
 
 
-def run_mounts(model, baseline, sensors, frames: int, out: Path, progress=print) -> dict:
-    """Score `model` (and `baseline`, when given) on every cell; write and return the report."""
+def run_mounts(
+    model, baseline, sensors, frames: int, out: Path, progress=print, downsample=(None, None)
+) -> dict:
+    """Score `model` (and `baseline`, when given) on every cell; write and return the report.
+    `downsample` is each one's `SegmenterConfig.downsample` (None: from each cell's mount)."""
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
     # no size check: a model that reads raw depth is run on every sensor's frames as they are
-    config = SegmenterConfig(check_camera=False)
-    models = {"model": Segmenter.from_file(model, config, crf="realtime")}
+    configs = [SegmenterConfig(check_camera=False, downsample=d) for d in downsample]
+    models = {"model": Segmenter.from_file(model, configs[0], crf="realtime")}
     if baseline is not None:
-        models["baseline"] = Segmenter.from_file(baseline, config, crf="realtime")
+        models["baseline"] = Segmenter.from_file(baseline, configs[1], crf="realtime")
     cells: dict[str, list[Cell]] = {name: [] for name in models}
     for sensor in sensors:
         for height, tilt in MOUNTS:
@@ -143,7 +146,12 @@ def run_mounts(model, baseline, sensors, frames: int, out: Path, progress=print)
         "test_seed": TEST_SEED,
         "reference": list(REFERENCE),
         "models": {
-            name: {"path": str(seg.path), "model_id": seg.model_id} for name, seg in models.items()
+            name: {
+                "path": str(seg.path),
+                "model_id": seg.model_id,
+                "downsample": seg.config.downsample or "auto",
+            }
+            for name, seg in models.items()
         },
         "cells": {name: [c.__dict__ for c in cs] for name, cs in cells.items()},
         "verdict": verdict(cells["model"]),
@@ -199,7 +207,8 @@ def markdown(report: dict) -> str:
         "",
     ]
     for name, cells in report["cells"].items():
-        lines += [f"## {name}: {report['models'][name]['path']}", ""]
+        model = report["models"][name]
+        lines += [f"## {name}: {model['path']} (downsample {model.get('downsample', 1)})", ""]
         lines += _table(report, cells, lambda c: f"{c['avg_f1']:.3f}")
         lines += ["Person-pixel F1 / head precision / head recall / furniture on a person:", ""]
         lines += _table(
@@ -253,7 +262,8 @@ def figure(report: dict, path: Path) -> None:
         ax.set_xticks(range(len(labels)), labels, fontsize=8)
         ax.set_yticks(range(len(report["sensors"])), report["sensors"], fontsize=8)
         model = report["models"][name]
-        ax.set_title(f"{name}: {model.get('label') or model['path']}", fontsize=9)
+        title = model.get("label") or f"{model['path']} (downsample {model.get('downsample', 1)})"
+        ax.set_title(f"{name}: {title}", fontsize=9)
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="avg F1 (realtime CRF)")
     with _atomic(path) as f:
         fig.savefig(f, format="png", dpi=110)
