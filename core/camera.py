@@ -223,6 +223,10 @@ class TopViewMount:
         """The floor's unit up-normal (towards the camera) in camera coordinates."""
         return self.rotation_world_to_camera()[:, 2].copy()
 
+    def floor_pixel_mm(self) -> float:
+        """How much floor (mm) a pixel spans straight below the camera: height / fx."""
+        return self.height_mm / self.intrinsics.fx
+
     def tilt_deg(self) -> float:
         """Angle in degrees between the optical axis and straight down."""
         return float(np.degrees(np.arccos(np.clip(-self.up_normal_camera()[2], -1.0, 1.0))))

@@ -44,8 +44,7 @@ def auto_downsample(mount: TopViewMount) -> int:
     """The factor the Segmenter works at on frames from `mount` by default: the largest (up
     to MAX_DOWNSAMPLE) at which a labelled pixel spans at most MAX_WORKING_PX_MM of the floor
     straight below; 1 where a pixel of the frame spans more than half of that."""
-    floor_px_mm = mount.height_mm / mount.intrinsics.fx
-    return int(max(1, min(MAX_DOWNSAMPLE, MAX_WORKING_PX_MM // floor_px_mm)))
+    return int(max(1, min(MAX_DOWNSAMPLE, MAX_WORKING_PX_MM // mount.floor_pixel_mm())))
 
 
 def decimated_intrinsics(k: Intrinsics, factor: int) -> Intrinsics:

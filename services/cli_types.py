@@ -70,10 +70,12 @@ stride.__name__ = "stride"
 
 def downsample(text: str) -> int | None:
     """A `type=` for the Segmenter's `--downsample`: `auto` (None: from each frame's mount)
-    or a factor 1-4."""
+    or a factor 1-MAX_DOWNSAMPLE."""
+    from topseg.core.resolution import MAX_DOWNSAMPLE  # here: --help compiles no numba
+
     if text == "auto":
         return None
-    return int_range(1, 4)(text)
+    return int_range(1, MAX_DOWNSAMPLE)(text)
 
 
 downsample.__name__ = "downsample"

@@ -374,8 +374,7 @@ MAX_STRIDE = 8
 def grid_stride(mount: TopViewMount) -> int:
     """The stride whose grid spaces walked pixels about GRID_SPACING_MM apart on the floor
     straight below `mount` (a pixel there spans height / fx mm), between 1 and MAX_STRIDE."""
-    floor_px_mm = mount.height_mm / mount.intrinsics.fx
-    return int(min(MAX_STRIDE, max(1, round(GRID_SPACING_MM / floor_px_mm))))
+    return int(min(MAX_STRIDE, max(1, round(GRID_SPACING_MM / mount.floor_pixel_mm()))))
 
 
 #: the height scale (mm) of the edge-aware upsampling: a grid neighbour whose probe value

@@ -108,17 +108,18 @@ def _time_frames(predict, frames, repeats):
     return 1000 * float(np.median(wall)), 1000 * float(np.median(cpu))
 
 
-def _node_visits(model, segmenter, frame) -> tuple[int, int, float]:
-    """(node visits, stride, mean levels a walk takes) of `segmenter`'s forest on `frame`,
-    at the resolution it works at (`Segmenter.working_frame`): the trees each pixel walks
-    (none between grid pixels and at the adaptive grid's settled pixels, fewer than all where
-    the early exit stops it) times the levels of the leaf it reaches in each."""
+def _node_visits(model, segmenter, frame) -> tuple[int, int, int, float]:
+    """(node visits, factor, stride, mean levels a walk takes) of `segmenter`'s forest on
+    `frame`, at the resolution it works at (`Segmenter.working_frame`, decimated by factor):
+    the trees each pixel walks (none between grid pixels and at the adaptive grid's settled
+    pixels, fewer than all where the early exit stops it) times the levels of the leaf it
+    reaches in each."""
     import numpy as np
 
     from topseg.core.forest.predict import apply, predict_proba
     from topseg.core.forest.tree import node_depths
 
-    small, mount, _ = segmenter.working_frame(frame)
+    small, mount, factor = segmenter.working_frame(frame)
     inp = segmenter.model_input(small, mount=mount)
     stride = segmenter.stride_for(small, mount=mount)
     walked = np.zeros(inp.shape, np.uint8)
@@ -136,7 +137,7 @@ def _node_visits(model, segmenter, frame) -> tuple[int, int, float]:
     # trees are walked in order: a pixel that walked n went through the first n
     visits = sum(int(levels[leaves[t][walked > t]].sum()) for t in range(model.n_trees))
     mean_levels = float(levels[leaves[leaves >= 0]].mean()) if np.any(leaves >= 0) else 0.0
-    return visits, stride, mean_levels
+    return visits, factor, stride, mean_levels
 
 
 def measure(args: argparse.Namespace) -> dict:
@@ -182,8 +183,7 @@ def measure(args: argparse.Namespace) -> dict:
         "adaptive_levels": args.adaptive,
     }
     for segmenter in (full, grid):
-        factor = segmenter.downsample_for(frames[0])
-        visits, stride, mean_levels = _node_visits(model, segmenter, frames[0])
+        visits, factor, stride, mean_levels = _node_visits(model, segmenter, frames[0])
         if segmenter is full:
             figures["mean_levels_walked"] = round(mean_levels, 2)
         # the figures' suffix: the grid's stride, and the resolution when not the frame's
