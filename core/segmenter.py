@@ -616,7 +616,7 @@ class Segmenter:
             depth[:, :8] = int(mount.height_mm)
         from topseg.core.crf import segment_crf
         from topseg.core.forest.inputs import legacy_input
-        from topseg.core.forest.predict import fill_posteriors
+        from topseg.core.forest.predict import fill_posteriors, predict_proba
         from topseg.core.resolution import decimate, upsample_labels
 
         read_only = depth.copy()
@@ -631,6 +631,9 @@ class Segmenter:
                 fill = None if stride == 1 else partial(fill_posteriors, inp, proba, stride)
                 labels = segment_crf(proba, frame, self.config.crf, self._summary, fill)
                 self._relabel_islands(labels, frame, None, "warm-up frame", mount)
+            # the kernel variant that clamps probes, which a frame with a surface a few cm
+            # from the camera takes (`forest.predict.MAX_PAD`)
+            predict_proba(self.forest, inp, max_pad=0)
             if self.features is not None:  # the half-resolution path's own two steps
                 small = decimate(frame, 2)
                 upsample_labels(frame, labels[::2, ::2], small, 2)

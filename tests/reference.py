@@ -288,6 +288,16 @@ def probe_reference(depth, r, c, inv_d, dr, dc, background):
     return z
 
 
+def far_probe_reference(values, r, c, inv_d, dr, dc, background):
+    """The v probe of a feature: `probe_reference`, or `background` where the offset is far
+    (a component of `features.FAR_OFFSET` or more: off every image by definition)."""
+    from topseg.core.forest.features import FAR_OFFSET
+
+    z = probe_reference(values, r, c, inv_d, dr, dc, background)
+    far = (np.abs(dr) >= FAR_OFFSET) | (np.abs(dc) >= FAR_OFFSET)
+    return np.where(far, background, z)
+
+
 def reference_input(frame):
     """(values, scale, floor) of a model input, or of a depth frame's legacy input
     (V = depth, scale = float32(1) / float32(depth), no floor), in plain numpy."""
@@ -344,7 +354,7 @@ def extract_reference(frame, rows, cols, offsets, background):
     inv_d = scale[rows, cols].astype(np.float32)
     r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
     u = probe_reference(values, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
-    v = probe_reference(values, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
+    v = far_probe_reference(values, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
     return (u - v).astype(np.int16)
 
 
@@ -387,7 +397,7 @@ def apply_reference(forest: Forest, frame) -> np.ndarray:
             for j in range(forest.features_per_node):
                 off = forest.offsets[nd, j]
                 u = probe_reference(values, r, c, s, off[:, 0], off[:, 1], bg)
-                v = probe_reference(values, r, c, s, off[:, 2], off[:, 3], bg)
+                v = far_probe_reference(values, r, c, s, off[:, 2], off[:, 3], bg)
                 resp = resp + forest.weights[nd, j] * (u - v).astype(np.float32)
             node[idx] = forest.left[nd] + np.where(resp < forest.threshold[nd], 0, 1)
         leaves.append(node)

@@ -23,9 +23,10 @@ from topseg.core.forest import (
     random_tree,
 )
 from topseg.core.forest import predict as predict_module
-from topseg.core.forest.features import OFF_IMAGE
+from topseg.core.forest.features import FAR_OFFSET, OFF_IMAGE
 from topseg.core.forest.inputs import ModelInput, as_input
 from topseg.core.forest.predict import (
+    MAX_PAD,
     SETTLE_REACH_MM,
     UPSAMPLE_SIGMA_MM,
     _padded,
@@ -33,6 +34,7 @@ from topseg.core.forest.predict import (
     apply,
     height_weights,
     inference_table,
+    probe_pad,
 )
 from topseg.core.forest.tree import Tree, node_depths
 
@@ -53,12 +55,13 @@ def random_depth(seed, shape=(29, 41)):
     return depth
 
 
+@pytest.mark.parametrize("max_pad", [MAX_PAD, 0])  # a wide border, or probes clamped
 @pytest.mark.parametrize("k", [1, 2, 3])
 @pytest.mark.parametrize("seed", range(3))
-def test_predict_matches_reference(k, seed):
+def test_predict_matches_reference(k, seed, max_pad):
     forest = random_forest(seed, k)
     depth = random_depth(seed + 10)
-    got = predict_proba(forest, depth)
+    got = predict_proba(forest, depth, max_pad=max_pad)
     np.testing.assert_array_equal(got, predict_reference(forest, depth))
 
 
@@ -215,11 +218,12 @@ def random_input(seed, shape=(29, 41)):
     return ModelInput(values, scale, floor)
 
 
+@pytest.mark.parametrize("max_pad", [MAX_PAD, 0])
 @pytest.mark.parametrize("k", [1, 2, 3])
-def test_predict_on_a_model_input_matches_reference(k):
+def test_predict_on_a_model_input_matches_reference(k, max_pad):
     forest = random_forest(40 + k, k)
     inp = random_input(50 + k)
-    got = predict_proba(forest, inp)
+    got = predict_proba(forest, inp, max_pad=max_pad)
     np.testing.assert_array_equal(got, predict_reference(forest, inp))
     floor = inp.floor
     assert np.all(got[floor, labels.BACKGROUND] == 1) and np.all(got[floor].sum(axis=1) == 1)
@@ -324,9 +328,16 @@ def test_the_inference_table_holds_each_split_once_in_aligned_records(k):
     assert s == split.size
     record = table.words.strides[0]
     assert table.words.ctypes.data % 64 == 0 and (record == 32 or record % 64 == 0)
-    assert record >= 4 * (5 * k + 3)
+    assert record >= 4 * (6 * k + 3)
     f, w = table.fields, table.words
-    np.testing.assert_array_equal(f[:s, : 4 * k], forest.offsets[split].reshape(s, 4 * k))
+    # a far v (an absolute feature's) is a flag with zero offsets, the rest as in the forest
+    offsets = forest.offsets[split]
+    far = np.abs(offsets[:, :, 2]) >= FAR_OFFSET
+    assert np.any(far) and np.any(~far)
+    np.testing.assert_array_equal(w[:s, 5 * k + 3 : 6 * k + 3], far)
+    offsets[:, :, 2:][far] = 0
+    np.testing.assert_array_equal(f[:s, : 4 * k], offsets.reshape(s, 4 * k))
+    assert table.reach == np.abs(offsets).max() < FAR_OFFSET
     np.testing.assert_array_equal(f[:s, 4 * k : 5 * k], forest.weights[split])
     np.testing.assert_array_equal(f[:s, 5 * k], forest.threshold[split])
     assert f[s, 5 * k] == np.inf and np.all(f[s, : 5 * k] == 0)  # the arrived stand-in
@@ -501,14 +512,72 @@ def test_realtime_crf_labels_a_lazy_grid_as_it_labels_the_eager_one(seed, monkey
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("pad", [1, 3, 40])
 @pytest.mark.parametrize("shape", [(1, 1), (7, 5), (31, 45)])
-def test_the_padded_probe_image_is_the_values_with_a_background_border(shape):
+def test_the_padded_probe_image_is_the_values_with_a_background_border(shape, pad):
     rng = np.random.default_rng(shape[0])
     values = rng.integers(0, 12000, size=shape).astype(np.uint16)
     values[rng.random(shape) < 0.2] = 0
     background = 10000
     inside = np.where((values != 0) & (values <= background), values, background)
-    want = np.pad(inside, 1, constant_values=background).astype(np.uint16).ravel()
-    got = _padded(values, np.int32(background))
+    want = np.pad(inside, pad, constant_values=background).astype(np.uint16).ravel()
+    got = _padded(values, np.int32(background), np.int32(pad))
     assert got.dtype == np.uint16
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_probe_pad_bounds_every_rounded_probe(seed):
+    """No probe of an offset within the reach, at a scale within the frame's, moves farther
+    than the pad less one (float32 rounding as the kernel does it)."""
+    rng = np.random.default_rng(seed)
+    reach = float(rng.uniform(1e3, 1e5))
+    scale = rng.uniform(0, 1 / float(rng.uniform(200, 5000)), (40, 50)).astype(np.float32)
+    pad = probe_pad(reach, scale)
+    top = scale.max()
+    offsets = np.concatenate([[reach, -reach], rng.uniform(-reach, reach, 10000)])
+    inv = np.concatenate([[top], rng.choice(scale.ravel(), 9)]).astype(np.float32)
+    moved = np.floor(offsets.astype(np.float32)[:, None] * inv + np.float32(0.5))
+    assert np.abs(moved).max() <= pad - 1
+    assert probe_pad(reach, np.zeros((0, 0), np.float32)) == 2
+    assert probe_pad(np.inf, scale) == np.inf
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_a_frame_whose_probes_reach_past_the_border_is_walked_with_clamped_probes(k):
+    """Pixels a few cm from the camera move probes farther than MAX_PAD: the kernel then
+    clamps them, with the reference's results; so does a forest whose offsets reach far."""
+    forest = random_forest(60 + k, k)
+    inp = random_input(70 + k)
+    scale = inp.scale.copy()
+    scale[3:6, 4:9] = np.where(scale[3:6, 4:9] > 0, np.float32(1 / 20.0), 0)  # 2 cm away
+    near = ModelInput(inp.values, scale, inp.floor)
+    assert probe_pad(inference_table(forest).reach, near.scale) > MAX_PAD
+    np.testing.assert_array_equal(predict_proba(forest, near), predict_reference(forest, near))
+    fast = predict_proba(forest, near, stride=2, early_exit=0.6)
+    clamped = predict_proba(forest, near, stride=2, early_exit=0.6, max_pad=0)
+    np.testing.assert_array_equal(fast, clamped)
+
+
+def test_a_far_v_offset_reads_the_background_at_any_scale():
+    """An absolute feature's v reads the background even where its offset times a tiny
+    scale would land inside the frame (`features.FAR_OFFSET`): in training's features, the
+    plain walk and the fast kernel alike."""
+    from reference import extract_reference
+
+    from topseg.core.forest.features import extract_features
+
+    rng = np.random.default_rng(5)
+    forest = Forest.from_trees([ragged_tree(rng, d, 2) for d in (8, 10)])
+    assert np.any(forest.offsets == OFF_IMAGE)
+    inp = random_input(80, (25, 30))
+    tiny = np.where(inp.scale > 0, np.float32(1e-8), 0).astype(np.float32)  # 1e9 -> 10 px
+    frame = ModelInput(inp.values, tiny, inp.floor)
+    want = predict_reference(forest, frame)
+    for max_pad in (MAX_PAD, 0):
+        np.testing.assert_array_equal(predict_proba(forest, frame, max_pad=max_pad), want)
+    rows, cols = np.nonzero(frame.values)
+    offsets = np.array([[3e4, -2e4, OFF_IMAGE, OFF_IMAGE]], np.float32)
+    got = extract_features(frame, rows, cols, offsets, 10000)
+    assert np.all(got[:, 0] == frame.values[rows, cols].astype(np.int32) - 10000)
+    np.testing.assert_array_equal(got, extract_reference(frame, rows, cols, offsets, 10000))

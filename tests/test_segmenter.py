@@ -300,15 +300,17 @@ def test_the_early_exit_is_a_config_field_checked_up_front():
 
 
 def test_warm_up_compiles_what_a_first_large_frame_runs():
-    """A worker warms up on a small frame; the lazy grid's fill and the band solved in two
-    parts in parallel must be ready too (loading them on the first real frame cost ~40 ms
-    and dropped frames at a worker's start)."""
+    """A worker warms up on a small frame; the lazy grid's fill, the band solved in two
+    parts in parallel and the walk with clamped probes must be ready too (loading them on the
+    first real frame cost ~40 ms and dropped frames at a worker's start)."""
     from topseg.core.crf import realtime
     from topseg.core.forest import predict
 
     seg = Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="realtime")
     seg.warm_up()
-    for kernel in (predict._fill, realtime._solve_parts, realtime.band_parts):
+    k = seg.forest.features_per_node
+    clamped, wide = predict._kernel(k, True), predict._kernel(k, False)
+    for kernel in (predict._fill, realtime._solve_parts, realtime.band_parts, clamped, wide):
         assert kernel.signatures, kernel
 
 

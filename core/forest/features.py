@@ -10,7 +10,8 @@ where p(q) is the model input's probe value at q and S(s) the pixel's offset sca
 S = (fx / reference_focal_px) / d(s); for a legacy model p is depth and S = 1 / d(s)). The
 probe position is rounded to the nearest pixel (floor(x + 0.5)), and a probe outside the
 image or on a no-depth pixel reads the large constant `background_mm` (so does any value
-above it: probes are clamped to it, which keeps every response inside int16). Dividing by
+above it: probes are clamped to it, which keeps every response inside int16; so does a v
+offset of `FAR_OFFSET` or more, an absolute feature's, wherever it is applied). Dividing by
 d(s) makes the feature depth invariant and the focal-length ratio sensor invariant: the
 offsets span the same metric distance at any depth and on any camera, `patch_px` pixels at
 `reference_depth_mm` on a camera of the reference focal length.
@@ -115,6 +116,10 @@ class FeatureConfig:
 
 #: a v offset no image reaches: the probe reads `background_mm`, so f = p(s + u/d) - background
 OFF_IMAGE = 1.0e9
+#: a v offset with a component at least this large (pixel*mm; OFF_IMAGE is one) reads
+#: `background_mm` by definition, whatever the pixel's offset scale: off every image, not only
+#: off the images seen so far, so that inference may skip computing where it lands
+FAR_OFFSET = OFF_IMAGE / 2
 
 
 def sample_offsets(config: FeatureConfig, rng: np.random.Generator) -> np.ndarray:
@@ -150,11 +155,19 @@ def probe(values, r, c, inv_d, dr, dc, background):
 
 
 @numba.njit(cache=True, inline="always")
+def is_far(dr, dc):
+    """Whether a v offset reads `background_mm` wherever it is applied (`FAR_OFFSET`)."""
+    return abs(dr) >= FAR_OFFSET or abs(dc) >= FAR_OFFSET
+
+
+@numba.njit(cache=True, inline="always")
 def pair_feature(values, r, c, inv_d, offset, background):
-    """f(s) for one offset row (u_row, u_col, v_row, v_col) at pixel (r, c)."""
-    return probe(values, r, c, inv_d, offset[0], offset[1], background) - probe(
-        values, r, c, inv_d, offset[2], offset[3], background
-    )
+    """f(s) for one offset row (u_row, u_col, v_row, v_col) at pixel (r, c); a far v
+    (`is_far`) reads `background`."""
+    u = probe(values, r, c, inv_d, offset[0], offset[1], background)
+    if is_far(offset[2], offset[3]):
+        return u - background
+    return u - probe(values, r, c, inv_d, offset[2], offset[3], background)
 
 
 @numba.njit(cache=True, inline="always")
