@@ -10,10 +10,10 @@ optics at that resolution (`decimated_mount`), and `upsample_labels` gives each 
 frame the label of the nearest in depth of the up to four labelled pixels around it: a label
 edge follows the depth edge between them.
 
-`auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): the largest
-factor at which a labelled pixel spans at most `MAX_WORKING_PX_MM` of the floor straight
-below (1 where a pixel of the frame already spans more than half of it). Measured in
-docs/performance.md (rung 29).
+`auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): half
+resolution where a labelled pixel then spans at most `MAX_WORKING_PX_MM` of the floor
+straight below, the frame's own elsewhere. Measured in docs/performance.md (rung 29; a
+third, which the same bound gives a Kinect v1 below 2.74 m, scored lower: `AUTO_MAX_DOWNSAMPLE`).
 """
 
 from __future__ import annotations
@@ -31,20 +31,24 @@ if TYPE_CHECKING:
     from topseg.core.camera import TopViewMount
 
 #: the most floor (mm, straight below the camera) a pixel the Segmenter labels may span by
-#: default, a fifth of a hand's width: `auto_downsample` takes the largest factor that keeps
-#: it. Half resolution for a Kinect v1 (fx 570) from 2.74 to 4.1 m and a third below, half
-#: for a Kinect v2 or a D435 at 640x480 up to 2.6 m and an OAK-D up to 3.2 m, a third or a
-#: quarter for cameras of 1280 px across.
+#: default, a fifth of a hand's width: `auto_downsample` halves the resolution where that
+#: keeps it. Half resolution for a Kinect v1 (fx 570) up to 4.1 m, for a Kinect v2 or a D435
+#: at 640x480 up to 2.6 m, an OAK-D up to 3.2 m and any camera of 1280 px across.
 MAX_WORKING_PX_MM = 14.4
+#: the coarsest factor `auto_downsample` picks. The bound above alone would label a Kinect v1
+#: below 2.74 m at a third: on the 60-frame random-mount held-out set (9 such frames) that
+#: scored avg F1 0.6864 against 0.6900 at half (fourteenth session, docs/performance.md)
+AUTO_MAX_DOWNSAMPLE = 2
 #: the largest factor `SegmenterConfig.downsample` takes
 MAX_DOWNSAMPLE = 4
 
 
 def auto_downsample(mount: TopViewMount) -> int:
     """The factor the Segmenter works at on frames from `mount` by default: the largest (up
-    to MAX_DOWNSAMPLE) at which a labelled pixel spans at most MAX_WORKING_PX_MM of the floor
-    straight below; 1 where a pixel of the frame spans more than half of that."""
-    return int(max(1, min(MAX_DOWNSAMPLE, MAX_WORKING_PX_MM // mount.floor_pixel_mm())))
+    to AUTO_MAX_DOWNSAMPLE, half) at which a labelled pixel spans at most MAX_WORKING_PX_MM
+    of the floor straight below; 1 where a pixel of the frame spans more than half of that."""
+    factor = MAX_WORKING_PX_MM // mount.floor_pixel_mm()
+    return int(max(1, min(AUTO_MAX_DOWNSAMPLE, factor)))
 
 
 def decimated_intrinsics(k: Intrinsics, factor: int) -> Intrinsics:

@@ -108,9 +108,8 @@ def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="auto|N",
         help="label every N-th pixel of every N-th row (forest, CRF and blob rules) and give "
         "each pixel the label of its nearest neighbour in depth among them; auto (default) "
-        "takes the coarsest at which a labelled pixel spans at most 14.4 mm of the floor (half "
-        "for a Kinect v1 from 2.74 to 4.1 m, a third below; 1 for coarser cameras); 1: the "
-        "frame's own resolution",
+        "takes half where a labelled pixel then spans at most 14.4 mm of the floor (a Kinect v1 "
+        "up to 4.1 m; 1 for coarser cameras); 1: the frame's own resolution",
     )
     parser.add_argument(
         "--stride",
