@@ -581,3 +581,12 @@ def test_a_far_v_offset_reads_the_background_at_any_scale():
     got = extract_features(frame, rows, cols, offsets, 10000)
     assert np.all(got[:, 0] == frame.values[rows, cols].astype(np.int32) - 10000)
     np.testing.assert_array_equal(got, extract_reference(frame, rows, cols, offsets, 10000))
+
+
+def test_the_walk_takes_every_grid_row_once_even_rows_first():
+    from topseg.core.forest.predict import _interleaved
+
+    for n in range(1, 12):
+        order = [_interleaved(j, n) for j in range(n)]
+        assert sorted(order) == list(range(n))
+        assert order[: (n + 1) // 2] == list(range(0, n, 2))

@@ -332,6 +332,16 @@ def _keep_unsure(acc, trees, t, confidence, pix, cols, inv, m):
     return kept
 
 
+@numba.njit(cache=True, inline="always")
+def _interleaved(j, n):
+    """The j-th of n grid rows in the order the walk takes them: the even rows, then the odd
+    ones. numba hands each of two threads one half of a parallel loop, and a person fills a
+    band of rows, so halves of the frame hold unequal work (up to 3:1 on the bench frames);
+    even and odd rows hold nearly equal work (the walk 2-7 % faster, docs/performance.md)."""
+    half = (n + 1) // 2
+    return 2 * j if j < half else 2 * (j - half) + 1
+
+
 @functools.cache
 def _kernel(k: int, clamp: bool):
     """The prediction kernel for forests of k features per node, compiled once per (k,
@@ -374,7 +384,8 @@ def _kernel(k: int, clamp: bool):
         n_splits = _i32(words.shape[0] - 1)
         flat_fields, flat_words = fields.reshape(fields.size), words.reshape(words.size)
         n_trees = roots.shape[0]
-        for i in numba.prange(plan.shape[0]):
+        for j in numba.prange(plan.shape[0]):
+            i = _interleaved(j, plan.shape[0])
             r = _i32(i * stride)
             row_base = (r + pad) * wp + pad  # pixel (r, 0) in the padded probe image
             cols, inv = _row_pixels(plan, scale, i, r, stride)
