@@ -151,8 +151,8 @@ class SegmenterConfig:
                   row of a frame (`resolution.decimate`: forest, CRF and island rules at
                   that resolution) and brings the labels back to the frame's by depth
                   (`resolution.upsample_labels`); None: from each frame's mount
-                  (`resolution.auto_downsample`: the coarsest at which a labelled pixel
-                  spans at most 14.4 mm of the floor: 2 for a Kinect v1 at 3.5 m); 1
+                  (`resolution.auto_downsample`: half where a labelled pixel then
+                  spans at most 14.4 mm of the floor, as for a Kinect v1 at 3.5 m); 1
                   labels every pixel. Models that read depth work at 1
     """
 
