@@ -422,11 +422,14 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool):
     mount = estimate.mount
     if sensor is not None and mount.sensor != sensor.name:
         mount = replace(mount, sensor=sensor.name)
+    from topseg.core.denoise import smoothing_text
+
     print(
         f"{label}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
         f"{mount.pitch_deg:.1f} deg, roll {mount.roll_deg:.1f} deg, floor inliers "
         f"{100 * estimate.inlier_share:.0f} % ({len(frames)} frames), floor noise "
         f"{estimate.residual_mm:.1f} mm (x{mount.noise_scale:.2f} the {mount.sensor} model)"
+        f"{smoothing_text(mount)}"
     )
     return mount
 

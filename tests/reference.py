@@ -26,6 +26,8 @@ bit (as stumpy keeps its naive versions in one test module).
   connected components.
 - `upsample_labels_reference`: labels of a decimated frame brought back to the frame's
   resolution by depth (`resolution.upsample_labels`).
+- `smooth_depth_reference`: the edge-preserving smoothing of noisy depth
+  (`denoise.smooth_depth`).
 """
 
 from __future__ import annotations
@@ -1051,4 +1053,33 @@ def upsample_labels_reference(depth, small_labels, small_depth, factor):
     out = np.take_along_axis(np.stack(labs), best[None], axis=0)[0].astype(np.uint8)
     out[np.min(gaps, axis=0) == np.iinfo(np.int64).max] = labels.BACKGROUND
     out[depth == 0] = labels.NO_DEPTH
+    return out
+
+
+def smooth_depth_reference(depth, edge_mm, alpha, iterations):
+    """`denoise.smooth_depth` in plain Python over numpy arrays, float32 as the kernels: each
+    iteration smooths every row left to right and right to left, then every column top down
+    and bottom up; a pixel becomes alpha * own + (1 - alpha) * its smoothed predecessor when
+    both have depth and differ by less than edge_mm[own raw depth]."""
+    x = depth.astype(np.float32)
+    a = np.float32(alpha)
+    b = np.float32(1.0) - a
+
+    def sweep(line, raw):
+        for order in (range(1, len(line)), range(len(line) - 2, -1, -1)):
+            step = 1 if order.step == 1 else -1
+            for i in order:
+                prev, v = line[i - step], line[i]
+                if prev > 0 and v > 0 and abs(v - prev) < edge_mm[raw[i]]:
+                    line[i] = a * v + b * prev
+
+    for _ in range(iterations):
+        for r in range(x.shape[0]):
+            sweep(x[r], depth[r])
+        for c in range(x.shape[1]):
+            col = x[:, c].copy()
+            sweep(col, depth[:, c])
+            x[:, c] = col
+    out = np.clip(np.floor(x + np.float32(0.5)), 1, 65535).astype(np.uint16)
+    out[depth == 0] = 0
     return out

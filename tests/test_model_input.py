@@ -9,6 +9,7 @@ from reference import model_input_float32_reference, model_input_reference
 
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount, metres_to_mm
+from topseg.core.denoise import denoise
 from topseg.core.forest import FeatureConfig, TrainConfig, train_forest
 from topseg.core.forest.inputs import (
     FLOOR_SIGMAS,
@@ -90,6 +91,7 @@ def test_model_input_matches_first_principles():
     depth = rng.integers(1200, 4200, size=SMALL_K1.shape).astype(np.uint16)
     depth[rng.random(SMALL_K1.shape) < 0.05] = 0
     inp = model_input(depth, mount, FEATURES)
+    depth = denoise(depth, mount)  # a stereo camera at range: smoothed first (test_denoise)
     values, scale, floor, h = model_input_reference(
         depth, mount, FEATURES, lambda d: floor_margin_mm(d, mount.sensor)
     )
@@ -110,6 +112,7 @@ def test_model_input_kernel_is_bit_identical_to_numpy(seed):
     depth = rng.integers(0, 9000, size=k.shape).astype(np.uint16)
     depth[rng.random(k.shape) < 0.1] = 0
     inp = model_input(depth, mount, FEATURES)
+    depth = denoise(depth, mount)  # smoothed first where the camera is noisy (test_denoise)
     values, scale, floor = model_input_float32_reference(
         depth, mount, FEATURES, lambda d: floor_margin_mm(d, mount.sensor)
     )

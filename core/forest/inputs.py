@@ -16,6 +16,9 @@ trained on heights (header `"input": "height"`) reads
   `noise_scale` s, within [`MIN_FLOOR_MARGIN_MM`, `MAX_FLOOR_MARGIN_MM`]) are
   background without walking the forest. They stay probe targets (the floor is context).
 
+Before any of this, a frame from a camera whose depth noise at the floor is large (stereo
+cameras at range) is smoothed by an edge-preserving filter (`core.denoise`).
+
 Models trained before this (no `"input"` in the header) read the legacy input: V = D,
 S = float32(1) / float32(D), no gate: exactly what the kernels computed from depth before.
 `model_input` and `legacy_input` are the only two builders; training and inference both call
@@ -32,6 +35,7 @@ import numba
 import numpy as np
 
 from topseg.core.camera import check_depth
+from topseg.core.denoise import denoise
 from topseg.core.errors import TopsegError
 
 if TYPE_CHECKING:
@@ -115,7 +119,8 @@ def _margin_table(sensor: str, noise_scale: float) -> np.ndarray:
 def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
     """The input of a height model (see the module) for a uint16 depth frame from `mount`.
 
-    The frame must have the mount's intrinsics' shape; ValueError otherwise.
+    Frames from a noisy camera are smoothed first (`core.denoise`). The frame must have the
+    mount's intrinsics' shape; ValueError otherwise.
     """
     depth = check_depth(depth, "model input")
     k = mount.intrinsics
@@ -124,6 +129,7 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
             f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
             f"{k.width}x{k.height}"
         )
+    depth = denoise(depth, mount)
     values = np.empty(depth.shape, np.uint16)
     scale = np.empty(depth.shape, np.float32)
     floor = np.empty(depth.shape, np.bool_)
