@@ -51,3 +51,23 @@ def test_default_times_the_bundled_model_on_rendered_frames(capsys):
     every = _figures(capsys, "--frames", "2", "--early-exit", "off")
     assert figures[GRID_VISITS] < 0.9 * every[GRID_VISITS]
     assert figures["node_visits_per_frame_stride1"] == every["node_visits_per_frame_stride1"]
+
+
+def test_frames_from_the_users_camera():
+    """`--sensor` and `--height` put the bench's camera where the user's is: its sensor's
+    resolution and noise, its height; the default stays the paper's Kinect v1 at 3.5 m."""
+    import argparse
+
+    from topseg.core.camera import PAPER_MOUNT
+    from topseg.services.bench import frames
+
+    parser = argparse.ArgumentParser()
+    frames.add_arguments(parser)
+    assert frames.bench_mount(parser.parse_args([])) is PAPER_MOUNT
+    mount = frames.bench_mount(parser.parse_args(["--sensor", "oak_d", "--height", "4.5"]))
+    assert (mount.sensor, mount.height_mm, mount.intrinsics.shape) == ("oak_d", 4500.0, (400, 640))
+    assert frames.bench_mount(parser.parse_args(["--height", "2.8"])).sensor == "kinect_v1"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--height", "0.5"])
+    pairs, what = frames.bench_frames(frames.RENDERED, 1, 0, mount)
+    assert pairs[0][0].shape == (400, 640) and "oak_d at 4.50 m" in what

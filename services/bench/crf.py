@@ -113,16 +113,15 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
     from topseg.core.segmenter import Segmenter, SegmenterConfig
 
     # the model's camera need not be these frames'; a height model reads them through theirs
-    config = SegmenterConfig(
-        check_camera=False, mount=bench_frames.bench_mount(), **grid_config(args)
-    )
+    mount = bench_frames.bench_mount(args)
+    config = SegmenterConfig(check_camera=False, mount=mount, **grid_config(args))
     if args.unaries == "quick-forest":
         segmenter = Segmenter(_quick_forest(rng), header_fields(FeatureConfig()), config)
         source = "small forest (3 trees, depth 16, 60 frames) trained here"
     else:
         segmenter = Segmenter.from_file(args.model, config)
         source = f"{'model ' + str(args.model) if args.model else 'the bundled model'}"
-    pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1)
+    pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1, mount)
     out = []
     for frame, _ in pairs:
         depth, mount, factor = segmenter.working_frame(frame)

@@ -159,9 +159,9 @@ def measure(args: argparse.Namespace) -> dict:
         header = forest_mod.load_model(args.model or bundled_model_path())[1]
     else:
         header = header_fields(forest_mod.FeatureConfig()) if args.forest == "trained" else None
-    pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1)
+    mount = bench_frames.bench_mount(args)
+    pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1, mount)
     frames = [d for d, _ in pairs]
-    mount = bench_frames.bench_mount()
     # the forest stage as `Segmenter.label` runs it with no CRF (model input, walk, the
     # upsampled summary; on a grid the posteriors between grid pixels are left to the CRF's
     # band); no camera check: a model file's camera need not be these frames'
