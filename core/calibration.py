@@ -160,7 +160,8 @@ class MountEstimate:
         }
 
     def summary(self) -> str:
-        """Human lines: height, pitch, roll, tilt, residual, inlier share, camera, sensor."""
+        """Human lines: height, pitch, roll, tilt, residual, inlier share, camera, sensor, and
+        whether its frames are smoothed before the forest."""
         m, k = self.mount, self.mount.intrinsics
         return "\n".join(
             [
@@ -176,8 +177,19 @@ class MountEstimate:
                 f"camera     {k.width}x{k.height} fx {k.fx:.1f} fy {k.fy:.1f} "
                 f"cx {k.cx:.1f} cy {k.cy:.1f}",
                 f"sensor     {m.sensor}",
+                _smoothing_line(m),
             ]
         )
+
+
+def _smoothing_line(m: TopViewMount) -> str:
+    """Whether frames from this mount are smoothed before the forest (`core.denoise`)."""
+    from topseg.core.denoise import MIN_SIGMA_MM, floor_sigma_mm, needs_denoise
+
+    sigma = floor_sigma_mm(m)
+    if needs_denoise(m):
+        return f"smoothing  on: noise {sigma:.0f} mm at the floor (>= {MIN_SIGMA_MM:g} mm)"
+    return f"smoothing  off: noise {sigma:.0f} mm at the floor (< {MIN_SIGMA_MM:g} mm)"
 
 
 # ---------------------------------------------------------------------------- the points

@@ -81,15 +81,17 @@ def sensor_name(given: str | None, source: str, frame_mount) -> str:
     return SENSOR_OF_KIND.get(parse_spec(source).kind, "unknown")
 
 
-def grab(source: str, n: int) -> tuple[list, object, object]:
-    """Up to `n` depth frames (uint16 arrays) from the source, their intrinsics, and the
-    mount the first frame carries (None when the source sends none)."""
+def grab(source: str, n: int) -> tuple[list, object, object, bool]:
+    """Up to `n` depth frames (uint16 arrays) from the source, their intrinsics, the mount
+    the first frame carries (None when the source sends none), and whether the source knows
+    its optics (a PNG does not: its frames carry `replay.png_intrinsics`, a guess)."""
     from tqdm import tqdm
 
     from topseg.drivers import SourceOptions, open_source
 
     frames, intrinsics, mount = [], None, None
     with open_source(source, SourceOptions(realtime=False)) as src:
+        known = getattr(src, "kind", None) != "png"
         bar = tqdm(total=n, desc="calibrate", unit="frame", disable=None)
         try:
             for item in src.frames():
@@ -109,7 +111,27 @@ def grab(source: str, n: int) -> tuple[list, object, object]:
             bar.close()
     if not frames:
         raise TopsegError(f"the source {source} gave no frames")
-    return frames, intrinsics, mount
+    return frames, intrinsics, mount, known
+
+
+def png_optics(intrinsics, sensor: str):
+    """The optics of PNG frames, which say none: the sensor's when it is a supported one of
+    the frames' size, else the guess they came with (a Kinect v1's scaled to their size);
+    and a line saying which."""
+    from topseg.core.errors import ConfigError
+    from topseg.core.sensors import get_sensor
+
+    try:
+        k = get_sensor(sensor).intrinsics
+    except ConfigError:
+        k = None
+    if k is not None and k.shape == intrinsics.shape:
+        return k, f"PNG frames say no optics: using the {sensor}'s (fx {k.fx:.1f})"
+    return intrinsics, (
+        f"PNG frames say no optics: assuming a Kinect v1's scaled to "
+        f"{intrinsics.width}x{intrinsics.height} (fx {intrinsics.fx:.1f}); --sensor names "
+        "a supported sensor of that size"
+    )
 
 
 def picture(path: Path, depth, estimate) -> None:
@@ -168,10 +190,15 @@ def run(args: argparse.Namespace) -> int:
     check_writable(pic)
     if args.sensor and args.sensor != "unknown":
         sensor_name(args.sensor, args.source, None)  # an unknown name fails before the camera
-    frames, intrinsics, frame_mount = grab(args.source, args.frames)
+    frames, intrinsics, frame_mount, known = grab(args.source, args.frames)
     sensor = sensor_name(args.sensor, args.source, frame_mount)
+    optics = None
+    if not known:
+        intrinsics, optics = png_optics(intrinsics, sensor)
     estimate = estimate_mount(frames, intrinsics, sensor, CalibrationConfig(seed=args.seed))
     print(f"topseg calibrate: mount of {args.source} from {len(frames)} frames")
+    if optics:
+        print(optics)
     print(estimate.summary())
     try:
         write_mount_file(out, estimate)

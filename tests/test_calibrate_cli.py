@@ -79,12 +79,35 @@ def test_calibrate_a_recording_of_another_sensor(tmp_path):
     r = calibrate("--source", f"replay:{rec}", "--sensor", "oak_d", "--out", out, "--picture", pic)
     assert r.returncode == 0, r.stderr
     assert "sensor     oak_d" in r.stdout and "640x400" in r.stdout
+    assert "smoothing  " in r.stdout  # whether its frames are smoothed before the forest
     assert "frames     4 of 4" in r.stdout  # the recording ended before the default 60
     mount = read_mount_document(out)["mount"]
     assert mount.sensor == "oak_d" and mount.intrinsics == oak.intrinsics
     assert abs(mount.height_mm - 2700.0) < 10
     assert abs(mount.pitch_deg + 3.0) < 0.15 and abs(mount.roll_deg - 8.0) < 0.15
     assert pic.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_png_frames_take_the_named_sensors_optics(tmp_path):
+    """A PNG says no optics: `--sensor` of the frames' size gives them, so a D435's frames
+    are not back-projected with a Kinect v1's focal length (the tilt would come out wrong)."""
+    d435 = get_sensor("realsense_d435")
+    truth = TopViewMount(d435.intrinsics, 3000.0, 4.0, -3.0, "realsense_d435")
+    folder = tmp_path / "d435"
+    folder.mkdir()
+    for i, depth in enumerate(frames_of(truth, n=4, cover=0.3)):
+        Image.fromarray(depth).save(folder / f"f{i:02d}.png")
+    out = tmp_path / "d435.json"
+    r = calibrate("--source", f"replay:{folder}", "--sensor", "realsense_d435", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert "PNG frames say no optics: using the realsense_d435's (fx 385.0)" in r.stdout
+    mount = read_mount_document(out)["mount"]
+    assert mount.intrinsics == d435.intrinsics
+    assert abs(mount.pitch_deg - 4.0) < 0.15 and abs(mount.roll_deg + 3.0) < 0.15
+    # without --sensor the guess is said, and a sensor of another size is not forced on them
+    r = calibrate("--source", f"replay:{folder}", "--sensor", "oak_d", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert "assuming a Kinect v1's scaled to 640x480" in r.stdout
 
 
 def error_line(r) -> str:

@@ -130,3 +130,14 @@ def test_logs_say_when_frames_are_smoothed():
     assert smoothing_text(far) == ", depth smoothed (noise 85 mm at the floor)"
     assert mount_text(far).endswith("depth smoothed (noise 85 mm at the floor)")
     assert smoothing_text(mount_of("kinect_v2", 3000.0)) == ""
+
+
+def test_the_calibration_summary_says_whether_frames_are_smoothed():
+    from topseg.core.calibration import _smoothing_line
+
+    assert _smoothing_line(mount_of("realsense_d435", 4500.0)) == (
+        "smoothing  on: noise 85 mm at the floor (>= 20 mm)"
+    )
+    assert _smoothing_line(mount_of("kinect_v1", 2500.0)) == (
+        "smoothing  off: noise 8 mm at the floor (< 20 mm)"
+    )
