@@ -73,6 +73,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="mount file from `topseg calibrate` (default: the frames' own, else estimated "
         "from each input's frames)",
     )
+    parser.add_argument(
+        "--sensor",
+        choices=sensor_names(),
+        default=None,
+        help="with no --mount: the sensor the frames come from, whose noise model the "
+        "estimated mount takes and, for PNGs (which say no optics), whose optics (default: "
+        "the supported sensor of the frames' size, kinect_v1 for 640x480)",
+    )
 
 
 def overlay(depth, labels):
@@ -126,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     skipped = 0
     try:
         with stop_between_steps() as run_.stop:  # Ctrl-C: stop after the frame at hand
-            skipped = _segment_all(run_, inputs, given)
+            skipped = _segment_all(run_, inputs, given, args.sensor)
     except _Interrupted:
         run_.summary()
         print(
@@ -167,8 +175,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _segment_all(run_: _Run, inputs: list, given) -> int:
-    """Segment every input (`run`'s loop); how many inputs were skipped."""
+def _segment_all(run_: _Run, inputs: list, given, sensor: str | None = None) -> int:
+    """Segment every input (`run`'s loop), mounts estimated with `sensor`'s model (None:
+    from the frames' size) where none is given; how many inputs were skipped."""
     from topseg.core.errors import TopsegError
 
     skipped = 0
@@ -177,7 +186,7 @@ def _segment_all(run_: _Run, inputs: list, given) -> int:
         try:
             estimates: dict = {}
             if segmenter.reads_height and given is None:
-                estimates = _estimates(arg, sources)
+                estimates = _estimates(arg, sources, sensor)
             for key, est in estimates.items():
                 if isinstance(est, TopsegError):  # this camera: no mount, not segmented
                     skipped += 1
@@ -337,12 +346,22 @@ def _png_mount(frame):
     raise TopsegError(f"{frame.name}: no camera mount for this frame (give --mount)")
 
 
-def sensor_for(shape: tuple[int, int]):
-    """The supported sensor whose frames are this (rows, cols) size, or None."""
-    from topseg.core.sensors import nearest_sensor
+def sensor_for(shape: tuple[int, int], name: str | None = None):
+    """The supported sensor called `name`, else the one whose frames are this (rows, cols)
+    size, or None."""
+    from topseg.core.sensors import get_sensor, nearest_sensor
 
+    if name is not None:
+        return get_sensor(name)
     sensor = nearest_sensor(shape[1], shape[0])
     return sensor if sensor.intrinsics.shape == tuple(shape) else None
+
+
+def sensor_names() -> tuple[str, ...]:
+    """The supported sensors' names (`--sensor`'s choices)."""
+    from topseg.core.sensors import NAMES
+
+    return NAMES
 
 
 def _spread(items: list, n: int) -> list:
@@ -370,7 +389,7 @@ def _recording_sample(frames) -> tuple[list, object, bool]:
     return _spread(kept, ESTIMATE_FRAMES), intrinsics, all_mounted
 
 
-def _estimates(arg: Path, sources: list[Path]) -> dict:
+def _estimates(arg: Path, sources: list[Path], sensor: str | None = None) -> dict:
     """{depth key (None for PNGs): the mount estimated from that camera's frames (printed),
     None when its frames all carry their own, or the TopsegError saying why there is none}.
     A folder of PNGs is one camera; each depth channel of a recording is one. TopsegError
@@ -380,7 +399,7 @@ def _estimates(arg: Path, sources: list[Path]) -> dict:
 
     if all(p.suffix.lower() == ".png" for p in sources):
         frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
-        return {None: _estimate(str(arg), frames, None, False)}
+        return {None: _estimate(str(arg), frames, None, False, sensor)}
     out: dict = {}
     for source in sources:
         if source.suffix.lower() != ".mcap":
@@ -390,15 +409,18 @@ def _estimates(arg: Path, sources: list[Path]) -> dict:
         for key in channels:
             label = f"{arg}" if len(channels) == 1 else f"{arg} {key}"
             try:
-                out[key] = _estimate(label, *_recording_sample(RecordingFrames(source, key)))
+                out[key] = _estimate(
+                    label, *_recording_sample(RecordingFrames(source, key)), sensor
+                )
             except TopsegError as exc:
                 out[key] = exc
     return out
 
 
-def _estimate(label: str, frames: list, intrinsics, all_mounted: bool):
-    """The mount estimated from one camera's frames (printed), or None when its frames all
-    carry their own. TopsegError (one line) when it cannot be estimated."""
+def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str | None = None):
+    """The mount estimated from one camera's frames (printed) with sensor `name`'s model
+    (None: the sensor of the frames' size), or None when its frames all carry their own.
+    TopsegError (one line) when it cannot be estimated."""
     from dataclasses import replace
 
     from topseg.core.calibration import estimate_mount
@@ -410,8 +432,15 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool):
         raise TopsegError("no frames to estimate the camera's mount from")
     shape = frames[0].shape
     frames = [f for f in frames if f.shape == shape]
-    sensor = sensor_for(shape)
+    sensor = sensor_for(shape, name)
     if intrinsics is None:
+        if sensor is not None and sensor.intrinsics.shape != shape:
+            k = sensor.intrinsics
+            raise TopsegError(
+                f"{shape[1]}x{shape[0]} frames that say no intrinsics, but the "
+                f"{sensor.name}'s are {k.width}x{k.height}; calibrate the camera and give "
+                "--mount"
+            )
         if sensor is None:
             raise TopsegError(
                 f"{shape[1]}x{shape[0]} frames that say no intrinsics and match no supported "

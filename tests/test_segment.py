@@ -167,6 +167,33 @@ def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path
     assert (got == expected).mean() > 0.995
 
 
+def test_sensor_names_the_optics_of_pngs(height_model, tmp_path):
+    """PNGs say no optics: 640x480 is read as a Kinect v1's unless `--sensor` names another
+    camera of that size; one of another size is refused in one line."""
+    from topseg.core.sensors import get_sensor
+
+    path, _, _ = height_model
+    d435 = TopViewMount(
+        get_sensor("realsense_d435").intrinsics, 3200.0, 2.0, -1.0, "realsense_d435"
+    )
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, (depth, _) in enumerate(floor_scene(np.random.default_rng(6), d435, 3)):
+        Image.fromarray(depth).save(folder / f"f{i}.png")
+    common = ["--model", path, "--crf", "none", "--stride", "1", "--downsample", "1"]
+    r = segment(folder, "--sensor", "realsense_d435", "--out", tmp_path / "a", *common)
+    assert r.returncode == 0, r.stderr
+    assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" in r.stdout
+    assert "the realsense_d435 model)" in r.stdout  # its noise model; noise-free: no smoothing
+    r = segment(folder, "--out", tmp_path / "b", *common)  # read with a Kinect v1's optics
+    assert r.returncode == 0, r.stderr
+    assert "the kinect_v1 model)" in r.stdout
+    assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" not in r.stdout
+    r = segment(folder, "--sensor", "oak_d", "--out", tmp_path / "c", *common)
+    assert r.returncode == 2
+    assert "640x480 frames that say no intrinsics, but the oak_d's are 640x400" in r.stderr
+
+
 def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_model, tmp_path):
     from topseg.core.calibration import estimate_mount
     from topseg.core.formats.mount_file import write_mount_file
