@@ -92,8 +92,13 @@ def smooth_depth(
     indexed by each pixel's own raw depth) as the edge threshold; a new uint16 frame,
     rounded to the nearest mm, zero where `depth` is zero."""
     depth = np.ascontiguousarray(depth, np.uint16)
+    edge_mm = np.ascontiguousarray(edge_mm, np.float32)
     if depth.ndim != 2:
         raise ValueError(f"depth must be 2-D, got shape {depth.shape}")
+    if edge_mm.shape != (65536,):  # the kernels index it by any uint16 depth, unchecked
+        raise ValueError(f"edge_mm must have 65536 entries, got shape {edge_mm.shape}")
+    if depth.size == 0:
+        return depth.copy()
     x = depth.astype(np.float32)
     a = np.float32(alpha)
     b = np.float32(1.0) - a

@@ -120,6 +120,11 @@ def test_model_input_reads_the_smoothed_frame():
 def test_bad_shapes_are_refused():
     with pytest.raises(ValueError, match="2-D"):
         smooth_depth(np.zeros((2, 3, 4), np.uint16), edge_table("oak_d", 1.0))
+    with pytest.raises(ValueError, match="65536 entries"):
+        smooth_depth(np.ones((4, 4), np.uint16), np.zeros(100, np.float32))
+    for shape in ((0, 5), (5, 0), (1, 1)):
+        depth = np.full(shape, 3000, np.uint16)
+        np.testing.assert_array_equal(smooth_depth(depth, edge_table("oak_d", 1.0)), depth)
 
 
 def test_logs_say_when_frames_are_smoothed():
