@@ -615,6 +615,7 @@ class Segmenter:
             depth[:] = int(mount.height_mm * 0.6)
             depth[:, :8] = int(mount.height_mm)
         from topseg.core.crf import segment_crf
+        from topseg.core.denoise import edge_table, smooth_depth
         from topseg.core.forest.inputs import legacy_input
         from topseg.core.forest.predict import fill_posteriors, predict_proba
         from topseg.core.resolution import decimate, upsample_labels
@@ -637,6 +638,8 @@ class Segmenter:
             if self.features is not None:  # the half-resolution path's own two steps
                 small = decimate(frame, 2)
                 upsample_labels(frame, labels[::2, ::2], small, 2)
+                # the smoothing a noisy camera's frames get (`core.denoise`), not this mount's
+                smooth_depth(frame, edge_table(mount.sensor, 1.0))
         if self.config.crf.mode == "realtime":
             from topseg.core.crf import realtime
 

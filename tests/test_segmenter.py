@@ -318,7 +318,7 @@ def test_warm_up_compiles_what_a_frame_off_the_wire_runs():
     """Frames decoded from the wire are read-only arrays, for which numba compiles its own
     kernels: after warm_up, labelling one must compile nothing (with a cold cache, that
     compile on a worker's first frames dropped 10 of them), at the frame's resolution or at
-    half of it. In a fresh interpreter: this
+    half of it, smoothed or not. In a fresh interpreter: this
     one's kernels may hold those signatures from earlier tests."""
     import subprocess
     import sys
@@ -329,7 +329,7 @@ from topseg.core import crf
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.crf import energy
 from topseg.core.formats import wire
-from topseg.core import islands, resolution
+from topseg.core import denoise, islands, resolution
 from topseg.core.forest import inputs, predict
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 
@@ -337,7 +337,7 @@ seg = Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="realti
 seg.warm_up()
 kernels = [
     v
-    for module in (energy, inputs, predict, crf.realtime, crf.argmax, islands, resolution)
+    for module in (energy, inputs, predict, crf.realtime, crf.argmax, islands, resolution, denoise)
     for v in vars(module).values()
     if isinstance(v, numba.core.dispatcher.Dispatcher)
 ]
@@ -354,6 +354,15 @@ big[160:320, 200:440] = 1800
 mount = TopViewMount(KINECT_V1, 3000.0)
 frame = wire.decode_depth(wire.encode_depth(wire.DepthFrame(big, mount.intrinsics, mount=mount)))
 assert seg.label(frame.depth, frame.intrinsics, mount=frame.mount).downsample == 2
+# a D435 4.5 m up: its frames are smoothed before the forest (`core.denoise`)
+from topseg.core.sensors import get_sensor
+d435 = get_sensor("realsense_d435").intrinsics
+mount = TopViewMount(d435, 4500.0, sensor="realsense_d435")
+far = np.full((480, 640), 4500, np.uint16)
+far[160:320, 200:440] = 3300
+frame = wire.decode_depth(wire.encode_depth(wire.DepthFrame(far, d435, mount=mount)))
+assert denoise.needs_denoise(frame.mount)
+seg.label(frame.depth, frame.intrinsics, mount=frame.mount)
 print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) != b])
 """
     out = subprocess.run(
