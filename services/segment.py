@@ -55,6 +55,7 @@ ESTIMATE_FRAMES = 30
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Inputs, --model (default: the bundled model), --out, --crf and --smoothness."""
     from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.sensors import NAMES
 
     parser.add_argument(
         "inputs", nargs="+", type=Path, metavar="INPUT", help="PNG files, folders of PNGs, .mcap"
@@ -75,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--sensor",
-        choices=sensor_names(),
+        choices=NAMES,
         default=None,
         help="with no --mount: the sensor the frames come from, whose noise model the "
         "estimated mount takes and, for PNGs (which say no optics), whose optics (default: "
@@ -355,13 +356,6 @@ def sensor_for(shape: tuple[int, int], name: str | None = None):
         return get_sensor(name)
     sensor = nearest_sensor(shape[1], shape[0])
     return sensor if sensor.intrinsics.shape == tuple(shape) else None
-
-
-def sensor_names() -> tuple[str, ...]:
-    """The supported sensors' names (`--sensor`'s choices)."""
-    from topseg.core.sensors import NAMES
-
-    return NAMES
 
 
 def _spread(items: list, n: int) -> list:
