@@ -37,6 +37,9 @@ import numpy as np
 from topseg.core.camera import NOISE_SCALE_RANGE, Intrinsics, TopViewMount, check_depth
 from topseg.core.errors import TopsegError
 
+#: frames `_radial_hint` tries reading as range when no floor fits them as depth
+RADIAL_TRIES = 5
+
 
 class CalibrationError(TopsegError):
     """No trustworthy mount in these frames; the message says why in one line."""
@@ -311,14 +314,44 @@ def _angle_deg(n1: np.ndarray, n2: np.ndarray) -> float:
     return math.degrees(math.acos(float(np.clip(np.dot(n1, n2), -1.0, 1.0))))
 
 
-def _check_enough(found: int, frames: int, frame_share: float) -> None:
-    """CalibrationError unless a floor was found in at least half the frames."""
+def _check_enough(found: int, frames: int, frame_share: float, radial: str = "") -> None:
+    """CalibrationError unless a floor was found in at least half the frames; `radial` (from
+    `_radial_hint`) replaces the advice when the frames hold range, not depth."""
     if found * 2 < frames:
         raise CalibrationError(
             f"no plane covers enough of the view: a floor holding {frame_share:.0%} of the "
             f"valid pixels was found in only {found} of {frames} frames; "
-            f"clear the floor under the camera or aim it at the floor"
+            + (radial or "clear the floor under the camera or aim it at the floor")
         )
+
+
+def _as_range(pts: _Points) -> _Points:
+    """`pts` with each value read as range along its pixel's ray, turned into depth along
+    the optical axis: z = r / |(u', v', 1)|."""
+    z = pts.z_mm / np.sqrt(1.0 + np.einsum("ij,ij->i", pts.rays, pts.rays))
+    return _Points(pts.rays, z, 1000.0 / z if z.size else z, pts.valid)
+
+
+def _radial_hint(
+    samples: Sequence[_Points], cfg: CalibrationConfig, thr: Threshold, frame_share: float
+) -> str:
+    """When no floor fits the frames as depth: the advice to give if one fits them read as
+    range along each pixel's ray (a radial-distance image, what some time-of-flight cameras
+    send), else "". Tries up to RADIAL_TRIES frames."""
+    tried = list(samples)[:RADIAL_TRIES]
+    found = 0
+    for i, pts in enumerate(tried):
+        z = _as_range(pts)
+        coef = _ransac_plane(z, cfg, thr, cfg.seed + i)
+        found += coef is not None and _inliers(coef, z, thr).mean() >= frame_share
+    if found * 2 < len(tried) or not found:
+        return ""
+    return (
+        f"read as range along each pixel's ray, {found} of {len(tried)} frames show a flat "
+        "floor: this camera sends radial distance, and topseg needs depth along the optical "
+        "axis (z = range / sqrt(1 + x'^2 + y'^2), x' = (u - cx) / fx, y' = (v - cy) / fy); "
+        "set the camera or its driver to output z depth"
+    )
 
 
 # ---------------------------------------------------------------------------- the estimate
@@ -365,7 +398,13 @@ def estimate_mount(
             planes.append(coef)
             used.append(pts)
             shares.append(share)
-    _check_enough(len(planes), len(with_depth), frame_share)
+    if len(planes) * 2 < len(with_depth):
+        _check_enough(
+            len(planes),
+            len(with_depth),
+            frame_share,
+            _radial_hint(with_depth, cfg, thr, frame_share),
+        )
 
     # The consensus: the plane of a frame with a clear floor nearest the others. A frame
     # with little floor in view (a crowd, a big table) that disagrees with it found some

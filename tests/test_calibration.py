@@ -160,12 +160,29 @@ def test_no_plane_covering_enough_of_the_view_is_refused():
     clutter = [rng.integers(1500, 4000, K.shape).astype(np.uint16) for _ in range(3)]
     with pytest.raises(CalibrationError, match="no plane covers enough of the view") as exc:
         estimate_mount(clutter, K)
-    one_line(exc)
+    assert "radial" not in one_line(exc)
     # a table over 85 % of the view: the floor (15 %) is the farthest plane but too small
     truth = TopViewMount(K, 3000.0)
     table = ((slice(5, 235), slice(10, 305)), 750.0)
     with pytest.raises(CalibrationError, match="no plane covers enough of the view"):
         estimate_mount(frames_of(truth, cover=0.0, tables=(table,)), K)
+
+
+def as_range(depth: np.ndarray, k: Intrinsics) -> np.ndarray:
+    """A depth frame as a radial-distance camera sends it: range along each pixel's ray."""
+    v, u = np.indices(k.shape, dtype=np.float64)
+    norm = np.sqrt(1.0 + ((u - k.cx) / k.fx) ** 2 + ((v - k.cy) / k.fy) ** 2)
+    return np.where(depth > 0, np.rint(depth * norm), 0).astype(np.uint16)
+
+
+@pytest.mark.parametrize("pitch", [0.0, 4.0])
+def test_range_frames_are_refused_with_the_cause_named(pitch):
+    truth = TopViewMount(K, 3300.0, pitch, -1.0)
+    frames = frames_of(truth, cover=0.2)
+    with pytest.raises(CalibrationError, match="sends radial distance") as exc:
+        estimate_mount([as_range(f, K) for f in frames], K)
+    assert "optical axis" in one_line(exc)
+    estimate_mount(frames, K)  # the same frames as depth fit
 
 
 def test_frames_that_disagree_are_refused():
