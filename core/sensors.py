@@ -129,6 +129,25 @@ def nearest_sensor(width: int, height: int, fx: float | None = None) -> SensorMo
     return min(SENSORS, key=distance)
 
 
+def sensor_of_frames(shape: tuple[int, int], name: str | None = None) -> SensorModel | None:
+    """The sensor that frames of this (rows, cols) size, which say no optics (PNGs), come
+    from: the one called `name` (a one-line ConfigError when its frames are another size),
+    else the first supported sensor of that size, else None."""
+    rows, cols = shape
+    if name is not None:
+        sensor = get_sensor(name)
+        k = sensor.intrinsics
+        if k.shape != (rows, cols):
+            raise ConfigError(
+                f"{cols}x{rows} frames that say no intrinsics, but the {sensor.name}'s are "
+                f"{k.width}x{k.height}; name the sensor they come from, or calibrate the "
+                "camera from a source that says its optics"
+            )
+        return sensor
+    sensor = nearest_sensor(cols, rows)
+    return sensor if sensor.intrinsics.shape == (rows, cols) else None
+
+
 def get_sensor(name: str) -> SensorModel:
     """The sensor called `name`; a one-line ConfigError listing the known names if none."""
     try:

@@ -43,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sensor",
         default=None,
         help="sensor model name in core/sensors.py (default: the frames' own, the source "
-        "kind's usual one, else 'unknown')",
+        "kind's usual one; for PNG frames, which say no optics, the supported sensor of "
+        "their size; else 'unknown')",
     )
     parser.add_argument("--out", required=True, type=Path, help="the mount file to write (JSON)")
     parser.add_argument(
@@ -114,23 +115,26 @@ def grab(source: str, n: int) -> tuple[list, object, object, bool]:
     return frames, intrinsics, mount, known
 
 
-def png_optics(intrinsics, sensor: str):
-    """The optics of PNG frames, which say none: the sensor's when it is a supported one of
-    the frames' size, else the guess they came with (a Kinect v1's scaled to their size);
-    and a line saying which."""
-    from topseg.core.errors import ConfigError
-    from topseg.core.sensors import get_sensor
+def png_optics(intrinsics, sensor: str | None):
+    """The optics and sensor of PNG frames, which say none (`core.sensors.sensor_of_frames`,
+    as `topseg segment` reads them): `--sensor`'s (refused in one line when its frames are
+    another size), else the supported sensor of the frames' size, else (and for `--sensor
+    unknown`) the guess they came with, a Kinect v1's scaled to their size, sensor
+    'unknown'; and a line saying which."""
+    from topseg.core.sensors import sensor_of_frames
 
-    try:
-        k = get_sensor(sensor).intrinsics
-    except ConfigError:
-        k = None
-    if k is not None and k.shape == intrinsics.shape:
-        return k, f"PNG frames say no optics: using the {sensor}'s (fx {k.fx:.1f})"
-    return intrinsics, (
-        f"PNG frames say no optics: assuming a Kinect v1's scaled to "
-        f"{intrinsics.width}x{intrinsics.height} (fx {intrinsics.fx:.1f}); --sensor names "
-        "a supported sensor of that size"
+    found = None if sensor == "unknown" else sensor_of_frames(intrinsics.shape, sensor)
+    if found is not None:
+        k = found.intrinsics
+        return k, found.name, f"PNG frames say no optics: using the {found.name}'s (fx {k.fx:.1f})"
+    return (
+        intrinsics,
+        "unknown",
+        (
+            f"PNG frames say no optics: assuming a Kinect v1's scaled to "
+            f"{intrinsics.width}x{intrinsics.height} (fx {intrinsics.fx:.1f}); --sensor names "
+            "a supported sensor of that size"
+        ),
     )
 
 
@@ -194,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     sensor = sensor_name(args.sensor, args.source, frame_mount)
     optics = None
     if not known:
-        intrinsics, optics = png_optics(intrinsics, sensor)
+        intrinsics, sensor, optics = png_optics(intrinsics, args.sensor)
     estimate = estimate_mount(frames, intrinsics, sensor, CalibrationConfig(seed=args.seed))
     print(f"topseg calibrate: mount of {args.source} from {len(frames)} frames")
     if optics:

@@ -347,17 +347,6 @@ def _png_mount(frame):
     raise TopsegError(f"{frame.name}: no camera mount for this frame (give --mount)")
 
 
-def sensor_for(shape: tuple[int, int], name: str | None = None):
-    """The supported sensor called `name`, else the one whose frames are this (rows, cols)
-    size, or None."""
-    from topseg.core.sensors import get_sensor, nearest_sensor
-
-    if name is not None:
-        return get_sensor(name)
-    sensor = nearest_sensor(shape[1], shape[0])
-    return sensor if sensor.intrinsics.shape == tuple(shape) else None
-
-
 def _spread(items: list, n: int) -> list:
     """At most `n` of `items`, evenly spread from first to last."""
     if len(items) <= n:
@@ -419,6 +408,7 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
 
     from topseg.core.calibration import estimate_mount
     from topseg.core.errors import TopsegError
+    from topseg.core.sensors import get_sensor, sensor_of_frames
 
     if all_mounted and frames:
         return None
@@ -426,21 +416,16 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
         raise TopsegError("no frames to estimate the camera's mount from")
     shape = frames[0].shape
     frames = [f for f in frames if f.shape == shape]
-    sensor = sensor_for(shape, name)
     if intrinsics is None:
-        if sensor is not None and sensor.intrinsics.shape != shape:
-            k = sensor.intrinsics
-            raise TopsegError(
-                f"{shape[1]}x{shape[0]} frames that say no intrinsics, but the "
-                f"{sensor.name}'s are {k.width}x{k.height}; calibrate the camera and give "
-                "--mount"
-            )
+        sensor = sensor_of_frames(shape, name)
         if sensor is None:
             raise TopsegError(
                 f"{shape[1]}x{shape[0]} frames that say no intrinsics and match no supported "
                 "sensor; calibrate the camera and give --mount"
             )
         intrinsics = sensor.intrinsics
+    else:  # a recording says its optics; the sensor names the noise model
+        sensor = get_sensor(name) if name else sensor_of_frames(shape)
     estimate = estimate_mount(frames, intrinsics, sensor.name if sensor else "unknown")
     mount = estimate.mount
     if sensor is not None and mount.sensor != sensor.name:

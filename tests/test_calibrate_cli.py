@@ -104,8 +104,16 @@ def test_png_frames_take_the_named_sensors_optics(tmp_path):
     mount = read_mount_document(out)["mount"]
     assert mount.intrinsics == d435.intrinsics
     assert abs(mount.pitch_deg - 4.0) < 0.15 and abs(mount.roll_deg + 3.0) < 0.15
-    # without --sensor the guess is said, and a sensor of another size is not forced on them
-    r = calibrate("--source", f"replay:{folder}", "--sensor", "oak_d", "--out", out)
+    # without --sensor: the supported sensor of their size, as `topseg segment` reads them
+    r = calibrate("--source", f"replay:{folder}", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert "using the kinect_v1's (fx 570.3)" in r.stdout and "sensor     kinect_v1" in r.stdout
+    assert read_mount_document(out)["mount"].sensor == "kinect_v1"
+    # a sensor of another size is refused in one line, as segment refuses it, not guessed
+    line = error_line(calibrate("--source", f"replay:{folder}", "--sensor", "oak_d", "--out", out))
+    assert "640x480 frames that say no intrinsics, but the oak_d's are 640x400" in line
+    # --sensor unknown keeps the guess (320x240 frames of no supported size get it anyway)
+    r = calibrate("--source", f"replay:{folder}", "--sensor", "unknown", "--out", out)
     assert r.returncode == 0, r.stderr
     assert "assuming a Kinect v1's scaled to 640x480" in r.stdout
 

@@ -60,3 +60,17 @@ def test_nearest_sensor_by_size_then_field_of_view():
     d435 = REALSENSE_D435.intrinsics
     assert nearest_sensor(640, 480, d435.fx) is REALSENSE_D435  # same size: the field of view
     assert nearest_sensor(320, 240, d435.fx / 2) is REALSENSE_D435  # resampled: the field of view
+
+
+def test_the_sensor_of_frames_that_say_no_optics():
+    from topseg.core.errors import ConfigError
+    from topseg.core.sensors import KINECT_V1, OAK_D, REALSENSE_D435, sensor_of_frames
+
+    assert sensor_of_frames((480, 640)) is KINECT_V1
+    assert sensor_of_frames((400, 640)) is OAK_D
+    assert sensor_of_frames((240, 320)) is None  # no supported sensor of that size
+    assert sensor_of_frames((480, 640), "realsense_d435") is REALSENSE_D435
+    with pytest.raises(ConfigError, match="640x480 frames .* the oak_d's are 640x400"):
+        sensor_of_frames((480, 640), "oak_d")
+    with pytest.raises(ConfigError, match="unknown sensor"):
+        sensor_of_frames((480, 640), "kinect_v9")
