@@ -140,17 +140,22 @@ def watch_slow_worker(run, seconds: float, sample_s: float, cell: str) -> dict:
     labels = tap.labels_after(start)
     elapsed = time.monotonic() - start
 
-    def stats_of_labelled() -> bool:  # a frame's stats follow its labels on another key
-        return {seq for _, seq, _, _ in labels} <= {s["seq"] for s in tap.stats if "seq" in s}
+    def missing_stats() -> set:  # a frame's stats follow its labels on another key
+        return {seq for _, seq, _, _ in labels} - {s["seq"] for s in tap.stats if "seq" in s}
 
-    wait_for(stats_of_labelled, 10, "the stats of every frame labelled")
+    # the worker publishes with congestion control DROP (not --lossless): on a starved
+    # machine one stats message may be dropped, two are a fault
+    deadline = time.monotonic() + 10
+    while missing_stats() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert len(missing_stats()) <= 1, f"no stats for labelled frames {sorted(missing_stats())}"
     stats = [s for s in tap.stats if "seq" in s]
     assert wk.stop() == 0 and drv.stop() == 0, wk.err + drv.err
 
     took = {s["seq"]: s["timings_ms"]["total"] / 1000 for s in stats}
     newest = [(t, seq) for t, seq, _ in tap.depth]
     rows = []
-    for t, seq, stamp, now_ns in labels:
+    for t, seq, stamp, now_ns in (row for row in labels if row[1] in took):
         latency = (now_ns - stamp) / 1e9
         ahead = max((s for tt, s in newest if tt <= t), default=seq)
         # waited = how old the frame was when the worker took it: a backlog would grow it
