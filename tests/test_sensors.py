@@ -70,7 +70,7 @@ def test_the_sensor_of_frames_that_say_no_optics():
     assert sensor_of_frames((400, 640)) is OAK_D
     assert sensor_of_frames((240, 320)) is None  # no supported sensor of that size
     assert sensor_of_frames((480, 640), "realsense_d435") is REALSENSE_D435
-    with pytest.raises(ConfigError, match="640x480 frames .* the oak_d's are 640x400"):
+    with pytest.raises(ConfigError, match=r"640x480 frames .* the oak_d.s are 640x400"):
         sensor_of_frames((480, 640), "oak_d")
     with pytest.raises(ConfigError, match="unknown sensor"):
         sensor_of_frames((480, 640), "kinect_v9")
