@@ -34,10 +34,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from topseg.core.camera import NOISE_SCALE_RANGE, Intrinsics, TopViewMount, check_depth
+from topseg.core.camera import (
+    NOISE_SCALE_RANGE,
+    Intrinsics,
+    TopViewMount,
+    check_depth,
+    range_to_depth,
+)
 from topseg.core.errors import TopsegError
 
-#: frames `_radial_hint` tries reading as range when no floor fits them as depth
+#: frames `_fits_as_range` tries reading as range when no floor fits them as depth
 RADIAL_TRIES = 5
 
 
@@ -180,6 +186,13 @@ class MountEstimate:
                 f"camera     {k.width}x{k.height} fx {k.fx:.1f} fy {k.fy:.1f} "
                 f"cx {k.cx:.1f} cy {k.cy:.1f}",
                 f"sensor     {m.sensor}",
+                "depth      "
+                + (
+                    "range along each pixel's ray (radial distance): read as depth along "
+                    "the optical axis"
+                    if m.radial
+                    else "along the optical axis"
+                ),
                 _smoothing_line(m),
             ]
         )
@@ -314,14 +327,13 @@ def _angle_deg(n1: np.ndarray, n2: np.ndarray) -> float:
     return math.degrees(math.acos(float(np.clip(np.dot(n1, n2), -1.0, 1.0))))
 
 
-def _check_enough(found: int, frames: int, frame_share: float, radial: str = "") -> None:
-    """CalibrationError unless a floor was found in at least half the frames; `radial` (from
-    `_radial_hint`) replaces the advice when the frames hold range, not depth."""
+def _check_enough(found: int, frames: int, frame_share: float) -> None:
+    """CalibrationError unless a floor was found in at least half the frames."""
     if found * 2 < frames:
         raise CalibrationError(
             f"no plane covers enough of the view: a floor holding {frame_share:.0%} of the "
             f"valid pixels was found in only {found} of {frames} frames; "
-            + (radial or "clear the floor under the camera or aim it at the floor")
+            f"clear the floor under the camera or aim it at the floor"
         )
 
 
@@ -332,26 +344,19 @@ def _as_range(pts: _Points) -> _Points:
     return _Points(pts.rays, z, 1000.0 / z if z.size else z, pts.valid)
 
 
-def _radial_hint(
+def _fits_as_range(
     samples: Sequence[_Points], cfg: CalibrationConfig, thr: Threshold, frame_share: float
-) -> str:
-    """When no floor fits the frames as depth: the advice to give if one fits them read as
-    range along each pixel's ray (a radial-distance image, what some time-of-flight cameras
-    send), else "". Tries up to RADIAL_TRIES frames."""
+) -> bool:
+    """Whether a floor fits at least half of (up to RADIAL_TRIES of) these frames when each
+    value is read as range along its pixel's ray: a radial-distance camera, whose floor is a
+    bowl as depth (22 % deeper in a Kinect v1 view's corners)."""
     tried = list(samples)[:RADIAL_TRIES]
     found = 0
     for i, pts in enumerate(tried):
         z = _as_range(pts)
         coef = _ransac_plane(z, cfg, thr, cfg.seed + i)
         found += coef is not None and _inliers(coef, z, thr).mean() >= frame_share
-    if found * 2 < len(tried) or not found:
-        return ""
-    return (
-        f"read as range along each pixel's ray, {found} of {len(tried)} frames show a flat "
-        "floor: this camera sends radial distance, and topseg needs depth along the optical "
-        "axis (z = range / sqrt(1 + x'^2 + y'^2), x' = (u - cx) / fx, y' = (v - cy) / fy); "
-        "set the camera or its driver to output z depth"
-    )
+    return found > 0 and found * 2 >= len(tried)
 
 
 # ---------------------------------------------------------------------------- the estimate
@@ -362,11 +367,16 @@ def estimate_mount(
     intrinsics: Intrinsics,
     sensor: str = "unknown",
     config: CalibrationConfig | None = None,
+    *,
+    _as_range_ok: bool = True,
 ) -> MountEstimate:
     """The mount of the camera that took `frames` ((H, W) uint16 mm, one camera, still).
 
-    Raises CalibrationError (one line) when the frames hold no depth, no plane covers
-    `min_inlier_share` of the view, per-frame floors disagree, or the tilt is too large.
+    When no floor fits the frames as depth but one fits them read as range along each
+    pixel's ray (a radial-distance camera), the mount is fitted to them as such and says so
+    (`TopViewMount.radial`). Raises CalibrationError (one line) when the frames hold no
+    depth, no plane covers `min_inlier_share` of the view, per-frame floors disagree, or the
+    tilt is too large.
     """
     cfg = config or CalibrationConfig()
     frames = [check_depth(f, "calibration") for f in frames]
@@ -398,13 +408,15 @@ def estimate_mount(
             planes.append(coef)
             used.append(pts)
             shares.append(share)
-    if len(planes) * 2 < len(with_depth):
-        _check_enough(
-            len(planes),
-            len(with_depth),
-            frame_share,
-            _radial_hint(with_depth, cfg, thr, frame_share),
-        )
+    if (
+        len(planes) * 2 < len(with_depth)
+        and _as_range_ok
+        and _fits_as_range(with_depth, cfg, thr, frame_share)
+    ):
+        z_frames = [range_to_depth(f, intrinsics) for f in frames]
+        estimate = estimate_mount(z_frames, intrinsics, sensor, config, _as_range_ok=False)
+        return replace(estimate, mount=replace(estimate.mount, radial=True))
+    _check_enough(len(planes), len(with_depth), frame_share)
 
     # The consensus: the plane of a frame with a clear floor nearest the others. A frame
     # with little floor in view (a crowd, a big table) that disagrees with it found some
@@ -488,10 +500,12 @@ def floor_mask(
     """(H, W) bool: pixels whose point lies on the mount's floor, within the inlier threshold.
 
     The test is on depth along the pixel's ray, as in the fit: a point at height h sits
-    h / |n . r| mm of depth off the floor, with r = ((u - cx)/fx, (v - cy)/fy, 1).
+    h / |n . r| mm of depth off the floor, with r = ((u - cx)/fx, (v - cy)/fy, 1). A radial
+    camera's frame is read as depth first.
     """
     cfg = config or CalibrationConfig()
-    depth = check_depth(depth, "floor_mask")
+    depth = mount.z_depth(check_depth(depth, "floor_mask"))
+    mount = replace(mount, radial=False)
     h = mount.height_map_mm(depth)
     n_dot_r = mount.height_map_mm(np.ones_like(depth)) - np.float32(mount.height_mm)
     with np.errstate(invalid="ignore", divide="ignore"):

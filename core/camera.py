@@ -140,6 +140,47 @@ def _ray_coefficients(k: Intrinsics, normal: tuple[float, float, float]) -> np.n
     return a
 
 
+@functools.lru_cache(maxsize=16)
+def _ray_lengths(k: Intrinsics) -> np.ndarray:
+    """(H, W) float64 |(x/z, y/z, 1)| of each pixel's ray: range over depth along the axis."""
+    v, u = np.indices(k.shape, dtype=np.float64)
+    n = np.sqrt(1.0 + ((u - k.cx) / k.fx) ** 2 + ((v - k.cy) / k.fy) ** 2)
+    n.flags.writeable = False
+    return n
+
+
+def range_to_depth(range_mm: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """A range image (uint16 mm along each pixel's ray, what some time-of-flight cameras
+    send) as depth along the optical axis: z = range / |(x/z, y/z, 1)|, rounded; 0 stays 0."""
+    r = check_depth(range_mm, "range image")
+    if r.shape != intrinsics.shape:
+        raise ValueError(
+            f"range image is {r.shape[1]}x{r.shape[0]} but the camera is "
+            f"{intrinsics.width}x{intrinsics.height}"
+        )
+    return np.rint(r / _ray_lengths(intrinsics)).astype(np.uint16)
+
+
+def depth_to_range(depth_mm: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """`range_to_depth`'s inverse: the range image a radial-distance camera would send for
+    this depth frame (0 stays 0, clipped to the uint16 range)."""
+    d = check_depth(depth_mm, "depth frame")
+    r = np.rint(d * _ray_lengths(intrinsics))
+    return np.minimum(r, MAX_DEPTH_MM).astype(np.uint16)
+
+
+def axis_depth(depth: np.ndarray, mount: TopViewMount | None) -> np.ndarray:
+    """A frame as depth along the optical axis, what REP 118 depth images and pinhole
+    viewers expect: `mount.z_depth` of it, or the frame itself without a mount."""
+    return depth if mount is None else mount.z_depth(depth)
+
+
+def range_text(mount: TopViewMount) -> str:
+    """', radial distance read as depth' for a camera that sends range (`TopViewMount.radial`),
+    '' otherwise: what logs and printed mounts add."""
+    return ", radial distance read as depth" if mount.radial else ""
+
+
 def _rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
     """Rx(pitch) @ Ry(roll) @ diag(1, -1, -1): world -> camera for a tilted top-view camera."""
     p, r = np.radians(pitch_deg), np.radians(roll_deg)
@@ -173,6 +214,9 @@ class TopViewMount:
     `noise_scale` is the depth noise measured on this camera's floor (the calibration's
     residual) over the sensor model's at those depths: it scales the floor gate's margin,
     so a quieter camera than its sensor model keeps more of the feet. 1 when not measured.
+    `radial` says the camera sends range along each pixel's ray (radial distance, as some
+    time-of-flight cameras do), not depth along the optical axis: `z_depth` turns its frames
+    into depth before anything measures heights from them. Calibration finds it out.
     """
 
     intrinsics: Intrinsics
@@ -181,6 +225,7 @@ class TopViewMount:
     roll_deg: float = 0.0
     sensor: str = "kinect_v1"
     noise_scale: float = 1.0
+    radial: bool = False
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.height_mm) and self.height_mm > 0):
@@ -234,17 +279,24 @@ class TopViewMount:
     def height_map_mm(self, depth_mm: np.ndarray) -> np.ndarray:
         """(H, W) float32 height above the floor (mm) of each pixel's point; NaN without depth.
 
-        `height_mm + n . X` with n the floor's up-normal and X the back-projected point in mm.
+        `height_mm + n . X` with n the floor's up-normal and X the back-projected point in mm
+        (a `radial` camera's frame read as depth first, `z_depth`).
         """
         depth_mm = np.asarray(depth_mm)
         if depth_mm.shape != self.intrinsics.shape:
             raise ValueError(
                 f"depth shape {depth_mm.shape} does not match camera {self.intrinsics.shape}"
             )
+        depth_mm = self.z_depth(depth_mm)
         z = depth_mm.astype(np.float32)
         h = z * self.height_rays() + np.float32(self.height_mm)
         h[depth_mm == 0] = np.nan
         return h
+
+    def z_depth(self, frame: np.ndarray) -> np.ndarray:
+        """This camera's frame as depth along the optical axis: the frame itself, or for a
+        `radial` camera `range_to_depth` of it."""
+        return range_to_depth(frame, self.intrinsics) if self.radial else frame
 
     def height_rays(self) -> np.ndarray:
         """(H, W) float32 read-only `n . (x/z, y/z, 1)` of each pixel's ray (n the floor's
@@ -299,13 +351,13 @@ class TopViewMount:
             "roll_deg": float(self.roll_deg),
             "sensor": self.sensor,
             "noise_scale": float(self.noise_scale),
-        }
+        } | ({"radial": True} if self.radial else {})  # absent for depth: older readers load it
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "camera mount") -> TopViewMount:
         """The mount in `d` (`to_dict`'s form). `intrinsics` and `height_mm` are required;
-        the tilt, sensor and noise scale default (straight down, Kinect v1, as modelled),
-        so dicts written before they existed still load."""
+        the tilt, sensor, noise scale and `radial` default (straight down, Kinect v1, as
+        modelled, depth), so dicts written before they existed still load."""
         from topseg.core.config import from_dict
 
         return from_dict(cls, d, source, required=("intrinsics", "height_mm"))

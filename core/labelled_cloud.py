@@ -41,7 +41,8 @@ def labelled_cloud(
 ) -> LabelledCloud:
     """The pixels with depth of a (depth, labels) pair, subsampled by `stride`, as points.
 
-    In the floor frame when `mount` is given, else in the camera's optical frame.
+    In the floor frame when `mount` is given (a `radial` camera's range read as depth first),
+    else in the camera's optical frame.
     """
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
@@ -49,6 +50,8 @@ def labelled_cloud(
         raise ValueError(f"labels {label_img.shape} and depth {depth_mm.shape} differ in shape")
     rows, cols = np.nonzero(np.asarray(depth_mm)[::stride, ::stride] > 0)
     rows, cols = rows * stride, cols * stride
+    if mount is not None and mount.radial:
+        depth_mm = mount.z_depth(np.asarray(depth_mm))
     xyz = backproject_pixels(depth_mm, rows, cols, k)
     if mount is not None:
         xyz = mount.camera_to_world(xyz)

@@ -494,6 +494,7 @@ class Segmenter:
         from topseg.core.resolution import upsample_labels
 
         t0 = time.perf_counter()
+        depth, intrinsics, mount = self._as_depth(depth, intrinsics, name, mount)
         small, small_mount, factor = self.working_frame(depth, intrinsics, name, mount)
         if factor == 1:
             return self._label(depth, intrinsics, name, mount, t0)
@@ -512,6 +513,26 @@ class Segmenter:
         return replace(
             work, labels=labels, timings=timings, downsample=factor, _forest_labels=forest_labels
         )
+
+    def _as_depth(
+        self,
+        depth: np.ndarray,
+        intrinsics: Intrinsics | None,
+        name: str,
+        mount: TopViewMount | None,
+    ) -> tuple[np.ndarray, Intrinsics | None, TopViewMount | None]:
+        """(depth, intrinsics, mount) as `label` reads them: a radial camera's range frame
+        read as depth once (`TopViewMount.z_depth`), with its mount then saying depth, so
+        that the forest, the blob rules and the upsampling all see depth; others as given."""
+        given = mount if mount is not None else self.config.mount
+        if self.features is None or given is None or not given.radial:
+            return depth, intrinsics, mount
+        full = self.frame_mount(depth, intrinsics, name, mount)
+        try:
+            z = full.z_depth(depth)
+        except ValueError as exc:
+            raise TopsegError(f"{name}: {exc}") from None
+        return z, None, replace(full, radial=False)
 
     def _label(
         self,

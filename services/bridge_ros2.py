@@ -283,10 +283,12 @@ class Bridge:
 
     def publish_depth(self, cam: tuple[str, str], topics: dict[str, Ros2Publisher], frame) -> None:
         """The depth image, its camera info, and /tf_static when the mount is new."""
+        from topseg.core.camera import axis_depth
         from topseg.core.formats import ros2_messages as ros2
 
         frame_id = ros2.optical_frame(*cam)
-        topics["depth"].put(ros2.image_message(frame.depth, frame.stamp_ns, frame_id))
+        depth = axis_depth(frame.depth, frame.mount)  # REP 118: z, also from a range camera
+        topics["depth"].put(ros2.image_message(depth, frame.stamp_ns, frame_id))
         info = ros2.camera_info_message(frame.intrinsics, frame.stamp_ns, frame_id)
         topics["camera_info"].put(info)
         self.published += 2

@@ -156,7 +156,7 @@ def picture(path: Path, depth, estimate) -> None:
     height = mount.height_map_mm(depth)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), dpi=90)
     im = axes[0].imshow(shown, cmap="gray_r")
-    axes[0].set_title("depth (mm)")
+    axes[0].set_title("range along each ray (mm), as sent" if mount.radial else "depth (mm)")
     fig.colorbar(im, ax=axes[0], fraction=0.046)
     lo, hi = np.nanpercentile(shown, [1, 99]) if valid.any() else (0, 1)
     grey = np.clip((np.nan_to_num(shown, nan=hi) - lo) / max(hi - lo, 1.0), 0, 1)

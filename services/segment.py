@@ -430,6 +430,7 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
     mount = estimate.mount
     if sensor is not None and mount.sensor != sensor.name:
         mount = replace(mount, sensor=sensor.name)
+    from topseg.core.camera import range_text
     from topseg.core.denoise import smoothing_text
 
     print(
@@ -437,7 +438,7 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
         f"{mount.pitch_deg:.1f} deg, roll {mount.roll_deg:.1f} deg, floor inliers "
         f"{100 * estimate.inlier_share:.0f} % ({len(frames)} frames), floor noise "
         f"{estimate.residual_mm:.1f} mm (x{mount.noise_scale:.2f} the {mount.sensor} model)"
-        f"{smoothing_text(mount)}"
+        f"{range_text(mount)}{smoothing_text(mount)}"
     )
     return mount
 

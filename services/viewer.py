@@ -123,6 +123,7 @@ class RerunSink:
         """The camera's mount and Pinhole (when they changed) and the depth image."""
         import rerun as rr
 
+        from topseg.core.camera import axis_depth
         from topseg.core.formats.ros2_messages import mount_pose
 
         k = frame.intrinsics
@@ -151,7 +152,8 @@ class RerunSink:
             self.pinholes[cam] = k
         self._time(frame.seq, frame.stamp_ns)
         self.rec.log(
-            f"{viewer_layout.image_entity(*cam)}/depth", rr.DepthImage(frame.depth, meter=1000.0)
+            f"{viewer_layout.image_entity(*cam)}/depth",
+            rr.DepthImage(axis_depth(frame.depth, frame.mount), meter=1000.0),
         )
 
     def labels(self, cam: tuple[str, str], frame, cloud) -> None:

@@ -183,10 +183,13 @@ class FoxgloveSink:
         """The depth image, the camera's calibration and its mount (when known)."""
         from foxglove.messages import CameraCalibration, FrameTransform, Quaternion, Vector3
 
+        from topseg.core.camera import axis_depth
+
         channels, optical = self.channels[cam], ros2_messages.optical_frame(*cam)
         stamp = _timestamp(frame.stamp_ns)
         if channels["depth"].has_sinks():  # a client subscribed: worth the copy
-            channels["depth"].log(_raw_image(frame.depth, "16UC1", frame.stamp_ns, optical))
+            depth = axis_depth(frame.depth, frame.mount)  # z, also from a range camera
+            channels["depth"].log(_raw_image(depth, "16UC1", frame.stamp_ns, optical))
         k = frame.intrinsics
         channels["camera_info"].log(
             CameraCalibration(

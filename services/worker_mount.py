@@ -66,14 +66,15 @@ class MountWatchConfig:
 
 def mount_text(m: TopViewMount) -> str:
     """'height 3.31 m, pitch +1.2, roll -0.4 deg, kinect_v1 (noise x0.35)' for logs, and
-    when the frames are smoothed (`core.denoise`) ', depth smoothed (noise 85 mm at the
-    floor)'."""
+    for a radial camera ', radial distance read as depth', and when the frames are smoothed
+    (`core.denoise`) ', depth smoothed (noise 85 mm at the floor)'."""
+    from topseg.core.camera import range_text
     from topseg.core.denoise import smoothing_text
 
     return (
         f"height {m.height_mm / 1000:.2f} m, pitch {m.pitch_deg:+.1f}, "
         f"roll {m.roll_deg:+.1f} deg, {m.sensor} (noise x{m.noise_scale:.2f})"
-        f"{smoothing_text(m)}"
+        f"{range_text(m)}{smoothing_text(m)}"
     )
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -176,13 +177,30 @@ def as_range(depth: np.ndarray, k: Intrinsics) -> np.ndarray:
 
 
 @pytest.mark.parametrize("pitch", [0.0, 4.0])
-def test_range_frames_are_refused_with_the_cause_named(pitch):
+def test_a_radial_distance_camera_is_found_out_and_its_mount_fitted(pitch):
+    """Range along each ray makes the floor a bowl as depth: no plane fits it, but read as
+    range it does, and the mount says so."""
     truth = TopViewMount(K, 3300.0, pitch, -1.0)
     frames = frames_of(truth, cover=0.2)
-    with pytest.raises(CalibrationError, match="sends radial distance") as exc:
-        estimate_mount([as_range(f, K) for f in frames], K)
-    assert "optical axis" in one_line(exc)
-    estimate_mount(frames, K)  # the same frames as depth fit
+    as_depth = estimate_mount(frames, K)
+    assert not as_depth.mount.radial
+    est = estimate_mount([as_range(f, K) for f in frames], K)
+    assert est.mount.radial
+    dh, angle = mount_difference(est.mount, truth)
+    assert abs(dh) < 10 and angle < 0.1
+    assert abs(est.mount.height_mm - as_depth.mount.height_mm) < 3
+    assert "radial distance" in est.summary() and "along the optical axis" in as_depth.summary()
+    # the picture's floor is the floor, read through the mount
+    mask = floor_mask(as_range(frames[0], K), est.mount)
+    assert mask.sum() >= 0.95 * floor_mask(frames[0], as_depth.mount).sum()
+
+
+def test_clutter_read_as_range_is_still_refused():
+    rng = np.random.default_rng(1)
+    clutter = [as_range(rng.integers(1500, 4000, K.shape).astype(np.uint16), K) for _ in range(3)]
+    with pytest.raises(CalibrationError, match="no plane covers enough of the view") as exc:
+        estimate_mount(clutter, K)
+    one_line(exc)
 
 
 def test_frames_that_disagree_are_refused():
@@ -235,6 +253,10 @@ def test_mount_file_round_trip(tmp_path):
     assert doc["fit"]["frames_used"] == 2 and doc["fit"]["made_at"] == est.made_at
     assert read_mount_document(path)["fit"]["residual_mm"] == pytest.approx(est.residual_mm, 1e-3)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cell1.json"]  # no temporary left
+    assert "radial" not in doc["mount"]
+    radial = replace(est, mount=replace(est.mount, radial=True))
+    write_mount_file(path, radial)
+    assert read_mount_file(path) == radial.mount and json.loads(path.read_text())["mount"]["radial"]
 
 
 @pytest.mark.parametrize(

@@ -1,10 +1,12 @@
 """core/labelled_cloud: the one conversion of (depth, labels) to points both viewer sinks use."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from topseg.core import labels
-from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
+from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount, depth_to_range
 from topseg.core.labelled_cloud import labelled_cloud
 from topseg.core.synth.procedural import procedural_frame
 
@@ -53,6 +55,10 @@ def test_floor_frame_puts_the_floor_of_a_tilted_camera_at_z_0_and_objects_above(
     # the same points as the camera-frame cloud, moved by the mount
     in_camera = labelled_cloud(depth, ids, K, None, 2)
     np.testing.assert_allclose(mount.world_to_camera(cloud.xyz), in_camera.xyz, atol=1e-5)
+    # a radial camera's range frame gives the same points
+    radial = replace(mount, radial=True)
+    from_range = labelled_cloud(depth_to_range(depth, K), ids, K, radial, 2)
+    np.testing.assert_allclose(from_range.xyz, cloud.xyz, atol=0.003)
 
 
 def test_colours_come_from_the_label_table():

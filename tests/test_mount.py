@@ -11,7 +11,9 @@ from topseg.core.camera import (
     PAPER_MOUNT,
     Intrinsics,
     TopViewMount,
+    depth_to_range,
     metres_to_mm,
+    range_to_depth,
 )
 from topseg.core.errors import ConfigError
 
@@ -141,3 +143,35 @@ def test_mount_dict_round_trip_and_old_dicts_load():
     for bad in (0.0, -1.0, float("nan"), 1e9):
         with pytest.raises(ConfigError, match="noise_scale"):
             TopViewMount.from_dict({**old, "noise_scale": bad})
+
+
+def test_a_radial_cameras_range_is_read_as_depth():
+    rng = np.random.default_rng(5)
+    depth = rng.integers(500, 6000, SMALL.shape).astype(np.uint16)
+    depth[::7, ::5] = 0
+    rng_img = depth_to_range(depth, SMALL)
+    v, u = np.indices(SMALL.shape)
+    ray = np.sqrt(1 + ((u - SMALL.cx) / SMALL.fx) ** 2 + ((v - SMALL.cy) / SMALL.fy) ** 2)
+    np.testing.assert_array_equal(rng_img, np.rint(depth * ray).astype(np.uint16))
+    assert rng_img[1, 1] > depth[1, 1] and rng_img[60, 80] == depth[60, 80]  # the axis: equal
+    back = range_to_depth(rng_img, SMALL)
+    assert np.abs(back.astype(int) - depth).max() <= 1 and np.all((back == 0) == (depth == 0))
+    radial = TopViewMount(SMALL, 3000.0, 2.0, -1.0, radial=True)
+    plain = TopViewMount(SMALL, 3000.0, 2.0, -1.0)
+    np.testing.assert_array_equal(radial.z_depth(rng_img), back)
+    assert plain.z_depth(depth) is depth
+    np.testing.assert_allclose(
+        radial.height_map_mm(rng_img), plain.height_map_mm(back), rtol=0, atol=1e-3
+    )
+    with pytest.raises(ValueError, match="range image is 640x480 but the camera is 160x120"):
+        range_to_depth(np.zeros((480, 640), np.uint16), SMALL)
+
+
+def test_radial_goes_into_the_dict_only_when_true():
+    plain = TopViewMount(SMALL, 3000.0)
+    radial = TopViewMount(SMALL, 3000.0, radial=True)
+    assert "radial" not in plain.to_dict()  # a depth camera's mount reads as before
+    assert radial.to_dict()["radial"] is True
+    assert TopViewMount.from_dict(radial.to_dict()) == radial
+    with pytest.raises(ConfigError, match="radial must be"):
+        TopViewMount.from_dict({**plain.to_dict(), "radial": "yes"})

@@ -172,6 +172,32 @@ def test_rosbags_reads_the_file_as_a_rosbag2_mcap(written):
     assert len(decoded) == sum(counts.values()) == 6 * 5 + 3 + 4
 
 
+def test_a_radial_cameras_frames_are_written_as_depth(tmp_path):
+    """REP 118: a depth image holds z. A range camera's frames go in as depth, its mount as a
+    depth camera's, so rosbags and our reader both read depth, and nothing converts twice."""
+    from dataclasses import replace
+
+    from topseg.core.camera import depth_to_range, range_to_depth
+
+    depth = np.random.default_rng(3).integers(2000, 3000, K.shape).astype(np.uint16)
+    ranges = depth_to_range(depth, K)
+    radial = replace(MOUNT_A, radial=True)
+    path = tmp_path / "range.mcap"
+    with Ros2RecordingWriter(path) as w:
+        w.write(
+            wire.depth_key("c1", "tof"),
+            wire.encode_depth(DepthFrame(ranges, K, 0, STAMP, "tof", radial)),
+        )
+    with AnyReader([path]) as reader:
+        by_topic = {c.topic: reader.deserialize(d, c.msgtype) for c, _, d in reader.messages()}
+    got = np.frombuffer(bytes(by_topic["/topseg/c1/tof/depth"].data), "<u2").reshape(K.shape)
+    np.testing.assert_array_equal(got, range_to_depth(ranges, K))
+    assert json.loads(by_topic["/topseg/c1/tof/mount"].data) == MOUNT_A.to_dict()
+    (back,) = [wire.decode_depth(m.data) for m in recording.read_messages(path)]
+    np.testing.assert_array_equal(back.depth, got)
+    assert back.mount == MOUNT_A
+
+
 def test_garbage_is_refused_before_anything_is_written(tmp_path):
     path = tmp_path / "g.mcap"
     with Ros2RecordingWriter(path) as w:

@@ -167,6 +167,31 @@ def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path
     assert (got == expected).mean() > 0.995
 
 
+def test_a_folder_of_range_images_is_found_out_and_labelled_as_depth(height_model, tmp_path):
+    """PNGs from a radial-distance camera (range along each ray): the estimate says so and
+    the labels are those of the depth frames they stand for."""
+    from topseg.core.camera import depth_to_range
+
+    path, _, _ = height_model
+    frames = floor_scene(np.random.default_rng(5), MOUNT, 3)
+    for kind, convert in (
+        ("depth", lambda d: d),
+        ("range", lambda d: depth_to_range(d, KINECT_V1)),
+    ):
+        folder = tmp_path / kind
+        folder.mkdir()
+        for i, (depth, _) in enumerate(frames):
+            Image.fromarray(convert(depth)).save(folder / f"f{i}.png")
+        r = segment(folder, "--model", path, "--out", tmp_path / f"{kind}-out", "--crf", "none")
+        assert r.returncode == 0, r.stderr
+        assert "estimated mount: height 3.20 m, pitch 2.0 deg, roll -1.0 deg" in r.stdout
+        assert ("radial distance read as depth" in r.stdout) == (kind == "range")
+    for i in range(3):
+        got = np.asarray(Image.open(tmp_path / "range-out" / f"f{i}_labels.png"))
+        want = np.asarray(Image.open(tmp_path / "depth-out" / f"f{i}_labels.png"))
+        assert (got == want).mean() > 0.995  # depth back from whole-mm range: +-1 mm
+
+
 def test_sensor_names_the_optics_of_pngs(height_model, tmp_path):
     """PNGs say no optics: 640x480 is read as a Kinect v1's unless `--sensor` names another
     camera of that size; one of another size is refused in one line."""

@@ -256,6 +256,31 @@ def test_a_height_model_takes_frames_of_any_camera_with_their_mount():
     height_segmenter().warm_up()
 
 
+def test_a_radial_camera_is_labelled_as_its_depth_would_be():
+    """A range frame with a radial mount is labelled as the depth frame it stands for: the
+    forest, the blob rules and the upsampling all read depth (`Segmenter._as_depth`)."""
+    from dataclasses import replace
+
+    from topseg.core.camera import depth_to_range, range_to_depth
+    from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
+
+    k = KINECT_V1.scaled_to(160, 120)
+    mount = TopViewMount(k, 3300.0, 1.0, -0.5)
+    frame = Synthesizer(SynthesisConfig(mode="modeled", seed=4, camera=mount)).render(frame_seed=0)
+    ranges = depth_to_range(frame.depth[: k.height, : k.width].astype(np.uint16), k)
+    seg = Segmenter.from_file(S.bundled_model_path())
+    got = seg.label(ranges, name="tof", mount=replace(mount, radial=True))
+    want = seg.label(range_to_depth(ranges, k), mount=mount)
+    np.testing.assert_array_equal(got.labels, want.labels)
+    assert got.floor_share == want.floor_share > 0.3
+    # read as depth, everything off the axis sits too low: the flag is what makes it right
+    misread = seg.label(ranges, mount=mount)
+    assert misread.floor_share > want.floor_share + 0.05
+    assert np.mean(misread.labels != want.labels) > 0.02
+    with pytest.raises(TopsegError, match=r"tof: .* 160x120"):
+        seg.label(ranges[:60], name="tof", mount=replace(mount, radial=True))
+
+
 def test_a_height_model_header_must_say_its_features():
     model = forest.Forest.from_trees([forest.random_tree(np.random.default_rng(0), 2, 2, 1e5)])
     with pytest.raises(TopsegError, match="features"):

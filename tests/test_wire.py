@@ -1,5 +1,7 @@
 """The wire format: exact round trips, and every kind of bad message -> WireError, nothing else."""
 
+from dataclasses import replace
+
 import msgpack
 import numpy as np
 import pytest
@@ -48,7 +50,7 @@ def test_full_size_depth_round_trip_and_layout():
     # the raw layout is the documented one: little-endian, row-major
     msg = msgpack.unpackb(data)
     assert msg["data"] == depth.astype("<u2").tobytes()
-    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 3)
+    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 4)
     assert "mount" not in msg  # no mount known, none sent
     assert not back.depth.flags.writeable  # a view of the message, not a copy
 
@@ -362,12 +364,18 @@ def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
     framed = DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", m)
     data = wire.encode_depth(framed)
     msg = msgpack.unpackb(data)
-    assert msg["v"] == 3 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
+    assert msg["v"] == 4 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
     assert msg["mount"]["noise_scale"] == 0.37
     back = wire.decode_depth(data)
     assert_same_depth(framed, back)
     assert back.mount == m
     assert wire.decode_depth(wire.encode_depth(f)).mount is None
+    # a radial camera's mount says so; a depth camera's map has no such key (older readers)
+    radial = replace(m, radial=True)
+    data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", radial))
+    assert msgpack.unpackb(data)["mount"]["radial"] is True
+    assert wire.decode_depth(data).mount == radial
+    assert "radial" not in msg["mount"]
 
 
 def test_version_2_mounts_without_a_noise_scale_decode_as_modelled():
@@ -396,18 +404,18 @@ def test_an_old_reader_refuses_a_new_message_and_a_new_reader_says_upgrade(monke
     f = small_depth(rng)
     data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=a_mount(f.intrinsics)))
     stats = wire.encode_stats({"stamp_ns": 1, "timings_ms": {}, "counts": {}, "floor_share": 0.5})
-    # what a version-2 topseg is: versions 1 and 2; it names the version and refuses
-    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2))
+    # what a version-3 topseg is: versions 1 to 3; it names the version and refuses
+    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2, 3))
     for decode, payload in ((wire.decode_depth, data), (wire.decode_stats, stats)):
-        with pytest.raises(WireError, match=r"schema version 3 is newer .*upgrade topseg"):
+        with pytest.raises(WireError, match=r"schema version 4 is newer .*upgrade topseg"):
             decode(payload)
     monkeypatch.undo()
     msg = msgpack.unpackb(data)
-    msg["v"] = 4
+    msg["v"] = 5
     with pytest.raises(WireError) as err:
         wire.decode_depth(msgpack.packb(msg))
     assert str(err.value) == (
-        "schema version 4 is newer than this topseg reads (1, 2, 3): upgrade topseg on this host"
+        "schema version 5 is newer than this topseg reads (1, 2, 3, 4): upgrade topseg on this host"
     )
 
 
@@ -445,6 +453,8 @@ def _mount_msg(**change):
         ({"noise_scale": 1e6}, "noise_scale"),
         ({"noise_scale": "1"}, "number"),
         ({"colour": "red"}, "unknown"),
+        ({"radial": 1}, "radial"),
+        ({"radial": "true"}, "radial"),
         ({"intrinsics": [1, 2]}, "map"),
         ({"intrinsics__width": 10}, "mount is for 10x6"),
         ({"intrinsics__fx": -1.0}, "focal"),

@@ -119,8 +119,9 @@ def _margin_table(sensor: str, noise_scale: float) -> np.ndarray:
 def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
     """The input of a height model (see the module) for a uint16 depth frame from `mount`.
 
-    Frames from a noisy camera are smoothed first (`core.denoise`). The frame must have the
-    mount's intrinsics' shape; ValueError otherwise.
+    A radial camera's range is read as depth first (`TopViewMount.z_depth`), and frames from
+    a noisy camera are smoothed (`core.denoise`). The frame must have the mount's
+    intrinsics' shape; ValueError otherwise.
     """
     depth = check_depth(depth, "model input")
     k = mount.intrinsics
@@ -129,7 +130,7 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
             f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
             f"{k.width}x{k.height}"
         )
-    depth = denoise(depth, mount)
+    depth = denoise(mount.z_depth(depth), mount)
     values = np.empty(depth.shape, np.uint16)
     scale = np.empty(depth.shape, np.float32)
     floor = np.empty(depth.shape, np.bool_)

@@ -17,6 +17,10 @@ bridge's names):
     /topseg/<cell>/<camera>/mount        std_msgs/msg/String         the wire's mount map as JSON
     /tf_static                           tf2_msgs/msg/TFMessage      <cell>_<camera>_floor -> optical frame
 
+Depth images hold depth along the optical axis, as REP 118 says: a radial camera's frames
+(range along each ray, `TopViewMount.radial`) are written as depth, and its `/mount` as a
+depth camera's, so that a ROS tool and topseg's own reader both read depth.
+
 Images and camera info carry the frame's capture stamp and `<cell>_<camera>_optical_frame`; the
 MCAP `sequence` of depth, labels, truth and camera info is the wire `seq` (modulo 2**32),
 which pairs a frame's depth, labels and truth; log time is when the recorder received it.
@@ -45,7 +49,7 @@ import logging
 import os
 import re
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from io import StringIO
 from pathlib import Path
@@ -54,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from topseg.core import labels as label_table
-from topseg.core.camera import Intrinsics, TopViewMount
+from topseg.core.camera import Intrinsics, TopViewMount, axis_depth
 from topseg.core.formats import wire
 from topseg.core.formats.recording import CHUNK_SIZE, RecordingWriter
 from topseg.core.formats.ros2_messages import (
@@ -220,7 +224,7 @@ class Ros2RecordingWriter:
             )
         optical = optical_frame(cell, camera)
         info = camera_info_message(frame.intrinsics, frame.stamp_ns, optical)
-        depth = image_message(frame.depth, frame.stamp_ns, optical)
+        depth = image_message(axis_depth(frame.depth, frame.mount), frame.stamp_ns, optical)
         out.append((ros2_topic(cell, camera, "camera_info"), info, frame.seq))
         out.append((ros2_topic(cell, camera, "depth"), depth, frame.seq))
         return out
@@ -268,7 +272,11 @@ class Ros2RecordingWriter:
 
 
 def _mount_state(frame: DepthFrame) -> dict | None:
-    return None if frame.mount is None else wire.mount_map(frame.mount)
+    """The mount map `/mount` holds: the wire's, but a radial camera's says depth, since its
+    frames are written as depth (REP 118)."""
+    if frame.mount is None:
+        return None
+    return wire.mount_map(replace(frame.mount, radial=False))
 
 
 # ---------------------------------------------------------------------------- reading

@@ -12,14 +12,15 @@ A depth or label message is one msgpack map::
     fx, fy, cx, cy  pinhole intrinsics in pixels (depth only)
     mount     optional (depth only, version 2 on): where the camera hangs, as
               `TopViewMount.to_dict()`: {intrinsics: {width, height, fx, fy, cx, cy},
-              height_mm, pitch_deg, roll_deg, sensor, noise_scale (version 3 on)}; its
-              size is the frame's
+              height_mm, pitch_deg, roll_deg, sensor, noise_scale (version 3 on),
+              radial (version 4 on, only when true)}; its size is the frame's
 
 Version 2 added `mount` and the worker's `floor_share` and `mount` stats; version 3 the
-mount's measured `noise_scale` (the floor gate's scale). A reader accepts every version in
-`READABLE_VERSIONS` and refuses a newer one with a line that says to upgrade; a version-1
-reader refuses version-2 messages ("schema version 2 is not 1"), a version-2 reader
-version-3 ones.
+mount's measured `noise_scale` (the floor gate's scale); version 4 the mount's `radial` (a
+camera that sends range along each ray, read as depth by whoever back-projects it). A reader
+accepts every version in `READABLE_VERSIONS` and refuses a newer one with a line that says
+to upgrade; a version-1 reader refuses version-2 messages ("schema version 2 is not 1"), a
+version-3 reader version-4 ones.
 
 Labels carry the `seq` and `stamp_ns` of the depth frame they were computed from, and only
 valid label ids (`topseg.core.labels`). A stats message (`encode_stats`) is a small
@@ -52,9 +53,10 @@ from topseg.core.camera import (
 from topseg.core.errors import TopsegError
 
 #: The version every message is written with.
-SCHEMA_VERSION = 3
-#: The versions this reader decodes (1: no mount, no mount stats; 2: no mount noise scale).
-READABLE_VERSIONS = (1, 2, 3)
+SCHEMA_VERSION = 4
+#: The versions this reader decodes (1: no mount, no mount stats; 2: no mount noise scale;
+#: 3: no radial mounts).
+READABLE_VERSIONS = (1, 2, 3, 4)
 MAX_SIDE = 4096
 MAX_FRAME_ID = 256
 DEPTH_ENCODING = "16UC1"
@@ -75,9 +77,10 @@ _FRAME_FIELDS = ("v", "seq", "stamp_ns", "frame_id", "width", "height", "encodin
 _DEPTH_FIELDS = frozenset((*_FRAME_FIELDS, "fx", "fy", "cx", "cy"))
 _DEPTH_OPTIONAL = frozenset(("mount",))
 _LABEL_FIELDS = frozenset(_FRAME_FIELDS)
-#: The fields of a mount map (`TopViewMount.to_dict()`); the last three default.
+#: The fields of a mount map (`TopViewMount.to_dict()`); all but the first two default.
+#: `radial` is sent only when true, so a depth camera's mount reads as before.
 _MOUNT_FIELDS = frozenset(
-    ("intrinsics", "height_mm", "pitch_deg", "roll_deg", "sensor", "noise_scale")
+    ("intrinsics", "height_mm", "pitch_deg", "roll_deg", "sensor", "noise_scale", "radial")
 )
 _MOUNT_REQUIRED = frozenset(("intrinsics", "height_mm"))
 _INTRINSICS_FIELDS = frozenset(("width", "height", "fx", "fy", "cx", "cy"))
@@ -356,6 +359,11 @@ def check_mount_map(d: Any) -> dict:
         if not lo <= scale <= hi:
             raise WireError(f"mount.noise_scale={scale} is outside {lo:g}..{hi:g}")
         out["noise_scale"] = scale
+    if "radial" in d:
+        if not isinstance(d["radial"], bool):
+            raise WireError(f"mount.radial {_short(d['radial'])} must be true or false")
+        if d["radial"]:
+            out["radial"] = True
     return out
 
 
@@ -391,7 +399,7 @@ def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, 
 
 
 def decode_depth(data: bytes) -> DepthFrame:
-    """Bytes -> DepthFrame (versions 1-3; `mount` None when the message has none), or
+    """Bytes -> DepthFrame (versions 1-4; `mount` None when the message has none), or
     WireError naming what is wrong."""
     msg = _unpack(data)
     _check_fields(msg, _DEPTH_FIELDS, "depth", _DEPTH_OPTIONAL)
@@ -516,7 +524,7 @@ def encode_stats(stats: Mapping[str, Any]) -> bytes:
 
 
 def decode_stats(data: bytes) -> dict:
-    """Bytes -> a validated, JSON-able stats dict (versions 1-3), or WireError."""
+    """Bytes -> a validated, JSON-able stats dict (versions 1-4), or WireError."""
     return _check_stats(_unpack(data))
 
 
