@@ -128,3 +128,23 @@ def test_guess_sensor_by_size_and_focal_length():
     for s in SENSORS:
         k = s.intrinsics
         assert nearest_sensor(k.width, k.height, k.fx).name == s.name
+
+
+def test_a_radial_camera_is_estimated_with_the_real_fit_and_logged(caplog):
+    """A camera that sends range along each ray: the worker's estimate (the real one) says
+    so, and the frames are then labelled through a mount that reads them as depth."""
+    from topseg.core.camera import depth_to_range
+
+    k = KINECT_V1.scaled_to(160, 120)
+    truth = TopViewMount(k, 3100.0, 2.0, -1.0)
+    v, u = np.indices(k.shape)
+    rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(k.shape)], axis=-1)
+    floor = np.rint(-truth.height_mm / (rays @ truth.up_normal_camera())).astype(np.uint16)
+    ranges = depth_to_range(floor, k)
+    watch = MountWatch("c/tof", MountWatchConfig(first_frames=2, recheck_s=30))
+    with caplog.at_level(logging.INFO, "topseg.worker"):
+        watch.take(DepthFrame(ranges, k, 0, 0, "tof"), now=0.0)
+        released = watch.take(DepthFrame(ranges, k, 1, 0, "tof"), now=0.1)
+    assert [f.seq for f in released] == [0, 1]
+    assert watch.mount.radial and abs(watch.mount.height_mm - 3100.0) < 5
+    assert "radial distance read as depth" in caplog.text
