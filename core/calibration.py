@@ -367,8 +367,6 @@ def estimate_mount(
     intrinsics: Intrinsics,
     sensor: str = "unknown",
     config: CalibrationConfig | None = None,
-    *,
-    _as_range_ok: bool = True,
 ) -> MountEstimate:
     """The mount of the camera that took `frames` ((H, W) uint16 mm, one camera, still).
 
@@ -378,7 +376,17 @@ def estimate_mount(
     depth, no plane covers `min_inlier_share` of the view, per-frame floors disagree, or the
     tilt is too large.
     """
-    cfg = config or CalibrationConfig()
+    return _estimate(frames, intrinsics, sensor, config or CalibrationConfig(), try_range=True)
+
+
+def _estimate(
+    frames: Sequence[np.ndarray],
+    intrinsics: Intrinsics,
+    sensor: str,
+    cfg: CalibrationConfig,
+    try_range: bool,
+) -> MountEstimate:
+    """`estimate_mount`; with `try_range` False, frames are only ever read as depth."""
     frames = [check_depth(f, "calibration") for f in frames]
     if not frames:
         raise CalibrationError("no frames to calibrate from")
@@ -410,11 +418,11 @@ def estimate_mount(
             shares.append(share)
     if (
         len(planes) * 2 < len(with_depth)
-        and _as_range_ok
+        and try_range
         and _fits_as_range(with_depth, cfg, thr, frame_share)
     ):
         z_frames = [range_to_depth(f, intrinsics) for f in frames]
-        estimate = estimate_mount(z_frames, intrinsics, sensor, config, _as_range_ok=False)
+        estimate = _estimate(z_frames, intrinsics, sensor, cfg, try_range=False)
         return replace(estimate, mount=replace(estimate.mount, radial=True))
     _check_enough(len(planes), len(with_depth), frame_share)
 
