@@ -221,7 +221,9 @@ class MountWatch:
 
     def recheck(self, now: float | None = None) -> bool:
         """Estimate from the newest frames and compare with the mount in use; True when the
-        camera moved (logged as a warning, counted, and the estimate used from now on)."""
+        camera moved (logged as a warning, counted, and the estimate used from now on). A
+        mount that reads range as depth, or depth as range, is replaced by the estimate the
+        same way, with its own warning, and is not counted as a move."""
         now = time.monotonic() if now is None else now
         frames = list(self.recent)
         if not frames:
@@ -233,6 +235,19 @@ class MountWatch:
         if self.mount is None:
             self.mount, self.source = est.mount, "estimated"
             log.info("camera %s: estimated mount: %s", self.name, mount_text(est.mount))
+            return False
+        if est.mount.radial != self.mount.radial:  # range read as depth, or depth as range
+            sends = "range along each ray" if est.mount.radial else "depth"
+            log.warning(
+                "camera %s sends %s, but %s mount says otherwise (%s); labelling with the new "
+                "estimate%s",
+                self.name,
+                sends,
+                "the frames'" if self.source == "frame" else "the estimated",
+                mount_text(self.mount),
+                "; calibrate it again (topseg calibrate)" if self.source == "frame" else "",
+            )
+            self.mount, self.source = est.mount, "estimated"
             return False
         dh, da = mount_difference(self.mount, est.mount)
         if not self._is_move(dh, da):

@@ -27,14 +27,14 @@ class Floor:
     """A stand-in estimator: the floor is wherever the test says; `fail` raises once."""
 
     def __init__(self, height_mm=3000.0):
-        self.height_mm, self.fail, self.calls = height_mm, None, []
+        self.height_mm, self.fail, self.calls, self.radial = height_mm, None, [], False
 
     def __call__(self, depths, k, sensor):
         self.calls.append(len(depths))
         if self.fail:
             why, self.fail = self.fail, None
             raise CalibrationError(why)
-        return Estimate(TopViewMount(k, self.height_mm, sensor=sensor))
+        return Estimate(TopViewMount(k, self.height_mm, sensor=sensor, radial=self.radial))
 
 
 def frame(seq, mount=None):
@@ -112,6 +112,20 @@ def test_the_frames_mount_is_used_checked_and_overridden_when_the_floor_disagree
     recalibrated = TopViewMount(K, 2500.0, 0.0, 0.0)
     watch.take(frame(3, recalibrated), now=13.0)  # a new mount file: used again
     assert (watch.mount, watch.source) == (recalibrated, "frame")
+
+
+def test_a_mount_that_reads_range_as_depth_is_replaced_not_counted_as_a_move(caplog):
+    carried = TopViewMount(K, 2800.0)  # a hand-written mount: depth
+    floor = Floor(2800.0)
+    floor.radial = True  # but the camera sends range: the re-check's fit finds it out
+    watch = MountWatch("c/tof", MountWatchConfig(recheck_s=10), floor)
+    watch.take(frame(0, carried), now=0.0)
+    assert not watch.mount.radial
+    with caplog.at_level(logging.WARNING, "topseg.worker"):
+        watch.take(frame(1, carried), now=11.0)
+    assert "camera c/tof sends range along each ray, but the frames' mount says" in caplog.text
+    assert "calibrate it again" in caplog.text
+    assert watch.mount.radial and watch.source == "estimated" and watch.moved == 0
 
 
 def test_no_recheck_when_switched_off():
