@@ -72,6 +72,9 @@ class CalibrationConfig:
     max_height_spread_mm, max_angle_spread_deg: how far per-frame floors may disagree.
     min_valid_points: a frame with fewer valid pixels is skipped.
     max_trials: RANSAC iterations per frame at most.
+    max_depth_mm: readings farther than this are left out of the fit, as if they had no
+        depth: no top-view camera hangs that high, and some cameras send 65535 for "no
+        reading", which would otherwise look like a plane below the floor.
     """
 
     points_per_frame: int = 3000
@@ -88,6 +91,7 @@ class CalibrationConfig:
     max_angle_spread_deg: float = 1.0
     min_valid_points: int = 500
     max_trials: int = 200
+    max_depth_mm: float = 20000.0
 
     def __post_init__(self) -> None:
         if self.points_per_frame < 10 or self.max_trials < 1 or self.min_valid_points < 3:
@@ -221,15 +225,20 @@ class _Points:
     valid: int  # valid pixels in the frame
 
 
-def _sample(depth: np.ndarray, k: Intrinsics, n: int, rng: np.random.Generator) -> _Points:
-    """Up to `n` valid pixels of `depth`, drawn without replacement."""
-    flat = np.flatnonzero(depth)
+def _sample(
+    depth: np.ndarray, k: Intrinsics, n: int, rng: np.random.Generator, max_mm: float
+) -> _Points:
+    """Up to `n` valid pixels of `depth` (depth, and at most `max_mm`), drawn without
+    replacement."""
+    valid = (depth > 0) & (depth <= max_mm)
+    flat = np.flatnonzero(valid)
+    count = flat.size
     if flat.size > n:
         flat = np.sort(rng.choice(flat, n, replace=False))
     v, u = np.divmod(flat, depth.shape[1])
     z = depth.ravel()[flat].astype(np.float64)
     rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy], axis=1)
-    return _Points(rays, z, 1000.0 / z if z.size else z, int(np.count_nonzero(depth)))
+    return _Points(rays, z, 1000.0 / z if z.size else z, int(count))
 
 
 def _design(rays: np.ndarray) -> np.ndarray:
@@ -398,7 +407,7 @@ def _estimate(
             )
     thr = cfg.threshold(sensor)
     rng = np.random.default_rng(cfg.seed)
-    samples = [_sample(f, intrinsics, cfg.points_per_frame, rng) for f in frames]
+    samples = [_sample(f, intrinsics, cfg.points_per_frame, rng, cfg.max_depth_mm) for f in frames]
     with_depth = [s for s in samples if s.valid >= cfg.min_valid_points]
     if not with_depth:
         best = max(s.valid for s in samples)

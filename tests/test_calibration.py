@@ -195,6 +195,18 @@ def test_a_radial_distance_camera_is_found_out_and_its_mount_fitted(pitch):
     assert mask.sum() >= 0.95 * floor_mask(frames[0], as_depth.mount).sum()
 
 
+def test_readings_of_65535_are_no_plane_below_the_floor():
+    """Some cameras send 65535 for "no reading": 20 % of the view so (a band down each side)
+    vetoed the true floor as a table top, and the far band came out as the floor."""
+    truth = TopViewMount(K, 3300.0, 2.0, -1.0)
+    frames = frames_of(truth, cover=0.2)
+    for f in frames:
+        f[:, :32] = 65535
+        f[:, -32:] = 65535
+    dh, angle = mount_difference(estimate_mount(frames, K).mount, truth)
+    assert abs(dh) < 10 and angle < 0.1
+
+
 def test_clutter_read_as_range_is_still_refused():
     rng = np.random.default_rng(1)
     clutter = [as_range(rng.integers(1500, 4000, K.shape).astype(np.uint16), K) for _ in range(3)]
