@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import Intrinsics, TopViewMount, backproject_pixels
+from topseg.core.camera import Intrinsics, TopViewMount, axis_depth, backproject_pixels
 
 
 @dataclass(frozen=True)
@@ -50,9 +50,7 @@ def labelled_cloud(
         raise ValueError(f"labels {label_img.shape} and depth {depth_mm.shape} differ in shape")
     rows, cols = np.nonzero(np.asarray(depth_mm)[::stride, ::stride] > 0)
     rows, cols = rows * stride, cols * stride
-    if mount is not None and mount.radial:
-        depth_mm = mount.z_depth(np.asarray(depth_mm))
-    xyz = backproject_pixels(depth_mm, rows, cols, k)
+    xyz = backproject_pixels(axis_depth(np.asarray(depth_mm), mount), rows, cols, k)
     if mount is not None:
         xyz = mount.camera_to_world(xyz)
     ids = np.asarray(label_img[rows, cols], np.uint8)
