@@ -10,6 +10,8 @@ picture beside it: the depth, the floor inliers over it, and the height above th
 
 It refuses with one line when the source gives no depth, no plane covers enough of the view,
 the frames disagree (the camera moved), or the camera is tilted beyond what is supported.
+A camera that sends range along each pixel's ray instead of depth is recognised, and its
+mount says so (`radial`, docs/calibration.md).
 """
 
 from __future__ import annotations
