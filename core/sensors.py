@@ -81,7 +81,7 @@ KINECT_V2 = SensorModel(
     "kinect_v2",
     TIME_OF_FLIGHT,
     Intrinsics(512, 424, 365.0, 365.0, 255.5, 211.5),
-    "tof",
+    "tof:fov_cut=0.3",
     0.5,
     6.0,
     note=(

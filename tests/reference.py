@@ -802,6 +802,7 @@ def tof_reference(
     gauss: np.ndarray,
     dark_field: np.ndarray,
     seed: int,
+    fov: float,
 ) -> np.ndarray:
     """`noise.ToFNoise.run` in plain numpy, given its draws (whole-array)."""
     depth = check_depth(depth, "noise")
@@ -816,7 +817,8 @@ def tof_reference(
     rx = (u - (w - 1) / 2.0) / (w / 2.0)
     ry = (v - (h - 1) / 2.0) / (h / 2.0)
     rr = (rx * rx + ry * ry) / 2.0
-    keep &= ~(rr > model.fov_radius * model.fov_radius)
+    du, dv = u - (w - 1) / 2.0, v - (h - 1) / 2.0
+    keep &= du * du + dv * dv <= fov * fov * (w * w + h * h) / 4.0  # inside the valid circle
     is_dark = dark != 0
     thr = noise._normal_quantile(model.dark_dropout)
     keep &= ~(is_dark & (field_at_reference(dark_field, float(model.dark_cell_px), (h, w)) < thr))

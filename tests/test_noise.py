@@ -329,6 +329,7 @@ def test_tof_and_stereo_specs_parse_print_back_and_refuse_in_one_line():
         {"flying": 1.0, "flying_px": 2, "edge_invalid": 0.3, "dark_dropout": 0.6, "speckle": 0.1},
         {"multipath_mm": 50.0, "multipath_px": 2, "concave_min": 0.0, "corner_sigma": 5.0},
         {"fov_radius": 0.8, "border_px": 3, "dark_cell_px": 1, "sigma_c0_mm": 17.0},
+        {"fov_cut": 1.0, "fov_cut_min": 0.3, "fov_radius": 0.9},
     ],
 )
 def test_tof_kernel_matches_the_numpy_reference(params):
@@ -459,6 +460,26 @@ def test_tof_dark_dropout_is_patchy_and_only_where_the_labels_say():
     assert err[lab == labels.HEAD].std() / err[lab != labels.HEAD].std() == pytest.approx(
         4, rel=0.1
     )
+
+
+def test_tof_valid_circle_is_drawn_per_frame_in_a_share_of_frames():
+    depth = np.full((120, 160), 2500, np.uint16)
+    model = noise.ToFNoise(**{**QUIET_TOF, "fov_cut": 0.25, "fov_cut_min": 0.5})
+    rng = np.random.default_rng(6)
+    radii = np.array([model.draws(depth.shape, rng)[-1] for _ in range(800)])
+    cut = radii < 1.0
+    assert cut.mean() == pytest.approx(0.25, abs=0.05)
+    assert radii[cut].min() >= 0.5 and radii[cut].max() < 1.0
+    assert np.mean(radii[cut] < 0.75) == pytest.approx(0.5, abs=0.1)  # uniform in [0.5, 1)
+    assert np.all(noise.ToFNoise(**QUIET_TOF).apply(depth, rng) > 0)  # 1: nothing cut
+    always = noise.ToFNoise(**{**QUIET_TOF, "fov_cut": 1.0, "fov_cut_min": 0.6, "fov_radius": 0.6})
+    out = always.apply(depth, rng)
+    v, u = np.indices(depth.shape)
+    r = np.hypot(u - 79.5, v - 59.5) / np.hypot(80, 60)
+    assert np.all(out[r > 0.6] == 0) and np.all(out[r < 0.59] > 0)  # a circle in pixels
+    with pytest.raises(TopsegError, match="fov_cut_min"):
+        noise.ToFNoise(fov_cut=0.5, fov_cut_min=0.0)
+    assert noise.parse_noise("tof:fov_cut=0.3").fov_cut == 0.3
 
 
 def _wall_scene():

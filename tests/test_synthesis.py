@@ -225,6 +225,23 @@ def test_sensor_noise_follows_each_frames_sensor():
         MountDistribution(sensors=("kinect_v3",))
 
 
+def test_time_of_flight_frames_lose_depth_on_heads_only():
+    """The renderer's labels reach the noise model: dark hair drops out in patches, and no
+    other pixel changes (the same seed, with and without hair dropout)."""
+    frames = {}
+    for dropout in (0.0, 0.5):
+        config = SynthesisConfig(noise=f"tof:dark_dropout={dropout},speckle=0", seed=4)
+        with Synthesizer(config, warm=False) as s:
+            frames[dropout] = [s.render(i) for i in range(4)]
+    for clear, hairy in zip(frames[0.0], frames[0.5], strict=True):
+        head = clear.labels == labels.HEAD
+        changed = clear.depth != hairy.depth
+        assert not changed[~head].any()
+        if head.sum() > 200:
+            assert np.mean(hairy.depth[head] == 0) == pytest.approx(0.5, abs=0.2)
+    assert sum((f.labels == labels.HEAD).sum() > 200 for f in frames[0.0]) >= 2
+
+
 def test_a_fixed_mount_keeps_the_papers_frames():
     """mounts=None draws no mount: scene and noise streams are those of before mounts."""
     with Synthesizer(SynthesisConfig(noise="gaussian:15", seed=5), warm=False) as s:

@@ -494,6 +494,7 @@ def _tof_kernel(
     h, w = depth.shape
     cx = (w - 1) / 2.0
     cy = (h - 1) / 2.0
+    fov_px2 = fov_radius * fov_radius * (w * w + h * h) / 4.0  # a circle, in square pixels
     for v in numba.prange(h):
         for u in range(w):
             idx = (v * w + u) * 4
@@ -503,12 +504,12 @@ def _tof_kernel(
                 continue
             if u < border_px or v < border_px or u >= w - border_px or v >= h - border_px:
                 continue
+            if (u - cx) * (u - cx) + (v - cy) * (v - cy) > fov_px2:
+                continue
             # normalised radius: 1 at the image corners
             rx = (u - cx) / (w / 2.0)
             ry = (v - cy) / (h / 2.0)
             r2 = (rx * rx + ry * ry) / 2.0
-            if r2 > fov_radius * fov_radius:
-                continue
             is_dark = dark[v, u] != 0
             if is_dark and _field_at(dark_field, u, v, dark_cell) < dark_thr:
                 continue
@@ -557,8 +558,10 @@ class ToFNoise:
     `edge_invalid`, dropped as the Azure depth engine does); multipath: depth over-estimated
     by up to `multipath_mm` within `multipath_px` of a concave corner (floor meets wall or
     furniture); patchy dropout and extra noise on dark hair (pixels labelled head, when
-    `apply` gets the renderer's labels); an invalid border, an optional circular field-of-view
-    mask, isolated speckle and the range limits.
+    `apply` gets the renderer's labels); an invalid border, a circular valid region (radius
+    `fov_radius` of the half-diagonal; in a share `fov_cut` of frames a smaller one, drawn
+    from [`fov_cut_min`, `fov_radius`]: wide-view masks, vignetting, views resampled from
+    another camera), isolated speckle and the range limits.
     """
 
     sigma_c0_mm: float = 1.5  # sigma(z) = c0 + c1 z + c2 z^2 mm, z in m (Fankhauser 2015)
@@ -577,13 +580,17 @@ class ToFNoise:
     dark_sigma: float = 3.0  # noise multiplier on dark pixels that keep depth
     dark_cell_px: int = 3  # size of the dropout patches
     border_px: int = 1  # invalid rows / columns at the frame's edge
-    fov_radius: float = 1.0  # no depth beyond this normalised radius (1: the corners)
+    fov_radius: float = 1.0  # no depth beyond this share of the half-diagonal (1: the corners)
+    fov_cut: float = 0.0  # share of frames whose valid circle is smaller, drawn per frame
+    fov_cut_min: float = 0.6  # the smallest such circle, as a share of the half-diagonal
     speckle: float = 0.0005  # isolated dropouts anywhere
     min_range_m: float = 0.5
     max_range_m: float = 6.0
 
     def __post_init__(self) -> None:
-        _check_probabilities(self, "tof", ("flying", "edge_invalid", "dark_dropout", "speckle"))
+        _check_probabilities(
+            self, "tof", ("flying", "edge_invalid", "dark_dropout", "speckle", "fov_cut")
+        )
         if (
             self.flying_px < 1
             or self.multipath_px < 1
@@ -606,6 +613,8 @@ class ToFNoise:
             raise TopsegError("tof noise: 0 <= concave_min < concave_full")
         if self.fov_radius <= 0:
             raise TopsegError("tof noise: fov_radius > 0")
+        if self.fov_cut > 0 and not 0 < self.fov_cut_min <= self.fov_radius:
+            raise TopsegError("tof noise: with fov_cut, 0 < fov_cut_min <= fov_radius")
         z = np.linspace(self.min_range_m, min(self.max_range_m, 10.0), 50)
         if np.any(self.sigma_mm(z) < 0):
             raise TopsegError("tof noise: sigma(z) = c0 + c1 z + c2 z^2 must be >= 0 in range")
@@ -621,11 +630,16 @@ class ToFNoise:
         return _spec_of(self, "tof")
 
     def draws(self, shape: tuple[int, int], rng: np.random.Generator):
-        """The random inputs of one frame: per-pixel normals, the dark-patch field, a seed."""
+        """The random inputs of one frame: per-pixel normals, the dark-patch field, a seed and
+        the radius of the valid circle."""
         gauss = rng.standard_normal(shape)
         dark_field = _coarse_field(shape, self.dark_cell_px, rng)
         seed = int(rng.integers(0, 2**63))
-        return gauss, dark_field, seed
+        cut, where = rng.random(2)
+        fov = self.fov_radius
+        if cut < self.fov_cut:
+            fov = self.fov_cut_min + (self.fov_radius - self.fov_cut_min) * float(where)
+        return gauss, dark_field, seed, fov
 
     def dark_mask(self, labels: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
         """uint8 (H, W): 1 on dark surfaces (hair: pixels labelled head), 0 elsewhere."""
@@ -634,7 +648,7 @@ class ToFNoise:
             return np.zeros(shape, np.uint8)
         return (labels == HEAD).astype(np.uint8)
 
-    def run(self, depth, dark, gauss, dark_field, seed) -> np.ndarray:
+    def run(self, depth, dark, gauss, dark_field, seed, fov) -> np.ndarray:
         """The kernel on given draws (what `apply` does after drawing them)."""
         out = np.empty_like(depth)
         _tof_kernel(
@@ -642,7 +656,7 @@ class ToFNoise:
             self.sigma_c0_mm, self.sigma_c1_mm, self.sigma_c2_mm, self.corner_sigma,
             1000.0 * self.jump_m, self.flying_px, self.flying, self.edge_invalid,
             self.multipath_mm, self.multipath_px, self.concave_min, self.concave_full,
-            _normal_quantile(self.dark_dropout), self.dark_sigma, self.border_px, self.fov_radius,
+            _normal_quantile(self.dark_dropout), self.dark_sigma, self.border_px, float(fov),
             self.speckle, self.min_range_m, self.max_range_m, out,
         )  # fmt: skip
         return out

@@ -299,7 +299,7 @@ class Synthesizer:
         clean, lab = raycast(prims, mount)
         t2 = time.perf_counter()
         depth = self.noise_for(mount).apply(
-            clean, noise_rng if noise_rng is not None else np.random.default_rng(0)
+            clean, noise_rng if noise_rng is not None else np.random.default_rng(0), labels=lab
         )
         lab[depth == 0] = labels.NO_DEPTH
         t3 = time.perf_counter()

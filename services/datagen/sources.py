@@ -144,7 +144,7 @@ def procedural_source(config: dict, seed: int) -> FrameSource:
         prims = procedural.random_scene(rng, n_objects=n_objects)
         depth_m, label = procedural.render(prims)
         depth = metres_to_mm(depth_m)
-        depth = noise.apply(depth, rng)
+        depth = noise.apply(depth, rng, labels=label)
         label[depth == 0] = labels.NO_DEPTH
         scene: dict[str, Any] = {
             "generator": "procedural",
