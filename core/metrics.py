@@ -154,24 +154,35 @@ MIN_HEAD_BLOB_PX = 30
 HEAD_HIT_SHARE = 0.5
 #: A true head is found when at least this share of it is labelled head
 HEAD_FOUND_SHARE = 0.3
+#: Pixels without depth within this many pixels of a head join its blob: a head with holes
+#: in it (time-of-flight cameras lose depth on dark hair) is one head, not several
+HEAD_BRIDGE_PX = 4
 
 
 def head_detections(truth: np.ndarray, pred: np.ndarray) -> tuple[int, int, int, int]:
     """Heads as blobs, as a people counter downstream sees them: (correct, predicted, found,
     true) for one frame. Blobs are 4-connected regions of `head` of MIN_HEAD_BLOB_PX pixels
-    or more; a predicted blob is correct when HEAD_HIT_SHARE of it is true head, and a true
-    head is found when HEAD_FOUND_SHARE of it is labelled head."""
+    or more, joined across pixels without depth (the truth's NO_DEPTH) within HEAD_BRIDGE_PX
+    of them; sizes and shares count head pixels only. A predicted blob is correct when
+    HEAD_HIT_SHARE of it is true head, and a true head is found when HEAD_FOUND_SHARE of it
+    is labelled head."""
     from scipy import ndimage
 
     truth, pred = _check("truth", truth), _check("predicted", pred)
     if truth.shape != pred.shape:
         raise TopsegError(f"truth shape {truth.shape} differs from prediction {pred.shape}")
     true_head, pred_head = truth == L.HEAD, pred == L.HEAD
+    no_depth = truth == L.NO_DEPTH
 
     def blob_shares(blobs_of: np.ndarray, other: np.ndarray) -> np.ndarray:
-        blobs, n = ndimage.label(blobs_of)
+        bridged = blobs_of
+        if no_depth.any() and blobs_of.any():
+            near = ndimage.binary_dilation(blobs_of, iterations=HEAD_BRIDGE_PX)
+            bridged = blobs_of | (near & no_depth)
+        blobs, n = ndimage.label(bridged)
         if n == 0:
             return np.zeros(0)
+        blobs = np.where(blobs_of, blobs, 0)
         size = np.bincount(blobs.ravel(), minlength=n + 1)[1:]
         hits = np.bincount(blobs.ravel(), weights=other.ravel(), minlength=n + 1)[1:]
         return (hits / np.maximum(size, 1))[size >= MIN_HEAD_BLOB_PX]

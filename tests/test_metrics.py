@@ -194,6 +194,21 @@ def test_head_detections_count_blobs_not_pixels():
         head_detections(truth, pred[:, :10])
 
 
+def test_a_head_cut_by_holes_without_depth_is_one_head():
+    truth = np.full((40, 60), L.BODY, np.uint8)
+    truth[5:25, 5:25] = L.HEAD
+    truth[5:25, 14:16] = L.NO_DEPTH  # a band of dark hair across the head: two halves
+    pred = truth.copy()
+    assert head_detections(truth, pred) == (1, 1, 1, 1)
+    far = truth.copy()
+    far[5:25, 11:21] = L.NO_DEPTH  # 10 px apart: more than HEAD_BRIDGE_PX from either side
+    assert head_detections(far, far) == (2, 2, 2, 2)
+    apart = np.full((40, 60), L.BODY, np.uint8)
+    apart[5:25, 5:14] = L.HEAD
+    apart[5:25, 16:25] = L.HEAD  # two heads 2 px apart with depth between: not joined
+    assert head_detections(apart, apart) == (2, 2, 2, 2)
+
+
 def test_head_detections_accumulate_and_say_nan_for_nothing_to_count():
     truth, pred = heads_scene()
     heads = HeadDetections()
