@@ -172,8 +172,11 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
     """`--min-head-cm2 A`, `--min-furniture-cm2 A`: after the CRF, head and furniture blobs
     smaller than A cm2 take their border's label (`SegmenterConfig.min_head_cm2`,
     `min_furniture_cm2`); `--satellite-head-cm2 A`: so do head blobs smaller than A beside a
-    larger head (`satellite_head_cm2`). `island_config` reads them back."""
+    larger head (`satellite_head_cm2`); `--fill-holes-cm2 A`: before labelling, holes up to A
+    cm2 inside one surface take its depth (`fill_holes_cm2`). `island_config` reads them
+    back."""
     from topseg.core.segmenter import (
+        FILL_HOLES_CM2,
         MIN_FURNITURE_CM2,
         MIN_HEAD_CM2,
         SATELLITE_HEAD_CM2,
@@ -207,6 +210,16 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
         "take their border's label; 0 keeps them (default: %(default)s)",
     )
 
+    parser.add_argument(
+        "--fill-holes-cm2",
+        type=finite(0, 10000),
+        default=FILL_HOLES_CM2,
+        metavar="A",
+        help="before labelling, holes without depth up to A cm2 that lie inside one surface "
+        "(dark hair on a time-of-flight camera) take its depth and its label; 0 leaves them "
+        "(default: %(default)s)",
+    )
+
 
 def island_config(args: argparse.Namespace) -> dict:
     """The `SegmenterConfig` fields of `add_island_arguments`' options."""
@@ -214,6 +227,7 @@ def island_config(args: argparse.Namespace) -> dict:
         "min_head_cm2": args.min_head_cm2,
         "min_furniture_cm2": args.min_furniture_cm2,
         "satellite_head_cm2": args.satellite_head_cm2,
+        "fill_holes_cm2": args.fill_holes_cm2,
     }
 
 

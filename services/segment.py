@@ -156,6 +156,12 @@ def run(args: argparse.Namespace) -> int:
             f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
             "depth went to background without the forest"
         )
+    if segmenter.reads_height and segmenter.config.fill_holes_cm2 > 0 and run_.count:
+        print(
+            f"holes filled: {run_.filled_holes} holes without depth inside one surface (under "
+            f"{segmenter.config.fill_holes_cm2:g} cm2) took its depth and label in "
+            f"{run_.count} frames"
+        )
     if segmenter.relabels_islands and run_.count:
         cfg = segmenter.config
         print(
@@ -233,6 +239,7 @@ class _Run:
         self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
         self.small_furniture = 0  # the same for chair, storage and table
         self.satellite_heads = 0  # head blobs beside a larger head, relabelled
+        self.filled_holes = 0  # holes inside one surface filled before labelling
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
@@ -284,6 +291,7 @@ class _Run:
             self.small_heads += result.small_heads
             self.small_furniture += result.small_furniture
             self.satellite_heads += result.satellite_heads
+            self.filled_holes += result.filled_holes
 
     def summary(self) -> None:
         """How many frames went where, per camera (a folder of PNGs is one camera)."""

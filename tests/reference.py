@@ -1085,3 +1085,42 @@ def smooth_depth_reference(depth, edge_mm, alpha, iterations):
     out = np.clip(np.floor(x + np.float32(0.5)), 1, 65535).astype(np.uint16)
     out[depth == 0] = 0
     return out
+
+
+def fill_holes_reference(
+    depth: np.ndarray, max_sum_z2: float, span_mm: float
+) -> tuple[np.ndarray, int]:
+    """`holes._fill_holes` in plain numpy: every 4-connected region without depth whose
+    border (each hole-pixel / depth-pixel 4-neighbour pair once) spans at most `span_mm` and
+    whose pixel count times mean border depth squared is at most `max_sum_z2` takes that
+    mean, rounded half up."""
+    d = depth.astype(np.int64)
+    h, w = d.shape
+    holes, n = ndimage.label(d == 0)
+    out = depth.copy()
+    total = np.zeros(n + 1)
+    count = np.zeros(n + 1, np.int64)
+    lo = np.full(n + 1, 1 << 30, np.int64)
+    hi = np.zeros(n + 1, np.int64)
+    for dv, du in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = np.zeros_like(d)  # the neighbour's depth, 0 off the image
+        nb[max(0, -dv) : h - max(0, dv), max(0, -du) : w - max(0, du)] = d[
+            max(0, dv) : h + min(0, dv) or None, max(0, du) : w + min(0, du) or None
+        ]
+        pair = (holes > 0) & (nb > 0)
+        ids, vals = holes[pair], nb[pair]
+        total += np.bincount(ids, weights=vals.astype(np.float64), minlength=n + 1)
+        count += np.bincount(ids, minlength=n + 1)
+        np.minimum.at(lo, ids, vals)
+        np.maximum.at(hi, ids, vals)
+    size = np.bincount(holes.ravel(), minlength=n + 1)
+    filled = 0
+    for i in range(1, n + 1):
+        if count[i] == 0 or hi[i] - lo[i] > span_mm:
+            continue
+        z = total[i] / count[i]
+        if size[i] * z * z > max_sum_z2:
+            continue
+        out[holes == i] = np.uint16(np.floor(z + 0.5))
+        filled += 1
+    return out, filled

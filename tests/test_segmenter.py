@@ -12,6 +12,7 @@ from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
+from topseg.core.holes import fill_holes
 from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
 from topseg.core.scoring import score
 from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
@@ -118,6 +119,8 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
     for depth, _ in demo_frames(2):
         depth = np.ascontiguousarray(depth[::4, ::4])
         got = seg.label(depth)
+        depth, filled = fill_holes(depth, k)  # what the Segmenter labels
+        assert got.filled_holes == filled
         inp = model_input(depth, mount, seg.features)
         proba = forest.predict_proba(
             seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS, early_exit=EARLY_EXIT
@@ -446,8 +449,13 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
     one = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1))
     got = auto.label(depth)
     assert got.downsample == 2 and got.labels.shape == depth.shape
+    depth, filled = fill_holes(depth, PAPER_MOUNT.intrinsics)  # first, at the frame's size
+    assert got.filled_holes == filled > 0
     small = decimate(depth, 2)
-    want = one.label(small, mount=decimated_mount(PAPER_MOUNT, 2))
+    unfilled = Segmenter.from_file(
+        None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1, fill_holes_cm2=0.0)
+    )  # the frame's holes were filled at its own size, before decimating
+    want = unfilled.label(small, mount=decimated_mount(PAPER_MOUNT, 2))
     np.testing.assert_array_equal(got.labels, upsample_labels(depth, want.labels, small, 2))
     forest_labels = upsample_labels(depth, want.forest_labels(), small, 2)
     np.testing.assert_array_equal(got.forest_labels(), forest_labels)
