@@ -12,7 +12,8 @@ frames from a camera whose noise at the floor is at least `MIN_SIGMA_MM`:
   the sensor's noise at the pixel's depth (`inputs.depth_sigma_mm`, times the mount's
   measured `noise_scale`). A larger difference is an edge: the smoothing stops there, so a
   person's outline and a table's edge stay where they are;
-- pixels without depth stay without depth (no hole filling: a hole is not evidence);
+- pixels without depth stay without depth (the Segmenter fills small holes inside one
+  surface before, `core/holes.py`; the smoothing does not);
 - `ITERATIONS` passes.
 
 Quieter cameras (a Kinect v1 below ~4.3 m, time-of-flight) are left as they are: their noise
