@@ -148,6 +148,7 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "small_heads",
         "small_furniture",
         "satellite_heads",
+        "filled_holes",
     ):
         out[name] = last["counts"].get(name, 0)
         out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))

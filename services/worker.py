@@ -8,7 +8,8 @@ runs the forest and the CRF on the newest depth frame and publishes
   the mount, forest, crf, publish, total),
   latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
   / small_heads / small_furniture (blobs relabelled as too small to be a head or a piece of
-  furniture) / satellite_heads (head blobs beside a larger head, relabelled), the share of pixels the floor gate skipped (`floor_share`) and the mount in
+  furniture) / satellite_heads (head blobs beside a larger head, relabelled) / filled_holes
+  (holes without depth inside one surface filled before labelling), the share of pixels the floor gate skipped (`floor_share`) and the mount in
   use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
   was seen to move).
 
@@ -190,6 +191,7 @@ class CameraState:
             "small_heads": 0,
             "small_furniture": 0,
             "satellite_heads": 0,
+            "filled_holes": 0,
         }
     )
     last_seq: int | None = None
@@ -647,6 +649,7 @@ class Worker:
         state.counts["small_heads"] += result.small_heads
         state.counts["small_furniture"] += result.small_furniture
         state.counts["satellite_heads"] += result.satellite_heads
+        state.counts["filled_holes"] += result.filled_holes
         state.note_done(t4)
         timings = {
             "receive": 1000 * (t1 - t0),

@@ -159,6 +159,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     assert last["counts"] == {
         "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads,
         "small_furniture": small_furniture, "satellite_heads": satellite_heads,
+        "filled_holes": 0,  # a model that reads depth: no holes filled
     }  # fmt: skip
     assert last["role"] == "worker" and last["model_id"] == model_path.name
     assert set(last["timings_ms"]) == {
@@ -217,6 +218,7 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
         "small_heads": 0,
         "small_furniture": 0,
         "satellite_heads": 0,
+        "filled_holes": 0,
     }
     assert "rejected" in err
 
@@ -345,7 +347,7 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     counts = peer.stats[-1]["counts"]
     assert counts == {
         "processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY,
-        "small_furniture": mock.ANY, "satellite_heads": mock.ANY,
+        "small_furniture": mock.ANY, "satellite_heads": mock.ANY, "filled_holes": mock.ANY,
     }  # fmt: skip
 
 
@@ -553,6 +555,6 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
     # crf none: the forest's argmax, no blob relabelled
     assert counts == {
         "processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0,
-        "small_furniture": 0, "satellite_heads": 0,
+        "small_furniture": 0, "satellite_heads": 0, "filled_holes": mock.ANY,
     }, worker.err  # fmt: skip
     assert "not a msgpack" not in worker.err
