@@ -102,6 +102,10 @@ def png_frames(paths: list[Path]) -> Iterator[ReplayFrame]:
         yield ReplayFrame(p.stem, read_depth_png(p), None)
 
 
+#: cameras whose truth a recording may hold before its first depth frame (memory bound)
+MAX_EARLY_CAMERAS = 16
+
+
 class RecordingFrames:
     """The frames of one depth channel of an MCAP recording (the first one unless `key`
     names it), with the same camera's truth paired by `seq` when it has one.
@@ -126,6 +130,7 @@ class RecordingFrames:
         truth_key = None if depth_key is None else _truth_of(depth_key)
         held: ReplayFrame | None = None
         truths: OrderedDict[int, np.ndarray] = OrderedDict()
+        early: dict[str, OrderedDict[int, np.ndarray]] = {}  # truths before any depth
         seen: dict[int, int] = {}  # seq -> how often it came (a restart repeats seqs)
         stem = self.path.stem if self.tag is None else f"{self.path.stem}_{self.tag}"
 
@@ -148,6 +153,23 @@ class RecordingFrames:
             if depth_key is None and kind == "depth":
                 depth_key, truth_key = msg.key, _truth_of(msg.key)
                 self.depth_key = depth_key
+                truths = early.pop(truth_key, truths)
+                early.clear()
+            if depth_key is None and kind == "truth":
+                # a truth written before the first depth frame (Zenoh does not order the
+                # keys): kept by camera until the channel to read is known
+                truths_of = early.setdefault(msg.key, OrderedDict())
+                while len(early) > MAX_EARLY_CAMERAS:
+                    early.pop(next(iter(early)))
+                try:
+                    truth = wire.decode_labels(msg.data)
+                except WireError as exc:
+                    self._reject(msg.key, exc)
+                    continue
+                truths_of[truth.seq] = truth.labels
+                while len(truths_of) > 16:
+                    truths_of.popitem(last=False)
+                continue
             if msg.key == depth_key:
                 try:
                     frame = wire.decode_depth(msg.data)

@@ -214,3 +214,25 @@ def test_recorded_mounts_reach_the_frames_of_replay_and_segment(tmp_path):
         got = [f.depth.mount for f in src.frames()]
         assert src.info()["mount"] == mounts[2].to_dict()
     assert got == expected
+
+
+def test_a_truth_written_before_the_first_depth_frame_is_paired(tmp_path, frames):
+    """Zenoh does not order the depth and truth keys: a recording may open with a truth,
+    even another camera's; each frame still gets its own camera's truth."""
+    from topseg.drivers.replay import RecordingFrames
+
+    path = tmp_path / "truth-first.mcap"
+    t0 = 1_700_000_000_000_000_000
+    with RecordingWriter(path) as w:
+        other = wire.LabelFrame(np.zeros_like(frames[0][1]), 0, t0)
+        w.write(wire.truth_key("default", "cam9"), wire.encode_labels(other), log_time_ns=t0)
+        for i, (depth, lab) in enumerate(frames):
+            stamp = t0 + i * 50_000_000
+            lf = wire.LabelFrame(lab, i, stamp)
+            w.write(wire.truth_key("default", "cam0"), wire.encode_labels(lf), log_time_ns=stamp)
+            f = wire.DepthFrame(depth, KINECT_V1.scaled_to(160, 120), i, stamp)
+            w.write(wire.depth_key("default", "cam0"), wire.encode_depth(f), log_time_ns=stamp + 1)
+    got = list(RecordingFrames(path))
+    assert [g.seq for g in got] == list(range(len(frames)))
+    for g, (_, lab) in zip(got, frames, strict=True):
+        np.testing.assert_array_equal(g.truth, lab)
