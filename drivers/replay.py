@@ -104,6 +104,8 @@ def png_frames(paths: list[Path]) -> Iterator[ReplayFrame]:
 
 #: cameras whose truth a recording may hold before its first depth frame (memory bound)
 MAX_EARLY_CAMERAS = 16
+#: truth frames held per camera until their depth frame comes (memory bound)
+MAX_TRUTHS_HELD = 16
 
 
 class RecordingFrames:
@@ -158,17 +160,9 @@ class RecordingFrames:
             if depth_key is None and kind == "truth":
                 # a truth written before the first depth frame (Zenoh does not order the
                 # keys): kept by camera until the channel to read is known
-                truths_of = early.setdefault(msg.key, OrderedDict())
+                self._keep_truth(early.setdefault(msg.key, OrderedDict()), msg)
                 while len(early) > MAX_EARLY_CAMERAS:
                     early.pop(next(iter(early)))
-                try:
-                    truth = wire.decode_labels(msg.data)
-                except WireError as exc:
-                    self._reject(msg.key, exc)
-                    continue
-                truths_of[truth.seq] = truth.labels
-                while len(truths_of) > 16:
-                    truths_of.popitem(last=False)
                 continue
             if msg.key == depth_key:
                 try:
@@ -190,15 +184,8 @@ class RecordingFrames:
                     key=depth_key,
                 )
             elif msg.key == truth_key:
-                try:
-                    truth = wire.decode_labels(msg.data)
-                except WireError as exc:
-                    self._reject(msg.key, exc)
-                    continue
-                truths[truth.seq] = truth.labels
-                while len(truths) > 16:
-                    truths.popitem(last=False)
-                if held is not None and truth.seq == held.seq:
+                seq = self._keep_truth(truths, msg)
+                if held is not None and seq == held.seq:
                     yield emit(held)
                     held = None
             elif kind == "depth" and msg.key not in self.others:
@@ -209,6 +196,19 @@ class RecordingFrames:
             yield emit(held)
         if depth_key is None:
             raise SourceError(f"{self.path} holds no depth channel")
+
+    def _keep_truth(self, truths: OrderedDict[int, np.ndarray], msg) -> int | None:
+        """Decode truth message `msg` into `truths` (seq -> labels, the newest
+        MAX_TRUTHS_HELD kept): its seq, or None when it does not decode (rejected)."""
+        try:
+            truth = wire.decode_labels(msg.data)
+        except WireError as exc:
+            self._reject(msg.key, exc)
+            return None
+        truths[truth.seq] = truth.labels
+        while len(truths) > MAX_TRUTHS_HELD:
+            truths.popitem(last=False)
+        return truth.seq
 
     def _reject(self, key: str | None, exc: Exception) -> None:
         self.rejected += 1
