@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     if segmenter.reads_height and segmenter.config.fill_holes_cm2 > 0 and run_.count:
         print(
             f"holes filled: {run_.filled_holes} holes without depth inside one surface (under "
-            f"{segmenter.config.fill_holes_cm2:g} cm2) took its depth and label in "
+            f"{segmenter.config.fill_holes_cm2:g} cm2) took that surface's depth and label in "
             f"{run_.count} frames"
         )
     if segmenter.relabels_islands and run_.count:

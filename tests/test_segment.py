@@ -308,3 +308,5 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
         f"(under 300 cm2); head blobs beside a larger head: {satellites} (under 150 cm2) in 4 "
         "frames"
     ) in cleaned.stdout
+    assert "holes filled: " in cleaned.stdout and "took that surface's depth" in cleaned.stdout
+    assert "holes filled: " in kept.stdout  # the filling is not one of the blob rules
