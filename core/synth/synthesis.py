@@ -28,7 +28,6 @@ from topseg.core.camera import PAPER_MOUNT, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.synth import rooms
 from topseg.core.synth.density import MODES, DensityConfig, DensityFunction
-from topseg.core.synth.head_cut import cut_across_head
 from topseg.core.synth.humanoid import POSES
 from topseg.core.synth.noise import parse_noise
 from topseg.core.synth.scene import Scene
@@ -142,9 +141,7 @@ class SynthesisConfig:
     """What to synthesise. `theta_max`, when given, sets both of the density's theta' (H-O and
     O-O); `room` None draws one of ROOMS per frame; `noise` is a `parse_noise` spec or
     "sensor" (each frame's sensor's own model); `mounts` None renders every frame from the
-    fixed `camera`, a MountDistribution draws each frame's mount. `head_cut` is the share of
-    frames with a head in which the image's edge is moved across one head
-    (`head_cut.cut_across_head`: people walking in and out of view)."""
+    fixed `camera`, a MountDistribution draws each frame's mount."""
 
     mode: str = "modeled"
     noise: str = "gaussian:15"
@@ -154,7 +151,6 @@ class SynthesisConfig:
     seed: int = 0
     camera: TopViewMount = PAPER_MOUNT
     mounts: MountDistribution | None = None
-    head_cut: float = 0.0
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -176,15 +172,10 @@ class SynthesisConfig:
             )
         if not isinstance(self.seed, int) or self.seed < 0:
             raise TopsegError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if not 0.0 <= float(self.head_cut) <= 1.0:
-            raise TopsegError(f"head_cut is a fraction in [0, 1], got {self.head_cut}")
-        self.head_cut = float(self.head_cut)
 
     def to_dict(self) -> dict:
-        """Plain JSON/TOML data (datasets record it as the generator's config); see `from_dict`.
-        `head_cut` is written only when it is not 0, so the recipes of earlier datasets (the
-        keys of experiment caches) stay what they were."""
-        d = {
+        """Plain JSON/TOML data (datasets record it as the generator's config); see `from_dict`."""
+        return {
             "mode": self.mode,
             "noise": self.noise,
             "room": self.room,
@@ -194,9 +185,6 @@ class SynthesisConfig:
             "camera": self.camera.to_dict(),
             "mounts": None if self.mounts is None else self.mounts.to_dict(),
         }
-        if self.head_cut:
-            d["head_cut"] = self.head_cut
-        return d
 
     def mount_summary(self) -> dict:
         """The mounts this config renders from, in a model header's `trained_for` form."""
@@ -310,11 +298,9 @@ class Synthesizer:
         t1 = time.perf_counter()
         clean, lab = raycast(prims, mount)
         t2 = time.perf_counter()
-        rng = noise_rng if noise_rng is not None else np.random.default_rng(0)
-        depth = self.noise_for(mount).apply(clean, rng, labels=lab)
-        # no draw at share 0: the frames of earlier configs stay as they were
-        if self.config.head_cut and rng.random() < self.config.head_cut:
-            cut_across_head(depth, lab, rng)  # heads picked on the labels before dropout
+        depth = self.noise_for(mount).apply(
+            clean, noise_rng if noise_rng is not None else np.random.default_rng(0), labels=lab
+        )
         lab[depth == 0] = labels.NO_DEPTH
         t3 = time.perf_counter()
         timings = {"build": 1e3 * (t1 - t0), "raycast": 1e3 * (t2 - t1), "noise": 1e3 * (t3 - t2)}

@@ -71,10 +71,6 @@ def load_factory(target: str) -> Callable[[dict, int], FrameSource]:
 #: share of freely placed people standing across an open edge of the view (cut by the image
 #: border) in datasets with drawn mounts; the paper's fixed-mount datasets keep 0
 EDGE_SHARE = 0.3
-#: share of the frames with a head, in datasets with drawn mounts, whose image edge is moved
-#: across a head (`core.synth.head_cut`): the density's edge band cuts legs, real sequences
-#: cut heads as often; the paper's fixed-mount datasets keep 0
-HEAD_CUT_SHARE = 0.3
 
 
 def generator_config(
@@ -83,20 +79,17 @@ def generator_config(
     """The full, validated config a generator will get, as recorded in the dataset.
 
     `mounts` (a `MountDistribution.to_dict()`) draws each frame's camera mount, and people
-    then walk in and out of view (EDGE_SHARE, HEAD_CUT_SHARE); None keeps the paper's fixed
-    mount.
+    then walk in and out of view (EDGE_SHARE); None keeps the paper's fixed mount.
     """
     if target == GENERATORS["synthesis"]:
         from topseg.core.synth.density import DensityConfig
         from topseg.core.synth.synthesis import SynthesisConfig
 
         try:
-            drawn = mounts is not None
-            density = DensityConfig(human_edge_share=EDGE_SHARE if drawn else 0.0)
+            density = DensityConfig(human_edge_share=EDGE_SHARE if mounts is not None else 0.0)
             return SynthesisConfig(
-                mode=mode, noise=noise, room=room, mounts=mounts, density=density,
-                head_cut=HEAD_CUT_SHARE if drawn else 0.0,
-            ).to_dict()  # fmt: skip
+                mode=mode, noise=noise, room=room, mounts=mounts, density=density
+            ).to_dict()
         except (TypeError, ValueError) as exc:
             raise TopsegError(f"bad synthesis settings: {exc}") from exc
     if mounts is not None:
