@@ -166,29 +166,7 @@ def head_detections(truth: np.ndarray, pred: np.ndarray) -> tuple[int, int, int,
     of them; sizes and shares count head pixels only. A predicted blob is correct when
     HEAD_HIT_SHARE of it is true head, and a true head is found when HEAD_FOUND_SHARE of it
     is labelled head."""
-    from scipy import ndimage
-
-    truth, pred = _check("truth", truth), _check("predicted", pred)
-    if truth.shape != pred.shape:
-        raise TopsegError(f"truth shape {truth.shape} differs from prediction {pred.shape}")
-    true_head, pred_head = truth == L.HEAD, pred == L.HEAD
-    no_depth = truth == L.NO_DEPTH
-
-    def blob_shares(blobs_of: np.ndarray, other: np.ndarray) -> np.ndarray:
-        bridged = blobs_of
-        if no_depth.any() and blobs_of.any():
-            near = ndimage.binary_dilation(blobs_of, iterations=HEAD_BRIDGE_PX)
-            bridged = blobs_of | (near & no_depth)
-        blobs, n = ndimage.label(bridged)
-        if n == 0:
-            return np.zeros(0)
-        blobs = np.where(blobs_of, blobs, 0)
-        size = np.bincount(blobs.ravel(), minlength=n + 1)[1:]
-        hits = np.bincount(blobs.ravel(), weights=other.ravel(), minlength=n + 1)[1:]
-        return (hits / np.maximum(size, 1))[size >= MIN_HEAD_BLOB_PX]
-
-    predicted = blob_shares(pred_head, true_head)
-    true = blob_shares(true_head, pred_head)
+    (predicted, _), (true, _) = head_blobs(truth, pred)
     return (
         int((predicted >= HEAD_HIT_SHARE).sum()),
         int(predicted.size),
@@ -197,21 +175,69 @@ def head_detections(truth: np.ndarray, pred: np.ndarray) -> tuple[int, int, int,
     )
 
 
+def head_blobs(
+    truth: np.ndarray, pred: np.ndarray
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The blobs `head_detections` counts: ((share, at_border) of the predicted blobs,
+    (share, at_border) of the true heads). A predicted blob's share is the part of it that
+    is true head, a true head's the part labelled head; `at_border` says whether a blob
+    touches the image's border, with its head pixels or the pixels without depth it is
+    joined across (a person walking in or out of view; sensors often leave the outermost
+    pixels without depth)."""
+    from scipy import ndimage
+
+    truth, pred = _check("truth", truth), _check("predicted", pred)
+    if truth.shape != pred.shape:
+        raise TopsegError(f"truth shape {truth.shape} differs from prediction {pred.shape}")
+    true_head, pred_head = truth == L.HEAD, pred == L.HEAD
+    no_depth = truth == L.NO_DEPTH
+
+    def blob_shares(blobs_of: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        bridged = blobs_of
+        if no_depth.any() and blobs_of.any():
+            near = ndimage.binary_dilation(blobs_of, iterations=HEAD_BRIDGE_PX)
+            bridged = blobs_of | (near & no_depth)
+        blobs, n = ndimage.label(bridged)
+        if n == 0:
+            return np.zeros(0), np.zeros(0, bool)
+        rim = np.concatenate([blobs[0], blobs[-1], blobs[:, 0], blobs[:, -1]])
+        at_border = np.bincount(rim, minlength=n + 1)[1:] > 0  # bridged: a rim without depth
+        blobs = np.where(blobs_of, blobs, 0)
+        size = np.bincount(blobs.ravel(), minlength=n + 1)[1:]
+        hits = np.bincount(blobs.ravel(), weights=other.ravel(), minlength=n + 1)[1:]
+        kept = size >= MIN_HEAD_BLOB_PX
+        return (hits / np.maximum(size, 1))[kept], at_border[kept]
+
+    return blob_shares(pred_head, true_head), blob_shares(true_head, pred_head)
+
+
 @dataclass
 class HeadDetections:
     """`head_detections` summed over frames: precision (correct / predicted) and recall
-    (found / true) of heads as blobs."""
+    (found / true) of heads as blobs; the `border_*` counts are those of the blobs that
+    touch the image's border (`head_blobs`), where a walking person's head is cut."""
 
     correct: int = 0
     predicted: int = 0
     found: int = 0
     true: int = 0
+    border_correct: int = 0
+    border_predicted: int = 0
+    border_found: int = 0
+    border_true: int = 0
 
     def add(self, truth: np.ndarray, pred: np.ndarray) -> None:
         """Count one frame's head blobs."""
-        c, p, f, t = head_detections(truth, pred)
-        self.correct, self.predicted = self.correct + c, self.predicted + p
-        self.found, self.true = self.found + f, self.true + t
+        (p_share, p_border), (t_share, t_border) = head_blobs(truth, pred)
+        hit, found = p_share >= HEAD_HIT_SHARE, t_share >= HEAD_FOUND_SHARE
+        self.correct += int(hit.sum())
+        self.predicted += int(p_share.size)
+        self.found += int(found.sum())
+        self.true += int(t_share.size)
+        self.border_correct += int(hit[p_border].sum())
+        self.border_predicted += int(p_border.sum())
+        self.border_found += int(found[t_border].sum())
+        self.border_true += int(t_border.sum())
 
     @property
     def precision(self) -> float:
@@ -223,20 +249,34 @@ class HeadDetections:
         """Share of the true heads found (NaN with none in the truth)."""
         return self.found / self.true if self.true else math.nan
 
+    @property
+    def border_precision(self) -> float:
+        """Precision of the predicted blobs that touch the image's border (NaN: none)."""
+        return self.border_correct / self.border_predicted if self.border_predicted else math.nan
+
+    @property
+    def border_recall(self) -> float:
+        """Recall of the true heads that touch the image's border (NaN: none)."""
+        return self.border_found / self.border_true if self.border_true else math.nan
+
     def to_dict(self) -> dict:
         """Counts, precision and recall as JSON-able numbers (None for NaN)."""
         return {
             **asdict(self),
             "precision": _nan_to_none(self.precision),
             "recall": _nan_to_none(self.recall),
+            "border_precision": _nan_to_none(self.border_precision),
+            "border_recall": _nan_to_none(self.border_recall),
         }
 
     def summary(self) -> str:
-        """One line: precision and recall with their counts."""
+        """One line: precision and recall with their counts, then those at the border."""
         return (
             f"head detections (blobs >= {MIN_HEAD_BLOB_PX} px): precision {_fmt(self.precision)} "
             f"({self.correct} of {self.predicted}), recall {_fmt(self.recall)} "
-            f"({self.found} of {self.true})"
+            f"({self.found} of {self.true}); at the image border: precision "
+            f"{_fmt(self.border_precision)} ({self.border_correct} of {self.border_predicted}), "
+            f"recall {_fmt(self.border_recall)} ({self.border_found} of {self.border_true})"
         )
 
 

@@ -25,6 +25,7 @@ def test_renders_segments_with_no_mount_and_scores_one_line_a_height(tmp_path):
     got = json.loads(line)
     assert got["height_m"] == 3.3 and got["noise"] == "tof"
     assert 0.0 <= got["avg_f1"] <= 1.0 and got["true_heads"] >= 0 <= got["predicted_heads"]
+    assert 0 <= got["border_true_heads"] <= got["true_heads"]
     folder = tmp_path / "3.3m"
     depth = np.asarray(Image.open(folder / "frames" / "0001.png"))
     assert depth.shape == (480, 640) and depth.dtype == np.uint16

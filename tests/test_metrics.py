@@ -15,6 +15,7 @@ from topseg.core.metrics import (
     HeadDetections,
     confusion_matrix,
     format_table,
+    head_blobs,
     head_detections,
     scores,
     to_json,
@@ -220,3 +221,38 @@ def test_head_detections_accumulate_and_say_nan_for_nothing_to_count():
     assert heads.precision == pytest.approx(0.6) and heads.recall == pytest.approx(0.75)
     assert json.loads(json.dumps(heads.to_dict()))["recall"] == pytest.approx(0.75)
     assert "precision 0.600 (3 of 5), recall 0.750 (3 of 4)" in heads.summary()
+
+
+def test_heads_at_the_image_border_are_counted_apart():
+    truth = np.full((40, 60), L.BODY, np.uint8)
+    truth[0:10, 20:30] = L.HEAD  # cut by the top border
+    truth[20:30, 20:30] = L.HEAD  # inside the view
+    pred = truth.copy()
+    pred[0:10, 20:30] = L.BODY  # the cut head missed
+    pred[30:40, 50:60] = L.HEAD  # a false head in the corner
+    (p_share, p_border), (t_share, t_border) = head_blobs(truth, pred)
+    assert t_border.tolist() == [True, False] and t_share.tolist() == [0.0, 1.0]
+    assert p_border.tolist() == [False, True] and p_share.tolist() == [1.0, 0.0]
+    heads = HeadDetections()
+    heads.add(truth, pred)
+    assert (heads.found, heads.true, heads.border_found, heads.border_true) == (1, 2, 0, 1)
+    assert (heads.correct, heads.predicted) == (1, 2)
+    assert (heads.border_correct, heads.border_predicted) == (0, 1)
+    assert heads.border_recall == 0.0 and heads.border_precision == 0.0
+    assert heads.to_dict()["border_recall"] == 0.0
+    assert "at the image border: precision 0.000 (0 of 1), recall 0.000 (0 of 1)" in heads.summary()
+    inner = HeadDetections()
+    inner.add(truth[12:32, 10:45], pred[12:32, 10:45])  # no head touches this crop's border
+    assert np.isnan(inner.border_recall) and inner.to_dict()["border_precision"] is None
+
+
+def test_a_head_reaching_the_border_across_pixels_without_depth_is_at_the_border():
+    truth = np.full((40, 60), L.BODY, np.uint8)
+    truth[:, :2] = L.NO_DEPTH  # the sensor's outermost columns
+    truth[10:20, 2:12] = L.HEAD
+    (_, _), (_, t_border) = head_blobs(truth, truth)
+    assert t_border.tolist() == [True]
+    truth[:, :2] = L.BODY
+    truth[10:20, 2:12] = L.BODY
+    truth[10:20, 8:18] = L.HEAD  # 8 px from the border: inside the view
+    assert head_blobs(truth, truth)[1][1].tolist() == [False]
