@@ -23,6 +23,12 @@ beside the person's own head. Such a satellite, a head blob under a maximum area
 centre lies within a radius (`segmenter.SATELLITE_RADIUS_CM`, 40 cm) of a larger head blob's
 centre, takes its border's label the same way: two people's heads are not that close.
 
+A blob within a few pixels of the image's edge (`segmenter.ISLAND_EDGE_PX`, 2) may be cut
+by it: a person walking in or out of view shows part of the head. Such a head blob is held
+to a share of the minimum (`segmenter.EDGE_HEAD_SHARE`, 0.2: 10 cm2 of the default 50).
+On the walker stand-ins every head missed before lay at the edge, and there the rule had
+relabelled most of them (`docs/results.md`).
+
 Every blob is judged on the labels as they came in (a blob relabelled does not change
 another's size, centre or votes), so the result does not depend on the order blobs are met.
 The work is proportional to the pixels of the classes measured, after one pass over the
@@ -46,14 +52,15 @@ MAX_HEAD_ANCHORS = 64
 
 
 @numba.njit(cache=True)
-def _measure_blobs(labels, depth, measured, no_depth, fx, fy, cx, cy):
+def _measure_blobs(labels, depth, measured, no_depth, fx, fy, cx, cy, edge_px):
     """Every 4-connected blob of a class c with `measured[c]`, in `labels` as given: its
     class, sum of depth^2 (mm^2; over fx * fy, its area), centre (mean x, y in mm on the
-    camera's axes), most common border label (-1: none) and its pixels as runs along rows.
+    camera's axes), most common border label (-1: none), whether a pixel of it lies within
+    `edge_px` pixels of the image's edge, and its pixels as runs along rows.
 
-    Returns (n, blob_class, blob_z2, blob_x, blob_y, blob_border, blob_runs, run_v, run_l,
-    run_r): blob b's runs are run_*[blob_runs[b] : blob_runs[b + 1]], run j covering row
-    run_v[j], columns run_l[j]..run_r[j].
+    Returns (n, blob_class, blob_z2, blob_x, blob_y, blob_border, blob_edge, blob_runs,
+    run_v, run_l, run_r): blob b's runs are run_*[blob_runs[b] : blob_runs[b + 1]], run j
+    covering row run_v[j], columns run_l[j]..run_r[j].
 
     A scanline fill per blob: a popped seed grows into the run of unvisited pixels of its
     class along its row; the rows above and below the run give the border's votes and the
@@ -75,6 +82,7 @@ def _measure_blobs(labels, depth, measured, no_depth, fx, fy, cx, cy):
     blob_x = np.empty(cap, np.float64)
     blob_y = np.empty(cap, np.float64)
     blob_border = np.empty(cap, np.int32)
+    blob_edge = np.empty(cap, np.bool_)
     blob_runs = np.empty(cap + 1, np.int32)
     votes = np.zeros(num_classes, np.int64)
     n, runs = 0, 0
@@ -87,6 +95,7 @@ def _measure_blobs(labels, depth, measured, no_depth, fx, fy, cx, cy):
             top = 1
             blob_runs[n] = runs
             sum_z2, sum_x, sum_y, count = 0.0, 0.0, 0.0, 0
+            at_edge = False
             votes[:] = 0
             while top > 0:
                 top -= 1
@@ -105,6 +114,8 @@ def _measure_blobs(labels, depth, measured, no_depth, fx, fy, cx, cy):
                     sum_x += (x - cx) * z
                     sum_y += (v - cy) * z
                 count += right - left + 1
+                if v < edge_px or v >= h - edge_px or left < edge_px or right >= w - edge_px:
+                    at_edge = True
                 run_v[runs], run_l[runs], run_r[runs] = v, left, right
                 runs += 1
                 for x in (left - 1, right + 1):  # the run's ends: blob or border
@@ -139,9 +150,13 @@ def _measure_blobs(labels, depth, measured, no_depth, fx, fy, cx, cy):
             blob_x[n] = sum_x / (fx * count)
             blob_y[n] = sum_y / (fy * count)
             blob_border[n] = best if votes[best] > 0 else -1
+            blob_edge[n] = at_edge
             n += 1
     blob_runs[n] = runs
-    return n, blob_class, blob_z2, blob_x, blob_y, blob_border, blob_runs, run_v, run_l, run_r
+    return (
+        n, blob_class, blob_z2, blob_x, blob_y, blob_border, blob_edge, blob_runs, run_v,
+        run_l, run_r,
+    )  # fmt: skip
 
 
 @numba.njit(cache=True)
@@ -157,6 +172,8 @@ def _relabel_islands(
     labels,
     depth,
     min_sum_z2,
+    edge_share,
+    edge_px,
     satellite_sum_z2,
     radius_mm,
     max_anchors,
@@ -169,7 +186,8 @@ def _relabel_islands(
     """Write to `out` (a copy of `labels`), every blob judged on `labels`:
     - a blob of class c whose sum of depth^2 (mm^2) is under `min_sum_z2[c]` (the area
       threshold times fx * fy; 0 = off) relabelled to its border's most common label, and
-      counted per class in `relabelled`;
+      counted per class in `relabelled`; a blob within `edge_px` of the image's edge is held
+      to `edge_share[c]` of that threshold;
     - a head blob (class `head`) kept by that rule, under `satellite_sum_z2`, whose centre
       lies within `radius_mm` of a larger head blob's centre (one of the `max_anchors`
       largest) relabelled the same way; returns how many.
@@ -177,14 +195,14 @@ def _relabel_islands(
     measured = min_sum_z2 > 0.0
     if satellite_sum_z2 > 0.0:
         measured[head] = True
-    n, cls, z2, bx, by, border, blob_runs, run_v, run_l, run_r = _measure_blobs(
-        labels, depth, measured, no_depth, focal[0], focal[1], focal[2], focal[3]
+    n, cls, z2, bx, by, border, at_edge, blob_runs, run_v, run_l, run_r = _measure_blobs(
+        labels, depth, measured, no_depth, focal[0], focal[1], focal[2], focal[3], edge_px
     )
     heads = np.empty(n, np.int64)
     n_heads = 0
     for b in range(n):
         c = cls[b]
-        if z2[b] < min_sum_z2[c]:
+        if z2[b] < (min_sum_z2[c] * edge_share[c] if at_edge[b] else min_sum_z2[c]):
             if border[b] >= 0:
                 _paint(out, border[b], blob_runs[b], blob_runs[b + 1], run_v, run_l, run_r)
                 relabelled[c] += 1
@@ -217,6 +235,8 @@ def relabel_islands(
     min_area_cm2,
     satellite_head_cm2: float = 0.0,
     radius_cm: float = 0.0,
+    edge_px: int = 0,
+    edge_share=None,
 ) -> tuple[np.ndarray, int]:
     """Relabel, in place, the islands of (H, W) uint8 `labels` to their border's most common
     label, every blob judged on the labels as given (`depth` in mm, `k` the frame's
@@ -226,6 +246,9 @@ def relabel_islands(
     - satellite heads: head blobs not small, smaller than `satellite_head_cm2`, whose centre
       lies within `radius_cm` of a larger head blob's centre (centres across the camera's
       axes; the `MAX_HEAD_ANCHORS` largest blobs claim satellites); 0 for either: none.
+    A blob with a pixel within `edge_px` pixels of the image's edge is held to `edge_share[c]`
+    (NUM_CLASSES shares, None: all 1) of its class's minimum: the border may cut it, and the
+    part in view can be smaller than the whole.
     Returns (small blobs relabelled per class, int64 NUM_CLASSES; satellite heads)."""
     if labels.shape != np.shape(depth):
         raise ValueError(f"labels {labels.shape} and depth {np.shape(depth)} differ in shape")
@@ -235,6 +258,11 @@ def relabel_islands(
     for name, value in (("satellite_head_cm2", satellite_head_cm2), ("radius_cm", radius_cm)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be >= 0, got {value}")
+    if edge_px < 0:
+        raise ValueError(f"edge_px must be >= 0, got {edge_px}")
+    shares = np.ones(L.NUM_CLASSES) if edge_share is None else np.asarray(edge_share, np.float64)
+    if shares.shape != (L.NUM_CLASSES,) or not ((shares >= 0) & (shares <= 1)).all():
+        raise ValueError(f"edge_share needs {L.NUM_CLASSES} shares in [0, 1], got {edge_share}")
     relabelled = np.zeros(L.NUM_CLASSES, np.int64)
     if not (areas > 0).any() and not satellite_head_cm2 > 0:
         return relabelled, 0
@@ -246,6 +274,8 @@ def relabel_islands(
         before,
         depth,
         min_sum_z2,
+        shares,
+        int(edge_px),
         float(satellite_head_cm2) * to_sum_z2,
         10.0 * float(radius_cm),
         MAX_HEAD_ANCHORS,
@@ -265,3 +295,11 @@ def island_areas(min_head_cm2: float, min_furniture_cm2: float) -> np.ndarray:
     areas[L.HEAD] = min_head_cm2
     areas[list(FURNITURE_ISLANDS)] = min_furniture_cm2
     return areas
+
+
+def edge_shares(head_share: float) -> np.ndarray:
+    """The per-class `edge_share` of `relabel_islands`: `head_share` for heads, 1 elsewhere
+    (furniture at the edge is held to its whole minimum; a smaller one is not measured)."""
+    shares = np.ones(L.NUM_CLASSES, np.float64)
+    shares[L.HEAD] = head_share
+    return shares

@@ -65,6 +65,13 @@ SATELLITE_HEAD_CM2 = 150.0
 #: Two people's heads are a shoulder's breadth apart (~40 cm between centres): a smaller head
 #: blob closer than this to a larger one is not a second head (`SATELLITE_HEAD_CM2`).
 SATELLITE_RADIUS_CM = 40.0
+#: head blobs within this many pixels of the image's edge are held to a smaller minimum
+#: (`islands`): the border cuts the head of a person walking in or out of view, and the part
+#: in view can be smaller than MIN_HEAD_CM2 (2 px: time-of-flight and stereo cameras often
+#: leave the outermost pixel without depth)
+ISLAND_EDGE_PX = 2
+#: the share of `min_head_cm2` a head blob at the image's edge must reach
+EDGE_HEAD_SHARE = 0.2
 #: Before labelling, holes without depth inside one surface up to this size (cm2) take the
 #: surface's depth (`holes.fill_holes`): a time-of-flight camera's holes in dark hair. On
 #: rendered walker frames with hair dropout it took the bundled model's head blobs found
@@ -641,7 +648,12 @@ class Segmenter:
         head blobs, small furniture blobs and satellite heads."""
         if not self.relabels_islands:
             return 0, 0, 0
-        from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
+        from topseg.core.islands import (
+            FURNITURE_ISLANDS,
+            edge_shares,
+            island_areas,
+            relabel_islands,
+        )
 
         if self.features is None:
             k = intrinsics if intrinsics is not None else self.camera
@@ -650,8 +662,9 @@ class Segmenter:
         cfg = self.config
         areas = island_areas(cfg.min_head_cm2, cfg.min_furniture_cm2)
         small, satellites = relabel_islands(
-            labels, depth, k, areas, cfg.satellite_head_cm2, SATELLITE_RADIUS_CM
-        )
+            labels, depth, k, areas, cfg.satellite_head_cm2, SATELLITE_RADIUS_CM,
+            ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
+        )  # fmt: skip
         return int(small[L.HEAD]), int(small[list(FURNITURE_ISLANDS)].sum()), satellites
 
     def warm_up(self) -> None:

@@ -973,14 +973,16 @@ def raycast_world_reference(
 
 
 def islands_reference(
-    labels, depth, k, min_area_cm2, no_depth, satellite_head_cm2=0.0, radius_cm=40.0, head=1
-):
+    labels, depth, k, min_area_cm2, no_depth, satellite_head_cm2=0.0, radius_cm=40.0, head=1,
+    edge_px=0, edge_share=None,
+):  # fmt: skip
     """(labels after, small blobs relabelled per class, satellite heads relabelled), every
     blob judged on the labels as given; a relabelled blob takes the label most often found
     across its border (one vote per blob pixel - outside pixel 4-neighbour pair, the outside
     pixel neither its class nor no-depth; ties to the lower id; none: it keeps its class):
     - every 4-connected blob of a class c whose area (the sum of (z / fx) (z / fy) over its
-      pixels) is under `min_area_cm2[c]` (0: none);
+      pixels) is under `min_area_cm2[c]` (0: none), or under `edge_share[c]` of it for a
+      blob with a pixel within `edge_px` of the image's edge;
     - every other `head` blob under `satellite_head_cm2` whose mean position ((u - cx) z / fx,
       (v - cy) z / fy) lies within `radius_cm` of a larger head blob's."""
     num_classes = len(min_area_cm2)
@@ -991,6 +993,10 @@ def islands_reference(
     area_cm2 = z**2 / (k.fx * k.fy) / 100.0
     relabelled = np.zeros(num_classes, np.int64)
     heads = []  # (area, x, y, mask) of head blobs not small
+    near_edge = np.zeros(z.shape, bool)
+    if edge_px > 0:
+        near_edge[:edge_px], near_edge[-edge_px:] = True, True
+        near_edge[:, :edge_px], near_edge[:, -edge_px:] = True, True
 
     def border_label(inside, c):
         votes = np.zeros(num_classes, np.int64)
@@ -1009,7 +1015,8 @@ def islands_reference(
         for b in range(1, n + 1):
             inside = blobs == b
             area = area_cm2[inside].sum()
-            if area >= min_area_cm2[c]:
+            share = 1.0 if edge_share is None or not near_edge[inside].any() else edge_share[c]
+            if area >= min_area_cm2[c] * share:
                 if c == head:
                     heads.append((area, x_mm[inside].mean(), y_mm[inside].mean(), inside))
                 continue

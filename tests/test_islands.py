@@ -12,6 +12,7 @@ from topseg.core.camera import Intrinsics
 from topseg.core.islands import (
     FURNITURE_ISLANDS,
     MAX_HEAD_ANCHORS,
+    edge_shares,
     island_areas,
     relabel_islands,
 )
@@ -307,3 +308,50 @@ def test_satellite_options_are_checked():
     for bad in ({"satellite_head_cm2": -1.0}, {"radius_cm": float("nan")}):
         with pytest.raises(ValueError, match="must be >= 0"):
             relabel_islands(labels, depth, K_CELL, island_areas(50.0, 0.0), **bad)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_small_blobs_at_the_image_edge_are_kept_as_the_reference_keeps_them(seed):
+    rng = np.random.default_rng(100 + seed)
+    shape = (int(rng.integers(20, 90)), int(rng.integers(20, 120)))
+    # blocks of 3 px or more: fewer head blobs than MAX_HEAD_ANCHORS, which the reference
+    # does not model
+    labels = blocky_labels(rng, shape, int(rng.integers(3, 7)), float(rng.uniform(0.1, 0.4)))
+    depth = rng.integers(400, 5000, size=shape).astype(np.uint16)
+    depth[labels == L.NO_DEPTH] = 0
+    areas = island_areas(50.0, 300.0)
+    kept_any = False
+    anywhere = rng.uniform(0.0, 1.0, L.NUM_CLASSES)
+    for edge_px, shares in ((1, edge_shares(0.0)), (2, edge_shares(0.2)), (3, anywhere)):
+        want, n_want, sat_want = islands_reference(
+            labels, depth, K, areas, L.NO_DEPTH, 150.0, SATELLITE_RADIUS_CM,
+            edge_px=edge_px, edge_share=shares,
+        )  # fmt: skip
+        got = labels.copy()
+        n_got, satellites = relabel_islands(
+            got, depth, K, areas, 150.0, SATELLITE_RADIUS_CM, edge_px, shares
+        )
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(n_got, n_want)
+        assert satellites == sat_want
+        plain = labels.copy()
+        n_plain, _ = relabel_islands(plain, depth, K, areas, 150.0, SATELLITE_RADIUS_CM)
+        kept_any |= bool(n_plain[L.HEAD] > n_got[L.HEAD])
+    assert kept_any  # the edge kept some small head the plain rule relabelled
+
+
+def test_a_head_cut_by_the_image_edge_keeps_its_label():
+    labels = np.full((60, 80), L.BODY, np.uint8)
+    labels[20:27, 0:7] = L.HEAD  # 7x7 px at 3 m: about 14 cm2, under the 50 cm2 minimum
+    labels[40:46, 30:36] = L.HEAD  # the same inside the view
+    labels[50:52, 78:80] = L.HEAD  # 2x2 px at the edge: about 1 cm2, under 0.2 x 50 cm2
+    depth = np.full(labels.shape, 3000, np.uint16)
+    got = labels.copy()
+    areas = island_areas(50.0, 0.0)
+    small, _ = relabel_islands(got, depth, K, areas, 0.0, 0.0, 2, edge_shares(0.2))
+    assert small[L.HEAD] == 2
+    assert (got[20:27, 0:7] == L.HEAD).all() and (got[40:46, 30:36] == L.BODY).all()
+    assert (got[50:52, 78:80] == L.BODY).all()
+    for bad in ({"edge_px": -1}, {"edge_share": np.full(L.NUM_CLASSES, 1.5)}):
+        with pytest.raises(ValueError, match="edge_"):
+            relabel_islands(labels.copy(), depth, K, areas, **bad)
