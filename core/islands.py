@@ -25,7 +25,7 @@ centre, takes its border's label the same way: two people's heads are not that c
 
 A blob within a few pixels of the image's edge (`segmenter.ISLAND_EDGE_PX`, 2) may be cut
 by it: a person walking in or out of view shows part of the head. Such a head blob is held
-to a share of the minimum (`segmenter.EDGE_HEAD_SHARE`, 0.2: 10 cm2 of the default 50).
+to a share of the minimum (`segmenter.EDGE_HEAD_SHARE`, 0.4: 20 cm2 of the default 50).
 On the walker stand-ins every head missed before lay at the edge, and there the rule had
 relabelled most of them (`docs/results.md`).
 

@@ -189,8 +189,8 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
         default=MIN_HEAD_CM2,
         metavar="A",
         help="after the CRF, blobs labelled head smaller than A cm2 on the surface (a whole "
-        "head seen from above is 200-300) take their border's label; 0 keeps them "
-        "(default: %(default)s)",
+        "head seen from above is 200-300) take their border's label, those at the image's "
+        "edge (cut by it) under 0.4 A; 0 keeps them (default: %(default)s)",
     )
     parser.add_argument(
         "--min-furniture-cm2",
