@@ -250,8 +250,10 @@ def test_legacy_path_is_bit_identical_to_before():
     gave: tests/data/legacy_model.npz and legacy_posteriors.npz were both made by that code
     (06e0f6e): the model trained on demo frames, its posteriors and realtime-CRF labels."""
     from topseg.core.forest.inputs import legacy_input
-    from topseg.core.islands import island_areas, relabel_islands
+    from topseg.core.islands import edge_shares, island_areas, relabel_islands
     from topseg.core.segmenter import (
+        EDGE_HEAD_SHARE,
+        ISLAND_EDGE_PX,
         MIN_FURNITURE_CM2,
         MIN_HEAD_CM2,
         SATELLITE_HEAD_CM2,
@@ -272,7 +274,10 @@ def test_legacy_path_is_bit_identical_to_before():
         # satellite heads (added since)
         want = lab.copy()
         areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
-        relabel_islands(want, depth, seg.camera, areas, SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM)
+        relabel_islands(
+            want, depth, seg.camera, areas, SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM,
+            ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
+        )  # fmt: skip
         np.testing.assert_array_equal(result.labels, want)
         assert result.floor_share == 0.0
 

@@ -271,7 +271,7 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
 
     from topseg.core import segmenter as S
     from topseg.core.holes import fill_holes
-    from topseg.core.islands import FURNITURE_ISLANDS, island_areas, relabel_islands
+    from topseg.core.islands import FURNITURE_ISLANDS, edge_shares, island_areas, relabel_islands
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.mcap"
     folder = tmp_path / "frames"
@@ -296,8 +296,9 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
         want = np.array(Image.open(tmp_path / "kept" / f"f{i}_labels.png"))
         depth, _ = fill_holes(depth, KINECT_V1)  # the rules measure the frame as labelled
         small, n = relabel_islands(
-            want, depth, KINECT_V1, areas, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM
-        )
+            want, depth, KINECT_V1, areas, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM,
+            S.ISLAND_EDGE_PX, edge_shares(S.EDGE_HEAD_SHARE),
+        )  # fmt: skip
         relabelled, satellites = relabelled + small, satellites + n
         got = np.asarray(Image.open(tmp_path / "cleaned" / f"f{i}_labels.png"))
         np.testing.assert_array_equal(got, want)
