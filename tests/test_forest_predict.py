@@ -12,6 +12,7 @@ from reference import (
     trees_walked_reference,
     upsample_reference,
 )
+from segmenter_rules import relabel_as_the_segmenter
 
 from topseg.core import labels
 from topseg.core.crf.argmax import Summary, argmax_confidence
@@ -250,16 +251,7 @@ def test_legacy_path_is_bit_identical_to_before():
     gave: tests/data/legacy_model.npz and legacy_posteriors.npz were both made by that code
     (06e0f6e): the model trained on demo frames, its posteriors and realtime-CRF labels."""
     from topseg.core.forest.inputs import legacy_input
-    from topseg.core.islands import edge_shares, island_areas, relabel_islands
-    from topseg.core.segmenter import (
-        EDGE_HEAD_SHARE,
-        ISLAND_EDGE_PX,
-        MIN_FURNITURE_CM2,
-        MIN_HEAD_CM2,
-        SATELLITE_HEAD_CM2,
-        SATELLITE_RADIUS_CM,
-        Segmenter,
-    )
+    from topseg.core.segmenter import Segmenter
 
     fx = np.load(DATA / "legacy_posteriors.npz", allow_pickle=False)
     seg = Segmenter.from_file(DATA / "legacy_model.npz", crf="realtime")
@@ -273,11 +265,7 @@ def test_legacy_path_is_bit_identical_to_before():
         # the labels of that code, then the blobs too small to be heads or furniture and the
         # satellite heads (added since)
         want = lab.copy()
-        areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
-        relabel_islands(
-            want, depth, seg.camera, areas, SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM,
-            ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
-        )  # fmt: skip
+        relabel_as_the_segmenter(want, depth, seg.camera)
         np.testing.assert_array_equal(result.labels, want)
         assert result.floor_share == 0.0
 

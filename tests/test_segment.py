@@ -6,6 +6,7 @@ import sys
 import numpy as np
 import pytest
 from PIL import Image
+from segmenter_rules import relabel_as_the_segmenter
 
 from topseg.core import forest
 from topseg.core.camera import KINECT_V1, TopViewMount, metres_to_mm
@@ -269,9 +270,8 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     relabelled; the counts are printed."""
     from pathlib import Path
 
-    from topseg.core import segmenter as S
     from topseg.core.holes import fill_holes
-    from topseg.core.islands import FURNITURE_ISLANDS, edge_shares, island_areas, relabel_islands
+    from topseg.core.islands import FURNITURE_ISLANDS
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.mcap"
     folder = tmp_path / "frames"
@@ -291,14 +291,10 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     assert kept.returncode == 0 == cleaned.returncode, kept.stderr + cleaned.stderr
     assert "relabelled" not in kept.stdout
     relabelled, satellites = np.zeros(11, np.int64), 0
-    areas = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
     for i, depth in enumerate(depths, 1):
         want = np.array(Image.open(tmp_path / "kept" / f"f{i}_labels.png"))
         depth, _ = fill_holes(depth, KINECT_V1)  # the rules measure the frame as labelled
-        small, n = relabel_islands(
-            want, depth, KINECT_V1, areas, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM,
-            S.ISLAND_EDGE_PX, edge_shares(S.EDGE_HEAD_SHARE),
-        )  # fmt: skip
+        small, n = relabel_as_the_segmenter(want, depth, KINECT_V1)
         relabelled, satellites = relabelled + small, satellites + n
         got = np.asarray(Image.open(tmp_path / "cleaned" / f"f{i}_labels.png"))
         np.testing.assert_array_equal(got, want)

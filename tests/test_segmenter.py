@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from segmenter_rules import relabel_as_the_segmenter
 
 from topseg.core import crf, forest
 from topseg.core import labels as L
@@ -13,23 +14,12 @@ from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
 from topseg.core.holes import fill_holes
-from topseg.core.islands import FURNITURE_ISLANDS, edge_shares, island_areas, relabel_islands
+from topseg.core.islands import FURNITURE_ISLANDS
 from topseg.core.scoring import score
 from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = KINECT_V1.scaled_to(40, 30)
-
-#: the Segmenter's default minimum areas, per class
-AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
-
-
-def relabel_as_the_segmenter(labels, depth, k):
-    """The Segmenter's islands by hand, in place: (small blobs per class, satellite heads)."""
-    return relabel_islands(
-        labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM,
-        S.ISLAND_EDGE_PX, edge_shares(S.EDGE_HEAD_SHARE),
-    )  # fmt: skip
 
 
 def demo_frames(n):

@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 import zenoh
 from netutil import free_port, wait_for
+from segmenter_rules import relabel_as_the_segmenter
 
 from topseg.core import crf, forest, metrics
 from topseg.core import labels as L
-from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
-from topseg.core.islands import FURNITURE_ISLANDS, edge_shares, island_areas, relabel_islands
-from topseg.core.segmenter import MIN_FURNITURE_CM2, MIN_HEAD_CM2
+from topseg.core.islands import FURNITURE_ISLANDS
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
 
@@ -39,11 +38,7 @@ def labelled_as_the_worker(model, depth):
     labels = crf.segment_crf(
         forest.predict_proba(model, depth), depth, crf.CRFConfig(mode="realtime")
     )
-    areas = island_areas(MIN_HEAD_CM2, MIN_FURNITURE_CM2)
-    n, satellites = relabel_islands(
-        labels, depth, K, areas, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM,
-        S.ISLAND_EDGE_PX, edge_shares(S.EDGE_HEAD_SHARE),
-    )  # fmt: skip
+    n, satellites = relabel_as_the_segmenter(labels, depth, K)
     return labels, (int(n[L.HEAD]), int(n[list(FURNITURE_ISLANDS)].sum()), satellites)
 
 

@@ -1,0 +1,18 @@
+"""The Segmenter's island rules applied by hand, with its default constants: the tests that
+rebuild its labels from the forest or the CRF (legacy path, segmenter, worker, segment) share
+this one call, so a new rule argument is added in one place."""
+
+from topseg.core import segmenter as S
+from topseg.core.islands import edge_shares, island_areas, relabel_islands
+
+#: the Segmenter's default minimum areas, per class
+AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
+
+
+def relabel_as_the_segmenter(labels, depth, k):
+    """The Segmenter's island rules on `labels`, in place (depth and intrinsics `k` measure
+    the blobs): (small blobs relabelled per class, satellite heads relabelled)."""
+    return relabel_islands(
+        labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM,
+        S.ISLAND_EDGE_PX, edge_shares(S.EDGE_HEAD_SHARE),
+    )  # fmt: skip
