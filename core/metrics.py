@@ -134,11 +134,10 @@ def person_scores(confusion: np.ndarray) -> dict:
     tp = c[np.ix_(person, person)].sum()
     fp = c[np.ix_(~person, person)].sum()
     fn = c[np.ix_(person, ~person)].sum()
-    precision = tp / (tp + fp) if tp + fp else math.nan
-    recall = tp / (tp + fn) if tp + fn else math.nan
-    f1 = 2 * precision * recall / (precision + recall) if precision + recall else math.nan
-    on_person = c[person].sum()
-    furn = c[np.ix_(person, furniture)].sum() / on_person if on_person else math.nan
+    precision = _share(tp, tp + fp)
+    recall = _share(tp, tp + fn)
+    f1 = _share(2 * precision * recall, precision + recall)
+    furn = _share(c[np.ix_(person, furniture)].sum(), c[person].sum())
     return {
         "person_precision": float(precision),
         "person_recall": float(recall),
@@ -166,13 +165,9 @@ def head_detections(truth: np.ndarray, pred: np.ndarray) -> tuple[int, int, int,
     of them; sizes and shares count head pixels only. A predicted blob is correct when
     HEAD_HIT_SHARE of it is true head, and a true head is found when HEAD_FOUND_SHARE of it
     is labelled head."""
-    (predicted, _), (true, _) = head_blobs(truth, pred)
-    return (
-        int((predicted >= HEAD_HIT_SHARE).sum()),
-        int(predicted.size),
-        int((true >= HEAD_FOUND_SHARE).sum()),
-        int(true.size),
-    )
+    heads = HeadDetections()
+    heads.add(truth, pred)
+    return heads.correct, heads.predicted, heads.found, heads.true
 
 
 def head_blobs(
@@ -242,22 +237,22 @@ class HeadDetections:
     @property
     def precision(self) -> float:
         """Share of the predicted head blobs that are heads (NaN with none predicted)."""
-        return self.correct / self.predicted if self.predicted else math.nan
+        return _share(self.correct, self.predicted)
 
     @property
     def recall(self) -> float:
         """Share of the true heads found (NaN with none in the truth)."""
-        return self.found / self.true if self.true else math.nan
+        return _share(self.found, self.true)
 
     @property
     def border_precision(self) -> float:
         """Precision of the predicted blobs that touch the image's border (NaN: none)."""
-        return self.border_correct / self.border_predicted if self.border_predicted else math.nan
+        return _share(self.border_correct, self.border_predicted)
 
     @property
     def border_recall(self) -> float:
         """Recall of the true heads that touch the image's border (NaN: none)."""
-        return self.border_found / self.border_true if self.border_true else math.nan
+        return _share(self.border_found, self.border_true)
 
     def to_dict(self) -> dict:
         """Counts, precision and recall as JSON-able numbers (None for NaN)."""
@@ -278,6 +273,11 @@ class HeadDetections:
             f"{_fmt(self.border_precision)} ({self.border_correct} of {self.border_predicted}), "
             f"recall {_fmt(self.border_recall)} ({self.border_found} of {self.border_true})"
         )
+
+
+def _share(part: float, whole: float) -> float:
+    """part / whole; NaN when whole is 0, nothing to count (`_ratio` does it for arrays)."""
+    return part / whole if whole else math.nan
 
 
 def _fmt(x: float) -> str:
