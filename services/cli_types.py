@@ -176,6 +176,7 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
     cm2 inside one surface take its depth (`fill_holes_cm2`). `island_config` reads them
     back."""
     from topseg.core.segmenter import (
+        EDGE_HEAD_SHARE,
         FILL_HOLES_CM2,
         MIN_FURNITURE_CM2,
         MIN_HEAD_CM2,
@@ -190,7 +191,7 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="A",
         help="after the CRF, blobs labelled head smaller than A cm2 on the surface (a whole "
         "head seen from above is 200-300) take their border's label, those at the image's "
-        "edge (cut by it) under 0.4 A; 0 keeps them (default: %(default)s)",
+        f"edge (cut by it) under {EDGE_HEAD_SHARE:g} A; 0 keeps them (default: %(default)s)",
     )
     parser.add_argument(
         "--min-furniture-cm2",
