@@ -200,7 +200,14 @@ class OneDriverPerCamera:
     the peers settled, and again whenever a new token appears (two drivers started at once,
     each too early to see the other: the younger one stops). A token nobody answers for (a
     host gone, until Zenoh's lease ends; a crashed process's token goes with its connection,
-    so restarts start) is only warned about."""
+    so restarts start) is only warned about, and asked again after `RECHECK_S`, then after
+    twice as long each time up to `RECHECK_MAX_S`, while its token lives: an answer lost
+    under load does not leave two drivers running for good."""
+
+    #: First wait before a driver whose token lives but who did not answer is asked again.
+    RECHECK_S = 2.0
+    #: The longest wait between two such questions (each can hold the loop `QUERY_S`).
+    RECHECK_MAX_S = 30.0
 
     def __init__(self, session, args: argparse.Namespace, me, state: DriverState) -> None:
         from topseg.core.formats import wire
@@ -211,6 +218,8 @@ class OneDriverPerCamera:
         self.others: set[str] = set()
         self.appeared = threading.Event()
         self.said: set[str] = set()
+        self.recheck_s = self.RECHECK_S
+        self.recheck_at: float | None = None  # monotonic time to ask silent drivers again
         self.subscriber = session.liveliness().declare_subscriber(
             f"{self.token}/*", self._on_token, history=True
         )
@@ -248,8 +257,10 @@ class OneDriverPerCamera:
         self.check(identity.other_instances(self.session, self.token, self.me.instance))
 
     def poll(self) -> None:
-        """From the publishing loop: `check` again once a new driver token appeared."""
-        if self.appeared.is_set():
+        """From the publishing loop: `check` again once a new driver token appeared, or when
+        it is time to ask a silent one again."""
+        due = self.recheck_at is not None and time.monotonic() >= self.recheck_at
+        if self.appeared.is_set() or due:
             self.appeared.clear()
             self.check(set())
 
@@ -262,6 +273,7 @@ class OneDriverPerCamera:
         with self.lock:
             others = found | self.others
         if not others:
+            self.recheck_at, self.recheck_s = None, self.RECHECK_S
             return
         answering = {}
         replies = self.session.get(
@@ -287,12 +299,18 @@ class OneDriverPerCamera:
                 f"{inst} (pid {info.get('pid')} on {info.get('host')}, source "
                 f"{info.get('source')}); stop it or give this one another --camera"
             )
-        silent = sorted(others - set(answering) - self.said)
+        unanswered = others - set(answering)
+        if unanswered:
+            self.recheck_at = time.monotonic() + self.recheck_s
+            self.recheck_s = min(2 * self.recheck_s, self.RECHECK_MAX_S)
+        else:
+            self.recheck_at, self.recheck_s = None, self.RECHECK_S
+        silent = sorted(unanswered - self.said)
         if silent:
             self.said.update(silent)
             log.warning(
                 "a liveliness token of driver %s for %s/%s is there but that driver does not "
-                "answer (gone, until Zenoh's lease ends); going on",
+                "answer (gone, until Zenoh's lease ends, or slow); going on, asking again",
                 ", ".join(silent),
                 self.args.cell,
                 self.args.camera,
@@ -362,12 +380,12 @@ def run(args: argparse.Namespace) -> int:
         publish = dict(congestion_control=congestion[args.congestion], express=True)
         depth_pub = session.declare_publisher(keys["depth"], **publish)
         truth_pub = session.declare_publisher(keys["truth"], **publish)
-        svc.declare(session.liveliness().declare_token(keys["alive"]))
-        svc.declare(
+        svc.declare(  # before the token: a driver that sees the token can ask at once
             session.declare_queryable(
                 keys["info"], lambda query: query.reply(keys["info"], state.to_json())
             )
         )
+        svc.declare(session.liveliness().declare_token(keys["alive"]))
 
         def on_open(source) -> None:
             fields = source.info()

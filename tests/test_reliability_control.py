@@ -97,6 +97,81 @@ def test_two_drivers_started_at_once_end_with_one(run, recording):
     assert left.stop() == 0, left.err
 
 
+def test_a_driver_that_did_not_answer_once_is_asked_again_and_the_younger_stops():
+    """In process, real Zenoh on loopback: an older driver's token is there but its `info`
+    answer to the first question is lost (as under load); the younger driver warns, goes on,
+    asks again `RECHECK_S` later and then stops, instead of running beside it for good."""
+    import argparse
+
+    from topseg.core.errors import TopsegError
+    from topseg.services import identity
+    from topseg.services.driver import DriverState, OneDriverPerCamera
+
+    port, cell = free_port(), "dup5"
+    older, younger = open_session(port=port), open_session(port=port)
+    asked = []
+
+    def answer_all_but_the_first(query):
+        asked.append(time.monotonic())
+        if len(asked) > 1:
+            info = {"instance": IMPOSTOR, "started_ns": 1, "pid": 1, "host": "h", "source": "s"}
+            query.reply(wire.info_key(cell, "cam0"), json.dumps(info).encode())
+
+    queryable = older.declare_queryable(wire.info_key(cell, "cam0"), answer_all_but_the_first)
+    token = older.liveliness().declare_token(wire.alive_key(cell, "cam0", "driver", IMPOSTOR))
+    args = argparse.Namespace(cell=cell, camera="cam0", source="s", fps=None, congestion="drop")
+    state = DriverState(args, {})
+    one = OneDriverPerCamera(younger, args, identity.Identity.of(younger), state)
+    try:
+        wait_for(lambda: IMPOSTOR in one.others, 20, "the older driver's token")
+        one.at_start()  # the first question: no answer, a warning, no error
+        assert len(asked) == 1 and one.recheck_at is not None
+        with pytest.raises(TopsegError, match=f"already served by driver {IMPOSTOR}"):
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                one.poll()
+                time.sleep(0.05)
+        assert len(asked) == 2
+        assert asked[1] - asked[0] >= OneDriverPerCamera.RECHECK_S - 0.1
+    finally:
+        one.undeclare()
+        token.undeclare(), queryable.undeclare()
+        younger.close(), older.close()
+
+
+def test_a_silent_driver_is_asked_less_often_and_not_at_all_once_its_token_goes():
+    """The waits between questions to a driver that never answers double up to
+    `RECHECK_MAX_S`; when its token goes (its lease ended) the questions stop."""
+    import argparse
+
+    from topseg.services import identity
+    from topseg.services.driver import DriverState, OneDriverPerCamera
+
+    port, cell = free_port(), "dup6"
+    older, younger = open_session(port=port), open_session(port=port)
+    token = older.liveliness().declare_token(wire.alive_key(cell, "cam0", "driver", IMPOSTOR))
+    args = argparse.Namespace(cell=cell, camera="cam0", source="s", fps=None, congestion="drop")
+    one = OneDriverPerCamera(younger, args, identity.Identity.of(younger), DriverState(args, {}))
+    try:
+        wait_for(lambda: IMPOSTOR in one.others, 20, "the silent driver's token")
+        waits = []
+        for _ in range(6):
+            before = time.monotonic()
+            one.check(set())
+            waits.append(one.recheck_at - before)
+        first, most = OneDriverPerCamera.RECHECK_S, OneDriverPerCamera.RECHECK_MAX_S
+        expected = [min(first * 2**i, most) for i in range(6)]  # 2, 4, 8, 16, 30, 30 s
+        slack = identity.QUERY_S + 1  # the question itself comes before the wait
+        assert all(e <= w <= e + slack for e, w in zip(expected, waits, strict=True)), waits
+        token.undeclare()
+        wait_for(lambda: IMPOSTOR not in one.others, 20, "the token's deletion")
+        one.check(set())
+        assert one.recheck_at is None and one.recheck_s == OneDriverPerCamera.RECHECK_S
+    finally:
+        one.undeclare()
+        younger.close(), older.close()
+
+
 class Impostor:
     """A second publisher of one camera's depth as a second driver would be: its own token
     `.../alive/driver/IMPOSTOR` and frames (seq from 10000) with its attachment, 15 a second."""
