@@ -239,32 +239,52 @@ def markdown(report: dict) -> str:
 
 
 def figure(report: dict, path: Path) -> None:
-    """Heat maps of avg F1 per model: sensors by mounts, numbers in the cells."""
+    """Heat maps per model, sensors by mounts: each cell's avg F1 (and its gap to the model's
+    reference cell) in numbers, coloured by that gap; a red frame round each cell that misses
+    the issue's targets (further than MAX_GAP from the reference, or below MIN_F1)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.patches import Rectangle
 
     names = list(report["cells"])
-    fig, axes = plt.subplots(1, len(names), figsize=(6.5 * len(names), 3.6), squeeze=False)
-    fig.subplots_adjust(left=0.1, right=0.86, wspace=0.45)
+    fig, axes = plt.subplots(1, len(names), figsize=(6.5 * len(names), 3.9), squeeze=False)
+    fig.subplots_adjust(left=0.1, right=0.86, wspace=0.45, bottom=0.2)
     labels = [f"{h:.1f} m\n{t:.0f} deg" for h, t in report["mounts"]]
+    span = 0.15
     for ax, name in zip(axes[0], names, strict=True):
         cells = report["cells"][name]
-        grid = np.array(
-            [[c["avg_f1"] for c in cells if c["sensor"] == s] for s in report["sensors"]]
+        ref = next(
+            (
+                c["avg_f1"]
+                for c in cells
+                if (c["sensor"], c["height_m"], c["tilt_deg"]) == REFERENCE
+            ),
+            math.nan,
         )
-        im = ax.imshow(grid, vmin=0.0, vmax=1.0, cmap="viridis")
+        rows = [[c for c in cells if c["sensor"] == s] for s in report["sensors"]]
+        grid = np.array([[c["avg_f1"] for c in row] for row in rows])
+        im = ax.imshow(grid - ref, vmin=-span, vmax=span, cmap="RdBu")
         for (i, j), v in np.ndenumerate(grid):
-            ax.text(j, i, f"{v:.2f}", ha="center", va="center",
-                    color="white" if v < 0.6 else "black", fontsize=9)  # fmt: skip
+            c = rows[i][j]
+            is_ref = (c["sensor"], c["height_m"], c["tilt_deg"]) == REFERENCE
+            text = f"{v:.3f}\nreference" if is_ref else f"{v:.3f}\n{v - ref:+.3f}"
+            ax.text(j, i, text, ha="center", va="center", fontsize=8,
+                    fontweight="bold" if is_ref else "normal",
+                    color="white" if abs(v - ref) > 0.6 * span else "black")  # fmt: skip
+            if abs(v - ref) > MAX_GAP or v < MIN_F1:
+                ax.add_patch(Rectangle((j - 0.46, i - 0.46), 0.92, 0.92, fill=False,
+                                       edgecolor="red", linewidth=2))  # fmt: skip
         ax.set_xticks(range(len(labels)), labels, fontsize=8)
         ax.set_yticks(range(len(report["sensors"])), report["sensors"], fontsize=8)
         model = report["models"][name]
         title = model.get("label") or f"{model['path']} (downsample {model.get('downsample', 1)})"
         ax.set_title(f"{name}: {title}", fontsize=9)
-    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="avg F1 (realtime CRF)")
+    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="avg F1 minus the reference cell")
+    fig.text(0.1, 0.03, f"realtime CRF, {report['frames_per_cell']} frames a cell; red frame: "
+             f"more than {MAX_GAP} from the reference cell or below {MIN_F1:.2f}", fontsize=8)  # fmt: skip
     with _atomic(path) as f:
         fig.savefig(f, format="png", dpi=110)
     plt.close(fig)
