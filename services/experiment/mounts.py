@@ -255,21 +255,14 @@ def figure(report: dict, path: Path) -> None:
     labels = [f"{h:.1f} m\n{t:.0f} deg" for h, t in report["mounts"]]
     span = 0.15
     for ax, name in zip(axes[0], names, strict=True):
-        cells = report["cells"][name]
-        ref = next(
-            (
-                c["avg_f1"]
-                for c in cells
-                if (c["sensor"], c["height_m"], c["tilt_deg"]) == REFERENCE
-            ),
-            math.nan,
-        )
-        rows = [[c for c in cells if c["sensor"] == s] for s in report["sensors"]]
-        grid = np.array([[c["avg_f1"] for c in row] for row in rows])
+        cells = [Cell(**c) for c in report["cells"][name]]
+        ref = reference_f1(cells)
+        rows = [[c for c in cells if c.sensor == s] for s in report["sensors"]]
+        grid = np.array([[c.avg_f1 for c in row] for row in rows])
         im = ax.imshow(grid - ref, vmin=-span, vmax=span, cmap="RdBu")
         for (i, j), v in np.ndenumerate(grid):
             c = rows[i][j]
-            is_ref = (c["sensor"], c["height_m"], c["tilt_deg"]) == REFERENCE
+            is_ref = (c.sensor, c.height_m, c.tilt_deg) == REFERENCE
             text = f"{v:.3f}\nreference" if is_ref else f"{v:.3f}\n{v - ref:+.3f}"
             ax.text(j, i, text, ha="center", va="center", fontsize=8,
                     fontweight="bold" if is_ref else "normal",
