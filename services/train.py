@@ -35,6 +35,8 @@ log = logging.getLogger("topseg.train")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg train`'s options; `TrainJob.from_args` turns them into a job."""
+    from topseg.core.forest.features import OFF_IMAGE_READS
+
     parser.add_argument(
         "--data", required=True, type=Path, help="dataset written by `topseg datagen`"
     )
@@ -61,6 +63,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=finite(0, 1),
         default=0.0,
         help="share of the pool comparing a probe with a fixed depth (not in the paper; 0)",
+    )
+    g.add_argument(
+        "--off-image",
+        choices=OFF_IMAGE_READS,
+        default="nearest",
+        help="what a probe off the image reads: the nearest pixel on the image's edge "
+        "(default; a person cut by the edge reads as going on), or the background "
+        "constant (models before the twentieth session)",
     )
     g.add_argument("--seed", type=non_negative_int, default=0)
     g.add_argument(
@@ -103,6 +113,7 @@ OPTION_OF = {
     "split": "--split",
     "n_features": "--features",
     "absolute_fraction": "--absolute-fraction",
+    "off_image": "--off-image",
 }
 
 
@@ -162,7 +173,9 @@ class TrainJob:
                 n_thresholds=args.thresholds,
                 split=args.split,
                 features=FeatureConfig(
-                    n_features=args.features, absolute_fraction=args.absolute_fraction
+                    n_features=args.features,
+                    absolute_fraction=args.absolute_fraction,
+                    off_image=args.off_image,
                 ),
             )
         except ValueError as exc:

@@ -278,11 +278,14 @@ def kinect_reference(
 # --- depth-difference features and forest inference ------------------------------------------
 
 
-def probe_reference(depth, r, c, inv_d, dr, dc, background):
-    """`features.probe`, vectorised: the same float32 arithmetic as the kernel."""
+def probe_reference(depth, r, c, inv_d, dr, dc, background, nearest=False):
+    """`features.probe`, vectorised: the same float32 arithmetic as the kernel. Off the
+    image: the nearest edge pixel when `nearest`, else `background`."""
     pr = r + np.floor(dr * inv_d + np.float32(0.5)).astype(np.int64)
     pc = c + np.floor(dc * inv_d + np.float32(0.5)).astype(np.int64)
     h, w = depth.shape
+    if nearest:
+        pr, pc = np.clip(pr, 0, h - 1), np.clip(pc, 0, w - 1)
     inside = (pr >= 0) & (pc >= 0) & (pr < h) & (pc < w)
     z = np.full(np.broadcast(pr, pc).shape, background, np.int64)
     z[inside] = depth[pr[inside], pc[inside]]
@@ -290,12 +293,12 @@ def probe_reference(depth, r, c, inv_d, dr, dc, background):
     return z
 
 
-def far_probe_reference(values, r, c, inv_d, dr, dc, background):
+def far_probe_reference(values, r, c, inv_d, dr, dc, background, nearest=False):
     """The v probe of a feature: `probe_reference`, or `background` where the offset is far
     (a component of `features.FAR_OFFSET` or more: off every image by definition)."""
     from topseg.core.forest.features import FAR_OFFSET
 
-    z = probe_reference(values, r, c, inv_d, dr, dc, background)
+    z = probe_reference(values, r, c, inv_d, dr, dc, background, nearest)
     far = (np.abs(dr) >= FAR_OFFSET) | (np.abs(dc) >= FAR_OFFSET)
     return np.where(far, background, z)
 
@@ -350,22 +353,23 @@ def model_input_float32_reference(depth, mount, features, margin):
     return values, scale, floor
 
 
-def extract_reference(frame, rows, cols, offsets, background):
+def extract_reference(frame, rows, cols, offsets, background, nearest=False):
     """`features.extract_features`: (n, PC) int16 probe differences at (rows, cols)."""
     values, scale, _ = reference_input(frame)
     inv_d = scale[rows, cols].astype(np.float32)
     r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
-    u = probe_reference(values, r, c, inv, offsets[None, :, 0], offsets[None, :, 1], background)
-    v = far_probe_reference(values, r, c, inv, offsets[None, :, 2], offsets[None, :, 3], background)
+    u_off, v_off = offsets[None, :, :2], offsets[None, :, 2:]
+    u = probe_reference(values, r, c, inv, u_off[..., 0], u_off[..., 1], background, nearest)
+    v = far_probe_reference(values, r, c, inv, v_off[..., 0], v_off[..., 1], background, nearest)
     return (u - v).astype(np.int16)
 
 
-def response_reference(frame, offsets, weights, background):
+def response_reference(frame, offsets, weights, background, nearest=False):
     """One node's response at every pixel with a value (NaN elsewhere), float32 in feature
     order."""
     values, _, _ = reference_input(frame)
     rows, cols = np.nonzero(values)
-    f = extract_reference(frame, rows, cols, offsets, background)
+    f = extract_reference(frame, rows, cols, offsets, background, nearest)
     acc = np.zeros(rows.size, np.float32)
     for j in range(weights.size):  # float32, feature by feature, like the kernel
         acc = acc + weights[j] * f[:, j].astype(np.float32)
@@ -382,7 +386,7 @@ def walked_pixels(frame):
 
 def apply_reference(forest: Forest, frame) -> np.ndarray:
     """(T, n) leaf reached by each walked pixel (`walked_pixels`, row-major) in each tree."""
-    bg = forest.background_mm
+    bg, near = forest.background_mm, forest.nearest_off_image
     values, scale, _ = reference_input(frame)
     rows, cols = walked_pixels(frame)
     inv = scale[rows, cols].astype(np.float32)
@@ -398,8 +402,8 @@ def apply_reference(forest: Forest, frame) -> np.ndarray:
             r, c, s = rows[idx], cols[idx], inv[idx]
             for j in range(forest.features_per_node):
                 off = forest.offsets[nd, j]
-                u = probe_reference(values, r, c, s, off[:, 0], off[:, 1], bg)
-                v = far_probe_reference(values, r, c, s, off[:, 2], off[:, 3], bg)
+                u = probe_reference(values, r, c, s, off[:, 0], off[:, 1], bg, near)
+                v = far_probe_reference(values, r, c, s, off[:, 2], off[:, 3], bg, near)
                 resp = resp + forest.weights[nd, j] * (u - v).astype(np.float32)
             node[idx] = forest.left[nd] + np.where(resp < forest.threshold[nd], 0, 1)
         leaves.append(node)

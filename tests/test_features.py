@@ -14,29 +14,33 @@ def random_depth(rng, shape=(37, 53), zero_fraction=0.1, hi=12000):
     return depth
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("seed", range(4))
-def test_extract_features_matches_reference(seed):
+def test_extract_features_matches_reference(seed, nearest):
     rng = np.random.default_rng(seed)
     config = FeatureConfig(n_features=40, patch_px=int(rng.integers(4, 80)))
     depth = random_depth(rng, hi=int(rng.choice([5000, 12000])))
     offsets = features.sample_offsets(config, rng)
     rows, cols = np.nonzero(depth)
     pick = rng.choice(rows.size, 200, replace=False)
-    got = features.extract_features(depth, rows[pick], cols[pick], offsets, config.background_mm)
-    want = extract_reference(depth, rows[pick], cols[pick], offsets, config.background_mm)
+    r, c, bg = rows[pick], cols[pick], config.background_mm
+    got = features.extract_features(depth, r, c, offsets, bg, nearest=nearest)
+    want = extract_reference(depth, r, c, offsets, bg, nearest)
     assert got.dtype == np.int16
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("k", [1, 2, 3])
-def test_node_response_matches_reference(k):
+def test_node_response_matches_reference(k, nearest):
     rng = np.random.default_rng(k)
     config = FeatureConfig(patch_px=48)
     depth = random_depth(rng)
     offsets = features.sample_offsets(FeatureConfig(n_features=k, patch_px=48), rng)
     weights = features.random_unit_vectors(rng, 1, k)[0]
-    got = features.node_response_image(depth, offsets, weights, config.background_mm)
-    want = response_reference(depth, offsets, weights, config.background_mm)
+    bg = config.background_mm
+    got = features.node_response_image(depth, offsets, weights, bg, nearest)
+    want = response_reference(depth, offsets, weights, bg, nearest)
     np.testing.assert_array_equal(np.isnan(got), depth == 0)
     np.testing.assert_array_equal(got, want)
 
@@ -55,6 +59,22 @@ def test_probes_off_image_or_on_no_depth_read_background():
     depth[5, 6] = 15000
     off = np.array([[0, 1 * 2000, 0, 0]], np.float32)
     assert features.extract_features(depth, [5], [5], off, bg)[0, 0] == bg - 2000
+
+
+def test_probes_off_image_read_the_nearest_edge_pixel_when_asked():
+    """`off_image` "nearest": a surface cut by the image's edge reads as going on beyond it;
+    a no-depth edge pixel still reads background, and so does a far v offset."""
+    depth = np.full((10, 10), 3000, np.uint16)
+    depth[:, 0] = 2000  # the left column: a person cut by the image's edge
+    depth[0, 5] = 0
+    bg = 10000
+    left = np.array([[0, -40 * 2000, 0, 0]], np.float32)  # u far left of (5, 5), v on it
+    assert features.extract_features(depth, [5], [5], left, bg, nearest=True)[0, 0] == -1000
+    assert features.extract_features(depth, [5], [5], left, bg)[0, 0] == bg - 3000
+    up = np.array([[-40 * 2000, 0, 0, 0]], np.float32)  # lands on the no-depth (0, 5)
+    assert features.extract_features(depth, [5], [5], up, bg, nearest=True)[0, 0] == bg - 3000
+    far = np.array([[0, 0, features.OFF_IMAGE, 0]], np.float32)
+    assert features.extract_features(depth, [5], [5], far, bg, nearest=True)[0, 0] == 3000 - bg
 
 
 def test_offsets_are_depth_invariant():
@@ -116,6 +136,11 @@ def test_bad_input_is_refused():
 def test_config_round_trip():
     c = FeatureConfig(n_features=75, patch_px=32)
     assert FeatureConfig.from_dict(c.to_dict()) == c
+    assert c.off_image == "nearest" and c.nearest_off_image
+    b = FeatureConfig(off_image="background")
+    assert FeatureConfig.from_dict(b.to_dict()) == b and not b.nearest_off_image
+    with pytest.raises(ValueError, match="off_image"):
+        FeatureConfig(off_image="mirror")
 
 
 def test_old_feature_configs_load_with_the_new_defaults():
@@ -139,8 +164,10 @@ def test_features_of_a_model_input_match_reference(seed):
     inp = ModelInput(values, scale, np.zeros(depth.shape, bool))
     offsets = features.sample_offsets(FeatureConfig(n_features=30), rng)
     rows, cols = np.nonzero(values)
-    got = features.extract_features(inp, rows, cols, offsets, 10000)
-    np.testing.assert_array_equal(got, extract_reference(inp, rows, cols, offsets, 10000))
-    w = features.random_unit_vectors(rng, 1, 2)[0]
-    got = features.node_response_image(inp, offsets[:2], w, 10000)
-    np.testing.assert_array_equal(got, response_reference(inp, offsets[:2], w, 10000))
+    for nearest in (False, True):
+        got = features.extract_features(inp, rows, cols, offsets, 10000, nearest=nearest)
+        want = extract_reference(inp, rows, cols, offsets, 10000, nearest)
+        np.testing.assert_array_equal(got, want)
+        w = features.random_unit_vectors(rng, 1, 2)[0]
+        got = features.node_response_image(inp, offsets[:2], w, 10000, nearest)
+        np.testing.assert_array_equal(got, response_reference(inp, offsets[:2], w, 10000, nearest))

@@ -1,5 +1,6 @@
 """Forest inference: the numba kernels against a plain numpy traversal on random forests."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -43,9 +44,11 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
 
 
-def random_forest(seed, k, depths=(3, 6, 5), scale=300.0):
+def random_forest(seed, k, depths=(3, 6, 5), scale=300.0, nearest=False):
+    """A random forest whose probes off the image read background, or the nearest edge pixel."""
     rng = np.random.default_rng(seed)
-    return Forest.from_trees([random_tree(rng, d, k, 40 * 2500.0, scale) for d in depths])
+    forest = Forest.from_trees([random_tree(rng, d, k, 40 * 2500.0, scale) for d in depths])
+    return dataclasses.replace(forest, nearest_off_image=nearest)
 
 
 def random_depth(seed, shape=(29, 41)):
@@ -56,19 +59,21 @@ def random_depth(seed, shape=(29, 41)):
     return depth
 
 
+@pytest.mark.parametrize("nearest", [False, True])  # off the image: background, the edge
 @pytest.mark.parametrize("max_pad", [MAX_PAD, 0])  # a wide border, or probes clamped
 @pytest.mark.parametrize("k", [1, 2, 3])
 @pytest.mark.parametrize("seed", range(3))
-def test_predict_matches_reference(k, seed, max_pad):
-    forest = random_forest(seed, k)
+def test_predict_matches_reference(k, seed, max_pad, nearest):
+    forest = random_forest(seed, k, nearest=nearest)
     depth = random_depth(seed + 10)
     got = predict_proba(forest, depth, max_pad=max_pad)
     np.testing.assert_array_equal(got, predict_reference(forest, depth))
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("k", [1, 2])
-def test_apply_matches_reference(k):
-    forest = random_forest(20 + k, k)
+def test_apply_matches_reference(k, nearest):
+    forest = random_forest(20 + k, k, nearest=nearest)
     depth = random_depth(30 + k)
     leaves = apply(forest, depth)
     assert leaves.shape == (forest.n_trees, *depth.shape)
@@ -219,10 +224,11 @@ def random_input(seed, shape=(29, 41)):
     return ModelInput(values, scale, floor)
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("max_pad", [MAX_PAD, 0])
 @pytest.mark.parametrize("k", [1, 2, 3])
-def test_predict_on_a_model_input_matches_reference(k, max_pad):
-    forest = random_forest(40 + k, k)
+def test_predict_on_a_model_input_matches_reference(k, max_pad, nearest):
+    forest = random_forest(40 + k, k, nearest=nearest)
     inp = random_input(50 + k)
     got = predict_proba(forest, inp, max_pad=max_pad)
     np.testing.assert_array_equal(got, predict_reference(forest, inp))
@@ -297,10 +303,12 @@ def ragged_tree(rng, depth, k, off_image_share=0.3):
     )
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("k", [1, 2, 3])
-def test_ragged_trees_with_off_image_probes_match_reference(k):
+def test_ragged_trees_with_off_image_probes_match_reference(k, nearest):
     rng = np.random.default_rng(100 + k)
     forest = Forest.from_trees([ragged_tree(rng, d, k) for d in (9, 4, 12)])
+    forest = dataclasses.replace(forest, nearest_off_image=nearest)
     depths = node_depths(forest.left, forest.roots)[forest.left < 0]
     assert depths.min() < depths.max() - 3  # leaves at many levels
     assert np.any(forest.offsets == OFF_IMAGE)
@@ -505,16 +513,20 @@ def test_realtime_crf_labels_a_lazy_grid_as_it_labels_the_eager_one(seed, monkey
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("pad", [1, 3, 40])
 @pytest.mark.parametrize("shape", [(1, 1), (7, 5), (31, 45)])
-def test_the_padded_probe_image_is_the_values_with_a_background_border(shape, pad):
+def test_the_padded_probe_image_is_the_values_with_a_background_or_edge_border(shape, pad, nearest):
     rng = np.random.default_rng(shape[0])
     values = rng.integers(0, 12000, size=shape).astype(np.uint16)
     values[rng.random(shape) < 0.2] = 0
     background = 10000
     inside = np.where((values != 0) & (values <= background), values, background)
-    want = np.pad(inside, pad, constant_values=background).astype(np.uint16).ravel()
-    got = _padded(values, np.int32(background), np.int32(pad))
+    if nearest:
+        want = np.pad(inside, pad, mode="edge").astype(np.uint16).ravel()
+    else:
+        want = np.pad(inside, pad, constant_values=background).astype(np.uint16).ravel()
+    got = _padded(values, np.int32(background), np.int32(pad), nearest)
     assert got.dtype == np.uint16
     np.testing.assert_array_equal(got, want)
 
@@ -536,11 +548,12 @@ def test_the_probe_pad_bounds_every_rounded_probe(seed):
     assert probe_pad(np.inf, scale) == np.inf
 
 
+@pytest.mark.parametrize("nearest", [False, True])
 @pytest.mark.parametrize("k", [1, 2])
-def test_a_frame_whose_probes_reach_past_the_border_is_walked_with_clamped_probes(k):
+def test_a_frame_whose_probes_reach_past_the_border_is_walked_with_clamped_probes(k, nearest):
     """Pixels a few cm from the camera move probes farther than MAX_PAD: the kernel then
     clamps them, with the reference's results; so does a forest whose offsets reach far."""
-    forest = random_forest(60 + k, k)
+    forest = random_forest(60 + k, k, nearest=nearest)
     inp = random_input(70 + k)
     scale = inp.scale.copy()
     scale[3:6, 4:9] = np.where(scale[3:6, 4:9] > 0, np.float32(1 / 20.0), 0)  # 2 cm away

@@ -1,6 +1,7 @@
 """Forest training: every numba kernel (criterion, splitter, builder) against a plain
 numpy/Python reference, then whole trees, bit for bit against trees saved before the split."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -300,9 +301,11 @@ FIXTURE = Path(__file__).parent / "data" / "small_trees.npz"
 @pytest.mark.parametrize(("split", "seed"), [("linear", 3), ("axis", 5)])
 def test_trees_match_those_trained_before_the_split_into_criterion_splitter_builder(split, seed):
     """tests/data/small_trees.npz holds trees trained on `small_frames()` with SMALL by the
-    single-module trainer (issue 13, before criterion/splitter/builder): the same bits now."""
+    single-module trainer (issue 13, before criterion/splitter/builder): the same bits now,
+    with probes off the image reading the background as they did then."""
     depth, lab = small_frames()
-    config = ft.TrainConfig(**{**SMALL.to_dict(), "split": split, "features": SMALL.features})
+    then = dataclasses.replace(SMALL.features, off_image="background")
+    config = ft.TrainConfig(**{**SMALL.to_dict(), "split": split, "features": then})
     tree = ft.train_tree(depth, lab, config, seed=seed)
     with np.load(FIXTURE) as saved:
         names = sorted(k.removeprefix(f"{split}_") for k in saved.files if k.startswith(split))
@@ -310,3 +313,13 @@ def test_trees_match_those_trained_before_the_split_into_criterion_splitter_buil
         for name, arr in tree.arrays().items():
             np.testing.assert_array_equal(arr, saved[f"{split}_{name}"], err_msg=name)
             assert arr.dtype == saved[f"{split}_{name}"].dtype, name
+
+
+def test_a_tree_reads_probes_off_the_image_as_its_features_say():
+    """The builder passes `FeatureConfig.off_image` to the tree, so inference reads probes off
+    the image as training did; the default is the nearest edge pixel."""
+    depth, lab = small_frames()
+    assert ft.train_tree(depth, lab, SMALL, seed=0).nearest_off_image is True
+    then = dataclasses.replace(SMALL.features, off_image="background")
+    config = ft.TrainConfig(**{**SMALL.to_dict(), "features": then})
+    assert ft.train_tree(depth, lab, config, seed=0).nearest_off_image is False

@@ -1,5 +1,6 @@
 """Model file: exact round trip; truncated, damaged, foreign and wrong-version files refused."""
 
+import dataclasses
 import json
 import struct
 import zipfile
@@ -191,6 +192,7 @@ def test_a_height_models_header_round_trips(tmp_path):
     from topseg.core.segmenter import Segmenter
 
     forest = Forest.from_trees([random_tree(np.random.default_rng(0), 3, 2, 1e5)])
+    forest = dataclasses.replace(forest, nearest_off_image=True)  # as the features say
     features = FeatureConfig(n_features=50, canonical_height_mm=4500.0, reference_focal_px=500.0)
     tf = trained_for([TopViewMount(KINECT_V1, 2400.0), TopViewMount(KINECT_V1, 4500.0, 9.0)])
     save_model(tmp_path / "h.npz", forest, header_fields(features, tf))
@@ -198,3 +200,42 @@ def test_a_height_models_header_round_trips(tmp_path):
     assert header["input"] == "height" and header["trained_for"] == tf
     seg = Segmenter.from_file(tmp_path / "h.npz")
     assert seg.reads_height and seg.features == features and seg.trained_for == tf
+
+
+def test_what_probes_off_the_image_read_round_trips_and_old_files_read_background(tmp_path, forest):
+    """`off_image` in the forest's header: "nearest" and "background" round-trip; a file
+    written before the key (none) reads background, as its forest was trained; another
+    value, or a header whose features say otherwise than its forest, is refused."""
+    from topseg.core.forest import FeatureConfig
+    from topseg.core.forest.inputs import header_fields
+    from topseg.core.segmenter import Segmenter
+
+    src = tmp_path / "m.npz"
+    for nearest in (True, False):
+        save_model(src, dataclasses.replace(forest, nearest_off_image=nearest))
+        loaded, header = load_model(src)
+        assert loaded.nearest_off_image is nearest
+        assert header["forest"]["off_image"] == ("nearest" if nearest else "background")
+    with zipfile.ZipFile(src) as z:
+        header = json.loads(np.load(z.open("header.npy")).tobytes())
+    old = {**header, "forest": {k: v for k, v in header["forest"].items() if k != "off_image"}}
+    dst = tmp_path / "old.npz"
+    rewrite(src, dst, lambda name, data: header_npy(old) if name == "header.npy" else data)
+    assert load_model(dst)[0].nearest_off_image is False
+    bad = {**header, "forest": {**header["forest"], "off_image": "mirror"}}
+    rewrite(src, dst, lambda name, data: header_npy(bad) if name == "header.npy" else data)
+    with pytest.raises(ModelFileError, match="off_image 'mirror'"):
+        load_model(dst)
+    # a height model from before the key: neither its features nor its forest say it
+    features = header_fields(FeatureConfig(off_image="background"))
+    del features["features"]["off_image"]
+    save_model(src, forest, features)
+    with zipfile.ZipFile(src) as z:
+        header = json.loads(np.load(z.open("header.npy")).tobytes())
+    del header["forest"]["off_image"]
+    rewrite(src, dst, lambda name, data: header_npy(header) if name == "header.npy" else data)
+    seg = Segmenter.from_file(dst)
+    assert seg.features.off_image == "background" and not seg.forest.nearest_off_image
+    save_model(src, forest, header_fields(FeatureConfig()))  # features say nearest, forest not
+    with pytest.raises(ModelFileError, match="what probes off the image read"):
+        load_model(src)

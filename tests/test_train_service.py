@@ -83,6 +83,17 @@ def test_dask_training_equals_serial_and_in_process(data, tmp_path):
     assert ha["recipe"]["config"]["max_depth"] == 8
     # a height model, saying what it was trained for
     assert ha["input"] == "height" and ha["features"]["n_features"] == 40
+    # probes off the image read the nearest edge pixel, unless asked otherwise
+    assert ha["features"]["off_image"] == ha["forest"]["off_image"] == "nearest"
+    assert a.nearest_off_image
+    out = tmp_path / "bg.npz"
+    topseg("train", "--data", str(data), "--out", str(out), "--serial", "--off-image",
+           "background", *SMALL)  # fmt: skip
+    bg, hb = forest.load_model(out)
+    assert not bg.nearest_off_image and hb["forest"]["off_image"] == "background"
+    bad = topseg("train", "--data", str(data), "--out", str(out), "--off-image", "mirror",
+                 check=False)  # fmt: skip
+    assert bad.returncode == 2 and "--off-image" in bad.stderr
     mounts = [dataset_mount(ds, i) for i in train_idx]
     tf = ha["trained_for"]
     assert tf["height_mm"] == [min(m.height_mm for m in mounts), max(m.height_mm for m in mounts)]

@@ -158,4 +158,5 @@ def grow_tree(
         leaf,
         posteriors,
         config.features.background_mm,
+        config.features.nearest_off_image,
     )

@@ -8,10 +8,14 @@ it reads
 where p(q) is the model input's probe value at q and S(s) the pixel's offset scale
 (`inputs.ModelInput`: for a height model p is C - height above the floor and
 S = (fx / reference_focal_px) / d(s); for a legacy model p is depth and S = 1 / d(s)). The
-probe position is rounded to the nearest pixel (floor(x + 0.5)), and a probe outside the
-image or on a no-depth pixel reads the large constant `background_mm` (so does any value
-above it: probes are clamped to it, which keeps every response inside int16; so does a v
-offset of `FAR_OFFSET` or more, an absolute feature's, wherever it is applied). Dividing by
+probe position is rounded to the nearest pixel (floor(x + 0.5)), and a probe on a no-depth
+pixel reads the large constant `background_mm` (so does any value above it: probes are
+clamped to it, which keeps every response inside int16; so does a v offset of `FAR_OFFSET`
+or more, an absolute feature's, wherever it is applied). A probe outside the image reads
+the pixel on the image's edge nearest to it (`FeatureConfig.off_image` "nearest": a surface
+cut by the image's edge reads as going on beyond it), or `background_mm` ("background",
+models trained before the twentieth session): then a person cut by the edge reads as
+ending there, and the top of a cut torso looks like a head. Dividing by
 d(s) makes the feature depth invariant and the focal-length ratio sensor invariant: the
 offsets span the same metric distance at any depth and on any camera, `patch_px` pixels at
 `reference_depth_mm` on a camera of the reference focal length.
@@ -58,7 +62,18 @@ class FeatureConfig:
     reference_focal_px: the focal length (px) the offsets are defined at: on a camera of
         focal length fx an offset moves a probe fx / reference_focal_px as far (the default
         is Kinect v1's, so offsets keep their old meaning there).
+    off_image: what a probe outside the image reads: "nearest", the pixel on the image's
+        edge nearest to it, or "background", `background_mm` (models trained before the
+        twentieth session; their headers lack the key, `segmenter.model_features`). On the
+        time-of-flight walker stand-ins (2.4-3.6 m), two-tree models trained alike found
+        heads at the image's edge with precision 0.82-0.94 reading "nearest" against
+        0.52-0.75 reading "background" (docs/results.md).
     """
+
+    @property
+    def nearest_off_image(self) -> bool:
+        """Whether a probe outside the image reads the nearest edge pixel (the kernels' flag)."""
+        return self.off_image == "nearest"
 
     n_features: int = 300
     patch_px: int = 64
@@ -67,8 +82,13 @@ class FeatureConfig:
     absolute_fraction: float = 0.0
     canonical_height_mm: float = 4000.0
     reference_focal_px: float = 570.3
+    off_image: str = "nearest"
 
     def __post_init__(self) -> None:
+        if self.off_image not in OFF_IMAGE_READS:
+            raise ValueError(
+                f"off_image must be one of {', '.join(OFF_IMAGE_READS)}, got {self.off_image!r}"
+            )
         for name in ("reference_depth_mm", "absolute_fraction", "canonical_height_mm"):
             if not np.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be a finite number, got {getattr(self, name)}")
@@ -114,6 +134,8 @@ class FeatureConfig:
         return from_dict(cls, d, source)
 
 
+#: what `FeatureConfig.off_image` may say
+OFF_IMAGE_READS = ("nearest", "background")
 #: a v offset no image reaches: the probe reads `background_mm`, so f = p(s + u/d) - background
 OFF_IMAGE = 1.0e9
 #: a v offset with a component at least this large (pixel*mm; OFF_IMAGE is one) reads
@@ -137,17 +159,22 @@ def sample_offsets(config: FeatureConfig, rng: np.random.Generator) -> np.ndarra
 
 
 @numba.njit(cache=True, inline="always")
-def probe(values, r, c, inv_d, dr, dc, background):
+def probe(values, r, c, inv_d, dr, dc, background, nearest):
     """Value read at the probe (r, c) + round((dr, dc) * inv_d), or `background`.
 
     `values` is the model input's probe image (`inputs.ModelInput.values`: depth for a
-    legacy model) and `inv_d` the pixel's offset scale (`ModelInput.scale[r, c]`). All
-    arithmetic is float32, identical in every kernel and in the numpy references.
+    legacy model) and `inv_d` the pixel's offset scale (`ModelInput.scale[r, c]`). A probe
+    outside the image reads the nearest pixel on its edge when `nearest`, else
+    `background`. All arithmetic is float32, identical in every kernel and in the numpy
+    references.
     """
     pr = r + np.int64(np.floor(dr * inv_d + np.float32(0.5)))
     pc = c + np.int64(np.floor(dc * inv_d + np.float32(0.5)))
     if pr < 0 or pc < 0 or pr >= values.shape[0] or pc >= values.shape[1]:
-        return background
+        if not nearest:
+            return background
+        pr = min(max(pr, 0), values.shape[0] - 1)
+        pc = min(max(pc, 0), values.shape[1] - 1)
     z = np.int32(values[pr, pc])
     if z == 0 or z > background:
         return background
@@ -161,34 +188,35 @@ def is_far(dr, dc):
 
 
 @numba.njit(cache=True, inline="always")
-def pair_feature(values, r, c, inv_d, offset, background):
+def pair_feature(values, r, c, inv_d, offset, background, nearest):
     """f(s) for one offset row (u_row, u_col, v_row, v_col) at pixel (r, c); a far v
     (`is_far`) reads `background`."""
-    u = probe(values, r, c, inv_d, offset[0], offset[1], background)
+    u = probe(values, r, c, inv_d, offset[0], offset[1], background, nearest)
     if is_far(offset[2], offset[3]):
         return u - background
-    return u - probe(values, r, c, inv_d, offset[2], offset[3], background)
+    return u - probe(values, r, c, inv_d, offset[2], offset[3], background, nearest)
 
 
 @numba.njit(cache=True, inline="always")
-def response_at(values, r, c, inv_d, offsets, weights, background):
+def response_at(values, r, c, inv_d, offsets, weights, background, nearest):
     """sum_j w_j f_j(s) in float32: the response of one node at pixel (r, c).
 
     `offsets` is (k, 4), `weights` (k,); `inv_d` is the pixel's offset scale.
     """
     acc = np.float32(0.0)
     for j in range(offsets.shape[0]):
-        acc += weights[j] * np.float32(pair_feature(values, r, c, inv_d, offsets[j], background))
+        f = pair_feature(values, r, c, inv_d, offsets[j], background, nearest)
+        acc += weights[j] * np.float32(f)
     return acc
 
 
 @numba.njit(cache=True, parallel=True)
-def _extract(values, scale, rows, cols, offsets, background, out):
+def _extract(values, scale, rows, cols, offsets, background, nearest, out):
     for i in numba.prange(rows.shape[0]):
         r, c = rows[i], cols[i]
         inv_d = scale[r, c]
         for f in range(offsets.shape[0]):
-            out[i, f] = pair_feature(values, r, c, inv_d, offsets[f], background)
+            out[i, f] = pair_feature(values, r, c, inv_d, offsets[f], background, nearest)
 
 
 def extract_features(
@@ -198,13 +226,15 @@ def extract_features(
     offsets: np.ndarray,
     background_mm: int,
     out: np.ndarray | None = None,
+    nearest: bool = False,
 ) -> np.ndarray:
     """The (n, PC) int16 feature matrix of pixels (rows[i], cols[i]) of one frame.
 
     `frame` is a model input (`inputs.model_input`), or a depth frame read as its legacy
     input (V = depth, scale = 1/depth). Every pixel must have a value (> 0); training
     samples only such pixels. `out`, if given, is an (n, PC) int16 array (e.g. a slice of a
-    larger matrix) filled in place.
+    larger matrix) filled in place. `nearest`: a probe off the image reads the nearest edge
+    pixel (`FeatureConfig.nearest_off_image`), else `background_mm`.
     """
     inp = check_input(as_input(frame), "features")
     values = inp.values
@@ -226,27 +256,32 @@ def extract_features(
         out = np.empty((rows.size, offsets.shape[0]), np.int16)
     elif out.shape != (rows.size, offsets.shape[0]) or out.dtype != np.int16:
         raise ValueError(f"out must be int16 {(rows.size, offsets.shape[0])}, got {out.shape}")
-    _extract(values, inp.scale, rows, cols, offsets, np.int32(background_mm), out)
+    _extract(values, inp.scale, rows, cols, offsets, np.int32(background_mm), bool(nearest), out)
     return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _node_response_image(values, scale, offsets, weights, background, out):
+def _node_response_image(values, scale, offsets, weights, background, nearest, out):
     for r in numba.prange(values.shape[0]):
         for c in range(values.shape[1]):
             if values[r, c] == 0:
                 out[r, c] = np.nan
             else:
-                out[r, c] = response_at(values, r, c, scale[r, c], offsets, weights, background)
+                inv_d = scale[r, c]
+                out[r, c] = response_at(values, r, c, inv_d, offsets, weights, background, nearest)
 
 
 def node_response_image(
-    frame: np.ndarray | ModelInput, offsets: np.ndarray, weights: np.ndarray, background_mm: int
+    frame: np.ndarray | ModelInput,
+    offsets: np.ndarray,
+    weights: np.ndarray,
+    background_mm: int,
+    nearest: bool = False,
 ) -> np.ndarray:
     """(H, W) float32 response of one node (k offsets, k weights) at every pixel; NaN: no depth.
 
-    `frame` as for `extract_features`. For inspecting a split and for tests; inference walks
-    the trees without it.
+    `frame` and `nearest` as for `extract_features`. For inspecting a split and for tests;
+    inference walks the trees without it.
     """
     inp = check_input(as_input(frame), "features")
     offsets = np.ascontiguousarray(np.atleast_2d(offsets), np.float32)
@@ -254,7 +289,8 @@ def node_response_image(
     if offsets.shape != (weights.shape[0], 4):
         raise ValueError(f"offsets must be (k, 4) for k weights, got {offsets.shape}")
     out = np.empty(inp.values.shape, np.float32)
-    _node_response_image(inp.values, inp.scale, offsets, weights, np.int32(background_mm), out)
+    background = np.int32(background_mm)
+    _node_response_image(inp.values, inp.scale, offsets, weights, background, bool(nearest), out)
     return out
 
 

@@ -3,8 +3,8 @@
 Layout: a deflate-compressed numpy `.npz` zip archive holding
 
 - `header`: uint8 bytes of a UTF-8 JSON object with `magic` ("topseg-model"),
-  `format_version`, `labels` (the label table the forest predicts), `forest` (its shape and
-  `background_mm`), and whatever the caller adds (camera, feature and training config,
+  `format_version`, `labels` (the label table the forest predicts), `forest` (its shape,
+  `background_mm` and `off_image`), and whatever the caller adds (camera, feature and training config,
   dataset fingerprint, validation metrics...);
 - one `.npy` member per array of `Forest.arrays()`.
 
@@ -67,6 +67,7 @@ def _forest_header(forest: Forest) -> dict[str, Any]:
         "features_per_node": forest.features_per_node,
         "max_depth": forest.depth,
         "background_mm": int(forest.background_mm),
+        "off_image": "nearest" if forest.nearest_off_image else "background",
     }
 
 
@@ -183,6 +184,11 @@ def _read_header(npz: Any, path: Path) -> dict[str, Any]:
             f"{path}: the header's background_mm {forest['background_mm']} is outside "
             f"[{lo}, {hi}] mm"
         )
+    if forest.get("off_image", "background") not in ("nearest", "background"):
+        raise ModelFileError(
+            f"{path}: the header's off_image {forest['off_image']!r} is neither 'nearest' nor "
+            "'background'"
+        )
     return header
 
 
@@ -214,9 +220,13 @@ def check_header(forest: Forest, header: dict[str, Any], path: str | os.PathLike
 
     try:
         model_camera(header)
-        model_features(header, forest)
+        features = model_features(header, forest)
     except TopsegError as exc:
         raise ModelFileError(f"{path}: {exc}") from None
+    if features is not None and features.nearest_off_image != forest.nearest_off_image:
+        raise ModelFileError(
+            f"{path}: the header's features and forest disagree on what probes off the image read"
+        )
 
 
 def load_model(path: str | os.PathLike) -> tuple[Forest, dict[str, Any]]:
@@ -244,7 +254,14 @@ def load_model(path: str | os.PathLike) -> tuple[Forest, dict[str, Any]]:
     except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
         raise ModelFileError(f"{path} is damaged or truncated ({exc})") from None
     try:
-        forest = Forest(**arrays, background_mm=header["forest"]["background_mm"])
+        described = header["forest"]
+        forest = Forest(
+            **arrays,
+            background_mm=described["background_mm"],
+            # files written before the twentieth session say nothing: their probes read
+            # background_mm off the image
+            nearest_off_image=described.get("off_image", "background") == "nearest",
+        )
     except ValueError as exc:
         raise ModelFileError(f"{path} holds an inconsistent forest: {exc}") from None
     check_header(forest, header, path)

@@ -196,7 +196,8 @@ def _prefetch(typingctx, table, i):
 @numba.njit(cache=True, inline="always")
 def _probe(padded, base, r, c, inv_d, dr, dc, h, w, wp, clamp):
     """`features.probe` at pixel (r, c), whose place in the padded probe image (`_padded`,
-    rows `wp` wide) is `base`: the border and no-depth pixels hold the background. With
+    rows `wp` wide) is `base`: no-depth pixels hold the background, the border what a
+    probe off the image reads. With
     `clamp` (a compile-time constant) the probe is clamped to the 1-pixel border, which
     replaces the bounds tests; without, the border is wide enough for every probe. The
     place is never negative: read as unsigned, it needs no wraparound test."""
@@ -218,9 +219,10 @@ def probe_pad(reach: float, scale: np.ndarray) -> float:
 
 
 @numba.njit(cache=True)
-def _padded(depth, background, pad):
+def _padded(depth, background, pad, nearest):
     """The probe image as uint16 (half the cache footprint of int32; background <= 16000
-    fits), flattened with a border `pad` pixels wide; the border and no-depth pixels hold
+    fits), flattened with a border `pad` pixels wide; no-depth pixels hold background, the
+    border the nearest edge pixel's value when `nearest` (`Forest.nearest_off_image`), else
     background."""
     h, w = depth.shape
     wp = w + 2 * pad
@@ -229,11 +231,20 @@ def _padded(depth, background, pad):
     out[(h + pad) * wp :] = background
     for r in range(h):
         base = (r + pad) * wp
-        out[base : base + pad] = background
-        out[base + pad + w : base + wp] = background
         for c in range(w):
             z = np.int32(depth[r, c])
             out[base + pad + c] = z if (z != 0 and z <= background) else background
+        if nearest:
+            out[base : base + pad] = out[base + pad]
+            out[base + pad + w : base + wp] = out[base + pad + w - 1]
+        else:
+            out[base : base + pad] = background
+            out[base + pad + w : base + wp] = background
+    if nearest and h > 0:
+        for r in range(pad):
+            out[r * wp : (r + 1) * wp] = out[pad * wp : (pad + 1) * wp]
+            last = (h + pad - 1) * wp
+            out[(h + pad + r) * wp : (h + pad + r + 1) * wp] = out[last : last + wp]
     return out
 
 
@@ -727,7 +738,9 @@ def _settle(values, floor, stride, table, confidence, reach, out, amax, pmax, ps
 
 
 @numba.njit(cache=True, parallel=True)
-def _apply(values, scale, floor, offsets, weights, threshold, left, roots, background, out):
+def _apply(
+    values, scale, floor, offsets, weights, threshold, left, roots, background, nearest, out
+):
     for r in numba.prange(values.shape[0]):
         for c in range(values.shape[1]):
             walk = values[r, c] > 0 and not floor[r, c]
@@ -737,7 +750,7 @@ def _apply(values, scale, floor, offsets, weights, threshold, left, roots, backg
                     inv_d = scale[r, c]
                     while left[node] >= 0:
                         resp = response_at(
-                            values, r, c, inv_d, offsets[node], weights[node], background
+                            values, r, c, inv_d, offsets[node], weights[node], background, nearest
                         )
                         node = left[node] + (0 if resp < threshold[node] else 1)
                 out[t, r, c] = node if walk else -1
@@ -814,7 +827,7 @@ def predict_proba(
     clamp = pad > max_pad
     pad = np.int32(1 if clamp else pad)
     walk = _kernel(table.k, clamp)
-    padded = _padded(inp.values, background, pad)
+    padded = _padded(inp.values, background, pad, forest.nearest_off_image)
     tables = (table.fields, table.words, forest.posteriors, table.roots)
     early = (
         (np.int32(forest.n_trees), np.float32(1.0))
@@ -877,6 +890,7 @@ def apply(forest: Forest, frame: np.ndarray | ModelInput) -> np.ndarray:
         forest.left,
         forest.roots,
         np.int32(forest.background_mm),
+        forest.nearest_off_image,
         out,
     )
     return out

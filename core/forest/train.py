@@ -241,7 +241,12 @@ def gather_samples(
             rows, cols, ys = sample_pixels(inp.values, label, config.pixels_per_frame, rng, gate)
             end = n + rows.size
             fm[:, n:end] = extract_features(
-                inp, rows, cols, offsets, config.features.background_mm
+                inp,
+                rows,
+                cols,
+                offsets,
+                config.features.background_mm,
+                nearest=config.features.nearest_off_image,
             ).T
             y[n:end] = ys
             where[n:end] = np.stack([np.full(rows.size, frame), rows, cols], axis=1)

@@ -15,8 +15,10 @@ Node i of a tree is described by row i of each array:
 A `Forest` is the concatenation of T trees with child and leaf indices shifted, plus
 `roots` (T,) int32, so inference over all trees is one numba call.
 
-Both also carry `background_mm`, the value off-image and no-depth probes read during
-training (`FeatureConfig.background_mm`), which inference must use too.
+Both also carry `background_mm`, the value no-depth probes read during training
+(`FeatureConfig.background_mm`), and `nearest_off_image`, whether a probe off the image read
+the nearest edge pixel instead of `background_mm` (`FeatureConfig.off_image`), which
+inference must use too.
 """
 
 from __future__ import annotations
@@ -104,6 +106,7 @@ class Tree:
     leaf: np.ndarray
     posteriors: np.ndarray
     background_mm: int = 10000
+    nearest_off_image: bool = False
 
     def __post_init__(self) -> None:
         validate_arrays(self.arrays(), np.zeros(1, np.int32))
@@ -140,6 +143,7 @@ class Forest:
     posteriors: np.ndarray
     roots: np.ndarray
     background_mm: int = 10000
+    nearest_off_image: bool = False
 
     def __post_init__(self) -> None:
         validate_arrays(self.arrays(), self.roots)
@@ -161,6 +165,8 @@ class Forest:
         backgrounds = {t.background_mm for t in trees}
         if len(backgrounds) != 1:
             raise ValueError(f"trees mix background constants: {sorted(backgrounds)}")
+        if len({t.nearest_off_image for t in trees}) != 1:
+            raise ValueError("trees mix what a probe off the image reads")
         node_base = np.cumsum([0] + [t.n_nodes for t in trees])
         leaf_base = np.cumsum([0] + [t.n_leaves for t in trees])
         parts: dict[str, list[np.ndarray]] = {name: [] for name in ARRAY_DTYPES}
@@ -171,7 +177,10 @@ class Forest:
             parts["leaf"].append(np.where(t.leaf >= 0, t.leaf + lb, -1).astype(np.int32))
         arrays = {name: np.concatenate(p) for name, p in parts.items()}
         return cls(
-            **arrays, roots=node_base[:-1].astype(np.int32), background_mm=trees[0].background_mm
+            **arrays,
+            roots=node_base[:-1].astype(np.int32),
+            background_mm=trees[0].background_mm,
+            nearest_off_image=trees[0].nearest_off_image,
         )
 
     def tree(self, t: int) -> Tree:
@@ -190,6 +199,7 @@ class Forest:
             np.where(leaf >= 0, leaf - l0, -1).astype(np.int32),
             self.posteriors[l0:l1],
             self.background_mm,
+            self.nearest_off_image,
         )
 
     @property
