@@ -31,6 +31,11 @@
 #     model was retrained on it (docs/results.md: 14 of 20 mounts-table cells within 0.03 of
 #     the reference, 13 before; a cut across the walls no longer reads as legs). 52 minutes
 #     with other work beside it: datagen 5.5 min (24.5 frames/s), training 46 min.
+#   - Since the twentieth session a probe off the image reads the nearest pixel on the image's
+#     edge (`topseg train --off-image nearest`, the default), not the background constant: a
+#     person cut by the edge no longer reads as ending there. The bundled model was retrained
+#     so on the seventeenth session's dataset (training 41 min beside other work;
+#     docs/results.md, "Probes off the image").
 # About 24 minutes on 2 cores, measured on a quiet machine (43 with other jobs beside it, fifteenth
 # session: datagen 6 min, training 37): datagen 4 min (32 frames/s), training
 # 19 min (two trees at a time, ~15 GB of the machine's memory in use at the peak).
