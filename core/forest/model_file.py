@@ -4,8 +4,8 @@ Layout: a deflate-compressed numpy `.npz` zip archive holding
 
 - `header`: uint8 bytes of a UTF-8 JSON object with `magic` ("topseg-model"),
   `format_version`, `labels` (the label table the forest predicts), `forest` (its shape,
-  `background_mm` and `off_image`), and whatever the caller adds (camera, feature and training config,
-  dataset fingerprint, validation metrics...);
+  `background_mm` and `off_image`), and whatever the caller adds (camera, feature and
+  training config, dataset fingerprint, validation metrics...);
 - one `.npy` member per array of `Forest.arrays()`.
 
 Compressed because a forest's posteriors and unused leaf fields are mostly zeros: the bundled
@@ -37,6 +37,7 @@ import numpy as np
 from topseg.core import labels
 from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
+from topseg.core.forest.features import OFF_IMAGE_READS
 from topseg.core.forest.tree import ARRAY_DTYPES, Forest
 
 MAGIC = "topseg-model"
@@ -184,10 +185,10 @@ def _read_header(npz: Any, path: Path) -> dict[str, Any]:
             f"{path}: the header's background_mm {forest['background_mm']} is outside "
             f"[{lo}, {hi}] mm"
         )
-    if forest.get("off_image", "background") not in ("nearest", "background"):
+    if forest.get("off_image", "background") not in OFF_IMAGE_READS:
         raise ModelFileError(
-            f"{path}: the header's off_image {forest['off_image']!r} is neither 'nearest' nor "
-            "'background'"
+            f"{path}: the header's off_image {forest['off_image']!r} is not one of "
+            f"{', '.join(OFF_IMAGE_READS)}"
         )
     return header
 
