@@ -35,7 +35,7 @@ log = logging.getLogger("topseg.train")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg train`'s options; `TrainJob.from_args` turns them into a job."""
-    from topseg.core.forest.features import OFF_IMAGE_READS
+    from topseg.core.forest.features import OFF_IMAGE_READS, FeatureConfig
 
     parser.add_argument(
         "--data", required=True, type=Path, help="dataset written by `topseg datagen`"
@@ -67,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--off-image",
         choices=OFF_IMAGE_READS,
-        default="nearest",
+        default=FeatureConfig.off_image,  # the training default lives in one place
         help="what a probe off the image reads: the nearest pixel on the image's edge "
         "(default; a person cut by the edge reads as going on), or the background "
         "constant (models before the twentieth session)",
