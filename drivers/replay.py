@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,6 +106,10 @@ def png_frames(paths: list[Path]) -> Iterator[ReplayFrame]:
 MAX_EARLY_CAMERAS = 16
 #: truth frames held per camera until their depth frame comes (memory bound)
 MAX_TRUTHS_HELD = 16
+#: depth frames of a channel with truth held until their truth comes: a recorder receives
+#: the two keys in no set order, and on a loaded machine a truth can come after the next
+#: depth frame or two (memory bound: 8 VGA frames are 5 MB)
+MAX_FRAMES_AWAITING_TRUTH = 8
 
 
 class RecordingFrames:
@@ -130,13 +134,14 @@ class RecordingFrames:
     def __iter__(self) -> Iterator[ReplayFrame]:
         depth_key = self.key
         truth_key = None if depth_key is None else _truth_of(depth_key)
-        held: ReplayFrame | None = None
+        pending: deque[ReplayFrame] = deque()  # in depth order, awaiting their truth
         truths: OrderedDict[int, np.ndarray] = OrderedDict()
         early: dict[str, OrderedDict[int, np.ndarray]] = {}  # truths before any depth
         seen: dict[int, int] = {}  # seq -> how often it came (a restart repeats seqs)
+        has_truth = False  # whether this channel's camera has sent any truth
         stem = self.path.stem if self.tag is None else f"{self.path.stem}_{self.tag}"
 
-        def emit(item: ReplayFrame) -> ReplayFrame:
+        def pair(item: ReplayFrame) -> None:
             truth = truths.pop(item.seq, None)
             if truth is not None and truth.shape != item.depth.shape:
                 self._reject(
@@ -144,7 +149,13 @@ class RecordingFrames:
                 )
                 truth = None
             item.truth = truth
-            return item
+
+        def ready() -> Iterator[ReplayFrame]:
+            """The frames that wait no longer: those at the front with their truth, and
+            the oldest beyond the window (one frame until the channel shows any truth)."""
+            window = MAX_FRAMES_AWAITING_TRUTH if has_truth else 1
+            while pending and (pending[0].truth is not None or len(pending) > window):
+                yield pending.popleft()
 
         info = recording.RecordingInfo()  # counts the ROS 2 messages that do not decode
         counted = 0
@@ -156,6 +167,7 @@ class RecordingFrames:
                 depth_key, truth_key = msg.key, _truth_of(msg.key)
                 self.depth_key = depth_key
                 truths = early.pop(truth_key, truths)
+                has_truth = bool(truths)
                 early.clear()
             if depth_key is None and kind == "truth":
                 # a truth written before the first depth frame (Zenoh does not order the
@@ -170,11 +182,9 @@ class RecordingFrames:
                 except WireError as exc:
                     self._reject(msg.key, exc)
                     continue
-                if held is not None:
-                    yield emit(held)
                 n = seen[frame.seq] = seen.get(frame.seq, 0) + 1
                 name = f"{stem}_{frame.seq:06d}" + (f"-{n}" if n > 1 else "")
-                held = ReplayFrame(
+                item = ReplayFrame(
                     name,
                     frame.depth,
                     frame.intrinsics,
@@ -183,17 +193,22 @@ class RecordingFrames:
                     mount=frame.mount,
                     key=depth_key,
                 )
+                pair(item)  # its truth may have come first
+                pending.append(item)
+                yield from ready()
             elif msg.key == truth_key:
                 seq = self._keep_truth(truths, msg)
-                if held is not None and seq == held.seq:
-                    yield emit(held)
-                    held = None
+                has_truth = has_truth or seq is not None
+                waiting = next((f for f in pending if f.seq == seq and f.truth is None), None)
+                if waiting is not None:
+                    pair(waiting)
+                yield from ready()
             elif kind == "depth" and msg.key not in self.others:
                 self.others.add(msg.key)
                 log.info("%s: also holds %s; reading %s only", self.path, msg.key, depth_key)
         self.rejected += info.rejected - counted
-        if held is not None:
-            yield emit(held)
+        while pending:
+            yield pending.popleft()
         if depth_key is None:
             raise SourceError(f"{self.path} holds no depth channel")
 

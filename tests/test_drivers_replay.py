@@ -236,3 +236,40 @@ def test_a_truth_written_before_the_first_depth_frame_is_paired(tmp_path, frames
     assert [g.seq for g in got] == list(range(len(frames)))
     for g, (_, lab) in zip(got, frames, strict=True):
         np.testing.assert_array_equal(g.truth, lab)
+
+
+def test_a_truth_that_comes_after_later_depth_frames_is_paired(tmp_path, frames):
+    """On a loaded machine a recorder can get a frame's truth after the next depth frames:
+    each frame is held until its truth comes, up to `MAX_FRAMES_AWAITING_TRUTH` frames, and
+    the frames still come in depth order. A truth later than that is not paired."""
+    from topseg.drivers.replay import MAX_FRAMES_AWAITING_TRUTH, RecordingFrames
+
+    path = tmp_path / "truth-late.mcap"
+    t0 = 1_700_000_000_000_000_000
+    late = {1: 3, 2: 1, 4: MAX_FRAMES_AWAITING_TRUTH + 1}  # seq -> depth frames it trails by
+    k = KINECT_V1.scaled_to(160, 120)
+    log = []  # (log time, key, payload)
+    for i, (depth, lab) in enumerate(frames):
+        stamp = t0 + i * 50_000_000
+        log.append(
+            (stamp, wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, k, i, stamp)))
+        )
+        at = stamp + late.get(i, 0) * 50_000_000 + 1
+        log.append((at, wire.truth_key(), wire.encode_labels(wire.LabelFrame(lab, i, stamp))))
+    for j in range(len(frames), len(frames) + MAX_FRAMES_AWAITING_TRUTH + 2):  # later frames
+        depth = np.full(k.shape, 2000, np.uint16)
+        stamp = t0 + j * 50_000_000
+        log.append(
+            (stamp, wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, k, j, stamp)))
+        )
+    with RecordingWriter(path) as w:
+        for at, key, data in sorted(log, key=lambda x: x[0]):
+            w.write(key, data, log_time_ns=at)
+    got = list(RecordingFrames(path))
+    assert [g.seq for g in got] == list(range(len(frames) + MAX_FRAMES_AWAITING_TRUTH + 2))
+    for g, (_, lab) in zip(got, frames, strict=False):
+        if g.seq == 4:
+            assert g.truth is None  # too late
+        else:
+            np.testing.assert_array_equal(g.truth, lab)
+    assert all(g.truth is None for g in got[len(frames) :])
