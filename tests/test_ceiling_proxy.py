@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from topseg.core import labels as L
@@ -16,6 +17,7 @@ from topseg.core import labels as L
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "ceiling_proxy.py"
 
 
+@pytest.mark.slow  # renders, then labels in a fresh process: ~30-55 s on 2 cores (make test-all)
 def test_renders_segments_with_no_mount_and_scores_one_line_a_height(tmp_path):
     r = subprocess.run(
         [sys.executable, str(SCRIPT), "--out", str(tmp_path), "--heights", "3.3", "--frames", "2"],
