@@ -734,8 +734,8 @@ def model_features(header: dict | None, forest: Forest | None = None) -> Feature
         d = (header or {}).get("recipe", {}).get("config", {}).get("features")
     if not isinstance(d, dict):
         raise TopsegError("the model reads heights but its header does not say its features")
-    if "off_image" not in d:  # written before the field: probes off the image read background
-        d = {**d, "off_image": "background"}
+    for key in ("off_image", "edge_gaps"):  # written before the field: probes read background
+        d = d if key in d else {**d, key: "background"}
     try:
         features = FeatureConfig.from_dict(d, source="the model's feature config")
     except ValueError as exc:

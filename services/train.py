@@ -72,6 +72,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default; a person cut by the edge reads as going on), or the background "
         "constant (models before the twentieth session)",
     )
+    g.add_argument(
+        "--edge-gaps",
+        choices=OFF_IMAGE_READS,
+        default=FeatureConfig.edge_gaps,
+        help="what a probe on a no-depth region touching the image's edge reads (a "
+        "time-of-flight camera's ring, a stereo camera's invalid band): the surface nearest "
+        "to it (default; as if off the image), or the background constant like any pixel "
+        "without depth (models before the twenty-first session)",
+    )
     g.add_argument("--seed", type=non_negative_int, default=0)
     g.add_argument(
         "--validation",
@@ -114,6 +123,7 @@ OPTION_OF = {
     "n_features": "--features",
     "absolute_fraction": "--absolute-fraction",
     "off_image": "--off-image",
+    "edge_gaps": "--edge-gaps",
 }
 
 
@@ -176,6 +186,7 @@ class TrainJob:
                     n_features=args.features,
                     absolute_fraction=args.absolute_fraction,
                     off_image=args.off_image,
+                    edge_gaps=args.edge_gaps,
                 ),
             )
         except ValueError as exc:

@@ -303,6 +303,41 @@ def far_probe_reference(values, r, c, inv_d, dr, dc, background, nearest=False):
     return np.where(far, background, z)
 
 
+def edge_gaps_reference(values):
+    """`edge_gaps.fill_edge_gaps` from its definition, with scipy's labelling: the no-depth
+    regions (4-connected) with a pixel on the border, filled ring by ring, each pixel the
+    least value among its 4-neighbours with depth or filled in an earlier ring. Returns
+    (probes, pixels filled)."""
+    zero = values == 0
+    regions, _ = ndimage.label(zero)  # scipy's default structure: 4-connectivity
+    border = np.concatenate([regions[0], regions[-1], regions[:, 0], regions[:, -1]])
+    gap = zero & np.isin(regions, border[border > 0])
+    out = values.astype(np.int64)
+    settled = ~zero
+    none = np.iinfo(np.int64).max
+    while True:
+        least = np.full(values.shape, none, np.int64)
+        padded_out = np.pad(np.where(settled, out, none), 1, constant_values=none)
+        for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            shifted = padded_out[
+                1 + dr : 1 + dr + values.shape[0], 1 + dc : 1 + dc + values.shape[1]
+            ]
+            least = np.minimum(least, shifted)
+        ring = gap & ~settled & (least < none)
+        if not ring.any():
+            break
+        out[ring] = least[ring]
+        settled |= ring
+    return out.astype(np.uint16), int(np.count_nonzero(gap & settled))
+
+
+def probe_image_reference(frame):
+    """The image a model input's probes read: its `probes` when it has them, else its
+    values (a depth frame: the frame)."""
+    probes = getattr(frame, "probes", None)
+    return probes if probes is not None else reference_input(frame)[0]
+
+
 def reference_input(frame):
     """(values, scale, floor) of a model input, or of a depth frame's legacy input
     (V = depth, scale = float32(1) / float32(depth), no floor), in plain numpy."""
@@ -355,7 +390,8 @@ def model_input_float32_reference(depth, mount, features, margin):
 
 def extract_reference(frame, rows, cols, offsets, background, nearest=False):
     """`features.extract_features`: (n, PC) int16 probe differences at (rows, cols)."""
-    values, scale, _ = reference_input(frame)
+    _, scale, _ = reference_input(frame)
+    values = probe_image_reference(frame)
     inv_d = scale[rows, cols].astype(np.float32)
     r, c, inv = rows[:, None], cols[:, None], inv_d[:, None]
     u_off, v_off = offsets[None, :, :2], offsets[None, :, 2:]
@@ -387,7 +423,8 @@ def walked_pixels(frame):
 def apply_reference(forest: Forest, frame) -> np.ndarray:
     """(T, n) leaf reached by each walked pixel (`walked_pixels`, row-major) in each tree."""
     bg, near = forest.background_mm, forest.nearest_off_image
-    values, scale, _ = reference_input(frame)
+    _, scale, _ = reference_input(frame)
+    values = probe_image_reference(frame)
     rows, cols = walked_pixels(frame)
     inv = scale[rows, cols].astype(np.float32)
     leaves = []

@@ -141,6 +141,12 @@ def test_config_round_trip():
     assert FeatureConfig.from_dict(b.to_dict()) == b and not b.nearest_off_image
     with pytest.raises(ValueError, match="off_image"):
         FeatureConfig(off_image="mirror")
+    assert FeatureConfig().edge_gaps == "nearest"
+    assert FeatureConfig.from_dict(FeatureConfig(edge_gaps="background").to_dict()).edge_gaps == (
+        "background"
+    )
+    with pytest.raises(ValueError, match="edge_gaps"):
+        FeatureConfig(edge_gaps="zero")
 
 
 def test_old_feature_configs_load_with_the_new_defaults():
@@ -155,13 +161,16 @@ def test_old_feature_configs_load_with_the_new_defaults():
 @pytest.mark.parametrize("seed", range(3))
 def test_features_of_a_model_input_match_reference(seed):
     """Probe values and per-pixel scales of a height model's input, not depth."""
+    from topseg.core.forest.edge_gaps import fill_edge_gaps
     from topseg.core.forest.inputs import ModelInput
 
     rng = np.random.default_rng(seed + 7)
     depth = random_depth(rng)
     values = np.where(depth > 0, rng.integers(1, 9999, depth.shape), 0).astype(np.uint16)
     scale = np.where(depth > 0, rng.uniform(1e-4, 1e-3, depth.shape), 0).astype(np.float32)
-    inp = ModelInput(values, scale, np.zeros(depth.shape, bool))
+    probes, filled = fill_edge_gaps(values)  # probes read the edge's gaps filled
+    assert filled > 0
+    inp = ModelInput(values, scale, np.zeros(depth.shape, bool), probes)
     offsets = features.sample_offsets(FeatureConfig(n_features=30), rng)
     rows, cols = np.nonzero(values)
     for nearest in (False, True):

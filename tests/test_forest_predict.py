@@ -25,6 +25,7 @@ from topseg.core.forest import (
     random_tree,
 )
 from topseg.core.forest import predict as predict_module
+from topseg.core.forest.edge_gaps import fill_edge_gaps
 from topseg.core.forest.features import FAR_OFFSET, OFF_IMAGE
 from topseg.core.forest.inputs import ModelInput, as_input
 from topseg.core.forest.predict import (
@@ -215,13 +216,16 @@ def test_reused_output_and_bad_input():
 
 
 def random_input(seed, shape=(29, 41)):
-    """A model input with random values, scales and floor gate."""
+    """A model input with random values, scales and floor gate, whose probes read its edge's
+    no-depth regions filled (`FeatureConfig.edge_gaps`)."""
     rng = np.random.default_rng(seed)
     depth = random_depth(seed, shape)
     values = np.where(depth > 0, rng.integers(1, 9999, size=shape), 0).astype(np.uint16)
     scale = np.where(depth > 0, rng.uniform(1 / 4000, 1 / 1500, size=shape), 0).astype(np.float32)
     floor = (depth > 0) & (rng.random(shape) < 0.3)
-    return ModelInput(values, scale, floor)
+    probes, filled = fill_edge_gaps(values)
+    assert filled > 0  # the kernels are checked reading an image other than the values
+    return ModelInput(values, scale, floor, probes)
 
 
 @pytest.mark.parametrize("nearest", [False, True])
@@ -557,7 +561,7 @@ def test_a_frame_whose_probes_reach_past_the_border_is_walked_with_clamped_probe
     inp = random_input(70 + k)
     scale = inp.scale.copy()
     scale[3:6, 4:9] = np.where(scale[3:6, 4:9] > 0, np.float32(1 / 20.0), 0)  # 2 cm away
-    near = ModelInput(inp.values, scale, inp.floor)
+    near = dataclasses.replace(inp, scale=scale)  # its probes too
     assert probe_pad(inference_table(forest).reach, near.scale) > MAX_PAD
     np.testing.assert_array_equal(predict_proba(forest, near), predict_reference(forest, near))
     fast = predict_proba(forest, near, stride=2, early_exit=0.6)

@@ -204,7 +204,8 @@ def test_a_height_models_header_round_trips(tmp_path):
 
 def test_what_probes_off_the_image_read_round_trips_and_old_files_read_background(tmp_path, forest):
     """`off_image` in the forest's header: "nearest" and "background" round-trip; a file
-    written before the key (none) reads background, as its forest was trained; another
+    written before the key (none) reads background, as its forest was trained (and so do
+    the edge's gaps of a file written before `edge_gaps`); another
     value, or a header whose features say otherwise than its forest, is refused."""
     from topseg.core.forest import FeatureConfig
     from topseg.core.forest.inputs import header_fields
@@ -228,7 +229,7 @@ def test_what_probes_off_the_image_read_round_trips_and_old_files_read_backgroun
         load_model(dst)
     # a height model from before the key: neither its features nor its forest say it
     features = header_fields(FeatureConfig(off_image="background"))
-    del features["features"]["off_image"]
+    del features["features"]["off_image"], features["features"]["edge_gaps"]
     save_model(src, forest, features)
     with zipfile.ZipFile(src) as z:
         header = json.loads(np.load(z.open("header.npy")).tobytes())
@@ -236,6 +237,7 @@ def test_what_probes_off_the_image_read_round_trips_and_old_files_read_backgroun
     rewrite(src, dst, lambda name, data: header_npy(header) if name == "header.npy" else data)
     seg = Segmenter.from_file(dst)
     assert seg.features.off_image == "background" and not seg.forest.nearest_off_image
+    assert seg.features.edge_gaps == "background"  # nor the edge's gaps
     save_model(src, forest, header_fields(FeatureConfig()))  # features say nearest, forest not
     with pytest.raises(ModelFileError, match="what probes off the image read"):
         load_model(src)

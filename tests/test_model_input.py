@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from reference import model_input_float32_reference, model_input_reference
+from reference import edge_gaps_reference, model_input_float32_reference, model_input_reference
 
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount, metres_to_mm
@@ -112,6 +112,7 @@ def test_model_input_kernel_is_bit_identical_to_numpy(seed):
     depth = rng.integers(0, 9000, size=k.shape).astype(np.uint16)
     depth[rng.random(k.shape) < 0.1] = 0
     inp = model_input(depth, mount, FEATURES)
+    kept = model_input(depth, mount, replace(FEATURES, edge_gaps="background"))
     depth = denoise(depth, mount)  # smoothed first where the camera is noisy (test_denoise)
     values, scale, floor = model_input_float32_reference(
         depth, mount, FEATURES, lambda d: floor_margin_mm(d, mount.sensor)
@@ -120,6 +121,10 @@ def test_model_input_kernel_is_bit_identical_to_numpy(seed):
     np.testing.assert_array_equal(inp.scale, scale)
     np.testing.assert_array_equal(inp.floor, floor)
     assert inp.values.dtype == np.uint16 and inp.scale.dtype == np.float32
+    probes, filled = edge_gaps_reference(values)  # FEATURES fill the edge's gaps
+    assert filled > 0 and inp.probes is not None
+    np.testing.assert_array_equal(inp.probe_values, probes)
+    assert kept.probes is None and np.array_equal(kept.values, inp.values)
 
 
 def test_floor_gate_is_noise_aware():

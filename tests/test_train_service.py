@@ -85,12 +85,13 @@ def test_dask_training_equals_serial_and_in_process(data, tmp_path):
     assert ha["input"] == "height" and ha["features"]["n_features"] == 40
     # probes off the image read the nearest edge pixel, unless asked otherwise
     assert ha["features"]["off_image"] == ha["forest"]["off_image"] == "nearest"
-    assert a.nearest_off_image
+    assert a.nearest_off_image and ha["features"]["edge_gaps"] == "nearest"
     out = tmp_path / "bg.npz"
     topseg("train", "--data", str(data), "--out", str(out), "--serial", "--off-image",
-           "background", *SMALL)  # fmt: skip
+           "background", "--edge-gaps", "background", *SMALL)  # fmt: skip
     bg, hb = forest.load_model(out)
     assert not bg.nearest_off_image and hb["forest"]["off_image"] == "background"
+    assert hb["features"]["edge_gaps"] == "background"
     bad = topseg("train", "--data", str(data), "--out", str(out), "--off-image", "mirror",
                  check=False)  # fmt: skip
     assert bad.returncode == 2 and "--off-image" in bad.stderr

@@ -68,6 +68,12 @@ class FeatureConfig:
         time-of-flight walker stand-ins (2.4-3.6 m), two-tree models trained alike found
         heads at the image's edge with precision 0.82-0.94 reading "nearest" against
         0.52-0.75 reading "background" (docs/results.md).
+    edge_gaps: what a probe on a no-depth region touching the image's edge reads (a
+        time-of-flight camera's ring outside its valid circle, a stereo camera's invalid
+        band, a resampled frame's empty border): "nearest", the surface nearest to it
+        (`edge_gaps.fill_edge_gaps`, as if the region were off the image), or
+        "background", `background_mm` like any pixel without depth (models trained before
+        the twenty-first session; their headers lack the key).
     """
 
     @property
@@ -83,12 +89,15 @@ class FeatureConfig:
     canonical_height_mm: float = 4000.0
     reference_focal_px: float = 570.3
     off_image: str = "nearest"
+    edge_gaps: str = "nearest"
 
     def __post_init__(self) -> None:
-        if self.off_image not in OFF_IMAGE_READS:
-            raise ValueError(
-                f"off_image must be one of {', '.join(OFF_IMAGE_READS)}, got {self.off_image!r}"
-            )
+        for name in ("off_image", "edge_gaps"):
+            if getattr(self, name) not in OFF_IMAGE_READS:
+                raise ValueError(
+                    f"{name} must be one of {', '.join(OFF_IMAGE_READS)}, "
+                    f"got {getattr(self, name)!r}"
+                )
         for name in ("reference_depth_mm", "absolute_fraction", "canonical_height_mm"):
             if not np.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be a finite number, got {getattr(self, name)}")
@@ -134,7 +143,7 @@ class FeatureConfig:
         return from_dict(cls, d, source)
 
 
-#: what `FeatureConfig.off_image` may say
+#: what `FeatureConfig.off_image` and `FeatureConfig.edge_gaps` may say
 OFF_IMAGE_READS = ("nearest", "background")
 #: a v offset no image reaches: the probe reads `background_mm`, so f = p(s + u/d) - background
 OFF_IMAGE = 1.0e9
@@ -162,8 +171,8 @@ def sample_offsets(config: FeatureConfig, rng: np.random.Generator) -> np.ndarra
 def probe(values, r, c, inv_d, dr, dc, background, nearest):
     """Value read at the probe (r, c) + round((dr, dc) * inv_d), or `background`.
 
-    `values` is the model input's probe image (`inputs.ModelInput.values`: depth for a
-    legacy model) and `inv_d` the pixel's offset scale (`ModelInput.scale[r, c]`). A probe
+    `values` is the model input's probe image (`inputs.ModelInput.probe_values`: depth
+    for a legacy model) and `inv_d` the pixel's offset scale (`ModelInput.scale[r, c]`). A probe
     outside the image reads the nearest pixel on its edge when `nearest`, else
     `background`. All arithmetic is float32, identical in every kernel and in the numpy
     references.
@@ -237,7 +246,7 @@ def extract_features(
     pixel (`FeatureConfig.nearest_off_image`), else `background_mm`.
     """
     inp = check_input(as_input(frame), "features")
-    values = inp.values
+    values = inp.probe_values
     rows = np.asarray(rows, np.int64)
     cols = np.asarray(cols, np.int64)
     offsets = np.ascontiguousarray(offsets, np.float32)
@@ -261,14 +270,14 @@ def extract_features(
 
 
 @numba.njit(cache=True, parallel=True)
-def _node_response_image(values, scale, offsets, weights, background, nearest, out):
+def _node_response_image(values, probes, scale, offsets, weights, background, nearest, out):
     for r in numba.prange(values.shape[0]):
         for c in range(values.shape[1]):
             if values[r, c] == 0:
                 out[r, c] = np.nan
             else:
                 inv_d = scale[r, c]
-                out[r, c] = response_at(values, r, c, inv_d, offsets, weights, background, nearest)
+                out[r, c] = response_at(probes, r, c, inv_d, offsets, weights, background, nearest)
 
 
 def node_response_image(
@@ -290,7 +299,9 @@ def node_response_image(
         raise ValueError(f"offsets must be (k, 4) for k weights, got {offsets.shape}")
     out = np.empty(inp.values.shape, np.float32)
     background = np.int32(background_mm)
-    _node_response_image(inp.values, inp.scale, offsets, weights, background, bool(nearest), out)
+    _node_response_image(
+        inp.values, inp.probe_values, inp.scale, offsets, weights, background, bool(nearest), out
+    )
     return out
 
 

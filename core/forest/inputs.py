@@ -14,7 +14,10 @@ trained on heights (header `"input": "height"`) reads
 - a floor gate: pixels with depth whose height is below `floor_margin_mm(D, sensor, s)` (a
   few sigma of the sensor's depth noise at that range, times the mount's measured
   `noise_scale` s, within [`MIN_FLOOR_MARGIN_MM`, `MAX_FLOOR_MARGIN_MM`]) are
-  background without walking the forest. They stay probe targets (the floor is context).
+  background without walking the forest. They stay probe targets (the floor is context);
+- a probe image: V with each no-depth region that touches the image's edge filled from the
+  surface beside it, when the model's features say so (`FeatureConfig.edge_gaps`,
+  `edge_gaps.fill_edge_gaps`); those pixels still get no label.
 
 Before any of this, a frame from a camera whose depth noise at the floor is large (stereo
 cameras at range) is smoothed by an edge-preserving filter (`core.denoise`).
@@ -37,6 +40,7 @@ import numpy as np
 from topseg.core.camera import check_depth
 from topseg.core.denoise import denoise
 from topseg.core.errors import TopsegError
+from topseg.core.forest.edge_gaps import fill_edge_gaps
 
 if TYPE_CHECKING:
     from topseg.core.camera import TopViewMount
@@ -63,16 +67,26 @@ class ModelInput:
     values  (H, W) uint16 probe values (virtual depth in mm, see the module); 0: no depth
     scale   (H, W) float32 offset scale per pixel (1/mm); 0 where there is no depth
     floor   (H, W) bool: pixels the floor gate sends to background without the forest
+    probes  (H, W) uint16 image the feature probes read, when it differs from `values`:
+            no-depth regions touching the image's edge filled from the surface beside
+            them (`FeatureConfig.edge_gaps`, `edge_gaps.fill_edge_gaps`); None: `values`.
+            Which pixels are labelled still follows `values`.
     """
 
     values: np.ndarray
     scale: np.ndarray
     floor: np.ndarray
+    probes: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols) of the frame."""
         return self.values.shape
+
+    @property
+    def probe_values(self) -> np.ndarray:
+        """The image feature probes read: `probes`, or `values` when there is none."""
+        return self.values if self.probes is None else self.probes
 
     def floor_share(self) -> float:
         """Share of the pixels with depth that the floor gate skipped (0 with no depth)."""
@@ -146,7 +160,8 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
         scale,
         floor,
     )
-    return ModelInput(values, scale, floor)
+    probes = fill_edge_gaps(values)[0] if features.edge_gaps == "nearest" else None
+    return ModelInput(values, scale, floor, None if probes is values else probes)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -193,15 +208,19 @@ def as_input(x: np.ndarray | ModelInput) -> ModelInput:
 
 
 def check_input(x: ModelInput, user: str = "forest") -> ModelInput:
-    """`x` with C-contiguous uint16 values, float32 scale and bool floor of one shape."""
+    """`x` with C-contiguous uint16 values (and probes), float32 scale and bool floor of one
+    shape."""
     values = check_depth(x.values, user)
     scale = np.ascontiguousarray(x.scale, np.float32)
     floor = np.ascontiguousarray(x.floor, np.bool_)
+    probes = None if x.probes is None else check_depth(x.probes, user)
     if scale.shape != values.shape or floor.shape != values.shape:
         raise ValueError(
             f"{user}: values {values.shape}, scale {scale.shape} and floor {floor.shape} differ"
         )
-    return ModelInput(values, scale, floor)
+    if probes is not None and probes.shape != values.shape:
+        raise ValueError(f"{user}: probes {probes.shape} and values {values.shape} differ")
+    return ModelInput(values, scale, floor, probes)
 
 
 def header_fields(features: FeatureConfig, trained_for: dict | None = None) -> dict[str, Any]:

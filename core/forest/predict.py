@@ -739,7 +739,7 @@ def _settle(values, floor, stride, table, confidence, reach, out, amax, pmax, ps
 
 @numba.njit(cache=True, parallel=True)
 def _apply(
-    values, scale, floor, offsets, weights, threshold, left, roots, background, nearest, out
+    values, probes, scale, floor, offsets, weights, threshold, left, roots, background, nearest, out
 ):
     for r in numba.prange(values.shape[0]):
         for c in range(values.shape[1]):
@@ -750,7 +750,7 @@ def _apply(
                     inv_d = scale[r, c]
                     while left[node] >= 0:
                         resp = response_at(
-                            values, r, c, inv_d, offsets[node], weights[node], background, nearest
+                            probes, r, c, inv_d, offsets[node], weights[node], background, nearest
                         )
                         node = left[node] + (0 if resp < threshold[node] else 1)
                 out[t, r, c] = node if walk else -1
@@ -827,7 +827,7 @@ def predict_proba(
     clamp = pad > max_pad
     pad = np.int32(1 if clamp else pad)
     walk = _kernel(table.k, clamp)
-    padded = _padded(inp.values, background, pad, forest.nearest_off_image)
+    padded = _padded(inp.probe_values, background, pad, forest.nearest_off_image)
     tables = (table.fields, table.words, forest.posteriors, table.roots)
     early = (
         (np.int32(forest.n_trees), np.float32(1.0))
@@ -882,6 +882,7 @@ def apply(forest: Forest, frame: np.ndarray | ModelInput) -> np.ndarray:
     out = np.empty((forest.n_trees, *inp.shape), np.int32)
     _apply(
         inp.values,
+        inp.probe_values,
         inp.scale,
         inp.floor,
         forest.offsets,
