@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
+from topseg.core.errors import TopsegError
 from topseg.services.cli import main
 from topseg.services.experiment import mounts
 
@@ -34,6 +37,15 @@ def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path
     assert "(downsample auto)" in md and "(downsample 1)" in md
     assert "Heads as blobs" in md
     assert (out / "mounts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # --report-only rewrites the table and figure from mounts.json (edited here), runs no cell
+    doc["models"]["model"]["path"] = "renamed.npz"
+    (out / "mounts.json").write_text(json.dumps(doc))
+    (out / "mounts.png").unlink()
+    assert main(["-q", *args, "--report-only"]) == 0
+    assert "## model: renamed.npz" in (out / "mounts.md").read_text()
+    assert (out / "mounts.png").exists() and json.loads((out / "mounts.json").read_text()) == doc
+    with pytest.raises(TopsegError, match="no such file"):
+        mounts.read_report(tmp_path)
 
 
 def _cell(sensor, height, tilt, f1):

@@ -158,8 +158,29 @@ def run_mounts(
     }
     out.mkdir(parents=True, exist_ok=True)
     _write(out / "mounts.json", json.dumps(report, indent=1) + "\n")
+    write_report(report, out)
+    return report
+
+
+def write_report(report: dict, out: Path) -> None:
+    """Write OUT/mounts.md and mounts.png from a report (`run_mounts`'s mounts.json)."""
     _write(out / "mounts.md", markdown(report))
     figure(report, out / "mounts.png")
+
+
+def read_report(out: Path) -> dict:
+    """OUT/mounts.json as `run_mounts` wrote it, its verdict recomputed from its cells;
+    TopsegError in one line when it is missing or unreadable."""
+    from topseg.core.errors import TopsegError
+
+    path = out / "mounts.json"
+    try:
+        report = json.loads(path.read_text())
+        report["verdict"] = verdict([Cell(**c) for c in report["cells"]["model"]])
+    except FileNotFoundError:
+        raise TopsegError(f"{path}: no such file; run the mounts experiment first") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise TopsegError(f"{path}: not a mounts report ({exc})") from None
     return report
 
 
