@@ -36,6 +36,11 @@
 #     person cut by the edge no longer reads as ending there. The bundled model was retrained
 #     so on the seventeenth session's dataset (training 41 min beside other work;
 #     docs/results.md, "Probes off the image").
+#   - Since the twenty-first session a no-depth region touching the image's edge (the Kinect
+#     v2's ring, a stereo camera's invalid band) reads as the surface beside it
+#     (`topseg train --edge-gaps nearest`, the default). The bundled model was retrained so
+#     on the same dataset (training 41 min beside the test suite; docs/results.md, "No-depth
+#     regions at the image's edge").
 # About 24 minutes on 2 cores, measured on a quiet machine (43 with other jobs beside it, fifteenth
 # session: datagen 6 min, training 37): datagen 4 min (32 frames/s), training
 # 19 min (two trees at a time, ~15 GB of the machine's memory in use at the peak).
