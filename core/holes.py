@@ -31,6 +31,13 @@ MAX_HOLE_CM2 = 100.0
 MAX_SPAN_MM = 100.0
 
 
+@numba.njit(cache=True, inline="always")
+def neighbour(v, u, k):
+    """The k-th (0-3) 4-neighbour of pixel (v, u): below, above, right, left (it may lie
+    off the image)."""
+    return v + (1 if k == 0 else -1 if k == 1 else 0), u + (1 if k == 2 else -1 if k == 3 else 0)
+
+
 @numba.njit(cache=True)
 def _fill_holes(depth, max_sum_z2, span_mm, out):
     """Fill `out` (a copy of `depth`) as `fill_holes` says; `max_sum_z2` is the largest
@@ -56,8 +63,7 @@ def _fill_holes(depth, max_sum_z2, span_mm, out):
                 pix_v[n], pix_u[n] = v, u
                 n += 1
                 for k in range(4):
-                    vv = v + (1 if k == 0 else -1 if k == 1 else 0)
-                    uu = u + (1 if k == 2 else -1 if k == 3 else 0)
+                    vv, uu = neighbour(v, u, k)
                     if vv < 0 or vv >= h or uu < 0 or uu >= w:
                         continue
                     d = np.int64(depth[vv, uu])

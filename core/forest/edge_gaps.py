@@ -22,6 +22,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from topseg.core.holes import neighbour
+
 #: states of `_fill_edge_gaps`'s pixels
 _HAS_DEPTH, _HOLE, _GAP, _NEXT, _FILLED = 0, 1, 2, 3, 4
 
@@ -60,8 +62,7 @@ def _fill_edge_gaps(values, out):
         ring_r[n], ring_c[n] = r, c
         n += 1
         for k in range(4):
-            rr = r + (1 if k == 0 else -1 if k == 1 else 0)
-            cc = c + (1 if k == 2 else -1 if k == 3 else 0)
+            rr, cc = neighbour(r, c, k)
             if 0 <= rr < h and 0 <= cc < w and state[rr, cc] == _HOLE:
                 state[rr, cc] = _GAP
                 stack_r[top], stack_c[top] = rr, cc
@@ -71,8 +72,7 @@ def _fill_edge_gaps(values, out):
     for i in range(n):
         r, c = ring_r[i], ring_c[i]
         for k in range(4):
-            rr = r + (1 if k == 0 else -1 if k == 1 else 0)
-            cc = c + (1 if k == 2 else -1 if k == 3 else 0)
+            rr, cc = neighbour(r, c, k)
             if 0 <= rr < h and 0 <= cc < w and state[rr, cc] == _HAS_DEPTH:
                 state[r, c] = _NEXT
                 stack_r[m], stack_c[m] = r, c
@@ -85,8 +85,7 @@ def _fill_edge_gaps(values, out):
             r, c = stack_r[i], stack_c[i]
             best = np.int32(1 << 30)
             for k in range(4):
-                rr = r + (1 if k == 0 else -1 if k == 1 else 0)
-                cc = c + (1 if k == 2 else -1 if k == 3 else 0)
+                rr, cc = neighbour(r, c, k)
                 if 0 <= rr < h and 0 <= cc < w:
                     s = state[rr, cc]
                     if s == _HAS_DEPTH or s == _FILLED:
@@ -101,8 +100,7 @@ def _fill_edge_gaps(values, out):
         for i in range(m):
             r, c = stack_r[i], stack_c[i]
             for k in range(4):
-                rr = r + (1 if k == 0 else -1 if k == 1 else 0)
-                cc = c + (1 if k == 2 else -1 if k == 3 else 0)
+                rr, cc = neighbour(r, c, k)
                 if 0 <= rr < h and 0 <= cc < w and state[rr, cc] == _GAP:
                     state[rr, cc] = _NEXT
                     ring_r[nxt], ring_c[nxt] = rr, cc
