@@ -13,8 +13,9 @@ border. It is filled from its rim inwards, one ring of pixels at a time: a pixel
 smallest value (the highest surface) among its 4-neighbours that have depth or were filled
 in an earlier ring. So each pixel reads a surface nearest to it along the gap (city-block
 distance), and the fill does not depend on the order pixels are visited in. Holes inside the
-image keep no depth; no pixel gains a label: only what probes read changes. The work is
-proportional to the pixels in edge gaps.
+image keep no depth; no pixel gains a label: only what probes read changes. Beyond one pass
+over the frame (none when its border has depth all round), the work is proportional to the
+pixels in edge gaps.
 """
 
 from __future__ import annotations
@@ -53,36 +54,33 @@ def _fill_edge_gaps(values, out):
             state[r, c] = _GAP
             stack_r[top], stack_c[top] = r, c
             top += 1
-    ring_r = np.empty(h * w, np.int32)  # the pixels of the gaps, then each ring in turn
+    ring_r = np.empty(h * w, np.int32)  # the ring being filled, and the next one
     ring_c = np.empty(h * w, np.int32)
-    n = 0
+    next_r = np.empty(h * w, np.int32)
+    next_c = np.empty(h * w, np.int32)
+    m = 0  # on the way, the first ring: gap pixels beside a pixel with depth
     while top > 0:
         top -= 1
         r, c = stack_r[top], stack_c[top]
-        ring_r[n], ring_c[n] = r, c
-        n += 1
+        beside_depth = False
         for k in range(4):
             rr, cc = neighbour(r, c, k)
-            if 0 <= rr < h and 0 <= cc < w and state[rr, cc] == _HOLE:
-                state[rr, cc] = _GAP
-                stack_r[top], stack_c[top] = rr, cc
-                top += 1
-    # the first ring: gap pixels beside a pixel with depth
-    m = 0
-    for i in range(n):
-        r, c = ring_r[i], ring_c[i]
-        for k in range(4):
-            rr, cc = neighbour(r, c, k)
-            if 0 <= rr < h and 0 <= cc < w and state[rr, cc] == _HAS_DEPTH:
-                state[r, c] = _NEXT
-                stack_r[m], stack_c[m] = r, c
-                m += 1
-                break
+            if 0 <= rr < h and 0 <= cc < w:
+                if state[rr, cc] == _HOLE:
+                    state[rr, cc] = _GAP
+                    stack_r[top], stack_c[top] = rr, cc
+                    top += 1
+                elif state[rr, cc] == _HAS_DEPTH:
+                    beside_depth = True
+        if beside_depth:
+            state[r, c] = _NEXT
+            ring_r[m], ring_c[m] = r, c
+            m += 1
     filled = 0
     while m > 0:
         # each pixel of the ring takes the least value among its settled neighbours ...
         for i in range(m):
-            r, c = stack_r[i], stack_c[i]
+            r, c = ring_r[i], ring_c[i]
             best = np.int32(1 << 30)
             for k in range(4):
                 rr, cc = neighbour(r, c, k)
@@ -93,20 +91,19 @@ def _fill_edge_gaps(values, out):
             out[r, c] = best
         # ... and only then counts as settled, so the ring's order does not matter
         for i in range(m):
-            state[stack_r[i], stack_c[i]] = _FILLED
+            state[ring_r[i], ring_c[i]] = _FILLED
         filled += m
         # the next ring: gap pixels beside this one
         nxt = 0
         for i in range(m):
-            r, c = stack_r[i], stack_c[i]
             for k in range(4):
-                rr, cc = neighbour(r, c, k)
+                rr, cc = neighbour(ring_r[i], ring_c[i], k)
                 if 0 <= rr < h and 0 <= cc < w and state[rr, cc] == _GAP:
                     state[rr, cc] = _NEXT
-                    ring_r[nxt], ring_c[nxt] = rr, cc
+                    next_r[nxt], next_c[nxt] = rr, cc
                     nxt += 1
-        for i in range(nxt):
-            stack_r[i], stack_c[i] = ring_r[i], ring_c[i]
+        ring_r, next_r = next_r, ring_r
+        ring_c, next_c = next_c, ring_c
         m = nxt
     return filled
 
