@@ -227,8 +227,9 @@ def _padded(depth, background, pad, nearest):
     h, w = depth.shape
     wp = w + 2 * pad
     out = np.empty((h + 2 * pad) * wp, np.uint16)
-    out[: pad * wp] = background  # one write per element, a select per pixel: 0.37 -> 0.23 ms
-    out[(h + pad) * wp :] = background
+    if not nearest or h == 0:  # else the rows above and below are copied from the edge's
+        out[: pad * wp] = background  # one write per element, a select per pixel: 0.37 -> 0.23 ms
+        out[(h + pad) * wp :] = background
     for r in range(h):
         base = (r + pad) * wp
         for c in range(w):
