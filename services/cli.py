@@ -51,6 +51,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "topseg.services.calibrate",
         "fit the floor in a camera's frames, write a mount file",
     ),
+    "compile": (
+        "topseg.services.compile_kernels",
+        "compile numba's kernels into its cache, so that services start in seconds",
+    ),
 }
 
 
