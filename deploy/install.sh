@@ -18,6 +18,8 @@
 #   --source PATH    what pip installs (default: this checkout); a wheel works too
 #   --pip-args ARGS  more pip install arguments (e.g. "--no-deps --no-index" for offline tests)
 #   --no-venv-pip    make the venv without pip and install with --python's pip (faster; tests)
+#   --no-compile     do not compile numba's kernels into the services' cache now (the worker
+#                    then compiles them on its first start: ~1-2 min on 2 cores)
 set -euo pipefail
 
 CHECKOUT=$(cd "$(dirname "$0")/.." && pwd)
@@ -28,6 +30,7 @@ EXTRAS=auto
 SOURCE=$CHECKOUT
 PIP_ARGS=""
 VENV_PIP=1
+COMPILE=1
 
 usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; }
 die() { echo "install: error: $*" >&2; exit 2; }
@@ -42,6 +45,7 @@ while [ $# -gt 0 ]; do
         --source) [ $# -ge 2 ] || die "--source needs a path"; SOURCE=$2; shift ;;
         --pip-args) [ $# -ge 2 ] || die "--pip-args needs arguments"; PIP_ARGS=$2; shift ;;
         --no-venv-pip) VENV_PIP=0 ;;
+        --no-compile) COMPILE=0 ;;
         -h|--help) usage; exit 0 ;;
         *) die "unknown argument $1 (see --help)" ;;
     esac
@@ -236,7 +240,28 @@ if [ -z "$ROOT" ]; then
     chgrp -R topseg "$ETC"
 fi
 
-# 6. Tell systemd and udev, where they run.
+# 6. numba's kernels compiled into the services' cache, as the topseg user, so that a worker's
+#    first start takes seconds instead of minutes. A failure is a warning: the worker would
+#    compile them itself.
+CACHE=/var/cache/topseg
+if [ "$COMPILE" = 0 ]; then
+    say "skipped compiling numba's kernels (--no-compile)"
+elif [ -n "$ROOT" ]; then
+    say "skipped compiling numba's kernels (--root)"
+else
+    install -d -o topseg -g topseg -m 0750 "$CACHE" "$CACHE/numba"
+    log=$(mktemp)
+    if runuser -u topseg -- env HOME="$CACHE" NUMBA_CACHE_DIR="$CACHE/numba" \
+        "$VENV/bin/topseg" -q compile >"$log" 2>&1 </dev/null; then
+        say "compiled numba's kernels into $CACHE/numba ($(tail -n 1 "$log"))"
+    else
+        say "warning: could not compile numba's kernels into $CACHE/numba (the worker will" \
+            "on its first start): $(grep -v '^ ' "$log" | tail -n 1)"
+    fi
+    rm -f "$log"
+fi
+
+# 7. Tell systemd and udev, where they run.
 if [ -z "$ROOT" ] && [ "$SYSTEMCTL" = 1 ]; then
     if command -v systemctl >/dev/null && [ -d /run/systemd/system ]; then
         systemctl daemon-reload
