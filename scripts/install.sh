@@ -28,6 +28,6 @@ fi
 echo "install: topseg and its Python dependencies into .venv"
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test,kinect]"
 .venv/bin/topseg --version
-# numba's kernels compiled into its cache now, two at a time (~2 min on 2 cores), not on a
+# numba's kernels compiled into its cache now, a process per core (~2 min on 2 cores), not on a
 # worker's first start or spread over the test suite's first runs
 .venv/bin/topseg compile

@@ -120,6 +120,13 @@ def compile_all(names: list[str], processes: int, report=print) -> dict[str, flo
     return seconds
 
 
+def default_processes() -> int:
+    """One process per core, up to the jobs that run side by side."""
+    import os
+
+    return max(1, min(len(JOBS), os.cpu_count() or 1))
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg compile [JOB ...] [--processes N]`."""
     from topseg.services.cli_types import int_range
@@ -131,8 +138,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--processes",
         type=int_range(1, 64),
-        default=2,
-        help="jobs compiled at once, one process each (default 2)",
+        default=default_processes(),
+        help=f"jobs compiled at once, one process each (default here: {default_processes()}, "
+        "one per core up to the jobs that can run at once)",
     )
 
 
