@@ -1136,37 +1136,39 @@ def smooth_depth_reference(depth, edge_mm, alpha, iterations):
 
 
 def fill_holes_reference(
-    depth: np.ndarray, max_sum_z2: float, span_mm: float
+    depth: np.ndarray, max_sum_z2: float, span_mm: float, surface_share: float = 1.0
 ) -> tuple[np.ndarray, int]:
-    """`holes._fill_holes` in plain numpy: every 4-connected region without depth whose
-    border (each hole-pixel / depth-pixel 4-neighbour pair once) spans at most `span_mm` and
-    whose pixel count times mean border depth squared is at most `max_sum_z2` takes that
-    mean, rounded half up."""
+    """`holes._fill_holes` in plain numpy: every 4-connected region without depth with at
+    least `surface_share` of its border (each hole-pixel / depth-pixel 4-neighbour pair
+    once) within `span_mm` of the border's nearest depth, and whose pixel count times the
+    mean of those near border depths squared is at most `max_sum_z2`, takes that mean,
+    rounded half up."""
     d = depth.astype(np.int64)
     h, w = d.shape
     holes, n = ndimage.label(d == 0)
     out = depth.copy()
-    total = np.zeros(n + 1)
-    count = np.zeros(n + 1, np.int64)
-    lo = np.full(n + 1, 1 << 30, np.int64)
-    hi = np.zeros(n + 1, np.int64)
+    pairs = []  # (hole id, the neighbour's depth) of every border pair
     for dv, du in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         nb = np.zeros_like(d)  # the neighbour's depth, 0 off the image
         nb[max(0, -dv) : h - max(0, dv), max(0, -du) : w - max(0, du)] = d[
             max(0, dv) : h + min(0, dv) or None, max(0, du) : w + min(0, du) or None
         ]
         pair = (holes > 0) & (nb > 0)
-        ids, vals = holes[pair], nb[pair]
-        total += np.bincount(ids, weights=vals.astype(np.float64), minlength=n + 1)
-        count += np.bincount(ids, minlength=n + 1)
-        np.minimum.at(lo, ids, vals)
-        np.maximum.at(hi, ids, vals)
+        pairs.append((holes[pair], nb[pair]))
+    ids = np.concatenate([i for i, _ in pairs])
+    vals = np.concatenate([v for _, v in pairs])
+    lo = np.full(n + 1, 1 << 30, np.int64)
+    np.minimum.at(lo, ids, vals)
+    count = np.bincount(ids, minlength=n + 1)
+    close = vals - lo[ids] <= span_mm
+    near = np.bincount(ids[close], minlength=n + 1)
+    total = np.bincount(ids[close], weights=vals[close].astype(np.float64), minlength=n + 1)
     size = np.bincount(holes.ravel(), minlength=n + 1)
     filled = 0
     for i in range(1, n + 1):
-        if count[i] == 0 or hi[i] - lo[i] > span_mm:
+        if count[i] == 0 or near[i] < surface_share * count[i]:
             continue
-        z = total[i] / count[i]
+        z = total[i] / near[i]
         if size[i] * z * z > max_sum_z2:
             continue
         out[holes == i] = np.uint16(np.floor(z + 0.5))
