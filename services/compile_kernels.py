@@ -13,12 +13,9 @@ end to end with every CRF mode and compiles what the others left. `make install`
 from __future__ import annotations
 
 import argparse
-import logging
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
-
-log = logging.getLogger("topseg.compile")
 
 
 def compile_forest() -> None:
@@ -86,8 +83,8 @@ def compile_labelling() -> None:
         Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf=mode).warm_up()
 
 
-#: name -> (job, what it compiles). The jobs of the first stage run side by side; `labelling`
-#: runs after them, so that it reuses what they cached instead of compiling it again.
+#: name -> job (its docstring says what it compiles). These run side by side; `LAST`'s run
+#: after them, so that they reuse what these cached instead of compiling it again.
 JOBS = {
     "forest": compile_forest,
     "crf": compile_crf,
