@@ -118,10 +118,11 @@ def compile_all(names: list[str], processes: int, report=print) -> dict[str, flo
 
 
 def default_processes() -> int:
-    """One process per core, up to the jobs that run side by side."""
+    """One process per core this process may run on, up to the jobs that run side by side."""
     import os
 
-    return max(1, min(len(JOBS), os.cpu_count() or 1))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(len(JOBS), cores or 1))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
