@@ -10,10 +10,13 @@ import pytest
 
 from topseg.services.cli import main
 
-#: a fresh process that runs what the worker, `segment`, `datagen` and `train` run and
-#: prints how many of topseg's cached kernels numba had to compile (cache misses) for it
-#: (one kernel is never cached: `crf.exact._gco_label_setter`'s holds a C function's address)
-FIRST_USE = """
+
+def first_use(jobs: str) -> str:
+    """A script for a fresh process: it runs `jobs` (an expression giving job functions of
+    `compile_kernels`) and prints how many of topseg's cached kernels numba had to compile
+    for them (cache misses), then their names. One kernel is never cached:
+    `crf.exact._gco_label_setter`'s holds a C function's address."""
+    return f"""
 from numba.core import event
 from numba.core.caching import NullCache
 
@@ -32,10 +35,14 @@ class Misses(event.Listener):
 event.register("numba:compile", Misses())
 from topseg.services import compile_kernels
 
-for job in (*compile_kernels.JOBS.values(), *compile_kernels.LAST.values()):
+for job in {jobs}:
     job()
 print(len(misses), sorted(set(misses)))
 """
+
+
+#: what the worker, `segment`, `datagen` and `train` run: every job
+EVERY_JOB = "(*compile_kernels.JOBS.values(), *compile_kernels.LAST.values())"
 
 
 def test_an_unknown_job_is_one_line_naming_the_jobs(capsys):
@@ -62,12 +69,9 @@ def test_a_job_leaves_its_kernels_cached(tmp_path):
     done = subprocess.run(cli, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert any((tmp_path / "numba").rglob("*.nbi")), "nothing was cached"
-    again = FIRST_USE.replace(
-        "for job in (*compile_kernels.JOBS.values(), *compile_kernels.LAST.values()):",
-        "for job in (compile_kernels.compile_synthesis,):",
-    )
+    script = first_use("(compile_kernels.compile_synthesis,)")
     used = subprocess.run(
-        [sys.executable, "-c", again], env=env, capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600
     )
     assert used.returncode == 0, used.stderr[-2000:]
     assert used.stdout.startswith("0 "), used.stdout
@@ -82,7 +86,11 @@ def test_after_compile_nothing_is_compiled_on_first_use(tmp_path):
     for job in ("forest", "crf", "training", "synthesis", "labelling"):
         assert f"compiled {job} kernels in" in done.stdout
     used = subprocess.run(
-        [sys.executable, "-c", FIRST_USE], env=env, capture_output=True, text=True, timeout=600
+        [sys.executable, "-c", first_use(EVERY_JOB)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert used.returncode == 0, used.stderr[-2000:]
     assert used.stdout.startswith("0 "), used.stdout
