@@ -174,7 +174,9 @@ class MountEstimate:
 
     def summary(self) -> str:
         """Human lines: height, pitch, roll, tilt, residual, inlier share, camera, sensor, and
-        whether its frames are smoothed before the forest."""
+        whether its frames are thinned (`core.fattening`) and smoothed before the forest."""
+        from topseg.core.fattening import thinning_line
+
         m, k = self.mount, self.mount.intrinsics
         return "\n".join(
             [
@@ -197,6 +199,7 @@ class MountEstimate:
                     if m.radial
                     else "along the optical axis"
                 ),
+                thinning_line(m),
                 _smoothing_line(m),
             ]
         )

@@ -695,6 +695,7 @@ class Segmenter:
             depth[-3:, :] = 0
         from topseg.core.crf import segment_crf
         from topseg.core.denoise import edge_table, smooth_depth
+        from topseg.core.fattening import thin_edges
         from topseg.core.forest.inputs import legacy_input
         from topseg.core.forest.predict import fill_posteriors, predict_proba
         from topseg.core.resolution import decimate, upsample_labels
@@ -718,8 +719,10 @@ class Segmenter:
             if self.features is not None:  # the half-resolution path's own two steps
                 small = decimate(frame, 2)
                 upsample_labels(frame, labels[::2, ::2], small, 2)
-                # the smoothing a noisy camera's frames get (`core.denoise`), not this mount's
+                # the smoothing a noisy camera's frames get (`core.denoise`) and the thinning
+                # a stereo camera's get (`core.fattening`), neither this mount's
                 smooth_depth(frame, edge_table(mount.sensor, 1.0))
+                thin_edges(frame, 1, 100.0)
         if self.config.crf.mode == "realtime":
             from topseg.core.crf import realtime
 

@@ -440,13 +440,14 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
         mount = replace(mount, sensor=sensor.name)
     from topseg.core.camera import range_text
     from topseg.core.denoise import smoothing_text
+    from topseg.core.fattening import thinning_text
 
     print(
         f"{label}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
         f"{mount.pitch_deg:.1f} deg, roll {mount.roll_deg:.1f} deg, floor inliers "
         f"{100 * estimate.inlier_share:.0f} % ({len(frames)} frames), floor noise "
         f"{estimate.residual_mm:.1f} mm (x{mount.noise_scale:.2f} the {mount.sensor} model)"
-        f"{range_text(mount)}{smoothing_text(mount)}"
+        f"{range_text(mount)}{thinning_text(mount)}{smoothing_text(mount)}"
     )
     return mount
 

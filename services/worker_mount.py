@@ -67,14 +67,16 @@ class MountWatchConfig:
 def mount_text(m: TopViewMount) -> str:
     """'height 3.31 m, pitch +1.2, roll -0.4 deg, kinect_v1 (noise x0.35)' for logs, and
     for a radial camera ', radial distance read as depth', and when the frames are smoothed
-    (`core.denoise`) ', depth smoothed (noise 85 mm at the floor)'."""
+    (`core.denoise`) ', depth smoothed (noise 85 mm at the floor)', and when a stereo
+    camera's edges are thinned (`core.fattening`) ', edges thinned 1 px (stereo fattening)'."""
     from topseg.core.camera import range_text
     from topseg.core.denoise import smoothing_text
+    from topseg.core.fattening import thinning_text
 
     return (
         f"height {m.height_mm / 1000:.2f} m, pitch {m.pitch_deg:+.1f}, "
         f"roll {m.roll_deg:+.1f} deg, {m.sensor} (noise x{m.noise_scale:.2f})"
-        f"{range_text(m)}{smoothing_text(m)}"
+        f"{range_text(m)}{thinning_text(m)}{smoothing_text(m)}"
     )
 
 

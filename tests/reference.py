@@ -28,6 +28,8 @@ bit (as stumpy keeps its naive versions in one test module).
   resolution by depth (`resolution.upsample_labels`).
 - `smooth_depth_reference`: the edge-preserving smoothing of noisy depth
   (`denoise.smooth_depth`).
+- `thin_edges_reference`: a stereo camera's fattened edges thinned
+  (`fattening.thin_edges`).
 """
 
 from __future__ import annotations
@@ -1174,3 +1176,19 @@ def fill_holes_reference(
         out[holes == i] = np.uint16(np.floor(z + 0.5))
         filled += 1
     return out, filled
+
+
+def thin_edges_reference(depth, radius, jump_mm):
+    """`fattening.thin_edges` in whole-array numpy: for every offset within Chebyshev
+    `radius`, the shifted frame (no depth off the image) offers its depth to the pixels it is
+    farther than by more than `jump_mm`; a pixel with depth takes the largest offer, if any."""
+    d = depth.astype(np.int64)
+    h, w = d.shape
+    padded = np.pad(d, radius)
+    best = d.copy()
+    for dv in range(-radius, radius + 1):
+        for du in range(-radius, radius + 1):
+            nb = padded[radius + dv : radius + dv + h, radius + du : radius + du + w]
+            offer = (d > 0) & (nb - d > jump_mm)
+            best = np.where(offer, np.maximum(best, nb), best)
+    return best.astype(np.uint16)

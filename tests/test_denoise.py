@@ -16,6 +16,7 @@ from topseg.core.denoise import (
     needs_denoise,
     smooth_depth,
 )
+from topseg.core.fattening import unfatten
 from topseg.core.forest.features import FeatureConfig
 from topseg.core.forest.inputs import depth_sigma_mm, model_input
 from topseg.core.sensors import get_sensor
@@ -110,7 +111,8 @@ def test_model_input_reads_the_smoothed_frame():
     depth = noisy_frame(np.random.default_rng(5), k.shape)
     features = FeatureConfig()
     got = model_input(depth, mount, features)
-    smoothed = smooth_depth(depth, edge_table(mount.sensor, 1.0))
+    # a stereo camera's edges are thinned first (`core.fattening`, tests/test_fattening.py)
+    smoothed = smooth_depth(unfatten(depth, mount), edge_table(mount.sensor, 1.0))
     quiet = TopViewMount(k, 4500.0, sensor="kinect_v2")  # same optics, not smoothed
     want = model_input(smoothed, quiet, features)
     np.testing.assert_array_equal(got.values, want.values)

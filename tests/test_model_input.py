@@ -10,6 +10,7 @@ from reference import edge_gaps_reference, model_input_float32_reference, model_
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount, metres_to_mm
 from topseg.core.denoise import denoise
+from topseg.core.fattening import unfatten
 from topseg.core.forest import FeatureConfig, TrainConfig, train_forest
 from topseg.core.forest.inputs import (
     FLOOR_SIGMAS,
@@ -91,7 +92,8 @@ def test_model_input_matches_first_principles():
     depth = rng.integers(1200, 4200, size=SMALL_K1.shape).astype(np.uint16)
     depth[rng.random(SMALL_K1.shape) < 0.05] = 0
     inp = model_input(depth, mount, FEATURES)
-    depth = denoise(depth, mount)  # a stereo camera at range: smoothed first (test_denoise)
+    # a stereo camera: thinned (test_fattening) and, at range, smoothed (test_denoise) first
+    depth = denoise(unfatten(depth, mount), mount)
     values, scale, floor, h = model_input_reference(
         depth, mount, FEATURES, lambda d: floor_margin_mm(d, mount.sensor)
     )
@@ -113,7 +115,8 @@ def test_model_input_kernel_is_bit_identical_to_numpy(seed):
     depth[rng.random(k.shape) < 0.1] = 0
     inp = model_input(depth, mount, FEATURES)
     kept = model_input(depth, mount, replace(FEATURES, edge_gaps="background"))
-    depth = denoise(depth, mount)  # smoothed first where the camera is noisy (test_denoise)
+    # thinned (test_fattening) and smoothed where the camera is noisy (test_denoise) first
+    depth = denoise(unfatten(depth, mount), mount)
     values, scale, floor = model_input_float32_reference(
         depth, mount, FEATURES, lambda d: floor_margin_mm(d, mount.sensor)
     )

@@ -19,8 +19,9 @@ trained on heights (header `"input": "height"`) reads
   surface beside it, when the model's features say so (`FeatureConfig.edge_gaps`,
   `edge_gaps.fill_edge_gaps`); those pixels still get no label.
 
-Before any of this, a frame from a camera whose depth noise at the floor is large (stereo
-cameras at range) is smoothed by an edge-preserving filter (`core.denoise`).
+Before any of this, a stereo camera's fattened edges are thinned by the width its noise
+model expects (`core.fattening`), and a frame from a camera whose depth noise at the floor is
+large (stereo cameras at range) is smoothed by an edge-preserving filter (`core.denoise`).
 
 Models trained before this (no `"input"` in the header) read the legacy input: V = D,
 S = float32(1) / float32(D), no gate: exactly what the kernels computed from depth before.
@@ -40,6 +41,7 @@ import numpy as np
 from topseg.core.camera import check_depth
 from topseg.core.denoise import denoise
 from topseg.core.errors import TopsegError
+from topseg.core.fattening import unfatten
 from topseg.core.forest.edge_gaps import fill_edge_gaps
 
 if TYPE_CHECKING:
@@ -133,8 +135,9 @@ def _margin_table(sensor: str, noise_scale: float) -> np.ndarray:
 def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
     """The input of a height model (see the module) for a uint16 depth frame from `mount`.
 
-    A radial camera's range is read as depth first (`TopViewMount.z_depth`), and frames from
-    a noisy camera are smoothed (`core.denoise`). The frame must have the mount's
+    A radial camera's range is read as depth first (`TopViewMount.z_depth`), a stereo
+    camera's fattened edges are thinned (`core.fattening`), and frames from a noisy camera
+    are smoothed (`core.denoise`). The frame must have the mount's
     intrinsics' shape; ValueError otherwise.
     """
     depth = check_depth(depth, "model input")
@@ -144,7 +147,7 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
             f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
             f"{k.width}x{k.height}"
         )
-    depth = denoise(mount.z_depth(depth), mount)
+    depth = denoise(unfatten(mount.z_depth(depth), mount), mount)
     values = np.empty(depth.shape, np.uint16)
     scale = np.empty(depth.shape, np.float32)
     floor = np.empty(depth.shape, np.bool_)
