@@ -1178,17 +1178,20 @@ def fill_holes_reference(
     return out, filled
 
 
-def thin_edges_reference(depth, radius, jump_mm):
+def thin_edges_reference(depth, radius, jump_mm, min_farther):
     """`fattening.thin_edges` in whole-array numpy: for every offset within Chebyshev
     `radius`, the shifted frame (no depth off the image) offers its depth to the pixels it is
-    farther than by more than `jump_mm`; a pixel with depth takes the largest offer, if any."""
+    farther than by more than `jump_mm`; a pixel with depth and at least `min_farther` offers
+    takes the largest."""
     d = depth.astype(np.int64)
     h, w = d.shape
     padded = np.pad(d, radius)
     best = d.copy()
+    offers = np.zeros(d.shape, np.int64)
     for dv in range(-radius, radius + 1):
         for du in range(-radius, radius + 1):
             nb = padded[radius + dv : radius + dv + h, radius + du : radius + du + w]
             offer = (d > 0) & (nb - d > jump_mm)
+            offers += offer
             best = np.where(offer, np.maximum(best, nb), best)
-    return best.astype(np.uint16)
+    return np.where(offers >= min_farther, best, d).astype(np.uint16)

@@ -6,7 +6,7 @@ import pytest
 from reference import thin_edges_reference
 
 from topseg.core.camera import TopViewMount
-from topseg.core.fattening import thin_edges, thinning_of, unfatten
+from topseg.core.fattening import MIN_FARTHER, thin_edges, thinning_of, unfatten
 from topseg.core.forest.features import FeatureConfig
 from topseg.core.forest.inputs import model_input
 from topseg.core.resolution import decimated_mount
@@ -21,14 +21,16 @@ def mount_of(sensor: str, height_mm: float = 3500.0) -> TopViewMount:
 
 @pytest.mark.parametrize("seed", range(6))
 @pytest.mark.parametrize("radius", [0, 1, 2, 3])
-def test_kernel_matches_the_reference(seed, radius):
+@pytest.mark.parametrize("min_farther", [1, MIN_FARTHER, 4])
+def test_kernel_matches_the_reference(seed, radius, min_farther):
     rng = np.random.default_rng(seed)
     shape = tuple(int(n) for n in rng.integers(1, 60, 2))
     depth = rng.integers(0, 5000, shape).astype(np.uint16)
     depth[rng.random(shape) < 0.1] = 0
     jump = float(rng.uniform(0, 800))
     np.testing.assert_array_equal(
-        thin_edges(depth, radius, jump), thin_edges_reference(depth, radius, jump)
+        thin_edges(depth, radius, jump, min_farther),
+        thin_edges_reference(depth, radius, jump, min_farther),
     )
 
 
@@ -39,7 +41,8 @@ def test_blocky_frames_match_the_reference():
     depth = np.kron(coarse, np.ones((5, 5), np.uint16))
     for radius in (1, 2):
         np.testing.assert_array_equal(
-            thin_edges(depth, radius, 100.0), thin_edges_reference(depth, radius, 100.0)
+            thin_edges(depth, radius, 100.0),
+            thin_edges_reference(depth, radius, 100.0, MIN_FARTHER),
         )
 
 
@@ -55,6 +58,18 @@ def test_it_undoes_a_one_pixel_fattening():
     gentle = np.full((20, 20), 3000, np.uint16)
     gentle[5:15, 5:15] = 2950
     np.testing.assert_array_equal(thin_edges(gentle, 1, 100.0), gentle)
+
+
+def test_one_farther_neighbour_is_not_enough():
+    # a fattened ring with one pixel missing: the true outline's pixel beside the gap has a
+    # single farther neighbour and keeps its depth; the ring's pixels have three and go
+    floor, head = 3500, 1700
+    depth = np.full((20, 20), floor, np.uint16)
+    depth[4:16, 4:16] = head  # the fattened ring: rows and columns 4 and 15
+    depth[4, 9] = floor  # one ring pixel left unfattened
+    out = thin_edges(depth, 1, 100.0)
+    assert out[5, 9] == head  # below the gap: (4, 9) is its only farther neighbour
+    assert np.all(out[4, 5:15] == floor) and np.all(out[5:15, 4] == floor)
 
 
 def test_pixels_without_depth_are_left_alone():
@@ -97,7 +112,7 @@ def test_model_input_reads_the_thinned_frame():
     features = FeatureConfig()
     got = model_input(depth, mount, features)
     quiet = TopViewMount(k, 2500.0, sensor="kinect_v2")  # same optics, not thinned
-    want = model_input(thin_edges(depth, 1, 100.0), quiet, features)
+    want = model_input(thin_edges(depth, 1, 100.0, MIN_FARTHER), quiet, features)
     np.testing.assert_array_equal(got.values, want.values)
     assert not np.array_equal(got.values, model_input(depth, quiet, features).values)
 
@@ -107,6 +122,8 @@ def test_bad_input_is_refused():
         thin_edges(np.zeros((2, 3, 4), np.uint16), 1, 100.0)
     with pytest.raises(ValueError, match="radius"):
         thin_edges(np.zeros((3, 3), np.uint16), -1, 100.0)
+    with pytest.raises(ValueError, match="min_farther"):
+        thin_edges(np.zeros((3, 3), np.uint16), 1, 100.0, 0)
     for shape in ((0, 5), (5, 0)):
         assert thin_edges(np.zeros(shape, np.uint16), 1, 100.0).shape == shape
 
