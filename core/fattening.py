@@ -15,11 +15,12 @@ takes the farthest such neighbour's depth. One such neighbour is not enough: the
 of a true outline has three outside it, each left unfattened 30 % of the time. A pixel
 without depth, and its neighbours without depth, are left alone.
 Time-of-flight and structured-light frames are not changed. Measured in docs/noise.md
-("Edge fattening").
+("Thinning a stereo camera's fattened edges").
 """
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numba
@@ -40,15 +41,22 @@ def thinning_of(mount: TopViewMount) -> tuple[int, float]:
     sensor's noise model fattens edges by (scaled by the frame's focal length over the
     sensor's, so a decimated frame is thinned by its own pixels) and the depth step that
     counts as an edge; (0, 0.0) for a sensor that does not fatten edges."""
+    return _thinning(mount.sensor, float(mount.intrinsics.fx))
+
+
+@functools.lru_cache(maxsize=64)
+def _thinning(sensor_name: str, fx: float) -> tuple[int, float]:
+    """`thinning_of` for a sensor and a focal length (a frame is one lookup, not a parse of
+    the sensor's noise spec)."""
     try:
-        sensor = get_sensor(mount.sensor)
+        sensor = get_sensor(sensor_name)
     except TopsegError:  # an unknown sensor name: nothing to undo that we know of
         return 0, 0.0
     if sensor.family != ACTIVE_STEREO:
         return 0, 0.0
     noise = sensor.noise()
     expected_px = sum(noise.fatten**r for r in range(1, noise.fatten_px + 1))
-    radius = round(expected_px * mount.intrinsics.fx / sensor.intrinsics.fx)
+    radius = round(expected_px * fx / sensor.intrinsics.fx)
     return radius, 1000.0 * noise.jump_m
 
 
@@ -81,7 +89,7 @@ def thin_edges(
 ) -> np.ndarray:
     """The thinning itself: a new uint16 frame in which every pixel with depth that has at
     least `min_farther` neighbours within Chebyshev distance `radius` farther by more than
-    `jump_mm` takes the farthest of them's depth; every other pixel keeps its own."""
+    `jump_mm` takes the depth of the farthest of them; every other pixel keeps its own."""
     depth = np.ascontiguousarray(depth, np.uint16)
     if depth.ndim != 2:
         raise ValueError(f"depth must be 2-D, got shape {depth.shape}")
