@@ -107,9 +107,9 @@ def _thin(depth, radius, jump, min_farther, out):
     such; else depth[r, c].
 
     Most pixels have no such neighbour: the largest depth within `radius` (a separable max
-    filter, rows then columns, in loops the compiler vectorises) rules them out first, and
-    only the rest count their neighbours (4x faster than counting everywhere, ~1 ms a
-    640x480 frame)."""
+    filter, rows then columns) rules them out first, and only the rest count their
+    neighbours (1.2 ms wall a 640x480 D435 frame against 4.6 ms counting everywhere,
+    docs/performance.md)."""
     h, w = depth.shape
     row_max = np.empty((h, w), np.uint16)
     for r in numba.prange(h):
