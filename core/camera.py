@@ -217,6 +217,10 @@ class TopViewMount:
     `radial` says the camera sends range along each pixel's ray (radial distance, as some
     time-of-flight cameras do), not depth along the optical axis: `z_depth` turns its frames
     into depth before anything measures heights from them. Calibration finds it out.
+    `edge_thinning` False says the camera's depth edges are not fattened even though its
+    sensor is a stereo one (its own filters cleaned them): its frames are then not thinned
+    (`core/fattening.py`). True thins them as its sensor model says, which does nothing for
+    a sensor that does not fatten edges.
     """
 
     intrinsics: Intrinsics
@@ -226,6 +230,7 @@ class TopViewMount:
     sensor: str = "kinect_v1"
     noise_scale: float = 1.0
     radial: bool = False
+    edge_thinning: bool = True
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.height_mm) and self.height_mm > 0):
@@ -351,13 +356,17 @@ class TopViewMount:
             "roll_deg": float(self.roll_deg),
             "sensor": self.sensor,
             "noise_scale": float(self.noise_scale),
-        } | ({"radial": True} if self.radial else {})  # absent for depth: older readers load it
+        } | (
+            ({"radial": True} if self.radial else {})  # absent for depth: older readers load it
+            | ({} if self.edge_thinning else {"edge_thinning": False})  # likewise when on
+        )
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "camera mount") -> TopViewMount:
         """The mount in `d` (`to_dict`'s form). `intrinsics` and `height_mm` are required;
-        the tilt, sensor, noise scale and `radial` default (straight down, Kinect v1, as
-        modelled, depth), so dicts written before they existed still load."""
+        the tilt, sensor, noise scale, `radial` and `edge_thinning` default (straight down,
+        Kinect v1, as modelled, depth, thinned as the sensor model says), so dicts written
+        before they existed still load."""
         from topseg.core.config import from_dict
 
         return from_dict(cls, d, source, required=("intrinsics", "height_mm"))

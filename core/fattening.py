@@ -14,7 +14,9 @@ topseg thins such edges by the width the camera's noise model expects (the sum o
 takes the farthest such neighbour's depth. One such neighbour is not enough: the last pixel
 of a true outline has three outside it, each left unfattened 30 % of the time. A pixel
 without depth, and its neighbours without depth, are left alone.
-Time-of-flight and structured-light frames are not changed. Measured in docs/noise.md
+Time-of-flight and structured-light frames are not changed, nor are a stereo camera's whose
+mount says its edges are not fattened (`TopViewMount.edge_thinning` False: a camera whose own
+filters already cleaned them; thinning clean edges costs accuracy). Measured in docs/noise.md
 ("Thinning a stereo camera's fattened edges").
 """
 
@@ -40,7 +42,10 @@ def thinning_of(mount: TopViewMount) -> tuple[int, float]:
     """(radius px, jump mm) of the thinning frames from `mount` get: the width its stereo
     sensor's noise model fattens edges by (scaled by the frame's focal length over the
     sensor's, so a decimated frame is thinned by its own pixels) and the depth step that
-    counts as an edge; (0, 0.0) for a sensor that does not fatten edges."""
+    counts as an edge; (0, 0.0) for a sensor that does not fatten edges and for a mount whose
+    `edge_thinning` is off."""
+    if not mount.edge_thinning:
+        return 0, 0.0
     return _thinning(mount.sensor, float(mount.intrinsics.fx))
 
 
@@ -60,11 +65,19 @@ def _thinning(sensor_name: str, fx: float) -> tuple[int, float]:
     return radius, 1000.0 * noise.jump_m
 
 
+def _turned_off(mount: TopViewMount) -> bool:
+    """Whether `mount`'s sensor fattens edges but its `edge_thinning` is off."""
+    return not mount.edge_thinning and _thinning(mount.sensor, float(mount.intrinsics.fx))[0] > 0
+
+
 def thinning_text(mount: TopViewMount) -> str:
-    """', edges thinned 1 px (stereo fattening)' for a mount whose frames are thinned, ''
+    """', edges thinned 1 px (stereo fattening)' for a mount whose frames are thinned,
+    ', edges not thinned (edge_thinning off)' for a stereo one whose mount turned it off, ''
     otherwise: what logs and printed mounts add."""
     radius, _ = thinning_of(mount)
-    return f", edges thinned {radius} px (stereo fattening)" if radius > 0 else ""
+    if radius > 0:
+        return f", edges thinned {radius} px (stereo fattening)"
+    return ", edges not thinned (edge_thinning off)" if _turned_off(mount) else ""
 
 
 def thinning_line(mount: TopViewMount) -> str:
@@ -72,6 +85,8 @@ def thinning_line(mount: TopViewMount) -> str:
     radius, jump_mm = thinning_of(mount)
     if radius > 0:
         return f"thinning   on: {radius} px at depth steps > {jump_mm:.0f} mm (stereo fattening)"
+    if _turned_off(mount):
+        return "thinning   off: the mount says its edges are not fattened (edge_thinning false)"
     return "thinning   off: the sensor does not fatten edges"
 
 

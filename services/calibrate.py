@@ -11,7 +11,9 @@ picture beside it: the depth, the floor inliers over it, and the height above th
 It refuses with one line when the source gives no depth, no plane covers enough of the view,
 the frames disagree (the camera moved), or the camera is tilted beyond what is supported.
 A camera that sends range along each pixel's ray instead of depth is recognised, and its
-mount says so (`radial`, docs/calibration.md).
+mount says so (`radial`, docs/calibration.md). A stereo camera's edges are thinned before
+labelling (`core/fattening.py`); `--no-edge-thinning` writes a mount that says its edges are
+not fattened (a camera whose own filters already clean them), so they are left as they are.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from topseg.core.errors import TopsegError
@@ -31,7 +34,7 @@ SENSOR_OF_KIND = {"freenect": "kinect_v1", "openni2": "kinect_v1", "oak": "oak_d
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--source, --frames, --sensor, --out, --picture."""
+    """--source, --frames, --sensor, --edge-thinning, --out, --picture."""
     parser.add_argument(
         "--source", required=True, help="replay:FILE, freenect, openni2, oak or synthetic[:...]"
     )
@@ -47,6 +50,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="sensor model name in core/sensors.py (default: the frames' own, the source "
         "kind's usual one; for PNG frames, which say no optics, the supported sensor of "
         "their size; else 'unknown')",
+    )
+    parser.add_argument(
+        "--edge-thinning",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="whether a stereo camera's fattened depth edges are thinned before labelling "
+        "(default: as the frames' own mount says, else on; --no-edge-thinning for a camera "
+        "whose own filters already clean its edges: thinning clean edges costs accuracy)",
     )
     parser.add_argument("--out", required=True, type=Path, help="the mount file to write (JSON)")
     parser.add_argument(
@@ -183,6 +194,14 @@ def picture(path: Path, depth, estimate) -> None:
     plt.close(fig)
 
 
+def with_edge_thinning(estimate, given: bool | None, frame_mount):
+    """`estimate` whose mount's `edge_thinning` is `given`, else the frames' own mount's,
+    else on (the fit measures the floor, not how the camera filters its edges)."""
+    if given is None:
+        given = frame_mount.edge_thinning if frame_mount is not None else True
+    return replace(estimate, mount=replace(estimate.mount, edge_thinning=given))
+
+
 def run(args: argparse.Namespace) -> int:
     """Grab frames, estimate the mount, print it, write the mount file and the picture."""
     from topseg.core.calibration import CalibrationConfig, estimate_mount
@@ -202,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
     if not known:
         intrinsics, sensor, optics = png_optics(intrinsics, args.sensor)
     estimate = estimate_mount(frames, intrinsics, sensor, CalibrationConfig(seed=args.seed))
+    estimate = with_edge_thinning(estimate, args.edge_thinning, frame_mount)
     print(f"topseg calibrate: mount of {args.source} from {len(frames)} frames")
     if optics:
         print(optics)

@@ -24,7 +24,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -249,7 +249,7 @@ class MountWatch:
                 mount_text(self.mount),
                 "; calibrate it again (topseg calibrate)" if self.source == "frame" else "",
             )
-            self.mount, self.source = est.mount, "estimated"
+            self.mount, self.source = self._kept(est.mount), "estimated"
             return False
         dh, da = mount_difference(self.mount, est.mount)
         if not self._is_move(dh, da):
@@ -268,8 +268,13 @@ class MountWatch:
             mount_text(self.mount),
             "; calibrate it again (topseg calibrate)" if self.source == "frame" else "",
         )
-        self.mount, self.source = est.mount, "estimated"
+        self.mount, self.source = self._kept(est.mount), "estimated"
         return True
+
+    def _kept(self, estimate: TopViewMount) -> TopViewMount:
+        """`estimate` with what the frames cannot show kept from the mount in use: whether
+        the camera's edges are thinned (its own filters, not its pose)."""
+        return replace(estimate, edge_thinning=self.mount.edge_thinning)
 
     def _schedule(self, now: float, ok: bool) -> None:
         if not ok:  # tried again soon, even with re-checks off

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -101,9 +103,20 @@ def test_png_frames_take_the_named_sensors_optics(tmp_path):
     r = calibrate("--source", f"replay:{folder}", "--sensor", "realsense_d435", "--out", out)
     assert r.returncode == 0, r.stderr
     assert "PNG frames say no optics: using the realsense_d435's (fx 385.0)" in r.stdout
+    assert "thinning   on: 1 px" in r.stdout
     mount = read_mount_document(out)["mount"]
-    assert mount.intrinsics == d435.intrinsics
+    assert mount.intrinsics == d435.intrinsics and mount.edge_thinning
     assert abs(mount.pitch_deg - 4.0) < 0.15 and abs(mount.roll_deg + 3.0) < 0.15
+    # a camera whose own filters clean its edges: the mount file says so
+    clean = tmp_path / "d435-clean.json"
+    r = calibrate(
+        "--source", f"replay:{folder}", "--sensor", "realsense_d435", "--no-edge-thinning",
+        "--out", clean,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "thinning   off: the mount says its edges are not fattened" in r.stdout
+    assert json.loads(clean.read_text())["mount"]["edge_thinning"] is False
+    assert read_mount_document(clean)["mount"] == replace(mount, edge_thinning=False)
     # without --sensor: the supported sensor of their size, as `topseg segment` reads them
     r = calibrate("--source", f"replay:{folder}", "--out", out)
     assert r.returncode == 0, r.stderr
@@ -152,3 +165,17 @@ def test_refusals_are_one_line(png_folder, tmp_path):
     )
     assert "unknown sensor 'kinect_v9'" in line
     assert not (tmp_path / "m.json").exists()
+
+
+def test_edge_thinning_is_the_flag_else_the_frames_mount_else_on():
+    from topseg.core.calibration import MountEstimate
+    from topseg.services.calibrate import with_edge_thinning
+
+    d435 = get_sensor("realsense_d435")
+    fitted = TopViewMount(d435.intrinsics, 3000.0, sensor="realsense_d435")
+    est = MountEstimate(fitted, 9.0, 0.8, 10, 10, 1.0, 0.1, "2026-11-28T00:00:00Z")
+    recorded = replace(fitted, height_mm=3100.0, edge_thinning=False)
+    assert with_edge_thinning(est, None, None).mount.edge_thinning is True
+    assert with_edge_thinning(est, None, recorded).mount.edge_thinning is False
+    assert with_edge_thinning(est, True, recorded).mount.edge_thinning is True
+    assert with_edge_thinning(est, False, None).mount == replace(fitted, edge_thinning=False)

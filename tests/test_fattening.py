@@ -97,6 +97,33 @@ def test_which_cameras_are_thinned():
         assert unfatten(depth, mount) is depth
 
 
+def test_a_mount_can_say_its_edges_are_not_fattened():
+    from dataclasses import replace
+
+    from topseg.core.fattening import thinning_line, thinning_text
+    from topseg.services.worker_mount import mount_text
+
+    clean = replace(mount_of("realsense_d435"), edge_thinning=False)
+    assert thinning_of(clean) == (0, 0.0)
+    assert thinning_of(decimated_mount(clean, 2)) == (0, 0.0)  # decimation keeps it
+    depth = np.full(clean.intrinsics.shape, 3000, np.uint16)
+    depth[100:200, 100:200] = 1500
+    assert unfatten(depth, clean) is depth
+    assert thinning_text(clean) == ", edges not thinned (edge_thinning off)"
+    assert "edges not thinned (edge_thinning off)" in mount_text(clean)
+    assert thinning_line(clean) == (
+        "thinning   off: the mount says its edges are not fattened (edge_thinning false)"
+    )
+    # a sensor that does not fatten says so whatever its mount says
+    tof = replace(mount_of("kinect_v2"), edge_thinning=False)
+    assert thinning_text(tof) == ""
+    assert thinning_line(tof) == "thinning   off: the sensor does not fatten edges"
+    # the mount file's form: sent only when off, and read back
+    assert clean.to_dict()["edge_thinning"] is False
+    assert "edge_thinning" not in mount_of("realsense_d435").to_dict()
+    assert TopViewMount.from_dict(clean.to_dict()) == clean
+
+
 def test_a_decimated_frame_is_thinned_by_its_own_pixels():
     full = mount_of("realsense_d435")
     assert thinning_of(decimated_mount(full, 4))[0] == 0  # a quarter of a pixel: nothing

@@ -50,7 +50,7 @@ def test_full_size_depth_round_trip_and_layout():
     # the raw layout is the documented one: little-endian, row-major
     msg = msgpack.unpackb(data)
     assert msg["data"] == depth.astype("<u2").tobytes()
-    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 4)
+    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 5)
     assert "mount" not in msg  # no mount known, none sent
     assert not back.depth.flags.writeable  # a view of the message, not a copy
 
@@ -364,7 +364,7 @@ def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
     framed = DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", m)
     data = wire.encode_depth(framed)
     msg = msgpack.unpackb(data)
-    assert msg["v"] == 4 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
+    assert msg["v"] == 5 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
     assert msg["mount"]["noise_scale"] == 0.37
     back = wire.decode_depth(data)
     assert_same_depth(framed, back)
@@ -376,6 +376,12 @@ def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
     assert msgpack.unpackb(data)["mount"]["radial"] is True
     assert wire.decode_depth(data).mount == radial
     assert "radial" not in msg["mount"]
+    # a stereo camera whose edges are not fattened says so; the default is not sent
+    clean = replace(m, sensor="realsense_d435", edge_thinning=False)
+    data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", clean))
+    assert msgpack.unpackb(data)["mount"]["edge_thinning"] is False
+    assert wire.decode_depth(data).mount == clean
+    assert "edge_thinning" not in msg["mount"]
 
 
 def test_version_2_mounts_without_a_noise_scale_decode_as_modelled():
@@ -387,6 +393,17 @@ def test_version_2_mounts_without_a_noise_scale_decode_as_modelled():
     back = wire.decode_depth(msgpack.packb(msg))
     assert back.mount.noise_scale == 1.0
     assert back.mount == a_mount(noise=1.0)
+
+
+def test_version_4_mounts_decode_with_their_edges_thinned_as_modelled():
+    rng = np.random.default_rng(14)
+    f = small_depth(rng)
+    mount = a_mount(f.intrinsics, sensor="realsense_d435")
+    msg = msgpack.unpackb(wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=mount)))
+    msg["v"] = 4
+    back = wire.decode_depth(msgpack.packb(msg))
+    assert back.mount.edge_thinning is True
+    assert back.mount == mount
 
 
 def test_version_1_depth_messages_still_decode():
@@ -404,18 +421,19 @@ def test_an_old_reader_refuses_a_new_message_and_a_new_reader_says_upgrade(monke
     f = small_depth(rng)
     data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=a_mount(f.intrinsics)))
     stats = wire.encode_stats({"stamp_ns": 1, "timings_ms": {}, "counts": {}, "floor_share": 0.5})
-    # what a version-3 topseg is: versions 1 to 3; it names the version and refuses
-    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2, 3))
+    # what a version-4 topseg is: versions 1 to 4; it names the version and refuses
+    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2, 3, 4))
     for decode, payload in ((wire.decode_depth, data), (wire.decode_stats, stats)):
-        with pytest.raises(WireError, match=r"schema version 4 is newer .*upgrade topseg"):
+        with pytest.raises(WireError, match=r"schema version 5 is newer .*upgrade topseg"):
             decode(payload)
     monkeypatch.undo()
     msg = msgpack.unpackb(data)
-    msg["v"] = 5
+    msg["v"] = 6
     with pytest.raises(WireError) as err:
         wire.decode_depth(msgpack.packb(msg))
     assert str(err.value) == (
-        "schema version 5 is newer than this topseg reads (1, 2, 3, 4): upgrade topseg on this host"
+        "schema version 6 is newer than this topseg reads (1, 2, 3, 4, 5): "
+        "upgrade topseg on this host"
     )
 
 
@@ -455,6 +473,8 @@ def _mount_msg(**change):
         ({"colour": "red"}, "unknown"),
         ({"radial": 1}, "radial"),
         ({"radial": "true"}, "radial"),
+        ({"edge_thinning": 0}, "edge_thinning"),
+        ({"edge_thinning": None}, "edge_thinning"),
         ({"intrinsics": [1, 2]}, "map"),
         ({"intrinsics__width": 10}, "mount is for 10x6"),
         ({"intrinsics__fx": -1.0}, "focal"),

@@ -114,6 +114,19 @@ def test_the_frames_mount_is_used_checked_and_overridden_when_the_floor_disagree
     assert (watch.mount, watch.source) == (recalibrated, "frame")
 
 
+def test_an_estimate_that_replaces_the_frames_mount_keeps_its_edge_thinning():
+    """The floor shows where the camera hangs, not how it filters its edges: a camera whose
+    mount turned thinning off keeps it off after a move."""
+    carried = TopViewMount(K, 2800.0, sensor="realsense_d435", edge_thinning=False)
+    floor = Floor(2800.0)
+    watch = MountWatch("c/d435", MountWatchConfig(recheck_s=10), floor)
+    watch.take(frame(0, carried), now=0.0)
+    floor.height_mm = 2500.0
+    watch.take(frame(1, carried), now=11.0)
+    assert watch.moved == 1 and watch.mount.height_mm == 2500.0
+    assert watch.mount.edge_thinning is False
+
+
 def test_a_mount_that_reads_range_as_depth_is_replaced_not_counted_as_a_move(caplog):
     carried = TopViewMount(K, 2800.0)  # a hand-written mount: depth
     floor = Floor(2800.0)

@@ -13,14 +13,17 @@ A depth or label message is one msgpack map::
     mount     optional (depth only, version 2 on): where the camera hangs, as
               `TopViewMount.to_dict()`: {intrinsics: {width, height, fx, fy, cx, cy},
               height_mm, pitch_deg, roll_deg, sensor, noise_scale (version 3 on),
-              radial (version 4 on, only when true)}; its size is the frame's
+              radial (version 4 on, only when true), edge_thinning (version 5 on, only
+              when false)}; its size is the frame's
 
 Version 2 added `mount` and the worker's `floor_share` and `mount` stats; version 3 the
 mount's measured `noise_scale` (the floor gate's scale); version 4 the mount's `radial` (a
-camera that sends range along each ray, read as depth by whoever back-projects it). A reader
+camera that sends range along each ray, read as depth by whoever back-projects it); version 5
+the mount's `edge_thinning` (false: a stereo camera whose edges are not fattened, so not
+thinned before labelling). A reader
 accepts every version in `READABLE_VERSIONS` and refuses a newer one with a line that says
 to upgrade; a version-1 reader refuses version-2 messages ("schema version 2 is not 1"), a
-version-3 reader version-4 ones.
+version-4 reader version-5 ones.
 
 Labels carry the `seq` and `stamp_ns` of the depth frame they were computed from, and only
 valid label ids (`topseg.core.labels`). A stats message (`encode_stats`) is a small
@@ -53,10 +56,10 @@ from topseg.core.camera import (
 from topseg.core.errors import TopsegError
 
 #: The version every message is written with.
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 #: The versions this reader decodes (1: no mount, no mount stats; 2: no mount noise scale;
-#: 3: no radial mounts).
-READABLE_VERSIONS = (1, 2, 3, 4)
+#: 3: no radial mounts; 4: no edge_thinning).
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 MAX_SIDE = 4096
 MAX_FRAME_ID = 256
 DEPTH_ENCODING = "16UC1"
@@ -78,9 +81,19 @@ _DEPTH_FIELDS = frozenset((*_FRAME_FIELDS, "fx", "fy", "cx", "cy"))
 _DEPTH_OPTIONAL = frozenset(("mount",))
 _LABEL_FIELDS = frozenset(_FRAME_FIELDS)
 #: The fields of a mount map (`TopViewMount.to_dict()`); all but the first two default.
-#: `radial` is sent only when true, so a depth camera's mount reads as before.
+#: `radial` is sent only when true and `edge_thinning` only when false, so a depth camera's
+#: mount with its edges thinned as modelled reads as before.
 _MOUNT_FIELDS = frozenset(
-    ("intrinsics", "height_mm", "pitch_deg", "roll_deg", "sensor", "noise_scale", "radial")
+    (
+        "intrinsics",
+        "height_mm",
+        "pitch_deg",
+        "roll_deg",
+        "sensor",
+        "noise_scale",
+        "radial",
+        "edge_thinning",
+    )
 )
 _MOUNT_REQUIRED = frozenset(("intrinsics", "height_mm"))
 _INTRINSICS_FIELDS = frozenset(("width", "height", "fx", "fy", "cx", "cy"))
@@ -364,6 +377,13 @@ def check_mount_map(d: Any) -> dict:
             raise WireError(f"mount.radial {_short(d['radial'])} must be true or false")
         if d["radial"]:
             out["radial"] = True
+    if "edge_thinning" in d:
+        if not isinstance(d["edge_thinning"], bool):
+            raise WireError(
+                f"mount.edge_thinning {_short(d['edge_thinning'])} must be true or false"
+            )
+        if not d["edge_thinning"]:
+            out["edge_thinning"] = False
     return out
 
 
