@@ -104,6 +104,30 @@ def scores(confusion: np.ndarray) -> dict:
     }
 
 
+def avg_f1_draws(frame_confusions: np.ndarray, draws: int = 1000, seed: int = 0) -> np.ndarray:
+    """(draws,) avg F1 (as `scores`) of bootstrap resamples of frames: each draw sums the
+    confusions of N frames drawn with replacement from the (N, C, C) `frame_confusions`.
+    The draws depend only on (N, draws, seed), so two sets of N frames scored with the same
+    seed are resampled by the same frame indices: the difference of their draws is a paired
+    bootstrap of the difference of their avg F1 (frame i of one set against frame i of the
+    other). NaN for a draw where no scored class has an F1."""
+    cm = np.asarray(frame_confusions, np.int64)
+    if cm.ndim != 3 or cm.shape[1:] != (C, C) or len(cm) == 0:
+        raise TopsegError(f"frame confusions must be (N >= 1, {C}, {C}), got {cm.shape}")
+    if draws < 1:
+        raise TopsegError(f"draws must be >= 1, got {draws}")
+    n = len(cm)
+    rng = np.random.default_rng(seed)
+    counts = np.stack([np.bincount(rng.integers(0, n, n), minlength=n) for _ in range(draws)])
+    summed = (counts @ cm.reshape(n, C * C)).reshape(draws, C, C)
+    tp = np.diagonal(summed, axis1=1, axis2=2).astype(np.float64)
+    den = (summed.sum(axis=1) + summed.sum(axis=2)).astype(np.float64)
+    f1 = _ratio(2 * tp, den)[:, list(L.SCORED_IDS)]
+    defined = ~np.isnan(f1)
+    with np.errstate(invalid="ignore"):
+        return np.where(defined, f1, 0.0).sum(axis=1) / defined.sum(axis=1)
+
+
 def percentile(values, q: float) -> float | None:
     """Nearest-rank percentile (q in 0..100) of `values`; None when there are none.
 
@@ -324,10 +348,12 @@ class ConfusionAccumulator:
         self.confusion = np.zeros((C, C), np.int64)
         self.frames = 0
 
-    def add(self, truth: np.ndarray, pred: np.ndarray) -> None:
-        """Count one frame's labels against its truth."""
-        self.confusion += confusion_matrix(truth, pred)
+    def add(self, truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
+        """Count one frame's labels against its truth; return that frame's confusion."""
+        frame = confusion_matrix(truth, pred)
+        self.confusion += frame
         self.frames += 1
+        return frame
 
     def merge(self, other: ConfusionAccumulator) -> None:
         """Fold in counts gathered elsewhere (another worker or shard)."""

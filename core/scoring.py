@@ -30,6 +30,8 @@ class Scores:
     heads        the Segmenter's labels' heads counted as blobs (`metrics.head_detections`)
     examples     (depth, truth, forest labels, CRF labels) of the first frames, for pictures
     floor_share  summed floor-gated shares (mean: `floor_share / frames`)
+    frame_confusions  each frame's CRF confusion, in order, when `score` was asked to keep
+                 them (bootstrap intervals: `metrics.avg_f1_draws`); else empty
     """
 
     crf_mode: str
@@ -43,6 +45,7 @@ class Scores:
     examples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(
         default_factory=list
     )
+    frame_confusions: list[np.ndarray] = field(default_factory=list)
 
     def ms_per_frame(self) -> dict[str, float]:
         """Mean milliseconds per frame of each stage: {"forest": ..., "crf": ...}."""
@@ -55,11 +58,13 @@ def score(
     frames: Iterable[tuple[np.ndarray, np.ndarray, TopViewMount | None]],
     *,
     examples: int = 0,
+    keep_confusions: bool = False,
 ) -> Scores:
     """Label every (depth, truth, mount) triple of `frames` (a mount of None, or a (depth,
     truth) pair, takes the Segmenter's) and add it to both confusions; keep the first
-    `examples` frames for pictures. A frame the Segmenter refuses raises its TopsegError
-    (named `frame I`, I counting from 0)."""
+    `examples` frames for pictures, and with `keep_confusions` each frame's CRF confusion.
+    A frame the Segmenter refuses raises its TopsegError (named `frame I`, I counting
+    from 0)."""
     out = Scores(crf_mode=segmenter.crf_mode)
     for i, item in enumerate(frames):
         depth, truth = item[0], item[1]
@@ -71,7 +76,9 @@ def score(
         out.crf_ms += result.timings.crf_ms
         out.floor_share += result.floor_share
         out.forest.add(truth, pred)
-        out.crf.add(truth, final)
+        frame = out.crf.add(truth, final)
+        if keep_confusions:
+            out.frame_confusions.append(frame)
         out.heads.add(truth, final)
         out.frames += 1
         if len(out.examples) < examples:

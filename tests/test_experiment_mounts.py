@@ -33,9 +33,13 @@ def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path
     v = doc["verdict"]
     assert 0.0 <= v["lowest_f1"] <= v["reference_f1"] + v["largest_gap"] + 1e-9
     md = (out / "mounts.md").read_text()
-    assert md.count("| oak_d |") == 6 and "largest gap" in md  # three tables per model
+    assert md.count("| oak_d |") == 8 and "largest gap" in md  # four tables per model
     assert "(downsample auto)" in md and "(downsample 1)" in md
-    assert "Heads as blobs" in md
+    assert "Heads as blobs" in md and "bootstrap interval" in md
+    assert "reference |" in md and "of 10 (" in md  # the gap table and the cell counts
+    for cells in doc["cells"].values():  # one frame a cell: every interval is a single value
+        for c in cells:
+            assert c["gap_low"] == pytest.approx(c["gap_high"])
     assert (out / "mounts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # --report-only rewrites the table and figure from mounts.json (edited here), runs no cell
     doc["models"]["model"]["path"] = "renamed.npz"
@@ -59,3 +63,37 @@ def test_verdict_measures_gaps_from_the_reference_cell():
     assert v["all_within_gap"] and v["none_below_floor"]
     v = mounts.verdict([*cells, _cell("kinect_v2", 4.5, 3.0, 0.69)])
     assert not v["all_within_gap"] and not v["none_below_floor"] and v["lowest_f1"] == 0.69
+    assert (v["cells"], v["within_gap"], v["at_least_floor"]) == (3, 2, 2)
+
+
+def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
+    import numpy as np
+
+    from topseg.core.metrics import avg_f1_draws, confusion_matrix, scores
+
+    rng = np.random.default_rng(5)
+
+    def frames(flip):
+        out = []
+        for _ in range(12):
+            truth = rng.integers(0, 11, (20, 30)).astype(np.uint8)
+            pred = np.where(rng.random(truth.shape) < flip, (truth + 1) % 11, truth)
+            out.append(confusion_matrix(truth, pred.astype(np.uint8)))
+        return np.stack(out)
+
+    ref, worse = frames(0.1), frames(0.4)
+    cells = [
+        _cell("kinect_v1", 3.5, 0.0, scores(ref.sum(0))["avg_f1"]),
+        _cell("oak_d", 4.5, 3.0, scores(worse.sum(0))["avg_f1"]),
+        _cell("oak_d", 2.5, 0.0, 0.5),  # scored on fewer frames: no paired interval
+    ]
+    got = mounts.with_gap_intervals(cells, [ref, worse, ref[:5]])
+    assert got[0].gap_low == got[0].gap_high == 0.0  # the reference against itself
+    d = avg_f1_draws(worse, mounts.BOOTSTRAP_DRAWS) - avg_f1_draws(ref, mounts.BOOTSTRAP_DRAWS, 0)
+    assert (got[1].gap_low, got[1].gap_high) == tuple(np.percentile(d, [2.5, 97.5]))
+    assert got[1].gap_low < cells[1].avg_f1 - cells[0].avg_f1 < got[1].gap_high
+    assert got[1].gap_high < -mounts.MAX_GAP  # 30 % more pixels wrong: beyond sampling
+    assert np.isnan(got[2].gap_low)
+    assert mounts.verdict(got)["beyond_gap_surely"] == 1
+    # without the reference cell there is nothing to measure a gap from
+    assert mounts.with_gap_intervals(cells[1:], [worse, ref[:5]]) == cells[1:]

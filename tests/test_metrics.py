@@ -13,6 +13,7 @@ from topseg.core.errors import TopsegError
 from topseg.core.metrics import (
     ConfusionAccumulator,
     HeadDetections,
+    avg_f1_draws,
     confusion_matrix,
     format_table,
     head_blobs,
@@ -128,6 +129,52 @@ def test_accumulator_sums_frames_and_round_trips():
     assert np.array_equal(again.confusion, whole) and again.frames == 4
     with pytest.raises(TopsegError):
         ConfusionAccumulator.from_dict({"confusion": [[1, 2]], "frames": 1})
+
+
+def test_accumulator_add_returns_the_frames_own_confusion():
+    rng = np.random.default_rng(9)
+    truth, pred = random_maps(rng)
+    acc = ConfusionAccumulator()
+    acc.add(truth, pred)
+    frame = acc.add(truth, pred)
+    assert np.array_equal(frame, confusion_matrix(truth, pred))
+    assert np.array_equal(acc.confusion, 2 * frame)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_bootstrap_draws_are_avg_f1_of_frames_resampled_by_the_seeds_indices(seed):
+    """The reference: draw the frame indices as the function does, sum those frames'
+    confusions and score them with `scores`."""
+    rng = np.random.default_rng(seed)
+    n = 7
+    frames = np.stack(
+        [confusion_matrix(*random_maps(rng, absent=(L.PLANT,) if i % 2 else ())) for i in range(n)]
+    )
+    got = avg_f1_draws(frames, draws=25, seed=seed)
+    draw_rng = np.random.default_rng(seed)
+    want = [scores(frames[draw_rng.integers(0, n, n)].sum(axis=0))["avg_f1"] for _ in range(25)]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    # paired: another set of n frames is resampled by the same indices
+    other = frames[::-1].copy()
+    draw_rng = np.random.default_rng(seed)
+    idx = draw_rng.integers(0, n, n)
+    assert avg_f1_draws(other, 1, seed)[0] == pytest.approx(
+        scores(other[idx].sum(axis=0))["avg_f1"]
+    )
+
+
+def test_bootstrap_of_one_frame_is_its_own_score_and_bad_input_is_refused():
+    rng = np.random.default_rng(4)
+    frame = confusion_matrix(*random_maps(rng))
+    draws = avg_f1_draws(frame[None], draws=5)
+    np.testing.assert_allclose(draws, scores(frame)["avg_f1"])
+    assert np.isnan(avg_f1_draws(np.zeros((3, 11, 11), np.int64), 2)).all()  # nothing scored
+    with pytest.raises(TopsegError, match="frame confusions"):
+        avg_f1_draws(np.zeros((11, 11)), 2)
+    with pytest.raises(TopsegError, match="frame confusions"):
+        avg_f1_draws(np.zeros((0, 11, 11)), 2)
+    with pytest.raises(TopsegError, match="draws"):
+        avg_f1_draws(frame[None], 0)
 
 
 def test_table_and_json():
