@@ -41,6 +41,10 @@ def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path
         for c in cells:
             assert c["gap_low"] == pytest.approx(c["gap_high"])
     assert (out / "mounts.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the same model both ways at two resolutions: their means and the paired difference
+    d = doc["comparison"]
+    assert d["difference"] == pytest.approx(d["mean_model"] - d["mean_baseline"])
+    assert d["low"] <= d["high"] and "model minus baseline" in md
     # --report-only rewrites the table and figure from mounts.json (edited here), runs no cell
     doc["models"]["model"]["path"] = "renamed.npz"
     (out / "mounts.json").write_text(json.dumps(doc))
@@ -97,3 +101,31 @@ def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
     assert mounts.verdict(got)["beyond_gap_surely"] == 1
     # without the reference cell there is nothing to measure a gap from
     assert mounts.with_gap_intervals(cells[1:], [worse, ref[:5]]) == cells[1:]
+
+
+def test_mean_difference_is_zero_for_a_model_against_itself_and_signed_otherwise():
+    import numpy as np
+
+    from topseg.core.metrics import confusion_matrix
+
+    rng = np.random.default_rng(6)
+
+    def cell(flip):
+        out = []
+        for _ in range(10):
+            truth = rng.integers(0, 11, (16, 16)).astype(np.uint8)
+            pred = np.where(rng.random(truth.shape) < flip, (truth + 1) % 11, truth)
+            out.append(confusion_matrix(truth, pred.astype(np.uint8)))
+        return np.stack(out)
+
+    good = [cell(0.1), cell(0.2)]
+    same = mounts.mean_difference(good, good)
+    assert same["difference"] == same["low"] == same["high"] == 0.0
+    worse = [cm.copy() for cm in good]
+    for cm in worse:  # a third of every class's hits become misses
+        hits = np.diagonal(cm, axis1=1, axis2=2).copy()
+        for k in range(cm.shape[1]):
+            cm[:, k, k] -= hits[:, k] // 3
+            cm[:, k, (k + 1) % cm.shape[1]] += hits[:, k] // 3
+    d = mounts.mean_difference(worse, good)
+    assert d["high"] < 0 and d["low"] <= d["difference"] <= d["high"]

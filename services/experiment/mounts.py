@@ -175,6 +175,8 @@ def run_mounts(
         "cells": {name: [c.__dict__ for c in cs] for name, cs in cells.items()},
         "verdict": verdict(cells["model"]),
     }
+    if "baseline" in confusions:
+        report["comparison"] = mean_difference(confusions["model"], confusions["baseline"])
     out.mkdir(parents=True, exist_ok=True)
     _write(out / "mounts.json", json.dumps(report, indent=1) + "\n")
     write_report(report, out)
@@ -241,6 +243,32 @@ def with_gap_intervals(cells: list[Cell], frame_confusions: list) -> list[Cell]:
         low, high = np.nanpercentile(d - ref, [tail, 100 - tail])
         out.append(replace(cell, gap_low=float(low), gap_high=float(high)))
     return out
+
+
+def mean_difference(model: list, baseline: list) -> dict:
+    """The model's mean avg F1 over the cells minus the baseline's, scored on the same frames
+    (each list holds every cell's (N, C, C) per-frame confusions, in the same order), with
+    its INTERVAL bootstrap interval: each draw resamples every cell's frames, the same
+    indices for both models (`metrics.avg_f1_draws`), and differences the two means."""
+    import numpy as np
+
+    from topseg.core.metrics import avg_f1_draws, scores
+
+    def means(per_cell: list) -> tuple[float, np.ndarray]:
+        point = float(np.mean([scores(cm.sum(axis=0))["avg_f1"] for cm in per_cell]))
+        draws = np.mean([avg_f1_draws(cm, BOOTSTRAP_DRAWS, BOOTSTRAP_SEED) for cm in per_cell], 0)
+        return point, draws
+
+    (m, m_draws), (b, b_draws) = means(model), means(baseline)
+    tail = 100 * (1 - INTERVAL) / 2
+    low, high = np.nanpercentile(m_draws - b_draws, [tail, 100 - tail])
+    return {
+        "mean_model": m,
+        "mean_baseline": b,
+        "difference": m - b,
+        "low": float(low),
+        "high": float(high),
+    }
 
 
 def verdict(cells: list[Cell]) -> dict:
@@ -316,6 +344,15 @@ def markdown(report: dict) -> str:
         f"{MIN_F1:.2f} or more: {v['at_least_floor']} of {v['cells']}.",
         "",
     ]
+    if "comparison" in report:
+        d = report["comparison"]
+        lines += [
+            f"Mean avg F1 over the cells: model {d['mean_model']:.4f}, baseline "
+            f"{d['mean_baseline']:.4f}; model minus baseline {d['difference']:+.4f} "
+            f"({INTERVAL:.0%} bootstrap interval over frames, paired: "
+            f"{d['low']:+.4f} to {d['high']:+.4f}).",
+            "",
+        ]
     return "\n".join(lines)
 
 
