@@ -383,7 +383,7 @@ def figure(report: dict, path: Path) -> None:
     from matplotlib.patches import Rectangle
 
     names = list(report["cells"])
-    fig, axes = plt.subplots(1, len(names), figsize=(7.5 * len(names), 4.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(names), figsize=(7.5 * len(names), 4.8), squeeze=False)
     fig.subplots_adjust(left=0.1, right=0.86, wspace=0.45, bottom=0.2)
     labels = [f"{h:.1f} m\n{t:.0f} deg" for h, t in report["mounts"]]
     span = 0.15
@@ -397,11 +397,12 @@ def figure(report: dict, path: Path) -> None:
             c = rows[i][j]
             is_ref = (c.sensor, c.height_m, c.tilt_deg) == REFERENCE
             text = f"{v:.3f}\nreference" if is_ref else f"{v:.3f}\n{v - ref:+.3f}"
+            colour = "white" if abs(v - ref) > 0.6 * span else "black"
+            ax.text(j, i - 0.08, text, ha="center", va="center", fontsize=8,
+                    fontweight="bold" if is_ref else "normal", color=colour)  # fmt: skip
             if not is_ref and not math.isnan(c.gap_low):
-                text += f"\n[{c.gap_low:+.3f}, {c.gap_high:+.3f}]"
-            ax.text(j, i, text, ha="center", va="center", fontsize=7,
-                    fontweight="bold" if is_ref else "normal",
-                    color="white" if abs(v - ref) > 0.6 * span else "black")  # fmt: skip
+                ax.text(j, i + 0.3, f"{c.gap_low:+.3f}..{c.gap_high:+.3f}", ha="center",
+                        va="center", fontsize=6, color=colour)  # fmt: skip
             if abs(v - ref) > MAX_GAP or v < MIN_F1:
                 ax.add_patch(Rectangle((j - 0.46, i - 0.46), 0.92, 0.92, fill=False,
                                        edgecolor="red", linewidth=2))  # fmt: skip
@@ -411,8 +412,8 @@ def figure(report: dict, path: Path) -> None:
         title = model.get("label") or f"{model['path']} (downsample {model.get('downsample', 1)})"
         ax.set_title(f"{name}: {title}", fontsize=9)
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.8, label="avg F1 minus the reference cell")
-    fig.text(0.1, 0.02, f"realtime CRF, {report['frames_per_cell']} frames a cell; in brackets "
-             f"the gap's {INTERVAL:.0%} bootstrap interval over frames;\nred frame: more than "
+    fig.text(0.1, 0.02, f"realtime CRF, {report['frames_per_cell']} frames a cell; under each gap "
+             f"its {INTERVAL:.0%} bootstrap interval over frames;\nred frame: more than "
              f"{MAX_GAP} from the reference cell or below {MIN_F1:.2f}", fontsize=8)  # fmt: skip
     with _atomic(path) as f:
         fig.savefig(f, format="png", dpi=110)
