@@ -70,22 +70,28 @@ def test_verdict_measures_gaps_from_the_reference_cell():
     assert (v["cells"], v["within_gap"], v["at_least_floor"]) == (3, 2, 2)
 
 
+def frame_confusions(rng, flip: float, frames: int, shape=(16, 16)):
+    """(frames, C, C) confusions of random label maps in which a `flip` share of the
+    pixels is predicted as the next class."""
+    import numpy as np
+
+    from topseg.core.metrics import confusion_matrix
+
+    out = []
+    for _ in range(frames):
+        truth = rng.integers(0, 11, shape).astype(np.uint8)
+        pred = np.where(rng.random(truth.shape) < flip, (truth + 1) % 11, truth)
+        out.append(confusion_matrix(truth, pred.astype(np.uint8)))
+    return np.stack(out)
+
+
 def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
     import numpy as np
 
-    from topseg.core.metrics import avg_f1_draws, confusion_matrix, scores
+    from topseg.core.metrics import avg_f1_draws, scores
 
     rng = np.random.default_rng(5)
-
-    def frames(flip):
-        out = []
-        for _ in range(12):
-            truth = rng.integers(0, 11, (20, 30)).astype(np.uint8)
-            pred = np.where(rng.random(truth.shape) < flip, (truth + 1) % 11, truth)
-            out.append(confusion_matrix(truth, pred.astype(np.uint8)))
-        return np.stack(out)
-
-    ref, worse = frames(0.1), frames(0.4)
+    ref, worse = frame_confusions(rng, 0.1, 12, (20, 30)), frame_confusions(rng, 0.4, 12, (20, 30))
     cells = [
         _cell("kinect_v1", 3.5, 0.0, scores(ref.sum(0))["avg_f1"]),
         _cell("oak_d", 4.5, 3.0, scores(worse.sum(0))["avg_f1"]),
@@ -106,19 +112,8 @@ def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
 def test_mean_difference_is_zero_for_a_model_against_itself_and_signed_otherwise():
     import numpy as np
 
-    from topseg.core.metrics import confusion_matrix
-
     rng = np.random.default_rng(6)
-
-    def cell(flip):
-        out = []
-        for _ in range(10):
-            truth = rng.integers(0, 11, (16, 16)).astype(np.uint8)
-            pred = np.where(rng.random(truth.shape) < flip, (truth + 1) % 11, truth)
-            out.append(confusion_matrix(truth, pred.astype(np.uint8)))
-        return np.stack(out)
-
-    good = [cell(0.1), cell(0.2)]
+    good = [frame_confusions(rng, 0.1, 10), frame_confusions(rng, 0.2, 10)]
     same = mounts.mean_difference(good, good)
     assert same["difference"] == same["low"] == same["high"] == 0.0
     worse = [cm.copy() for cm in good]
