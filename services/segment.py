@@ -123,8 +123,10 @@ def run(args: argparse.Namespace) -> int:
     given = None
     if args.mount is not None and segmenter.reads_height:
         from topseg.core.calibration import read_mount_file
+        from topseg.services.worker_mount import mount_text
 
         given = read_mount_file(args.mount)
+        print(f"mount from {args.mount}: {mount_text(given)}")
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -236,6 +236,10 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "estimated" not in r.stdout
+    assert (
+        f"mount from {tmp_path / 'mount.json'}: height {est.mount.height_mm / 1000:.2f} m"
+        in r.stdout
+    )
     expected = forest.predict_labels(trained, model_input(depth, est.mount, features))
     np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "a" / "f_labels.png")), expected)
     # a recording whose messages carry the mount: used as it is, nothing estimated
