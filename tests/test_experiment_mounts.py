@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -85,6 +86,24 @@ def frame_confusions(rng, flip: float, frames: int, shape=(16, 16)):
     return np.stack(out)
 
 
+def draws_of(frame_confusions):
+    """A cell's bootstrap avg F1 as `run_mounts` keeps it."""
+    from topseg.core.metrics import avg_f1_draws
+
+    return avg_f1_draws(frame_confusions, mounts.BOOTSTRAP_DRAWS, mounts.BOOTSTRAP_SEED)
+
+
+def cells_and_draws(per_cell: list):
+    """Cells scored on these per-frame confusions, and their draws, as `run_mounts` keeps them."""
+    from topseg.core.metrics import scores
+
+    cells = [
+        replace(_cell("oak_d", 2.5, 0.0, scores(cm.sum(0))["avg_f1"]), frames=len(cm))
+        for cm in per_cell
+    ]
+    return cells, [draws_of(cm) for cm in per_cell]
+
+
 def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
     import numpy as np
 
@@ -93,11 +112,12 @@ def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
     rng = np.random.default_rng(5)
     ref, worse = frame_confusions(rng, 0.1, 12, (20, 30)), frame_confusions(rng, 0.4, 12, (20, 30))
     cells = [
-        _cell("kinect_v1", 3.5, 0.0, scores(ref.sum(0))["avg_f1"]),
-        _cell("oak_d", 4.5, 3.0, scores(worse.sum(0))["avg_f1"]),
-        _cell("oak_d", 2.5, 0.0, 0.5),  # scored on fewer frames: no paired interval
+        replace(_cell("kinect_v1", 3.5, 0.0, scores(ref.sum(0))["avg_f1"]), frames=12),
+        replace(_cell("oak_d", 4.5, 3.0, scores(worse.sum(0))["avg_f1"]), frames=12),
+        replace(_cell("oak_d", 2.5, 0.0, 0.5), frames=5),  # fewer frames: no paired interval
     ]
-    got = mounts.with_gap_intervals(cells, [ref, worse, ref[:5]])
+    draws = [draws_of(ref), draws_of(worse), draws_of(ref[:5])]
+    got = mounts.with_gap_intervals(cells, draws)
     assert got[0].gap_low == got[0].gap_high == 0.0  # the reference against itself
     d = avg_f1_draws(worse, mounts.BOOTSTRAP_DRAWS) - avg_f1_draws(ref, mounts.BOOTSTRAP_DRAWS, 0)
     assert (got[1].gap_low, got[1].gap_high) == tuple(np.percentile(d, [2.5, 97.5]))
@@ -106,7 +126,7 @@ def test_gap_intervals_are_the_paired_bootstrap_of_cell_minus_reference():
     assert np.isnan(got[2].gap_low)
     assert mounts.verdict(got)["beyond_gap_surely"] == 1
     # without the reference cell there is nothing to measure a gap from
-    assert mounts.with_gap_intervals(cells[1:], [worse, ref[:5]]) == cells[1:]
+    assert mounts.with_gap_intervals(cells[1:], draws[1:]) == cells[1:]
 
 
 def test_mean_difference_is_zero_for_a_model_against_itself_and_signed_otherwise():
@@ -114,7 +134,7 @@ def test_mean_difference_is_zero_for_a_model_against_itself_and_signed_otherwise
 
     rng = np.random.default_rng(6)
     good = [frame_confusions(rng, 0.1, 10), frame_confusions(rng, 0.2, 10)]
-    same = mounts.mean_difference(good, good)
+    same = mounts.mean_difference(*cells_and_draws(good), *cells_and_draws(good))
     assert same["difference"] == same["low"] == same["high"] == 0.0
     worse = [cm.copy() for cm in good]
     for cm in worse:  # a third of every class's hits become misses
@@ -122,5 +142,5 @@ def test_mean_difference_is_zero_for_a_model_against_itself_and_signed_otherwise
         for k in range(cm.shape[1]):
             cm[:, k, k] -= hits[:, k] // 3
             cm[:, k, (k + 1) % cm.shape[1]] += hits[:, k] // 3
-    d = mounts.mean_difference(worse, good)
+    d = mounts.mean_difference(*cells_and_draws(worse), *cells_and_draws(good))
     assert d["high"] < 0 and d["low"] <= d["difference"] <= d["high"]

@@ -140,15 +140,18 @@ def run_mounts(
     models = {"model": Segmenter.from_file(model, configs[0], crf="realtime")}
     if baseline is not None:
         models["baseline"] = Segmenter.from_file(baseline, configs[1], crf="realtime")
+    from topseg.core.metrics import avg_f1_draws
+
     cells: dict[str, list[Cell]] = {name: [] for name in models}
-    confusions: dict[str, list] = {name: [] for name in models}
+    draws: dict[str, list] = {name: [] for name in models}  # each cell's bootstrap avg F1
     for sensor in sensors:
         for height, tilt in MOUNTS:
             mount = cell_mount(sensor, height, tilt)
             data = render_cell(mount, frames)
             for name, seg in models.items():
                 got = score_cell(seg, data if seg.reads_height else _no_mount(data), True)
-                confusions[name].append(got.pop("frame_confusions"))
+                frames_cm = got.pop("frame_confusions")
+                draws[name].append(avg_f1_draws(frames_cm, BOOTSTRAP_DRAWS, BOOTSTRAP_SEED))
                 cells[name].append(Cell(sensor, height, tilt, frames=len(data), **got))
                 progress(
                     f"  {name:8s} {sensor:15s} {height:.1f} m {tilt:3.0f} deg: "
@@ -157,7 +160,7 @@ def run_mounts(
                     f"{got['head_recall']:.2f} (blobs {got['head_detection_precision']:.2f}/"
                     f"{got['head_detection_recall']:.2f}), floor {got['floor_share']:.0%}"
                 )
-    cells = {name: with_gap_intervals(cs, confusions[name]) for name, cs in cells.items()}
+    cells = {name: with_gap_intervals(cs, draws[name]) for name, cs in cells.items()}
     report = {
         "mounts": [list(m) for m in MOUNTS],
         "sensors": list(sensors),
@@ -175,8 +178,10 @@ def run_mounts(
         "cells": {name: [c.__dict__ for c in cs] for name, cs in cells.items()},
         "verdict": verdict(cells["model"]),
     }
-    if "baseline" in confusions:
-        report["comparison"] = mean_difference(confusions["model"], confusions["baseline"])
+    if "baseline" in models:
+        report["comparison"] = mean_difference(
+            cells["model"], draws["model"], cells["baseline"], draws["baseline"]
+        )
     out.mkdir(parents=True, exist_ok=True)
     _write(out / "mounts.json", json.dumps(report, indent=1) + "\n")
     write_report(report, out)
@@ -218,57 +223,50 @@ def reference_f1(cells: list[Cell]) -> float:
     return math.nan
 
 
-def with_gap_intervals(cells: list[Cell], frame_confusions: list) -> list[Cell]:
-    """`cells` with each one's INTERVAL bootstrap interval of its avg F1 minus the
-    reference's, from every cell's (N, C, C) per-frame confusions (in `cells`' order); the cells as
-    they are when the reference cell is not among them."""
-    from dataclasses import replace
-
+def _interval(differences) -> tuple[float, float]:
+    """The central INTERVAL of bootstrap `differences` (NaN draws left out)."""
     import numpy as np
 
-    from topseg.core.metrics import avg_f1_draws
+    tail = 100 * (1 - INTERVAL) / 2
+    low, high = np.nanpercentile(differences, [tail, 100 - tail])
+    return float(low), float(high)
+
+
+def with_gap_intervals(cells: list[Cell], draws: list) -> list[Cell]:
+    """`cells` with each one's INTERVAL bootstrap interval of its avg F1 minus the
+    reference's, from every cell's bootstrap avg F1 (`metrics.avg_f1_draws` with
+    BOOTSTRAP_DRAWS and BOOTSTRAP_SEED, in `cells`' order: a cell of as many frames as the
+    reference is resampled in pairs with it); the cells as they are when the reference cell
+    is not among them. A cell of another frame count gets no interval."""
+    from dataclasses import replace
 
     keys = [(c.sensor, c.height_m, c.tilt_deg) for c in cells]
     if REFERENCE not in keys:
         return list(cells)
     at = keys.index(REFERENCE)
-    ref = avg_f1_draws(frame_confusions[at], BOOTSTRAP_DRAWS, BOOTSTRAP_SEED)
-    tail = 100 * (1 - INTERVAL) / 2
     out = []
-    for cell, cm in zip(cells, frame_confusions, strict=True):
-        if len(cm) != len(frame_confusions[at]):  # not the same frames: no paired interval
+    for cell, d in zip(cells, draws, strict=True):
+        if cell.frames != cells[at].frames:  # not the same frames: no paired interval
             out.append(cell)
             continue
-        d = avg_f1_draws(cm, BOOTSTRAP_DRAWS, BOOTSTRAP_SEED)
-        low, high = np.nanpercentile(d - ref, [tail, 100 - tail])
-        out.append(replace(cell, gap_low=float(low), gap_high=float(high)))
+        low, high = _interval(d - draws[at])
+        out.append(replace(cell, gap_low=low, gap_high=high))
     return out
 
 
-def mean_difference(model: list, baseline: list) -> dict:
-    """The model's mean avg F1 over the cells minus the baseline's, scored on the same frames
-    (each list holds every cell's (N, C, C) per-frame confusions, in the same order), with
-    its INTERVAL bootstrap interval: each draw resamples every cell's frames, the same
-    indices for both models (`metrics.avg_f1_draws`), and differences the two means."""
+def mean_difference(
+    model: list[Cell], model_draws: list, baseline: list[Cell], baseline_draws: list
+) -> dict:
+    """The model's mean avg F1 over its cells minus the baseline's, scored on the same frames,
+    with its INTERVAL bootstrap interval: each cell's draws (as `with_gap_intervals` takes
+    them) resample its frames by the same indices for both models, and each draw
+    differences the two means."""
     import numpy as np
 
-    from topseg.core.metrics import avg_f1_draws, scores
-
-    def means(per_cell: list) -> tuple[float, np.ndarray]:
-        point = float(np.mean([scores(cm.sum(axis=0))["avg_f1"] for cm in per_cell]))
-        draws = np.mean([avg_f1_draws(cm, BOOTSTRAP_DRAWS, BOOTSTRAP_SEED) for cm in per_cell], 0)
-        return point, draws
-
-    (m, m_draws), (b, b_draws) = means(model), means(baseline)
-    tail = 100 * (1 - INTERVAL) / 2
-    low, high = np.nanpercentile(m_draws - b_draws, [tail, 100 - tail])
-    return {
-        "mean_model": m,
-        "mean_baseline": b,
-        "difference": m - b,
-        "low": float(low),
-        "high": float(high),
-    }
+    m = float(np.mean([c.avg_f1 for c in model]))
+    b = float(np.mean([c.avg_f1 for c in baseline]))
+    low, high = _interval(np.mean(model_draws, 0) - np.mean(baseline_draws, 0))
+    return {"mean_model": m, "mean_baseline": b, "difference": m - b, "low": low, "high": high}
 
 
 def verdict(cells: list[Cell]) -> dict:
