@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from datagen_toy import toy_frame
 
+from topseg.core.errors import TopsegError
 from topseg.core.formats import dataset as D
 from topseg.services import datagen
 from topseg.services.datagen.sources import GENERATORS, generator_config, load_factory
@@ -214,3 +215,26 @@ def test_a_mixed_sensor_dataset_pads_small_frames_and_keeps_each_mount(tmp_path)
     )
     with pytest.raises(Exception, match="needs --mounts random"):
         datagen.mount_distribution(argparse.Namespace(mounts="paper", sensors="oak_d"), target)
+
+
+def test_sensor_weights_repeat_a_sensor_in_the_draw_list():
+    """`--sensors oak_d:2,kinect_v1`: oak_d drawn twice as often, so about 2/3 of the mounts
+    are OAK-D; the dataset's summary names each sensor once; bad weights are refused."""
+    import argparse
+
+    from topseg.core.synth.synthesis import MountDistribution, mount_summary
+
+    assert datagen.weighted_sensors("oak_d:2, kinect_v1,") == ("oak_d", "oak_d", "kinect_v1")
+    args = argparse.Namespace(mounts="random", sensors="oak_d:2,kinect_v1")
+    d = MountDistribution.from_dict(datagen.mount_distribution(args, GENERATORS["synthesis"]))
+    rng = np.random.default_rng(5)
+    drawn = [d.draw(rng).sensor for _ in range(3000)]
+    assert abs(drawn.count("oak_d") / 3000 - 2 / 3) < 0.03
+    assert mount_summary(d, None)["sensors"] == ["oak_d", "kinect_v1"]
+    for bad in ("oak_d:0", "oak_d:x", "oak_d:101", "oak_d:1.5"):
+        with pytest.raises(TopsegError, match="whole number from 1 to 100"):
+            datagen.weighted_sensors(bad)
+    with pytest.raises(TopsegError, match="kinect_v3"):
+        datagen.mount_distribution(
+            argparse.Namespace(mounts="random", sensors="kinect_v3:2"), GENERATORS["synthesis"]
+        )

@@ -57,7 +57,8 @@ def _all_sensors() -> tuple[str, ...]:
 @dataclass
 class MountDistribution:
     """Camera mounts drawn per frame: height U[height_m], pitch and roll U[-tilt_deg, tilt_deg],
-    a sensor uniformly from `sensors` (its intrinsics and noise family, `core.sensors`)."""
+    a sensor uniformly from `sensors` (its intrinsics and noise family, `core.sensors`): a
+    sensor listed N times is drawn N times as often."""
 
     height_m: tuple[float, float] = (2.4, 4.5)
     tilt_deg: float = 10.0
@@ -131,7 +132,7 @@ def mount_summary(mounts: MountDistribution | None, camera: TopViewMount) -> dic
     return {
         "height_mm": [1000.0 * mounts.height_m[0], 1000.0 * mounts.height_m[1]],
         "tilt_deg": round(tilt, 6),
-        "sensors": list(mounts.sensors),
+        "sensors": list(dict.fromkeys(mounts.sensors)),
         "resolutions": sizes,
     }
 

@@ -78,8 +78,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--sensors",
         default=None,
-        help="comma-separated sensors random mounts draw from (default: all of "
-        "kinect_v1,kinect_v2,oak_d,realsense_d435)",
+        help="comma-separated sensors random mounts draw from, each as often as the others "
+        "or NAME:N for N times as often (default: all of kinect_v1,kinect_v2,oak_d,"
+        "realsense_d435; the bundled model's recipe weights the stereo cameras, "
+        "scripts/make_model.sh)",
     )
     parser.add_argument(
         "--room", default=None, help=f"{' | '.join(ROOMS)} (default: a random one per frame)"
@@ -290,9 +292,35 @@ def mount_distribution(args: argparse.Namespace, target: str) -> dict | None:
 
     d = MountDistribution()
     if sensors:
-        names = tuple(s.strip() for s in sensors.split(",") if s.strip())
-        d = MountDistribution(d.height_m, d.tilt_deg, names)
+        d = MountDistribution(d.height_m, d.tilt_deg, weighted_sensors(sensors))
     return d.to_dict()
+
+
+#: the largest N of a `--sensors NAME:N` weight
+MAX_SENSOR_WEIGHT = 100
+
+
+def weighted_sensors(text: str) -> tuple[str, ...]:
+    """`--sensors` text -> the draw list of a MountDistribution: "oak_d:2,kinect_v1" gives
+    ("oak_d", "oak_d", "kinect_v1"), a sensor named N times being drawn N times as often."""
+    names: list[str] = []
+    for item in (s.strip() for s in text.split(",")):
+        if not item:
+            continue
+        name, _, weight = item.partition(":")
+        count = 1
+        if weight:
+            try:
+                count = int(weight)
+            except ValueError:
+                count = 0
+            if not 1 <= count <= MAX_SENSOR_WEIGHT:
+                raise TopsegError(
+                    f"--sensors {item!r}: a weight is a whole number from 1 to "
+                    f"{MAX_SENSOR_WEIGHT}, as in oak_d:2"
+                )
+        names.extend([name.strip()] * count)
+    return tuple(names)
 
 
 def _raise_interrupt(signum, frame):
