@@ -325,6 +325,22 @@ class Segmenter:
         """The CRF settings every frame is smoothed with."""
         return self.config.crf
 
+    def crf_for(self, mount: TopViewMount | None) -> CRFConfig:
+        """The CRF settings for frames from `mount`: the config's, with the Potts weight
+        raised to `noisy_smoothness` for a height model's frames from a noisy camera (those
+        `denoise.needs_denoise` smooths)."""
+        from topseg.core.denoise import needs_denoise
+
+        crf = self.config.crf
+        if (
+            self.features is None
+            or mount is None
+            or crf.noisy_smoothness <= crf.smoothness
+            or not needs_denoise(mount)
+        ):
+            return crf
+        return replace(crf, smoothness=crf.noisy_smoothness)
+
     @property
     def crf_mode(self) -> str:
         """`none`, `exact` or `realtime`."""
@@ -611,9 +627,8 @@ class Segmenter:
                 filled[0] = mask is None
             return proba
 
-        labels = segment_crf(
-            proba, depth, self.config.crf, self._summary, None if filled[0] else fill
-        )
+        crf = self.crf_for(mount if mount is not None else self.config.mount)
+        labels = segment_crf(proba, depth, crf, self._summary, None if filled[0] else fill)
         heads, furniture, satellites = self._relabel_islands(labels, depth, intrinsics, name, mount)
         t2 = time.perf_counter()
         ms = 1000.0

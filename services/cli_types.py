@@ -148,9 +148,14 @@ def grid_config(args: argparse.Namespace) -> dict:
 
 
 def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--crf MODE` and `--smoothness S`: how the CRF smooths the forest's posteriors
-    (`SegmenterConfig.crf`; `crf_config` reads them back)."""
-    from topseg.core.crf.energy import DEFAULT_SMOOTHNESS, MAX_SMOOTHNESS, MODES
+    """`--crf MODE`, `--smoothness S` and `--noisy-smoothness S`: how the CRF smooths the
+    forest's posteriors (`SegmenterConfig.crf`; `crf_config` reads them back)."""
+    from topseg.core.crf.energy import (
+        DEFAULT_SMOOTHNESS,
+        MAX_SMOOTHNESS,
+        MODES,
+        NOISY_SMOOTHNESS,
+    )
 
     parser.add_argument(
         "--crf",
@@ -165,6 +170,15 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="the CRF's Potts weight per cut edge, in nats (default: %(default)s; 3 scores "
         "~0.015 avg F1 higher and costs the realtime CRF ~2 ms a frame: docs/crf.md)",
+    )
+    parser.add_argument(
+        "--noisy-smoothness",
+        type=finite(0, MAX_SMOOTHNESS),
+        default=NOISY_SMOOTHNESS,
+        metavar="S",
+        help="the Potts weight for frames from a noisy camera (20 mm or more of depth noise "
+        "at the floor, a stereo camera at range: the frames topseg smooths), when larger "
+        "than --smoothness (default: %(default)s: docs/crf.md)",
     )
 
 
@@ -236,4 +250,6 @@ def crf_config(args: argparse.Namespace):
     """The `CRFConfig` of `add_crf_arguments`' options."""
     from topseg.core.crf import CRFConfig
 
-    return CRFConfig(mode=args.crf, smoothness=args.smoothness)
+    return CRFConfig(
+        mode=args.crf, smoothness=args.smoothness, noisy_smoothness=args.noisy_smoothness
+    )

@@ -70,7 +70,10 @@ def run(args: argparse.Namespace) -> int:
     print(metrics.format_table(forest_scores, title=f"forest alone, {n} frames of {args.data}"))
     if args.crf != "none":
         print()
-        title = f"forest + CRF ({args.crf}, smoothness {args.smoothness:g})"
+        title = (
+            f"forest + CRF ({args.crf}, smoothness {args.smoothness:g}, "
+            f"{max(args.smoothness, args.noisy_smoothness):g} on noisy cameras)"
+        )
         print(metrics.format_table(final_scores, title=title))
     timing = result.ms_per_frame()
     stride = "auto (from each frame's mount)" if args.stride is None else str(args.stride)
@@ -89,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         doc.update(
             crf=args.crf,
             smoothness=args.smoothness,
+            noisy_smoothness=args.noisy_smoothness,
             downsample="auto" if args.downsample is None else args.downsample,
             stride="auto" if args.stride is None else args.stride,
             adaptive=args.adaptive,

@@ -478,3 +478,39 @@ def test_the_downsample_is_a_config_field_checked_up_front():
     seg = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
     with pytest.raises(TopsegError, match=r"f9: .*uint16"):
         seg.label(np.zeros((480, 640), np.float32), name="f9")
+
+
+def test_a_noisy_camera_gets_the_heavier_crf_weight(bundled, legacy):
+    """Frames the Segmenter smooths (a D435 at 4.5 m: 85 mm of noise at the floor) are
+    smoothed by the CRF with `noisy_smoothness`; a Kinect v1 at 3.5 m keeps `smoothness`,
+    and so does every camera when `noisy_smoothness` is not the larger."""
+    from topseg.core.crf import CRFConfig
+    from topseg.core.denoise import needs_denoise
+    from topseg.services.experiment.mounts import cell_mount, render_cell
+
+    noisy, quiet = cell_mount("realsense_d435", 4.5, 3.0), cell_mount("kinect_v1", 3.5, 0.0)
+    assert needs_denoise(noisy) and not needs_denoise(quiet)
+
+    def seg(**crf):
+        config = SegmenterConfig(crf=CRFConfig(mode="realtime", **crf))
+        return Segmenter(bundled.forest, bundled.header, config)
+
+    default = seg()
+    assert default.crf_for(noisy).smoothness == crf.energy.NOISY_SMOOTHNESS == 3.0
+    assert default.crf_for(quiet) == default.crf_config
+    assert default.crf_for(None) == default.crf_config
+    assert seg(smoothness=4.0).crf_for(noisy).smoothness == 4.0  # never below smoothness
+    assert seg(noisy_smoothness=0.5).crf_for(noisy).smoothness == 1.0
+    assert legacy.crf_for(noisy) == legacy.crf_config  # a depth model has no noise model
+    with pytest.raises(TopsegError, match="noisy_smoothness must be in"):
+        CRFConfig(noisy_smoothness=-1.0)
+
+    depth, _truth, mount = render_cell(noisy, 1)[0]
+    heavy = default.label(depth, mount=mount).labels
+    np.testing.assert_array_equal(heavy, seg(smoothness=3.0).label(depth, mount=mount).labels)
+    assert np.any(heavy != seg(noisy_smoothness=1.0).label(depth, mount=mount).labels)
+    depth, _truth, mount = render_cell(quiet, 1)[0]
+    np.testing.assert_array_equal(
+        default.label(depth, mount=mount).labels,
+        seg(noisy_smoothness=1.0).label(depth, mount=mount).labels,
+    )

@@ -20,6 +20,11 @@ MAX_SMOOTHNESS = 1000.0
 #: ~0.015 avg F1 higher, but costs the realtime CRF ~2 ms a frame that the 30 fps budget does
 #: not have (docs/crf.md; `--smoothness` chooses per command)
 DEFAULT_SMOOTHNESS = 1.0
+#: The Potts weight CRFConfig defaults to for frames from a noisy camera (`denoise.needs_denoise`:
+#: 20 mm or more of depth noise at the floor, a stereo camera at range), never below
+#: `smoothness`: their posteriors are noisier, and on the mounts table 3 nats lifted the stereo
+#: cells at 4.0-4.5 m by 0.004-0.009 (docs/crf.md) for ~2 ms of CRF time on those cameras only
+NOISY_SMOOTHNESS = 3.0
 
 Mode = Literal["none", "exact", "realtime"]
 MODES: tuple[str, ...] = ("none", "exact", "realtime")
@@ -31,6 +36,8 @@ class CRFConfig:
 
     mode            none | exact | realtime
     smoothness      Potts weight per cut 4-neighbour edge, in nats
+    noisy_smoothness  the weight for frames from a noisy camera (the Segmenter's
+                    `crf_for`: those it smooths, `denoise.needs_denoise`), when larger
     depth_sigma_mm  > 0 weights an edge by exp(-dd^2 / 2 sigma^2) of its depth step; 0 = off
     eps             posterior floor before -log (caps a unary at -log(eps))
     confidence      realtime: a pixel whose top posterior reaches this and whose 4
@@ -42,6 +49,7 @@ class CRFConfig:
 
     mode: Mode = "realtime"
     smoothness: float = DEFAULT_SMOOTHNESS
+    noisy_smoothness: float = NOISY_SMOOTHNESS
     depth_sigma_mm: float = 0.0
     eps: float = 1e-6
     confidence: float = 0.4
@@ -51,10 +59,10 @@ class CRFConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise TopsegError(f"crf mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        if not 0.0 <= self.smoothness <= MAX_SMOOTHNESS:
-            raise TopsegError(
-                f"crf smoothness must be in [0, {MAX_SMOOTHNESS:g}], got {self.smoothness}"
-            )
+        for name in ("smoothness", "noisy_smoothness"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= MAX_SMOOTHNESS:
+                raise TopsegError(f"crf {name} must be in [0, {MAX_SMOOTHNESS:g}], got {value}")
         if self.depth_sigma_mm < 0:
             raise TopsegError(f"crf depth_sigma_mm must be >= 0, got {self.depth_sigma_mm}")
         if not 0.0 < self.eps < 1.0:
