@@ -22,8 +22,9 @@ MAX_SMOOTHNESS = 1000.0
 DEFAULT_SMOOTHNESS = 1.0
 #: The Potts weight CRFConfig defaults to for frames from a noisy camera (`denoise.needs_denoise`:
 #: 20 mm or more of depth noise at the floor, a stereo camera at range), never below
-#: `smoothness`: their posteriors are noisier, and on the mounts table 3 nats lifted the stereo
-#: cells at 4.0-4.5 m by 0.004-0.009 (docs/crf.md) for ~2 ms of CRF time on those cameras only
+#: `smoothness`: their posteriors are noisier, and on the mounts table (300 frames a cell) 3 nats
+#: lifted every stereo cell by 0.003-0.009 avg F1 for ~2.5-3.3 ms of CRF p50 on those cameras
+#: only (docs/crf.md, docs/results.md)
 NOISY_SMOOTHNESS = 3.0
 
 Mode = Literal["none", "exact", "realtime"]
