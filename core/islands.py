@@ -8,8 +8,10 @@ time-of-flight frames they were most of the head blobs found (`docs/results.md`)
 
 Furniture is large from above too: a chair's seat is ~40 x 40 cm, storage and tables more.
 The forest leaves small blobs of furniture on legs, arms and the edges of other furniture;
-on people they count as "furniture on a person". Plants are left alone: their leaves break
-into small blobs of their own.
+on people they count as "furniture on a person". A potted plant is smaller (its pot, 14 cm
+across or more, covers ~150 cm2), and its leaves break into blobs of their own, so plants
+have a smaller minimum of their own: it takes the specks of plant that a noisy camera leaves
+on table tops.
 
 `relabel_islands` measures every 4-connected blob of a class that has a minimum area in
 square metres on the surface it lies on, each pixel covering (z / fx) x (z / fy), and
@@ -45,6 +47,8 @@ from topseg.core.camera import Intrinsics
 
 #: the classes `min_furniture_cm2` applies to (`relabel_islands`)
 FURNITURE_ISLANDS = (L.CHAIR, L.STORAGE, L.TABLE)
+#: the classes `Segmentation.small_furniture` counts: those and plants (`min_plant_cm2`)
+FURNITURE_COUNTED = (L.CHAIR, L.PLANT, L.STORAGE, L.TABLE)
 
 #: the largest head blobs that may claim satellites: more people than this under one
 #: camera is not a robot cell, and it bounds the work on a frame of many small blobs
@@ -288,12 +292,13 @@ def relabel_islands(
     return relabelled, int(satellites)
 
 
-def island_areas(min_head_cm2: float, min_furniture_cm2: float) -> np.ndarray:
+def island_areas(min_head_cm2: float, min_furniture_cm2: float, min_plant_cm2: float) -> np.ndarray:
     """The per-class minimum areas (cm2, NUM_CLASSES) of `relabel_islands` for a head
-    minimum and a furniture minimum (`FURNITURE_ISLANDS`); 0 elsewhere."""
+    minimum, a furniture minimum (`FURNITURE_ISLANDS`) and a plant minimum; 0 elsewhere."""
     areas = np.zeros(L.NUM_CLASSES, np.float64)
     areas[L.HEAD] = min_head_cm2
     areas[list(FURNITURE_ISLANDS)] = min_furniture_cm2
+    areas[L.PLANT] = min_plant_cm2
     return areas
 
 

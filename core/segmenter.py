@@ -57,6 +57,10 @@ MIN_HEAD_CM2 = 50.0
 #: Measured in docs/crf.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
 #: person 1.1-1.4 points lower on rendered time-of-flight frames.
 MIN_FURNITURE_CM2 = 300.0
+#: After the CRF, blobs labelled plant smaller than this on the surface (cm2) take their
+#: border's label: two thirds of the smallest pot seen from above (14 cm across, ~150 cm2).
+#: A noisy camera leaves such specks of plant on table tops. Measured in docs/crf.md.
+MIN_PLANT_CM2 = 100.0
 #: After the CRF, head blobs smaller than this (cm2) whose centre lies within
 #: SATELLITE_RADIUS_CM of a larger head blob's take their border's label: an arm or a hand
 #: beside a head, as large as a small head (`islands.relabel_islands`). Measured in
@@ -158,6 +162,7 @@ class SegmenterConfig:
                   0 keeps them
     min_furniture_cm2  the same for blobs of chair, storage and table
                   (`islands.FURNITURE_ISLANDS`); 0 keeps them
+    min_plant_cm2  the same for blobs of plant; 0 keeps them
     satellite_head_cm2  after the CRF, head blobs smaller than this whose centre lies
                   within SATELLITE_RADIUS_CM of a larger head blob's take their
                   border's label; 0 keeps them
@@ -181,6 +186,7 @@ class SegmenterConfig:
     early_exit: float | None = EARLY_EXIT
     min_head_cm2: float = MIN_HEAD_CM2
     min_furniture_cm2: float = MIN_FURNITURE_CM2
+    min_plant_cm2: float = MIN_PLANT_CM2
     satellite_head_cm2: float = SATELLITE_HEAD_CM2
     fill_holes_cm2: float = FILL_HOLES_CM2
     downsample: int | None = None
@@ -201,7 +207,13 @@ class SegmenterConfig:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
         if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
             raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
-        for name in ("min_head_cm2", "min_furniture_cm2", "satellite_head_cm2", "fill_holes_cm2"):
+        for name in (
+            "min_head_cm2",
+            "min_furniture_cm2",
+            "min_plant_cm2",
+            "satellite_head_cm2",
+            "fill_holes_cm2",
+        ):
             area = getattr(self, name)
             if not (np.isfinite(area) and area >= 0):
                 raise TopsegError(f"{name} must be >= 0 cm2, got {area}")
@@ -228,7 +240,8 @@ class Segmentation:
                  the forest (0 for a model that reads depth)
     small_heads  blobs labelled head by the CRF that were too small to be a head and took
                  their border's label (`SegmenterConfig.min_head_cm2`)
-    small_furniture  the same for chair, storage and table (`min_furniture_cm2`)
+    small_furniture  the same for chair, storage and table (`min_furniture_cm2`) and
+                 plant (`min_plant_cm2`)
     satellite_heads  head blobs beside a larger head that took their border's label
                  (`SegmenterConfig.satellite_head_cm2`)
     downsample   the factor the frame was labelled at (`SegmenterConfig.downsample`); the
@@ -645,11 +658,13 @@ class Segmenter:
 
     @property
     def relabels_islands(self) -> bool:
-        """Whether `label` relabels head or furniture blobs under `min_head_cm2` or
-        `min_furniture_cm2`, or satellite heads, after the CRF (never in CRF mode none: that
-        is the forest's argmax, as it is)."""
+        """Whether `label` relabels head, furniture or plant blobs under `min_head_cm2`,
+        `min_furniture_cm2` or `min_plant_cm2`, or satellite heads, after the CRF (never in
+        CRF mode none: that is the forest's argmax, as it is)."""
         cfg = self.config
-        largest = max(cfg.min_head_cm2, cfg.min_furniture_cm2, cfg.satellite_head_cm2)
+        largest = max(
+            cfg.min_head_cm2, cfg.min_furniture_cm2, cfg.min_plant_cm2, cfg.satellite_head_cm2
+        )
         return largest > 0 and cfg.crf.mode != "none"
 
     def _relabel_islands(
@@ -660,13 +675,13 @@ class Segmenter:
         name: str,
         mount: TopViewMount | None,
     ) -> tuple[int, int, int]:
-        """The CRF's head and furniture blobs under their minimum areas, and its satellite
-        heads, relabelled in place, measured with the frame's intrinsics: how many small
-        head blobs, small furniture blobs and satellite heads."""
+        """The CRF's head, furniture and plant blobs under their minimum areas, and its
+        satellite heads, relabelled in place, measured with the frame's intrinsics: how many
+        small head blobs, small furniture and plant blobs, and satellite heads."""
         if not self.relabels_islands:
             return 0, 0, 0
         from topseg.core.islands import (
-            FURNITURE_ISLANDS,
+            FURNITURE_COUNTED,
             edge_shares,
             island_areas,
             relabel_islands,
@@ -677,12 +692,12 @@ class Segmenter:
         else:
             k = self.frame_mount(depth, intrinsics, name, mount).intrinsics
         cfg = self.config
-        areas = island_areas(cfg.min_head_cm2, cfg.min_furniture_cm2)
+        areas = island_areas(cfg.min_head_cm2, cfg.min_furniture_cm2, cfg.min_plant_cm2)
         small, satellites = relabel_islands(
             labels, depth, k, areas, cfg.satellite_head_cm2, SATELLITE_RADIUS_CM,
             ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
         )  # fmt: skip
-        return int(small[L.HEAD]), int(small[list(FURNITURE_ISLANDS)].sum()), satellites
+        return int(small[L.HEAD]), int(small[list(FURNITURE_COUNTED)].sum()), satellites
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels on a small frame, before the

@@ -183,9 +183,9 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_island_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--min-head-cm2 A`, `--min-furniture-cm2 A`: after the CRF, head and furniture blobs
-    smaller than A cm2 take their border's label (`SegmenterConfig.min_head_cm2`,
-    `min_furniture_cm2`); `--satellite-head-cm2 A`: so do head blobs smaller than A beside a
+    """`--min-head-cm2 A`, `--min-furniture-cm2 A`, `--min-plant-cm2 A`: after the CRF, head,
+    furniture and plant blobs smaller than A cm2 take their border's label
+    (`SegmenterConfig.min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`); `--satellite-head-cm2 A`: so do head blobs smaller than A beside a
     larger head (`satellite_head_cm2`); `--fill-holes-cm2 A`: before labelling, holes up to A
     cm2 inside one surface take its depth (`fill_holes_cm2`). `island_config` reads them
     back."""
@@ -194,6 +194,7 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
         FILL_HOLES_CM2,
         MIN_FURNITURE_CM2,
         MIN_HEAD_CM2,
+        MIN_PLANT_CM2,
         SATELLITE_HEAD_CM2,
         SATELLITE_RADIUS_CM,
     )
@@ -213,7 +214,15 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
         default=MIN_FURNITURE_CM2,
         metavar="A",
         help="the same for blobs labelled chair, storage or table (a chair's seat seen from "
-        "above is ~1600 cm2; plants are left as they are) (default: %(default)s)",
+        "above is ~1600 cm2) (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--min-plant-cm2",
+        type=finite(0, 100000),
+        default=MIN_PLANT_CM2,
+        metavar="A",
+        help="the same for blobs labelled plant (the smallest pot seen from above is ~150 "
+        "cm2; a noisy camera leaves specks of plant on table tops) (default: %(default)s)",
     )
     parser.add_argument(
         "--satellite-head-cm2",
@@ -241,6 +250,7 @@ def island_config(args: argparse.Namespace) -> dict:
     return {
         "min_head_cm2": args.min_head_cm2,
         "min_furniture_cm2": args.min_furniture_cm2,
+        "min_plant_cm2": args.min_plant_cm2,
         "satellite_head_cm2": args.satellite_head_cm2,
         "fill_holes_cm2": args.fill_holes_cm2,
     }

@@ -232,7 +232,8 @@ def run_pipeline(
     None without truth), "confusion", "exit_codes", "logs"}. `downsample` and `stride` are
     the worker's (None: auto), `adaptive` its adaptive grid's levels (None: its default), `early_exit` its trees'
     early exit (`SegmenterConfig.early_exit`; None: off), `islands` its blob rules
-    (`SegmenterConfig` fields min_head_cm2, min_furniture_cm2, satellite_head_cm2, as
+    (`SegmenterConfig` fields min_head_cm2, min_furniture_cm2, min_plant_cm2,
+    satellite_head_cm2, as
     `cli_types.island_config` gives them; None: the defaults). `cameras` > 1 runs that many
     drivers of the same source (cameras cam0, cam1, ...; each at `fps`) into the one
     worker; the figures are over all of them. `web` adds a second viewer serving Rerun's web

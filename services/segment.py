@@ -24,7 +24,7 @@ not a recording, frames whose floor cannot be found) is skipped with one line on
 the others are still segmented; the exit status is then 2. A recording cut short or with
 damaged messages gives what it holds. The end prints the share of pixels the floor gate sent
 to background without the forest, and how many head and furniture blobs were too small to
-be what they were labelled (`--min-head-cm2`, `--min-furniture-cm2`) and how many head blobs
+be what they were labelled (`--min-head-cm2`, `--min-furniture-cm2`, `--min-plant-cm2`) and how many head blobs
 lay beside a larger head (`--satellite-head-cm2`), and took their border's label.
 """
 
@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"blobs relabelled as too small: {run_.small_heads} head (under "
             f"{cfg.min_head_cm2:g} cm2), {run_.small_furniture} furniture (under "
-            f"{cfg.min_furniture_cm2:g} cm2); head blobs beside a larger head: "
+            f"{cfg.min_furniture_cm2:g} cm2, plants {cfg.min_plant_cm2:g}); head blobs beside a larger head: "
             f"{run_.satellite_heads} (under {cfg.satellite_head_cm2:g} cm2) in {run_.count} "
             "frames"
         )
@@ -239,7 +239,7 @@ class _Run:
         self.refused = 0
         self.floor_share = 0.0
         self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
-        self.small_furniture = 0  # the same for chair, storage and table
+        self.small_furniture = 0  # the same for chair, storage, table and plant
         self.satellite_heads = 0  # head blobs beside a larger head, relabelled
         self.filled_holes = 0  # holes inside one surface filled before labelling
         self._warned: set = set()

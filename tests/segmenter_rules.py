@@ -6,7 +6,7 @@ from topseg.core import segmenter as S
 from topseg.core.islands import edge_shares, island_areas, relabel_islands
 
 #: the Segmenter's default minimum areas, per class
-AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2)
+AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2, S.MIN_PLANT_CM2)
 
 
 def relabel_as_the_segmenter(labels, depth, k):

@@ -164,7 +164,8 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
         subprocess.run(
             [sys.executable, "-m", "topseg.services.cli", "evaluate", "--model",
              str(tmp_path / "m.npz"), "--data", str(data), "--frames", "3", "--smoothness", s,
-             "--min-head-cm2", "0", "--min-furniture-cm2", "0", "--satellite-head-cm2", "0",
+             "--min-head-cm2", "0", "--min-furniture-cm2", "0", "--min-plant-cm2", "0",
+             "--satellite-head-cm2", "0",
              "--json",
              str(tmp_path / f"s{s}.json")],
             capture_output=True, text=True, timeout=300, check=True,
@@ -177,7 +178,7 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
     segmenter = Segmenter(
         model,
         {},
-        SegmenterConfig(min_head_cm2=0, min_furniture_cm2=0, satellite_head_cm2=0),
+        SegmenterConfig(min_head_cm2=0, min_furniture_cm2=0, min_plant_cm2=0, satellite_head_cm2=0),
         crf=CRFConfig(mode="realtime", smoothness=5.0),
     )
     want = score(segmenter, dataset_frames(ds, range(3))).crf.confusion

@@ -23,7 +23,7 @@ K = Intrinsics()  # Kinect v1: fx = fy = 570.3
 
 def relabel_small_heads(labels, depth, k, min_head_cm2):
     """`relabel_islands` for small heads only; how many head blobs it relabelled."""
-    small, satellites = relabel_islands(labels, depth, k, island_areas(min_head_cm2, 0.0))
+    small, satellites = relabel_islands(labels, depth, k, island_areas(min_head_cm2, 0.0, 0.0))
     assert satellites == 0
     return int(small[L.HEAD])
 
@@ -48,8 +48,15 @@ def test_kernel_matches_the_scipy_reference_on_random_labels(seed):
     labels = blocky_labels(rng, shape, int(rng.integers(1, 7)), float(rng.uniform(0.1, 0.6)))
     depth = rng.integers(400, 5000, size=shape).astype(np.uint16)
     depth[labels == L.NO_DEPTH] = 0
-    for head, furniture in ((5.0, 0.0), (50.0, 0.0), (400.0, 0.0), (0.0, 300.0), (50.0, 300.0)):
-        areas = island_areas(head, furniture)
+    for head, furniture, plant in (
+        (5.0, 0.0, 0.0),
+        (50.0, 0.0, 0.0),
+        (400.0, 0.0, 0.0),
+        (0.0, 300.0, 0.0),
+        (0.0, 0.0, 100.0),
+        (50.0, 300.0, 100.0),
+    ):
+        areas = island_areas(head, furniture, plant)
         if seed % 2:  # any class may have a minimum, not only heads and furniture
             areas = areas + rng.choice([0.0, 20.0, 200.0], size=L.NUM_CLASSES)
         want, n_want, _ = islands_reference(labels, depth, K, areas, L.NO_DEPTH)
@@ -60,6 +67,7 @@ def test_kernel_matches_the_scipy_reference_on_random_labels(seed):
         np.testing.assert_array_equal(n_got, n_want)
         assert n_got[L.HEAD] > 0 or head in (0.0, 5.0)  # the test exercises relabelling
         assert n_got[list(FURNITURE_ISLANDS)].sum() > 0 or furniture == 0.0
+        assert n_got[L.PLANT] > 0 or plant == 0.0
         off = areas == 0
         assert not n_got[off].any()
 
@@ -74,15 +82,37 @@ def test_blobs_are_judged_on_the_labels_as_given():
     labels[10:12, 10:12] = L.STORAGE  # met before the chair
     depth = np.full((100, 100), 2500, np.uint16)
     got = labels.copy()
-    n = relabel_islands(got, depth, K, island_areas(0.0, 300.0))[0]
+    n = relabel_islands(got, depth, K, island_areas(0.0, 300.0, 0.0))[0]
     assert (n[L.CHAIR], n[L.STORAGE], n[L.TABLE]) == (1, 1, 0)  # the table is large
     want = np.full((100, 100), L.TABLE, np.uint8)
     want[10:12, 10:12] = L.CHAIR
     np.testing.assert_array_equal(got, want)
     # the same frame turned half round: the chair is met first
     got = np.rot90(labels, 2).copy()
-    relabel_islands(got, depth, K, island_areas(0.0, 300.0))
+    relabel_islands(got, depth, K, island_areas(0.0, 300.0, 0.0))
     np.testing.assert_array_equal(got, np.rot90(want, 2))
+
+
+def test_a_speck_of_plant_on_a_table_is_table_and_a_potted_plant_stays():
+    # a table top 0.75 m high under a camera 3.5 m up (2750 mm away): a speck of plant 8 x 8
+    # px (~15 cm2) on it, and a potted plant 40 x 40 px at 0.6 m (~410 cm2) beside it
+    labels = np.full((120, 160), L.BACKGROUND, np.uint8)
+    depth = np.full((120, 160), 3500, np.uint16)
+    labels[10:110, 10:110] = L.TABLE
+    depth[10:110, 10:110] = 2750
+    labels[30:38, 30:38] = L.PLANT
+    labels[60:100, 115:155] = L.PLANT
+    depth[60:100, 115:155] = 2900
+    got = labels.copy()
+    n = relabel_islands(got, depth, K, island_areas(0.0, 0.0, 100.0))[0]
+    assert n[L.PLANT] == 1 and n.sum() == 1
+    want = labels.copy()
+    want[30:38, 30:38] = L.TABLE
+    np.testing.assert_array_equal(got, want)
+    # 0 keeps every blob of plant
+    got = labels.copy()
+    assert not relabel_islands(got, depth, K, island_areas(0.0, 0.0, 0.0))[0].any()
+    np.testing.assert_array_equal(got, labels)
 
 
 def test_areas_must_be_one_per_class():
@@ -179,7 +209,7 @@ def test_satellites_match_the_scipy_reference_on_random_heads(seed):
         (20.0, 0.0, 400.0, 60.0),
         (50.0, 0.0, 0.0, SATELLITE_RADIUS_CM),
     ):
-        areas = island_areas(head, furniture)
+        areas = island_areas(head, furniture, 0.0)
         want, n_want, sat_want = islands_reference(
             labels, depth, k, areas, L.NO_DEPTH, satellite, radius, L.HEAD
         )
@@ -228,7 +258,7 @@ def test_a_head_blob_on_the_arm_beside_a_head_takes_the_arms_label():
     assert px_cm(80, 2000) < SATELLITE_RADIUS_CM
     got = labels.copy()
     small, satellites = relabel_islands(
-        got, depth, K_CELL, island_areas(50.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+        got, depth, K_CELL, island_areas(50.0, 0.0, 0.0), 150.0, SATELLITE_RADIUS_CM
     )
     assert (small[L.HEAD], satellites) == (0, 1)  # ~83 cm2: not small, but a satellite
     assert (got[128:172, 178:222] == L.HEAD).all()
@@ -241,7 +271,7 @@ def test_a_head_blob_further_off_or_as_large_as_a_head_stays():
     assert px_cm(130, 2000) > SATELLITE_RADIUS_CM
     assert (
         relabel_islands(
-            labels.copy(), depth, K_CELL, island_areas(50.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+            labels.copy(), depth, K_CELL, island_areas(50.0, 0.0, 0.0), 150.0, SATELLITE_RADIUS_CM
         )[1]
         == 0
     )
@@ -250,7 +280,7 @@ def test_a_head_blob_further_off_or_as_large_as_a_head_stays():
         got = labels.copy()
         assert (
             relabel_islands(
-                got, depth, K_CELL, island_areas(50.0, 0.0), limit, SATELLITE_RADIUS_CM
+                got, depth, K_CELL, island_areas(50.0, 0.0, 0.0), limit, SATELLITE_RADIUS_CM
             )[1]
             == want
         )
@@ -260,7 +290,9 @@ def test_a_second_persons_head_is_not_a_satellite():
     labels, depth = person_with_an_arm(80, second_head_px=30)  # ~85 cm2, 60 cm off
     got = labels.copy()
     assert (
-        relabel_islands(got, depth, K_CELL, island_areas(50.0, 0.0), 150.0, SATELLITE_RADIUS_CM)[1]
+        relabel_islands(
+            got, depth, K_CELL, island_areas(50.0, 0.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+        )[1]
         == 1
     )  # the arm
     assert (got[135:165, 15:45] == L.HEAD).all()
@@ -270,7 +302,7 @@ def test_off_keeps_every_head_blob():
     labels, depth = person_with_an_arm(80)
     got = labels.copy()
     small, satellites = relabel_islands(
-        got, depth, K_CELL, island_areas(0.0, 0.0), 0.0, SATELLITE_RADIUS_CM
+        got, depth, K_CELL, island_areas(0.0, 0.0, 0.0), 0.0, SATELLITE_RADIUS_CM
     )
     assert satellites == 0 and not small.any()
     np.testing.assert_array_equal(got, labels)
@@ -294,7 +326,7 @@ def test_only_the_largest_head_blobs_claim_satellites():
     for v, u in (centres[0], centres[-1]):
         labels[v - 5 : v + 5, u + 60 : u + 70] = L.HEAD  # ~12 cm2, 23 cm off
     _, satellites = relabel_islands(
-        labels, depth, K, island_areas(0.0, 0.0), 150.0, SATELLITE_RADIUS_CM
+        labels, depth, K, island_areas(0.0, 0.0, 0.0), 150.0, SATELLITE_RADIUS_CM
     )
     assert satellites == 1
     v, u = centres[0]
@@ -307,7 +339,7 @@ def test_satellite_options_are_checked():
     labels, depth = person_with_an_arm(80)
     for bad in ({"satellite_head_cm2": -1.0}, {"radius_cm": float("nan")}):
         with pytest.raises(ValueError, match="must be >= 0"):
-            relabel_islands(labels, depth, K_CELL, island_areas(50.0, 0.0), **bad)
+            relabel_islands(labels, depth, K_CELL, island_areas(50.0, 0.0, 0.0), **bad)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -319,7 +351,7 @@ def test_small_blobs_at_the_image_edge_are_kept_as_the_reference_keeps_them(seed
     labels = blocky_labels(rng, shape, int(rng.integers(3, 7)), float(rng.uniform(0.1, 0.4)))
     depth = rng.integers(400, 5000, size=shape).astype(np.uint16)
     depth[labels == L.NO_DEPTH] = 0
-    areas = island_areas(50.0, 300.0)
+    areas = island_areas(50.0, 300.0, 0.0)
     kept_any = False
     anywhere = rng.uniform(0.0, 1.0, L.NUM_CLASSES)
     for edge_px, shares in ((1, edge_shares(0.0)), (2, edge_shares(0.2)), (3, anywhere)):
@@ -347,7 +379,7 @@ def test_a_head_cut_by_the_image_edge_keeps_its_label():
     labels[50:52, 78:80] = L.HEAD  # 2x2 px at the edge: about 1 cm2, under 0.2 x 50 cm2
     depth = np.full(labels.shape, 3000, np.uint16)
     got = labels.copy()
-    areas = island_areas(50.0, 0.0)
+    areas = island_areas(50.0, 0.0, 0.0)
     small, _ = relabel_islands(got, depth, K, areas, 0.0, 0.0, 2, edge_shares(0.2))
     assert small[L.HEAD] == 2
     assert (got[20:27, 0:7] == L.HEAD).all() and (got[40:46, 30:36] == L.BODY).all()

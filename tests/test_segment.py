@@ -275,7 +275,7 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     from pathlib import Path
 
     from topseg.core.holes import fill_holes
-    from topseg.core.islands import FURNITURE_ISLANDS
+    from topseg.core.islands import FURNITURE_COUNTED
 
     demo = Path(__file__).resolve().parents[1] / "recordings" / "demo.mcap"
     folder = tmp_path / "frames"
@@ -288,7 +288,7 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     # at the frames' own resolution, where the rules run on the labels written (at half
     # resolution they run before the labels are brought back: tests/test_segmenter.py)
     kept = segment(
-        folder, "--out", tmp_path / "kept", "--min-head-cm2", "0", "--min-furniture-cm2", "0",
+        folder, "--out", tmp_path / "kept", "--min-head-cm2", "0", "--min-furniture-cm2", "0", "--min-plant-cm2", "0",
         "--satellite-head-cm2", "0", "--downsample", "1",
     )  # fmt: skip
     cleaned = segment(folder, "--out", tmp_path / "cleaned", "--downsample", "1")
@@ -302,12 +302,12 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
         relabelled, satellites = relabelled + small, satellites + n
         got = np.asarray(Image.open(tmp_path / "cleaned" / f"f{i}_labels.png"))
         np.testing.assert_array_equal(got, want)
-    heads, furniture = relabelled[1], relabelled[list(FURNITURE_ISLANDS)].sum()
+    heads, furniture = relabelled[1], relabelled[list(FURNITURE_COUNTED)].sum()
     assert heads > 0 and furniture > 0
     assert (
         f"blobs relabelled as too small: {heads} head (under 50 cm2), {furniture} furniture "
-        f"(under 300 cm2); head blobs beside a larger head: {satellites} (under 150 cm2) in 4 "
-        "frames"
+        f"(under 300 cm2, plants 100); head blobs beside a larger head: {satellites} (under "
+        "150 cm2) in 4 frames"
     ) in cleaned.stdout
     assert "holes filled: " in cleaned.stdout and "took that surface's depth" in cleaned.stdout
     assert "holes filled: " in kept.stdout  # the filling is not one of the blob rules

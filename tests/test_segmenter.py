@@ -14,7 +14,7 @@ from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
 from topseg.core.formats import recording, wire
 from topseg.core.holes import fill_holes
-from topseg.core.islands import FURNITURE_ISLANDS
+from topseg.core.islands import FURNITURE_COUNTED
 from topseg.core.scoring import score
 from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
 
@@ -93,7 +93,7 @@ def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
             small, satellites = relabel_as_the_segmenter(expected, depth, k)
         np.testing.assert_array_equal(got.labels, expected)
         assert got.small_heads == small[L.HEAD] and got.satellite_heads == satellites
-        assert got.small_furniture == small[list(FURNITURE_ISLANDS)].sum()
+        assert got.small_furniture == small[list(FURNITURE_COUNTED)].sum()
         np.testing.assert_array_equal(got.proba, proba)
         assert got.labels.dtype == np.uint8 and got.proba.dtype == np.float32
         t = got.timings
@@ -398,11 +398,13 @@ print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) 
 
 
 def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf():
-    """`min_head_cm2`, `min_furniture_cm2`: the CRF's labels, then head and furniture blobs
-    under them relabelled with the frame's own focal lengths; 0 keeps the CRF's labels."""
+    """`min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`: the CRF's labels, then head,
+    furniture and plant blobs under them relabelled with the frame's own focal lengths; 0
+    keeps the CRF's labels."""
     assert SegmenterConfig().min_head_cm2 == S.MIN_HEAD_CM2 > 0
     assert SegmenterConfig().min_furniture_cm2 == S.MIN_FURNITURE_CM2 > 0
-    for name in ("min_head_cm2", "min_furniture_cm2", "satellite_head_cm2"):
+    assert SegmenterConfig().min_plant_cm2 == S.MIN_PLANT_CM2 > 0
+    for name in ("min_head_cm2", "min_furniture_cm2", "min_plant_cm2", "satellite_head_cm2"):
         for bad in (-1.0, float("nan"), float("inf")):
             with pytest.raises(TopsegError, match=name):
                 SegmenterConfig(**{name: bad})
@@ -414,6 +416,7 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
             mount=PAPER_MOUNT,
             min_head_cm2=0,
             min_furniture_cm2=0,
+            min_plant_cm2=0,
             satellite_head_cm2=0,
             downsample=1,
         ),
@@ -431,9 +434,9 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
         assert raw.small_heads == raw.small_furniture == raw.satellite_heads == 0
         assert got.satellite_heads == satellites
         assert got.small_heads == n[L.HEAD]
-        assert got.small_furniture == n[list(FURNITURE_ISLANDS)].sum()
+        assert got.small_furniture == n[list(FURNITURE_COUNTED)].sum()
         relabelled += n
-    assert relabelled[L.HEAD] > 0 and relabelled[list(FURNITURE_ISLANDS)].sum() > 0
+    assert relabelled[L.HEAD] > 0 and relabelled[list(FURNITURE_COUNTED)].sum() > 0
 
 
 def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(legacy):

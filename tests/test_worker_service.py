@@ -18,7 +18,7 @@ from topseg.core import crf, forest, metrics
 from topseg.core import labels as L
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
-from topseg.core.islands import FURNITURE_ISLANDS
+from topseg.core.islands import FURNITURE_COUNTED
 from topseg.core.synth.procedural import procedural_frame
 from topseg.services.zenoh_session import open_session
 
@@ -39,7 +39,7 @@ def labelled_as_the_worker(model, depth):
         forest.predict_proba(model, depth), depth, crf.CRFConfig(mode="realtime")
     )
     n, satellites = relabel_as_the_segmenter(labels, depth, K)
-    return labels, (int(n[L.HEAD]), int(n[list(FURNITURE_ISLANDS)].sum()), satellites)
+    return labels, (int(n[L.HEAD]), int(n[list(FURNITURE_COUNTED)].sum()), satellites)
 
 
 @pytest.fixture(scope="module")
