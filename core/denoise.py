@@ -14,7 +14,10 @@ frames from a camera whose noise at the floor is at least `MIN_SIGMA_MM`:
   person's outline and a table's edge stay where they are;
 - pixels without depth stay without depth (the Segmenter fills small holes inside one
   surface before, `core/holes.py`; the smoothing does not);
-- `ITERATIONS` passes.
+- `ITERATIONS` passes; a frame being labelled whose noise at the floor is `HEAVY_SIGMA_MM`
+  or more (a stereo camera 4 m and more up) gets `HEAVY_ITERATIONS`. Training keeps
+  `ITERATIONS` for every frame: a forest trained on the noisier input and shown the cleaner
+  one labels those frames better than one trained and shown the same (`docs/noise.md`).
 
 Quieter cameras (a Kinect v1 below ~4.3 m, time-of-flight) are left as they are: their noise
 is below the depth steps the filter could remove. Measured in `docs/noise.md`.
@@ -39,6 +42,11 @@ SIGMAS = 2.0
 ALPHA = 0.25
 #: passes of the four directions
 ITERATIONS = 2
+#: smallest 1-sigma depth noise (mm) at the floor for which a frame being labelled gets
+#: HEAVY_ITERATIONS passes: a D435 from ~3.9 m up, an OAK-D from ~4.3 m
+HEAVY_SIGMA_MM = 60.0
+#: passes of the four directions for such a frame (training keeps ITERATIONS)
+HEAVY_ITERATIONS = 3
 #: pixels per thread in a column pass
 _COLUMN_CHUNK = 64
 
@@ -78,12 +86,23 @@ def edge_table(sensor: str, noise_scale: float) -> np.ndarray:
     return table
 
 
-def denoise(depth: np.ndarray, mount: TopViewMount) -> np.ndarray:
-    """`depth` (uint16 mm) smoothed as the module says when `needs_denoise(mount)`, else
-    `depth` itself (not copied)."""
-    if not needs_denoise(mount):
+def passes(mount: TopViewMount, for_training: bool = False) -> int:
+    """How many passes `denoise` makes over frames from `mount` (0: not smoothed):
+    HEAVY_ITERATIONS for a frame being labelled with `floor_sigma_mm(mount)` >=
+    HEAVY_SIGMA_MM, else ITERATIONS for a noisy camera's (`needs_denoise`)."""
+    sigma = floor_sigma_mm(mount)
+    if sigma < MIN_SIGMA_MM:
+        return 0
+    return HEAVY_ITERATIONS if sigma >= HEAVY_SIGMA_MM and not for_training else ITERATIONS
+
+
+def denoise(depth: np.ndarray, mount: TopViewMount, for_training: bool = False) -> np.ndarray:
+    """`depth` (uint16 mm) smoothed as the module says with `passes(mount, for_training)`
+    passes, or `depth` itself (not copied) when that is 0."""
+    n = passes(mount, for_training)
+    if n == 0:
         return depth
-    return smooth_depth(depth, edge_table(mount.sensor, float(mount.noise_scale)))
+    return smooth_depth(depth, edge_table(mount.sensor, float(mount.noise_scale)), iterations=n)
 
 
 def smooth_depth(

@@ -8,12 +8,16 @@ from reference import smooth_depth_reference
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.denoise import (
     ALPHA,
+    HEAVY_ITERATIONS,
+    HEAVY_SIGMA_MM,
     ITERATIONS,
     MIN_SIGMA_MM,
     SIGMAS,
     denoise,
     edge_table,
+    floor_sigma_mm,
     needs_denoise,
+    passes,
     smooth_depth,
 )
 from topseg.core.fattening import unfatten
@@ -105,18 +109,43 @@ def test_edge_table_is_sigmas_times_the_noise():
     assert not table.flags.writeable
 
 
-def test_model_input_reads_the_smoothed_frame():
+def test_the_noisiest_frames_get_more_passes_when_labelled_not_in_training():
+    assert HEAVY_SIGMA_MM > MIN_SIGMA_MM and HEAVY_ITERATIONS > ITERATIONS
+    for sensor, height in (
+        ("kinect_v1", 3500.0),
+        ("kinect_v2", 4500.0),
+        ("oak_d", 3500.0),
+        ("oak_d", 4500.0),
+        ("realsense_d435", 2500.0),
+        ("realsense_d435", 4000.0),
+        ("realsense_d435", 4500.0),
+    ):
+        mount = mount_of(sensor, height)
+        sigma = floor_sigma_mm(mount)
+        want = 0 if sigma < MIN_SIGMA_MM else ITERATIONS
+        assert passes(mount, for_training=True) == want
+        assert passes(mount) == (HEAVY_ITERATIONS if sigma >= HEAVY_SIGMA_MM else want)
+    assert passes(mount_of("realsense_d435", 4500.0)) == HEAVY_ITERATIONS
+    assert passes(mount_of("realsense_d435", 2500.0)) == ITERATIONS
+
+
+@pytest.mark.parametrize("for_training", [False, True])
+def test_model_input_reads_the_smoothed_frame(for_training):
     mount = mount_of("realsense_d435", 4500.0)
     k = mount.intrinsics
     depth = noisy_frame(np.random.default_rng(5), k.shape)
     features = FeatureConfig()
-    got = model_input(depth, mount, features)
+    got = model_input(depth, mount, features, for_training)
     # a stereo camera's edges are thinned first (`core.fattening`, tests/test_fattening.py)
-    smoothed = smooth_depth(unfatten(depth, mount), edge_table(mount.sensor, 1.0))
+    n = ITERATIONS if for_training else HEAVY_ITERATIONS
+    smoothed = smooth_depth(unfatten(depth, mount), edge_table(mount.sensor, 1.0), ALPHA, n)
     quiet = TopViewMount(k, 4500.0, sensor="kinect_v2")  # same optics, not smoothed
     want = model_input(smoothed, quiet, features)
     np.testing.assert_array_equal(got.values, want.values)
     np.testing.assert_array_equal(got.scale, want.scale)
+    # the other number of passes reads another frame
+    other = smooth_depth(unfatten(depth, mount), edge_table(mount.sensor, 1.0), ALPHA, 5 - n)
+    assert not np.array_equal(model_input(other, quiet, features).values, got.values)
 
 
 def test_bad_shapes_are_refused():

@@ -132,12 +132,14 @@ def _margin_table(sensor: str, noise_scale: float) -> np.ndarray:
     return table
 
 
-def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
+def model_input(
+    depth: np.ndarray, mount: TopViewMount, features: FeatureConfig, for_training: bool = False
+) -> ModelInput:
     """The input of a height model (see the module) for a uint16 depth frame from `mount`.
 
     A radial camera's range is read as depth first (`TopViewMount.z_depth`), a stereo
     camera's fattened edges are thinned (`core.fattening`), and frames from a noisy camera
-    are smoothed (`core.denoise`). The frame must have the mount's
+    are smoothed (`core.denoise`; `for_training`: a training frame's passes). The frame must have the mount's
     intrinsics' shape; ValueError otherwise.
     """
     depth = check_depth(depth, "model input")
@@ -147,7 +149,7 @@ def model_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig)
             f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
             f"{k.width}x{k.height}"
         )
-    depth = denoise(unfatten(mount.z_depth(depth), mount), mount)
+    depth = denoise(unfatten(mount.z_depth(depth), mount), mount, for_training)
     values = np.empty(depth.shape, np.uint16)
     scale = np.empty(depth.shape, np.float32)
     floor = np.empty(depth.shape, np.bool_)

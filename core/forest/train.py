@@ -205,7 +205,8 @@ def frame_input(
             f"a {depth.shape[1]}x{depth.shape[0]} frame is smaller than its camera's {w}x{h}"
         )
     depth = np.ascontiguousarray(depth[:h, :w])
-    return model_input(depth, mount, config.features), np.ascontiguousarray(label[:h, :w])
+    inp = model_input(depth, mount, config.features, for_training=True)
+    return inp, np.ascontiguousarray(label[:h, :w])
 
 
 def gather_samples(
