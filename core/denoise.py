@@ -15,7 +15,7 @@ frames from a camera whose noise at the floor is at least `MIN_SIGMA_MM`:
 - pixels without depth stay without depth (the Segmenter fills small holes inside one
   surface before, `core/holes.py`; the smoothing does not);
 - `ITERATIONS` passes; a frame being labelled whose noise at the floor is `HEAVY_SIGMA_MM`
-  or more (a stereo camera 4 m and more up) gets `HEAVY_ITERATIONS`. Training keeps
+  or more (a D435 from ~4.25 m up) gets `HEAVY_ITERATIONS`. Training keeps
   `ITERATIONS` for every frame: a forest trained on the noisier input and shown the cleaner
   one labels those frames better than one trained and shown the same (`docs/noise.md`).
 
@@ -43,8 +43,9 @@ ALPHA = 0.25
 #: passes of the four directions
 ITERATIONS = 2
 #: smallest 1-sigma depth noise (mm) at the floor for which a frame being labelled gets
-#: HEAVY_ITERATIONS passes: a D435 from ~3.9 m up, an OAK-D from ~4.3 m
-HEAVY_SIGMA_MM = 60.0
+#: HEAVY_ITERATIONS passes: a D435 from ~4.25 m up; an OAK-D only when noisier than its
+#: model (65 mm at 4.5 m, where a third pass did not pay: docs/noise.md)
+HEAVY_SIGMA_MM = 75.0
 #: passes of the four directions for such a frame (training keeps ITERATIONS)
 HEAVY_ITERATIONS = 3
 #: pixels per thread in a column pass

@@ -185,10 +185,10 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
 def add_island_arguments(parser: argparse.ArgumentParser) -> None:
     """`--min-head-cm2 A`, `--min-furniture-cm2 A`, `--min-plant-cm2 A`: after the CRF, head,
     furniture and plant blobs smaller than A cm2 take their border's label
-    (`SegmenterConfig.min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`); `--satellite-head-cm2 A`: so do head blobs smaller than A beside a
-    larger head (`satellite_head_cm2`); `--fill-holes-cm2 A`: before labelling, holes up to A
-    cm2 inside one surface take its depth (`fill_holes_cm2`). `island_config` reads them
-    back."""
+    (`SegmenterConfig.min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`);
+    `--satellite-head-cm2 A`: so do head blobs smaller than A beside a larger head
+    (`satellite_head_cm2`); `--fill-holes-cm2 A`: before labelling, holes up to A cm2 inside
+    one surface take its depth (`fill_holes_cm2`). `island_config` reads them back."""
     from topseg.core.segmenter import (
         EDGE_HEAD_SHARE,
         FILL_HOLES_CM2,

@@ -139,8 +139,8 @@ def model_input(
 
     A radial camera's range is read as depth first (`TopViewMount.z_depth`), a stereo
     camera's fattened edges are thinned (`core.fattening`), and frames from a noisy camera
-    are smoothed (`core.denoise`; `for_training`: a training frame's passes). The frame must have the mount's
-    intrinsics' shape; ValueError otherwise.
+    are smoothed (`core.denoise`; `for_training`: with a training frame's passes). The frame
+    must have the mount's intrinsics' shape; ValueError otherwise.
     """
     depth = check_depth(depth, "model input")
     k = mount.intrinsics
