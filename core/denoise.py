@@ -91,10 +91,10 @@ def passes(mount: TopViewMount, for_training: bool = False) -> int:
     """How many passes `denoise` makes over frames from `mount` (0: not smoothed):
     HEAVY_ITERATIONS for a frame being labelled with `floor_sigma_mm(mount)` >=
     HEAVY_SIGMA_MM, else ITERATIONS for a noisy camera's (`needs_denoise`)."""
-    sigma = floor_sigma_mm(mount)
-    if sigma < MIN_SIGMA_MM:
+    if not needs_denoise(mount):
         return 0
-    return HEAVY_ITERATIONS if sigma >= HEAVY_SIGMA_MM and not for_training else ITERATIONS
+    heavy = not for_training and floor_sigma_mm(mount) >= HEAVY_SIGMA_MM
+    return HEAVY_ITERATIONS if heavy else ITERATIONS
 
 
 def denoise(depth: np.ndarray, mount: TopViewMount, for_training: bool = False) -> np.ndarray:
