@@ -134,7 +134,7 @@ class Tap:
         import zenoh
 
         from topseg.core.formats import wire
-        from topseg.services.zenoh_session import open_session
+        from topseg.services.runtime.zenoh_session import open_session
 
         self.cell, self.camera = cell, camera
         self.session = open_session(port=port)

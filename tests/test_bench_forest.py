@@ -59,7 +59,7 @@ def test_frames_from_the_users_camera():
     import argparse
 
     from topseg.core.camera import PAPER_MOUNT
-    from topseg.services.bench import frames
+    from topseg.services.batch.bench import frames
 
     parser = argparse.ArgumentParser()
     frames.add_arguments(parser)

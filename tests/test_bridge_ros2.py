@@ -27,7 +27,7 @@ from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import ros2_messages as ros2
 from topseg.core.formats import wire
 from topseg.core.formats.rmw_zenoh import entity_gid
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.zenoh_session import open_session
 
 # RIHS01 hashes of the Jazzy messages (docs/research/ros2-interop-sources.md, section 2)
 HASH = {
@@ -418,7 +418,7 @@ def test_bad_options_are_one_line(run, args, error):
 
 def test_domain_comes_from_the_option_then_ros_domain_id(monkeypatch):
     from topseg.core.errors import TopsegError
-    from topseg.services.bridge_ros2 import ros_domain
+    from topseg.services.live.bridge_ros2 import ros_domain
 
     monkeypatch.setenv("ROS_DOMAIN_ID", "5")
     assert (ros_domain(9), ros_domain(None)) == (9, 5)

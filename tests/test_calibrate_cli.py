@@ -169,7 +169,7 @@ def test_refusals_are_one_line(png_folder, tmp_path):
 
 def test_edge_thinning_is_the_flag_else_the_frames_mount_else_on():
     from topseg.core.calibration import MountEstimate
-    from topseg.services.calibrate import with_edge_thinning
+    from topseg.services.live.calibrate import with_edge_thinning
 
     d435 = get_sensor("realsense_d435")
     fitted = TopViewMount(d435.intrinsics, 3000.0, sensor="realsense_d435")

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from topseg.services.bench import BENCHES
+from topseg.services.batch.bench import BENCHES
 from topseg.services.cli import COMMANDS, main
 
 

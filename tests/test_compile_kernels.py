@@ -33,7 +33,7 @@ class Misses(event.Listener):
             misses.append(func.__qualname__)
 
 event.register("numba:compile", Misses())
-from topseg.services import compile_kernels
+from topseg.services.cli import compile_kernels
 
 for job in {jobs}:
     job()

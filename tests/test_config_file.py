@@ -7,7 +7,8 @@ from __future__ import annotations
 import pytest
 
 from topseg.core.errors import TopsegError
-from topseg.services import cli, config_file
+from topseg.services import cli
+from topseg.services.cli import config_file
 
 
 def parse(*argv):

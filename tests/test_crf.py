@@ -17,7 +17,7 @@ from topseg.core.crf import (
     unaries_from_posteriors,
 )
 from topseg.core.errors import TopsegError
-from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
+from topseg.services.batch.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
 C = L.NUM_CLASSES
 EXACT = CRFConfig(mode="exact")
@@ -283,7 +283,7 @@ def test_degenerate_frames():
 
 def test_stand_in_posteriors_err_like_a_forest():
     """The bench's and tests' stand-in: normalised, mostly right, wrong near boundaries."""
-    from topseg.services.bench.crf_standin import boundary_distance
+    from topseg.services.batch.bench.crf_standin import boundary_distance
 
     rng = np.random.default_rng(12)
     depth, truth = synthetic_scene(rng)

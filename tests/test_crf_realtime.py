@@ -25,7 +25,7 @@ from topseg.core.crf.realtime import (
     segment_realtime,
     solve_band,
 )
-from topseg.services.bench.crf_standin import forest_like_posteriors, synthetic_scene
+from topseg.services.batch.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
 C = L.NUM_CLASSES
 CROSS = ndimage.generate_binary_structure(2, 1)

@@ -1,4 +1,4 @@
-"""The one Dask cluster helper (services/dask_cluster.py) that datagen, train and experiment use."""
+"""The one Dask cluster helper (services/batch/dask_cluster.py) that datagen, train and experiment use."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import time
 import pytest
 
 from topseg.core.errors import TopsegError
-from topseg.services.dask_cluster import dask_client
+from topseg.services.batch.dask_cluster import dask_client
 
 
 def _worker_env() -> tuple[int, str | None]:

@@ -10,8 +10,8 @@ from datagen_toy import toy_frame
 
 from topseg.core.errors import TopsegError
 from topseg.core.formats import dataset as D
-from topseg.services import datagen
-from topseg.services.datagen.sources import GENERATORS, generator_config, load_factory
+from topseg.services.batch import datagen
+from topseg.services.batch.datagen.sources import GENERATORS, generator_config, load_factory
 
 HAVE_SYNTHESIS = importlib.util.find_spec("topseg.core.synth.synthesis") is not None
 GENERATOR_NAMES = ["datagen_toy:slow_source"] + (["synthesis"] if HAVE_SYNTHESIS else [])
@@ -176,7 +176,7 @@ def test_a_mixed_sensor_dataset_pads_small_frames_and_keeps_each_mount(tmp_path)
     import argparse
 
     from topseg.core import labels
-    from topseg.services.datagen.sources import mount_summary
+    from topseg.services.batch.datagen.sources import mount_summary
 
     args = argparse.Namespace(mounts=None, sensors="kinect_v2,oak_d,kinect_v1")
     target = GENERATORS["synthesis"]

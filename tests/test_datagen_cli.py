@@ -17,7 +17,7 @@ from datagen_toy import toy_frame
 
 from topseg.core import labels as label_table
 from topseg.core.formats import dataset as D
-from topseg.services.datagen import preview as datagen_preview
+from topseg.services.batch.datagen import preview as datagen_preview
 
 TOPSEG = str(Path(sys.executable).with_name("topseg"))
 TESTS = str(Path(__file__).parent)

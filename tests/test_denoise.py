@@ -160,7 +160,7 @@ def test_bad_shapes_are_refused():
 
 def test_logs_say_when_frames_are_smoothed():
     from topseg.core.denoise import smoothing_text
-    from topseg.services.worker_mount import mount_text
+    from topseg.services.live.worker_mount import mount_text
 
     far = mount_of("realsense_d435", 4500.0)
     assert smoothing_text(far) == ", depth smoothed (noise 85 mm at the floor)"

@@ -431,7 +431,7 @@ exec "$@"
 COUNT = r"""
 import json, sys, threading, time
 import zenoh
-from topseg.services import zenoh_session
+from topseg.services.runtime import zenoh_session
 sizes = []
 enough = threading.Event()
 def on(sample):

@@ -17,7 +17,7 @@ from topseg.core.formats.recording import RecordingWriter
 from topseg.core.synth.procedural import procedural_frame
 from topseg.drivers import fakenect_dump
 from topseg.drivers.freenect import FAKENECT_LIBRARY_DIR
-from topseg.services.zenoh_session import default_config_json, open_session
+from topseg.services.runtime.zenoh_session import default_config_json, open_session
 
 N = 6
 K = KINECT_V1.scaled_to(160, 120)

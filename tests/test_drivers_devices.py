@@ -6,8 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from topseg.services import devices
-from topseg.services.devices import UsbDevice
+from topseg.services.live import devices
+from topseg.services.live.devices import UsbDevice
 
 RULES = Path(__file__).parents[1] / "deploy" / "99-topseg.rules"
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from topseg.services.batch.experiment import EXPERIMENTS, paper_results
 from topseg.services.cli import main
-from topseg.services.experiment import EXPERIMENTS, paper_results
 
 #: the paper's experiments (`mounts` scores a given model and has its own test module)
 PAPER_EXPERIMENTS = tuple(e for e in EXPERIMENTS if e != "mounts")
@@ -109,7 +109,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
 )
 def test_training_workers_are_as_many_as_the_feature_budget_holds(frames, budget_gb, workers):
     """A paper-scale tree's int16 features: F x 2000 px x 300 features x 2 bytes."""
-    from topseg.services.experiment import runs as runs
+    from topseg.services.batch.experiment import runs as runs
 
     scale = runs.SCALES["paper"]
     model = runs.ModelRecipe(

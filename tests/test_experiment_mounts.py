@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from topseg.core.errors import TopsegError
+from topseg.services.batch.experiment import mounts
 from topseg.services.cli import main
-from topseg.services.experiment import mounts
 
 BUNDLED = Path(__file__).resolve().parents[1] / "models" / "default.npz"
 

@@ -101,7 +101,7 @@ def test_a_mount_can_say_its_edges_are_not_fattened():
     from dataclasses import replace
 
     from topseg.core.fattening import thinning_line, thinning_text
-    from topseg.services.worker_mount import mount_text
+    from topseg.services.live.worker_mount import mount_text
 
     clean = replace(mount_of("realsense_d435"), edge_thinning=False)
     assert thinning_of(clean) == (0, 0.0)
@@ -158,7 +158,7 @@ def test_bad_input_is_refused():
 def test_logs_and_the_calibration_summary_say_when_edges_are_thinned():
     from topseg.core.calibration import MountEstimate
     from topseg.core.fattening import thinning_line, thinning_text
-    from topseg.services.worker_mount import mount_text
+    from topseg.services.live.worker_mount import mount_text
 
     stereo, tof = mount_of("oak_d"), mount_of("kinect_v2")
     assert thinning_text(stereo) == ", edges thinned 1 px (stereo fattening)"

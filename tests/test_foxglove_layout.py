@@ -3,8 +3,8 @@
 import json
 from pathlib import Path
 
-from topseg.services import foxglove_layout
-from topseg.services.viewer_foxglove import topic
+from topseg.services.live import foxglove_layout
+from topseg.services.live.viewer_foxglove import topic
 
 LAYOUT_FILE = Path(__file__).parents[1] / "docs" / "foxglove" / "topseg-layout.json"
 
@@ -19,7 +19,7 @@ def leaves(node) -> list[str]:
 
 def test_the_committed_file_is_the_generated_layout_of_the_default_camera():
     assert json.loads(LAYOUT_FILE.read_text()) == foxglove_layout.layout(), (
-        "regenerate: python -m topseg.services.foxglove_layout > docs/foxglove/topseg-layout.json"
+        "regenerate: python -m topseg.services.live.foxglove_layout > docs/foxglove/topseg-layout.json"
     )
 
 

@@ -5,8 +5,8 @@ import time
 import pytest
 from netutil import free_port, wait_for
 
-from topseg.services.inbox import Inbox
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.inbox import Inbox
+from topseg.services.runtime.zenoh_session import open_session
 
 
 def test_an_inbox_keeps_order_drops_and_counts_when_full_and_drains():

@@ -14,8 +14,8 @@ from netutil import free_port, wait_for
 from test_systemd_notify import NotifySocket
 
 from topseg.core.errors import TopsegError
-from topseg.services import systemd_notify
-from topseg.services.lifecycle import ServiceLifecycle, ServiceStopped
+from topseg.services.runtime import systemd_notify
+from topseg.services.runtime.lifecycle import ServiceLifecycle, ServiceStopped
 
 
 def args(port=None, config=None):

@@ -12,8 +12,8 @@ from topseg.core import forest, metrics
 from topseg.core.errors import TopsegError
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.drivers import synthetic
-from topseg.services.pipeline import run_pipeline, summary
-from topseg.services.worker import load_segmenter
+from topseg.services.batch.pipeline import run_pipeline, summary
+from topseg.services.live.worker import load_segmenter
 
 N = 8
 

@@ -21,7 +21,7 @@ from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import recording, wire
 from topseg.core.formats import ros2_messages as ros2
 from topseg.drivers.replay import RecordingFrames
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
 

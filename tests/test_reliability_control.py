@@ -19,7 +19,7 @@ from netutil import free_port, wait_for
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.zenoh_session import open_session
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "default.npz"
@@ -104,8 +104,8 @@ def test_a_driver_that_did_not_answer_once_is_asked_again_and_the_younger_stops(
     import argparse
 
     from topseg.core.errors import TopsegError
-    from topseg.services import identity
-    from topseg.services.driver import DriverState, OneDriverPerCamera
+    from topseg.services.live.driver import DriverState, OneDriverPerCamera
+    from topseg.services.runtime import identity
 
     port, cell = free_port(), "dup5"
     older, younger = open_session(port=port), open_session(port=port)
@@ -144,8 +144,8 @@ def test_a_silent_driver_is_asked_less_often_and_not_at_all_once_its_token_goes(
     `RECHECK_MAX_S`; when its token goes (its lease ended) the questions stop."""
     import argparse
 
-    from topseg.services import identity
-    from topseg.services.driver import DriverState, OneDriverPerCamera
+    from topseg.services.live.driver import DriverState, OneDriverPerCamera
+    from topseg.services.runtime import identity
 
     port, cell = free_port(), "dup6"
     older, younger = open_session(port=port), open_session(port=port)

@@ -21,7 +21,7 @@ from test_record import Publisher
 
 from topseg.core.camera import KINECT_V1
 from topseg.core.formats import recording, wire
-from topseg.services.zenoh_session import default_config_json
+from topseg.services.runtime.zenoh_session import default_config_json
 
 
 def namespace(tmp_path, port: int) -> tuple[list[str], str]:

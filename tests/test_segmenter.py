@@ -489,7 +489,7 @@ def test_a_noisy_camera_gets_the_heavier_crf_weight(bundled, legacy):
     and so does every camera when `noisy_smoothness` is not the larger."""
     from topseg.core.crf import CRFConfig
     from topseg.core.denoise import needs_denoise
-    from topseg.services.experiment.mounts import cell_mount, render_cell
+    from topseg.services.batch.experiment.mounts import cell_mount, render_cell
 
     noisy, quiet = cell_mount("realsense_d435", 4.5, 3.0), cell_mount("kinect_v1", 3.5, 0.0)
     assert needs_denoise(noisy) and not needs_denoise(quiet)

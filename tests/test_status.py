@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from netutil import free_port, wait_for
 
-from topseg.services import status
+from topseg.services.live import status
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "default.npz"
 
@@ -151,7 +151,7 @@ def test_report_and_table_show_floor_share_and_the_mount_in_use():
 
 TOKENS = """
 import sys, time
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.zenoh_session import open_session
 port, n = int(sys.argv[1]), int(sys.argv[2])
 s = open_session(port=port)
 toks = [s.liveliness().declare_token(f"topseg/flood/cam{i}/alive/worker") for i in range(n)]

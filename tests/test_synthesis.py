@@ -150,7 +150,7 @@ def test_a_closed_synthesizer_refuses_to_render():
 def test_bench_reports_each_stage():
     import argparse
 
-    from topseg.services.bench import synthesis as bench_synthesis
+    from topseg.services.batch.bench import synthesis as bench_synthesis
 
     args = argparse.Namespace(
         frames=3, warmup=1, mode="non-modeled", noise="gaussian:15", threads=0

@@ -15,7 +15,7 @@ from netutil import free_port, wait_for
 from topseg.core import forest
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.synth.procedural import procedural_frame
-from topseg.services import systemd_notify as sd
+from topseg.services.runtime import systemd_notify as sd
 
 
 class NotifySocket:

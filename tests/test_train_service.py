@@ -52,7 +52,7 @@ def test_dask_training_equals_serial_and_in_process(data, tmp_path):
     assert not (tmp_path / "dask.npz.parts").exists()
 
     # the same trees as core's serial trainer on the same training frames
-    from topseg.services.train import FrameSubset, split_frames
+    from topseg.services.batch.train import FrameSubset, split_frames
 
     ds = D.open_dataset(data)
     train_idx, val_idx = split_frames(len(ds), 0.1, 3)
@@ -108,7 +108,7 @@ def test_resume_keeps_finished_trees_and_discards_damaged_ones(data, tmp_path):
     # simulate an interrupted run: tree 0 finished, tree 1's part damaged
     parts = tmp_path / "m.npz.parts"
     parts.mkdir()
-    from topseg.services.train import train_one_tree  # noqa: F401  (the task the parts come from)
+    from topseg.services.batch.train import train_one_tree  # noqa: F401  (the task the parts come from)
 
     forest.save_model(
         parts / "tree-0.npz", forest.Forest.from_trees([whole.tree(0)]), {"recipe": _recipe_of(out)}

@@ -17,7 +17,7 @@ from netutil import free_port, wait_for
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
 MOUNT = TopViewMount(K, PAPER_MOUNT.height_mm, pitch_deg=10.0)

@@ -3,7 +3,7 @@
 import numpy as np
 
 from topseg.core import labels
-from topseg.services import viewer_layout as vl
+from topseg.services.live import viewer_layout as vl
 
 
 def views(part) -> list:

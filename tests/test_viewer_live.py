@@ -20,9 +20,9 @@ from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import ros2_messages, wire
 from topseg.core.labelled_cloud import labelled_cloud
 from topseg.core.synth.procedural import procedural_frame
-from topseg.services import foxglove_layout
-from topseg.services.viewer_foxglove import POINT_DTYPE, STATS_STREAM, STREAMS, topic
-from topseg.services.zenoh_session import open_session
+from topseg.services.live import foxglove_layout
+from topseg.services.live.viewer_foxglove import POINT_DTYPE, STATS_STREAM, STREAMS, topic
+from topseg.services.runtime.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
 MOUNT = TopViewMount(K, PAPER_MOUNT.height_mm, pitch_deg=8.0, roll_deg=-4.0)

@@ -1,4 +1,4 @@
-"""The worker's mount bookkeeping (services/worker_mount.py) with a stand-in estimator and clock:
+"""The worker's mount bookkeeping (services/live/worker_mount.py) with a stand-in estimator and clock:
 what waits for the first estimate, when re-checks happen, what counts as a move."""
 
 import logging
@@ -11,7 +11,7 @@ from topseg.core.calibration import CalibrationError
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats.wire import DepthFrame
 from topseg.core.sensors import nearest_sensor
-from topseg.services.worker_mount import MountWatch, MountWatchConfig
+from topseg.services.live.worker_mount import MountWatch, MountWatchConfig
 
 K = KINECT_V1.scaled_to(16, 12)
 

@@ -20,7 +20,7 @@ from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.islands import FURNITURE_COUNTED
 from topseg.core.synth.procedural import procedural_frame
-from topseg.services.zenoh_session import open_session
+from topseg.services.runtime.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
 MOUNT = TopViewMount(K, PAPER_MOUNT.height_mm)
@@ -498,7 +498,7 @@ def test_a_flood_of_camera_names_is_bounded_counted_and_released_when_idle(model
 
 # Once, in a loaded full-suite run, the last 2 of 150 labels never came: the driver closed its
 # Zenoh session with the last frames still queued. A block-mode driver now waits for its last
-# frame's labels (services/driver_drain.py); 3 of 3 runs passed beside two CPU hogs.
+# frame's labels (services/live/driver_drain.py); 3 of 3 runs passed beside two CPU hogs.
 def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_every_frame(
     tmp_path, model_path
 ):

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from topseg.services import zenoh_session
+from topseg.services.runtime import zenoh_session
 
 ROOT = Path(__file__).resolve().parent.parent
 ZENOH_DIR = ROOT / "deploy" / "zenoh"

@@ -2,7 +2,7 @@
 
 ROS 2 nodes on `rmw_zenoh_cpp` find each other through Zenoh liveliness tokens and exchange
 CDR messages on plain Zenoh keys. These pure functions write those strings and bytes, so that
-topseg can appear as a ROS 2 node without a ROS install (`services/bridge_ros2.py`).
+topseg can appear as a ROS 2 node without a ROS install (`services/live/bridge_ros2.py`).
 
 Sources (ros2/rmw_zenoh; docs/research/ros2-interop-sources.md quotes them):
 - data key `<domain_id>/<topic without its outer slashes>/<DDS type name>/<RIHS01 hash>`:

@@ -1,0 +1,2 @@
+"""Batch jobs: synthesis, training, evaluation, offline segmentation, experiments, benches and
+the demo."""

@@ -1,0 +1,476 @@
+"""Segment depth offline: 16-bit PNGs (mm) or MCAP recordings in, label PNGs and overlays out.
+
+For each input frame NAME it writes `NAME_labels.png` (8-bit label ids, 255 = no depth) and
+`NAME_overlay.png` (depth in grey with the label colours blended on top), both or neither
+(temporaries, then renames). NAME is the PNG's stem (`<folder>-<stem>` when stems collide
+among the inputs) or `<recording stem>_<seq>` for each depth channel of a recording
+(`<stem>_<cell>-<camera>_<seq>` when it holds several cameras; `-N` on a seq seen again, as
+after a driver restart). An output name already written in this run is refused with one line.
+A write that fails stops the run: one line naming the path, how many frames were written,
+exit 2. Ctrl-C (or SIGTERM) finishes the frame at hand and stops there: the summary and one
+line saying how many frames were written, exit 130. The end prints how many frames of each
+camera went where.
+
+A model that reads heights above the floor (every model trained since mounts were drawn)
+labels each frame through its camera's mount: `--mount FILE` (from `topseg calibrate`) when
+given, else the mount a recording's messages carry, else one estimated from the input's own
+frames (up to `ESTIMATE_FRAMES` spread over each camera: a folder of PNGs is one, and so is
+each depth channel of a recording) and printed. PNGs say no intrinsics: the mount file's are used, else
+those of the supported sensor of that frame size. A model trained before (it reads raw depth)
+takes only frames of its own camera (size and focal length) and needs no mount.
+
+A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a file that is
+not a recording, frames whose floor cannot be found) is skipped with one line on stderr and
+the others are still segmented; the exit status is then 2. A recording cut short or with
+damaged messages gives what it holds. The end prints the share of pixels the floor gate sent
+to background without the forest, and how many head and furniture blobs were too small to
+be what they were labelled (`--min-head-cm2`, `--min-furniture-cm2`, `--min-plant-cm2`) and how many head blobs
+lay beside a larger head (`--satellite-head-cm2`), and took their border's label.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+from pathlib import Path
+
+from topseg.services.cli.options import (
+    add_crf_arguments,
+    add_grid_arguments,
+    add_island_arguments,
+    crf_config,
+    grid_config,
+    island_config,
+)
+from topseg.services.runtime.lifecycle import stop_between_steps
+
+log = logging.getLogger("topseg.segment")
+
+#: frames (at most) a mount is estimated from, spread over an input
+ESTIMATE_FRAMES = 30
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Inputs, --model (default: the bundled model), --out, --crf and --smoothness."""
+    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.sensors import NAMES
+
+    parser.add_argument(
+        "inputs", nargs="+", type=Path, metavar="INPUT", help="PNG files, folders of PNGs, .mcap"
+    )
+    parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
+    parser.add_argument(
+        "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
+    )
+    add_crf_arguments(parser)
+    add_grid_arguments(parser)
+    add_island_arguments(parser)
+    parser.add_argument(
+        "--mount",
+        type=Path,
+        default=None,
+        help="mount file from `topseg calibrate` (default: the frames' own, else estimated "
+        "from each input's frames)",
+    )
+    parser.add_argument(
+        "--sensor",
+        choices=NAMES,
+        default=None,
+        help="with no --mount: the sensor the frames come from, whose noise model the "
+        "estimated mount takes and, for PNGs (which say no optics), whose optics (default: "
+        "the supported sensor of the frames' size, kinect_v1 for 640x480)",
+    )
+
+
+def overlay(depth, labels):
+    """Depth in grey (near = bright) with label colours blended on the foreground."""
+    import numpy as np
+
+    from topseg.core.labels import BACKGROUND, NO_DEPTH, colorize
+
+    valid = depth > 0
+    grey = np.zeros(depth.shape, np.float32)
+    if valid.any():
+        lo, hi = np.percentile(depth[valid], [1, 99])
+        grey = np.clip((hi - depth.astype(np.float32)) / max(hi - lo, 1.0), 0, 1)
+    base = np.repeat((grey * 200 + 30)[..., None], 3, axis=2)
+    colours = colorize(labels).astype(np.float32)
+    fg = ((labels != BACKGROUND) & (labels != NO_DEPTH))[..., None]
+    out = np.where(fg, 0.35 * base + 0.65 * colours, base)
+    out[~valid] = 0
+    return out.astype(np.uint8)
+
+
+def save_png(path: Path, array) -> None:
+    """Atomic PNG write."""
+    from PIL import Image
+
+    from topseg.core.atomic import atomic_write
+
+    with atomic_write(path) as f:
+        Image.fromarray(array).save(f, format="PNG")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Segment every input; a damaged one is skipped with one line, and exit 2 at the end."""
+    from topseg.core.errors import TopsegError
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
+
+    config = SegmenterConfig(**grid_config(args), **island_config(args))
+    segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
+    given = None
+    if args.mount is not None and segmenter.reads_height:
+        from topseg.core.calibration import read_mount_file
+        from topseg.services.live.worker_mount import mount_text
+
+        given = read_mount_file(args.mount)
+        print(f"mount from {args.mount}: {mount_text(given)}")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TopsegError(f"cannot create {args.out}: {exc.strerror}") from None
+    inputs = [(arg, _expand(arg)) for arg in args.inputs]
+    all_sources = [s for _, sources in inputs for s in sources]
+    run_ = _Run(segmenter, args.out, given, _png_names(all_sources), _count_frames(all_sources))
+    skipped = 0
+    try:
+        with stop_between_steps() as run_.stop:  # Ctrl-C: stop after the frame at hand
+            skipped = _segment_all(run_, inputs, given, args.sensor)
+    except _Interrupted:
+        run_.summary()
+        print(
+            f"topseg segment: interrupted; {run_.count} of {run_.total} frames written to "
+            f"{args.out} (each with its overlay)",
+            file=sys.stderr,
+        )
+        return 130
+    except _WriteFailed as exc:
+        run_.summary()
+        raise TopsegError(
+            f"cannot write {exc.path}: {exc.reason}; {run_.count} of {run_.total} frames "
+            f"written to {args.out} (each with its overlay)"
+        ) from None
+    run_.summary()
+    if segmenter.reads_height and run_.count:
+        print(
+            f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
+            "depth went to background without the forest"
+        )
+    if segmenter.reads_height and segmenter.config.fill_holes_cm2 > 0 and run_.count:
+        print(
+            f"holes filled: {run_.filled_holes} holes without depth inside one surface (under "
+            f"{segmenter.config.fill_holes_cm2:g} cm2) took that surface's depth and label in "
+            f"{run_.count} frames"
+        )
+    if segmenter.relabels_islands and run_.count:
+        cfg = segmenter.config
+        print(
+            f"blobs relabelled as too small: {run_.small_heads} head (under "
+            f"{cfg.min_head_cm2:g} cm2), {run_.small_furniture} furniture (under "
+            f"{cfg.min_furniture_cm2:g} cm2, plants {cfg.min_plant_cm2:g}); head blobs beside a larger head: "
+            f"{run_.satellite_heads} (under {cfg.satellite_head_cm2:g} cm2) in {run_.count} "
+            "frames"
+        )
+    if run_.refused:
+        raise TopsegError(
+            f"{run_.refused} frames not written: their output names were taken (see above)"
+        )
+    if skipped:
+        raise TopsegError(
+            f"{skipped} of {len(all_sources)} inputs could not be segmented (see above)"
+        )
+    return 0
+
+
+def _segment_all(run_: _Run, inputs: list, given, sensor: str | None = None) -> int:
+    """Segment every input (`run`'s loop), mounts estimated with `sensor`'s model (None:
+    from the frames' size) where none is given; how many inputs were skipped."""
+    from topseg.core.errors import TopsegError
+
+    skipped = 0
+    segmenter = run_.segmenter
+    for arg, sources in inputs:
+        try:
+            estimates: dict = {}
+            if segmenter.reads_height and given is None:
+                estimates = _estimates(arg, sources, sensor)
+            for key, est in estimates.items():
+                if isinstance(est, TopsegError):  # this camera: no mount, not segmented
+                    skipped += 1
+                    camera = "" if key is None else f" {key}"
+                    print(f"topseg segment: skipped {arg}{camera}: {est}", file=sys.stderr)
+            for source in sources:
+                try:
+                    run_.segment(arg, source, estimates)
+                except _WriteFailed:
+                    raise
+                except TopsegError as exc:  # this input is damaged: say so, go on
+                    skipped += 1
+                    print(f"topseg segment: skipped {exc}", file=sys.stderr)
+        except _WriteFailed:
+            raise
+        except TopsegError as exc:  # no mount for this input: none of it is segmented
+            skipped += len(sources)
+            print(f"topseg segment: skipped {arg}: {exc}", file=sys.stderr)
+    return skipped
+
+
+class _Interrupted(Exception):
+    """Ctrl-C (or SIGTERM) came: the run stops before its next frame."""
+
+
+class _WriteFailed(Exception):
+    """An output file could not be written (the run stops there)."""
+
+    def __init__(self, path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = path, reason
+
+
+class _Run:
+    """One `segment` run: the Segmenter, where labels go, the mount given, the counts."""
+
+    def __init__(self, segmenter, out: Path, given, names: dict, total: int) -> None:
+        self.segmenter, self.out, self.given = segmenter, out, given
+        self.names, self.total = names, total
+        self.count = 0
+        self.refused = 0
+        self.floor_share = 0.0
+        self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
+        self.small_furniture = 0  # the same for chair, storage, table and plant
+        self.satellite_heads = 0  # head blobs beside a larger head, relabelled
+        self.filled_holes = 0  # holes inside one surface filled before labelling
+        self._warned: set = set()
+        self.written: dict[str, str] = {}  # output name -> the input it was written from
+        self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
+        self.stop = threading.Event()  # set by Ctrl-C: stop before the next frame
+
+    def segment(self, arg: Path, source: Path, estimates: dict) -> None:
+        """Label every frame of one source and write its PNGs (both of a frame or neither)."""
+        from topseg.core.atomic import atomic_write_all
+        from topseg.core.errors import TopsegError
+        from topseg.drivers.replay import input_frames
+
+        for frame in input_frames(source, on_recording=_report_skipped):
+            if self.stop.is_set():
+                raise _Interrupted
+            what = f"{source}" if frame.key is None else f"{source} {frame.key} seq {frame.seq}"
+            mount = None
+            if self.segmenter.reads_height:
+                mount = self.given or frame.mount or estimates.get(frame.key)
+                if isinstance(mount, TopsegError):
+                    continue  # said once for the camera
+                if mount is None:
+                    mount = _png_mount(frame)
+                self._warn_outside(mount, frame.name)
+            name = self.names.get(source, frame.name)
+            if name in self.written:
+                self.refused += 1
+                print(
+                    f"topseg segment: error: {what} not written: {name}_labels.png was written "
+                    f"from {self.written[name]} in this run",
+                    file=sys.stderr,
+                )
+                continue
+            result = self.segmenter.label(frame.depth, frame.intrinsics, frame.name, mount)
+            files = {
+                self.out / f"{name}_labels.png": _png_bytes(result.labels),
+                self.out / f"{name}_overlay.png": _png_bytes(overlay(frame.depth, result.labels)),
+            }
+            try:
+                atomic_write_all(files)
+            except OSError as exc:
+                raise _WriteFailed(exc.filename or self.out, exc.strerror or str(exc)) from None
+            self.written[name] = what
+            camera = f"{arg}" if frame.key is None else f"{source} {frame.key}"
+            entry = self.where.setdefault(camera, [0, name, name])
+            entry[0] += 1
+            entry[2] = name
+            self.count += 1
+            self.floor_share += result.floor_share
+            self.small_heads += result.small_heads
+            self.small_furniture += result.small_furniture
+            self.satellite_heads += result.satellite_heads
+            self.filled_holes += result.filled_holes
+
+    def summary(self) -> None:
+        """How many frames went where, per camera (a folder of PNGs is one camera)."""
+        print(f"segmented {self.count} frames into {self.out}")
+        for camera, (n, first, last) in self.where.items():
+            names = first if n == 1 else f"{first} .. {last}"
+            print(f"  {camera}: {n} frame{'s' if n != 1 else ''} -> {names}")
+
+    def _warn_outside(self, mount, name: str) -> None:
+        """One warning per mount that lies outside what the model was trained for."""
+        if mount is None or mount in self._warned:
+            return
+        self._warned.add(mount)
+        reason = self.segmenter.outside_trained_for(mount)
+        if reason:
+            print(f"topseg segment: warning: {name}: {reason}", file=sys.stderr)
+
+
+def _png_bytes(array) -> bytes:
+    """An array encoded as PNG."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(array).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _png_names(sources: list[Path]) -> dict[Path, str]:
+    """Output names of the PNG inputs whose stems collide: `<parent folder>-<stem>`."""
+    from collections import Counter
+
+    pngs = [p for p in sources if p.suffix.lower() == ".png"]
+    stems = Counter(p.stem for p in pngs)
+    return {p: f"{p.resolve().parent.name}-{p.stem}" for p in pngs if stems[p.stem] > 1}
+
+
+def _count_frames(sources: list[Path]) -> int:
+    """Frames the inputs hold, as far as a quick look tells (a PNG is one; a recording's
+    depth messages)."""
+    from topseg.core.errors import TopsegError
+    from topseg.drivers.replay import depth_channels
+
+    total = 0
+    for source in sources:
+        if source.suffix.lower() == ".mcap":
+            try:
+                total += sum(depth_channels(source).values())
+            except TopsegError:
+                pass
+        elif source.suffix.lower() == ".png":
+            total += 1
+    return total
+
+
+def _png_mount(frame):
+    """No mount for a frame that says none: a one-line error."""
+    from topseg.core.errors import TopsegError
+
+    raise TopsegError(f"{frame.name}: no camera mount for this frame (give --mount)")
+
+
+def _spread(items: list, n: int) -> list:
+    """At most `n` of `items`, evenly spread from first to last."""
+    if len(items) <= n:
+        return list(items)
+    import numpy as np
+
+    return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
+
+
+def _recording_sample(frames) -> tuple[list, object, bool]:
+    """(up to ESTIMATE_FRAMES depth frames spread over one camera's frames, their intrinsics,
+    whether every frame carries its own mount)."""
+    kept: list = []
+    step, seen, intrinsics, all_mounted = 1, 0, None, True
+    for frame in frames:
+        all_mounted &= frame.mount is not None
+        if seen % step == 0:
+            kept.append(frame.depth)
+            intrinsics = intrinsics or frame.intrinsics
+            if len(kept) >= 2 * ESTIMATE_FRAMES:  # keep every other, take half as many
+                kept, step = kept[::2], step * 2
+        seen += 1
+    return _spread(kept, ESTIMATE_FRAMES), intrinsics, all_mounted
+
+
+def _estimates(arg: Path, sources: list[Path], sensor: str | None = None) -> dict:
+    """{depth key (None for PNGs): the mount estimated from that camera's frames (printed),
+    None when its frames all carry their own, or the TopsegError saying why there is none}.
+    A folder of PNGs is one camera; each depth channel of a recording is one. TopsegError
+    when an input cannot be read at all."""
+    from topseg.core.errors import TopsegError
+    from topseg.drivers.replay import RecordingFrames, depth_channels, input_frames, read_depth_png
+
+    if all(p.suffix.lower() == ".png" for p in sources):
+        frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
+        return {None: _estimate(str(arg), frames, None, False, sensor)}
+    out: dict = {}
+    for source in sources:
+        if source.suffix.lower() != ".mcap":
+            next(iter(input_frames(source)))  # says what is wrong with it
+            continue
+        channels = depth_channels(source)
+        for key in channels:
+            label = f"{arg}" if len(channels) == 1 else f"{arg} {key}"
+            try:
+                out[key] = _estimate(
+                    label, *_recording_sample(RecordingFrames(source, key)), sensor
+                )
+            except TopsegError as exc:
+                out[key] = exc
+    return out
+
+
+def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str | None = None):
+    """The mount estimated from one camera's frames (printed) with sensor `name`'s model
+    (None: the sensor of the frames' size), or None when its frames all carry their own.
+    TopsegError (one line) when it cannot be estimated."""
+    from dataclasses import replace
+
+    from topseg.core.calibration import estimate_mount
+    from topseg.core.errors import TopsegError
+    from topseg.core.sensors import get_sensor, sensor_of_frames
+
+    if all_mounted and frames:
+        return None
+    if not frames:
+        raise TopsegError("no frames to estimate the camera's mount from")
+    shape = frames[0].shape
+    frames = [f for f in frames if f.shape == shape]
+    if intrinsics is None:
+        sensor = sensor_of_frames(shape, name)
+        if sensor is None:
+            raise TopsegError(
+                f"{shape[1]}x{shape[0]} frames that say no intrinsics and match no supported "
+                "sensor; calibrate the camera and give --mount"
+            )
+        intrinsics = sensor.intrinsics
+    else:  # a recording says its optics; the sensor names the noise model
+        sensor = get_sensor(name) if name else sensor_of_frames(shape)
+    estimate = estimate_mount(frames, intrinsics, sensor.name if sensor else "unknown")
+    mount = estimate.mount
+    if sensor is not None and mount.sensor != sensor.name:
+        mount = replace(mount, sensor=sensor.name)
+    from topseg.core.camera import range_text
+    from topseg.core.denoise import smoothing_text
+    from topseg.core.fattening import thinning_text
+
+    print(
+        f"{label}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
+        f"{mount.pitch_deg:.1f} deg, roll {mount.roll_deg:.1f} deg, floor inliers "
+        f"{100 * estimate.inlier_share:.0f} % ({len(frames)} frames), floor noise "
+        f"{estimate.residual_mm:.1f} mm (x{mount.noise_scale:.2f} the {mount.sensor} model)"
+        f"{range_text(mount)}{thinning_text(mount)}{smoothing_text(mount)}"
+    )
+    return mount
+
+
+def _report_skipped(reader) -> None:
+    """One line for what a recording held but was not segmented."""
+    if reader.rejected:
+        log.warning("%s: %d damaged messages skipped", reader.path, reader.rejected)
+    if reader.others:
+        log.warning(
+            "%s: segmented %s only; also holds %s",
+            reader.path,
+            reader.depth_key,
+            ", ".join(sorted(reader.others)),
+        )
+
+
+def _expand(path: Path) -> list[Path]:
+    """A folder of PNGs -> its PNGs (each one an input of its own); anything else as is."""
+    from topseg.drivers.replay import png_files
+
+    if path.is_dir():
+        return png_files(path) or [path]  # an empty folder: input_frames says so
+    return [path]

@@ -1,0 +1,236 @@
+"""Find where the camera hangs: fit the floor in a few seconds of frames, write a mount file.
+
+    topseg calibrate --source freenect --out cell1-mount.json
+
+takes `--frames` frames from the source (the floor should be mostly clear and the camera
+still), fits the floor plane robustly (RANSAC over the back-projected points), prints the
+camera's height above the floor, its pitch and roll, the fit's residual and the share of the
+view on the floor, and writes the mount file (`topseg driver --mount FILE` reads it) and a
+picture beside it: the depth, the floor inliers over it, and the height above the floor.
+
+It refuses with one line when the source gives no depth, no plane covers enough of the view,
+the frames disagree (the camera moved), or the camera is tilted beyond what is supported.
+A camera that sends range along each pixel's ray instead of depth is recognised, and its
+mount says so (`radial`, docs/calibration.md). A stereo camera's edges are thinned before
+labelling (`core/fattening.py`); `--no-edge-thinning` writes a mount that says its edges are
+not fattened (a camera whose own filters already clean them), so they are left as they are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from dataclasses import replace
+from pathlib import Path
+
+from topseg.core.errors import TopsegError
+from topseg.services.cli.options import positive_int
+
+log = logging.getLogger("topseg.calibrate")
+
+#: the sensor a driver kind most likely is, when --sensor is not given
+SENSOR_OF_KIND = {"freenect": "kinect_v1", "openni2": "kinect_v1", "oak": "oak_d"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """--source, --frames, --sensor, --edge-thinning, --out, --picture."""
+    parser.add_argument(
+        "--source", required=True, help="replay:FILE, freenect, openni2, oak or synthetic[:...]"
+    )
+    parser.add_argument(
+        "--frames",
+        type=positive_int,
+        default=60,
+        help="frames to fit over (default 60, ~2 s at 30 fps)",
+    )
+    parser.add_argument(
+        "--sensor",
+        default=None,
+        help="sensor model name in core/sensors.py (default: the frames' own, the source "
+        "kind's usual one; for PNG frames, which say no optics, the supported sensor of "
+        "their size; else 'unknown')",
+    )
+    parser.add_argument(
+        "--edge-thinning",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="whether a stereo camera's fattened depth edges are thinned before labelling "
+        "(default: as the frames' own mount says, else on; --no-edge-thinning for a camera "
+        "whose own filters already clean its edges: thinning clean edges costs accuracy)",
+    )
+    parser.add_argument("--out", required=True, type=Path, help="the mount file to write (JSON)")
+    parser.add_argument(
+        "--picture", type=Path, default=None, help="picture to write (default: OUT with .png)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the point subsample")
+
+
+def check_writable(path: Path) -> None:
+    """Create `path`'s folder when missing; TopsegError now, before the camera is read, if
+    `path` cannot be written."""
+    parent = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise TopsegError(f"{path} is a folder; --out needs a file name")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TopsegError(f"cannot write {path}: cannot create {parent}: {exc.strerror}") from None
+    if not os.access(parent, os.W_OK):
+        raise TopsegError(f"cannot write {path}: folder {parent} is not writable")
+
+
+def sensor_name(given: str | None, source: str, frame_mount) -> str:
+    """--sensor (checked against `core.sensors`), else the sensor the frames' own mount
+    names, else the usual sensor of the driver kind, else 'unknown'."""
+    from topseg.core.sensors import get_sensor
+    from topseg.drivers.spec import parse_spec
+
+    if given:
+        if given != "unknown":
+            get_sensor(given)  # a one-line ConfigError listing the known sensors
+        return given
+    if frame_mount is not None:
+        return frame_mount.sensor
+    return SENSOR_OF_KIND.get(parse_spec(source).kind, "unknown")
+
+
+def grab(source: str, n: int) -> tuple[list, object, object, bool]:
+    """Up to `n` depth frames (uint16 arrays) from the source, their intrinsics, the mount
+    the first frame carries (None when the source sends none), and whether the source knows
+    its optics (a PNG does not: its frames carry `replay.png_intrinsics`, a guess)."""
+    from tqdm import tqdm
+
+    from topseg.drivers import SourceOptions, open_source
+
+    frames, intrinsics, mount = [], None, None
+    with open_source(source, SourceOptions(realtime=False)) as src:
+        known = getattr(src, "kind", None) != "png"
+        bar = tqdm(total=n, desc="calibrate", unit="frame", disable=None)
+        try:
+            for item in src.frames():
+                depth = item.depth
+                if intrinsics is None:
+                    intrinsics = depth.intrinsics
+                    mount = getattr(depth, "mount", None)
+                elif depth.intrinsics != intrinsics:
+                    raise TopsegError(
+                        f"the source changed camera mid-way ({intrinsics} -> {depth.intrinsics})"
+                    )
+                frames.append(depth.depth)
+                bar.update(1)
+                if len(frames) >= n:
+                    break
+        finally:
+            bar.close()
+    if not frames:
+        raise TopsegError(f"the source {source} gave no frames")
+    return frames, intrinsics, mount, known
+
+
+def png_optics(intrinsics, sensor: str | None):
+    """The optics and sensor of PNG frames, which say none (`core.sensors.sensor_of_frames`,
+    as `topseg segment` reads them): `--sensor`'s (refused in one line when its frames are
+    another size), else the supported sensor of the frames' size, else (and for `--sensor
+    unknown`) the guess they came with, a Kinect v1's scaled to their size, sensor
+    'unknown'; and a line saying which."""
+    from topseg.core.sensors import sensor_of_frames
+
+    found = None if sensor == "unknown" else sensor_of_frames(intrinsics.shape, sensor)
+    if found is not None:
+        k = found.intrinsics
+        return k, found.name, f"PNG frames say no optics: using the {found.name}'s (fx {k.fx:.1f})"
+    return (
+        intrinsics,
+        "unknown",
+        (
+            f"PNG frames say no optics: assuming a Kinect v1's scaled to "
+            f"{intrinsics.width}x{intrinsics.height} (fx {intrinsics.fx:.1f}); --sensor names "
+            "a supported sensor of that size"
+        ),
+    )
+
+
+def picture(path: Path, depth, estimate) -> None:
+    """Three panels: depth, floor inliers over depth, height above the floor (colour bar)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from topseg.core.atomic import atomic_write
+    from topseg.core.calibration import floor_mask
+
+    mount = estimate.mount
+    valid = depth > 0
+    shown = np.where(valid, depth.astype(np.float32), np.nan)
+    floor = floor_mask(depth, mount)
+    height = mount.height_map_mm(depth)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), dpi=90)
+    im = axes[0].imshow(shown, cmap="gray_r")
+    axes[0].set_title("range along each ray (mm), as sent" if mount.radial else "depth (mm)")
+    fig.colorbar(im, ax=axes[0], fraction=0.046)
+    lo, hi = np.nanpercentile(shown, [1, 99]) if valid.any() else (0, 1)
+    grey = np.clip((np.nan_to_num(shown, nan=hi) - lo) / max(hi - lo, 1.0), 0, 1)
+    rgb = np.repeat((0.25 + 0.6 * grey)[..., None], 3, axis=2)
+    rgb[floor] = 0.45 * rgb[floor] + 0.55 * np.array([0.1, 0.8, 0.2])
+    rgb[~valid] = 0
+    axes[1].imshow(rgb)
+    axes[1].set_title(f"floor inliers ({100 * floor[valid].mean() if valid.any() else 0:.0f} %)")
+    im = axes[2].imshow(height, cmap="viridis", vmin=-100, vmax=2000)
+    axes[2].set_title("height above the floor (mm)")
+    fig.colorbar(im, ax=axes[2], fraction=0.046)
+    for ax in axes:
+        ax.set_axis_off()
+    fig.suptitle(
+        f"{mount.sensor}: {mount.height_mm:.0f} mm above the floor, pitch "
+        f"{mount.pitch_deg:+.2f} deg, roll {mount.roll_deg:+.2f} deg, residual "
+        f"{estimate.residual_mm:.1f} mm (x{mount.noise_scale:.2f} the noise model)"
+    )
+    fig.tight_layout()
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png")
+    plt.close(fig)
+
+
+def with_edge_thinning(estimate, given: bool | None, frame_mount):
+    """`estimate` whose mount's `edge_thinning` is `given`, else the frames' own mount's,
+    else on (the fit measures the floor, not how the camera filters its edges)."""
+    if given is None:
+        given = frame_mount.edge_thinning if frame_mount is not None else True
+    return replace(estimate, mount=replace(estimate.mount, edge_thinning=given))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Grab frames, estimate the mount, print it, write the mount file and the picture."""
+    from topseg.core.calibration import CalibrationConfig, estimate_mount
+    from topseg.core.formats.mount_file import write_mount_file
+
+    if args.frames < 1:
+        raise TopsegError(f"--frames must be at least 1, got {args.frames}")
+    out: Path = args.out
+    pic: Path = args.picture or out.with_suffix(".png")
+    check_writable(out)
+    check_writable(pic)
+    if args.sensor and args.sensor != "unknown":
+        sensor_name(args.sensor, args.source, None)  # an unknown name fails before the camera
+    frames, intrinsics, frame_mount, known = grab(args.source, args.frames)
+    sensor = sensor_name(args.sensor, args.source, frame_mount)
+    optics = None
+    if not known:
+        intrinsics, sensor, optics = png_optics(intrinsics, args.sensor)
+    estimate = estimate_mount(frames, intrinsics, sensor, CalibrationConfig(seed=args.seed))
+    estimate = with_edge_thinning(estimate, args.edge_thinning, frame_mount)
+    print(f"topseg calibrate: mount of {args.source} from {len(frames)} frames")
+    if optics:
+        print(optics)
+    print(estimate.summary())
+    try:
+        write_mount_file(out, estimate)
+        picture(pic, frames[-1], estimate)
+    except OSError as exc:
+        raise TopsegError(f"cannot write {exc.filename or out}: {exc.strerror or exc}") from exc
+    print(f"mount file {out}")
+    print(f"picture    {pic}")
+    return 0

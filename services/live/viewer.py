@@ -1,0 +1,359 @@
+"""Show what flows on Zenoh in Rerun and/or Foxglove.
+
+    topseg viewer [--spawn | --web | --save FILE.rrd] [--foxglove] [...]
+
+Rerun: `--spawn` (the default when `--foxglove` is not given) opens the native viewer,
+`--web` serves Rerun's web viewer (`--web-port`) and its gRPC data (`--grpc-port`), `--save`
+writes an `.rrd`. Foxglove: `--foxglove` serves live through the Foxglove SDK's WebSocket
+server (`--foxglove-host`, `--foxglove-port`; see `services/live/viewer_foxglove.py`). Given
+alone, `--foxglove` drives Foxglove only; with a Rerun option, both.
+
+For every camera seen on `topseg/*/*/{depth,labels,stats}` the Rerun sink logs under the
+entity paths of `services/live/viewer_layout.py`: the camera's mount as a Transform3D in the
+floor frame `world` (z up), its Pinhole with the depth (`rr.DepthImage`, metres = mm / 1000)
+and label (`rr.SegmentationImage`) images, the label-coloured point cloud (every
+`--stride`-th pixel of every `--stride`-th row of a labels message and the depth frame with
+the same `seq`, `core/labelled_cloud.py`) in floor coordinates, and the worker's stats
+(`ms/<stage>`, `fps`, `count/<name>`) as scalars over time. The label table is the static
+AnnotationContext at the root and a legend view; a blueprint lays the views out at start
+and again when a camera appears. Each message is logged on the `frame` timeline (its `seq`)
+and `sensor_time` (its stamp). Undecodable messages are counted and skipped; Zenoh's
+thread only queues (bounded), the logging loop drops and counts what it cannot take.
+`--save` flushes the `.rrd` on SIGTERM, SIGINT or after `--duration` seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+import urllib.parse
+from collections import OrderedDict
+from typing import Any
+
+from topseg.services.cli.options import finite
+from topseg.services.live import viewer_layout
+from topseg.services.runtime import zenoh_session
+from topseg.services.runtime.inbox import Inbox
+from topseg.services.runtime.lifecycle import ServiceLifecycle
+
+log = logging.getLogger("topseg.viewer")
+
+#: depth frames kept per camera while their labels are on the way
+PAIR_WINDOW = 16
+#: messages queued between Zenoh's thread and the logging loop (older ones are dropped)
+QUEUE_SIZE = 64
+#: Rerun's own default ports of its web viewer and its gRPC server
+WEB_PORT, GRPC_PORT = 9090, 9876
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The viewer's options: the sinks, --duration, --stride and Zenoh."""
+    from topseg.services.live.viewer_foxglove import add_foxglove_arguments
+
+    sink = parser.add_mutually_exclusive_group()
+    sink.add_argument(
+        "--spawn",
+        action="store_true",
+        help="open a native Rerun viewer (default without --foxglove)",
+    )
+    sink.add_argument("--web", action="store_true", help="serve Rerun's web viewer (HTTP + gRPC)")
+    sink.add_argument("--save", metavar="FILE.rrd", help="write a Rerun recording instead")
+    parser.add_argument(
+        "--web-port", type=int, default=WEB_PORT, metavar="P",
+        help="--web: HTTP port of the web viewer (default: %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--grpc-port", type=int, default=GRPC_PORT, metavar="P",
+        help="--web: gRPC port the web viewer reads the data from (default: %(default)s)",
+    )  # fmt: skip
+    add_foxglove_arguments(parser)
+    parser.add_argument(
+        "--duration",
+        type=finite(0.001, 1e8),
+        metavar="S",
+        help="stop after this many seconds (default: never)",
+    )
+    parser.add_argument(
+        "--stride",
+        type=int,
+        default=4,
+        metavar="N",
+        help="point cloud: every N-th pixel and row (default: %(default)s)",
+    )
+    zenoh_session.add_arguments(parser)
+
+
+def annotation_context():
+    """The label table as a Rerun AnnotationContext (ids, names, colours)."""
+    import rerun as rr
+
+    from topseg.core import labels
+
+    return rr.AnnotationContext(
+        [
+            (lab.id, lab.name, tuple(int(c) for c in lab.color))
+            for lab in (*labels.LABELS, labels.NO_DEPTH_LABEL)
+        ]
+    )
+
+
+class RerunSink:
+    """Logs the viewer's cameras to one Rerun RecordingStream, laid out by a blueprint."""
+
+    def __init__(self, rec) -> None:
+        import rerun as rr
+
+        self.rec = rec
+        self.pinholes: dict[tuple[str, str], Any] = {}
+        self.mounts: dict[tuple[str, str], Any] = {}
+        rec.log("/", annotation_context(), static=True)
+        rec.log(viewer_layout.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(viewer_layout.LEGEND, viewer_layout.legend_points(), static=True)
+        rec.send_blueprint(viewer_layout.blueprint([]))
+
+    def cameras_changed(self, cameras) -> None:
+        """Lay the views out again for this set of (cell, camera)."""
+        self.rec.send_blueprint(viewer_layout.blueprint(cameras))
+
+    def _time(self, seq: int, stamp_ns: int) -> None:
+        self.rec.set_time("frame", sequence=seq)
+        self.rec.set_time("sensor_time", timestamp=stamp_ns * 1e-9)
+
+    def depth(self, cam: tuple[str, str], frame) -> None:
+        """The camera's mount and Pinhole (when they changed) and the depth image."""
+        import rerun as rr
+
+        from topseg.core.camera import axis_depth
+        from topseg.core.formats.ros2_messages import mount_pose
+
+        k = frame.intrinsics
+        if self.mounts.get(cam, ...) != frame.mount:  # static: a mount changes rarely
+            if frame.mount is None:  # unknown: the optical frame stands in for the floor
+                transform = rr.Transform3D.cleared()
+            else:
+                translation, quaternion = mount_pose(frame.mount)
+                transform = rr.Transform3D(
+                    translation=translation, quaternion=rr.Quaternion(xyzw=quaternion)
+                )
+            self.rec.log(viewer_layout.camera_entity(*cam), transform, static=True)
+            self.mounts[cam] = frame.mount
+        if self.pinholes.get(cam) != k:  # static: the camera changes rarely, if ever
+            self.rec.log(
+                viewer_layout.image_entity(*cam),
+                rr.Pinhole(
+                    focal_length=[k.fx, k.fy],
+                    principal_point=[k.cx, k.cy],
+                    width=k.width,
+                    height=k.height,
+                    camera_xyz=rr.ViewCoordinates.RDF,
+                ),
+                static=True,
+            )
+            self.pinholes[cam] = k
+        self._time(frame.seq, frame.stamp_ns)
+        self.rec.log(
+            f"{viewer_layout.image_entity(*cam)}/depth",
+            rr.DepthImage(axis_depth(frame.depth, frame.mount), meter=1000.0),
+        )
+
+    def labels(self, cam: tuple[str, str], frame, cloud) -> None:
+        """The label image, and the labelled cloud when there is one."""
+        import rerun as rr
+
+        self._time(frame.seq, frame.stamp_ns)
+        self.rec.log(
+            f"{viewer_layout.image_entity(*cam)}/labels", rr.SegmentationImage(frame.labels)
+        )
+        if cloud is not None:
+            self.rec.log(
+                viewer_layout.points_entity(*cam), rr.Points3D(cloud.xyz, class_ids=cloud.ids)
+            )
+
+    def stats(self, cam: tuple[str, str], stats: dict) -> None:
+        """ms per stage, fps and counts as scalars over time."""
+        import rerun as rr
+
+        if "seq" in stats:
+            self.rec.set_time("frame", sequence=stats["seq"])
+        self.rec.set_time("sensor_time", timestamp=stats["stamp_ns"] * 1e-9)
+        base = viewer_layout.stats_entity(*cam)
+        for stage, ms in stats["timings_ms"].items():
+            self.rec.log(f"{base}/ms/{stage}", rr.Scalars(ms))
+        if "fps" in stats:
+            self.rec.log(f"{base}/fps", rr.Scalars(stats["fps"]))
+        for name, n in stats["counts"].items():
+            self.rec.log(f"{base}/count/{name}", rr.Scalars(float(n)))
+
+    def close(self) -> None:
+        """Flush (the .rrd is complete) and disconnect."""
+        self.rec.flush()
+        self.rec.disconnect()
+
+
+class Viewer:
+    """Decodes topseg messages, pairs depth with labels and hands both to the sinks."""
+
+    def __init__(self, sinks: list, stride: int) -> None:
+        from topseg.core.formats import wire
+
+        self.sinks, self.stride = sinks, stride
+        #: the kinds the viewer subscribes to, and their decoders
+        self.decoders = {
+            "depth": wire.decode_depth,
+            "labels": wire.decode_labels,
+            "stats": wire.decode_stats,
+        }
+        self.depth: dict[tuple[str, str], OrderedDict] = {}
+        self.cameras: set[tuple[str, str]] = set()
+        self.rejected = 0
+        self.seen: set[str] = set()
+
+    def _first(self, what: str) -> None:
+        """Say once that `what` is logged (operators and tests see what is live)."""
+        if what not in self.seen:
+            self.seen.add(what)
+            log.info("logging %s", what)
+
+    def handle(self, key: str, payload: bytes) -> None:
+        """Decode one message by the kind its key names (parsed once) and pass it on."""
+        from topseg.core.formats import wire
+
+        try:
+            parts = wire.parse_key(key)
+            decode = self.decoders.get(parts.kind)
+            if decode is None:
+                raise wire.WireError(f"{key!r} does not carry a message the viewer shows")
+            msg = decode(payload)
+        except wire.WireError as exc:
+            self.rejected += 1
+            if self.rejected <= 10 or self.rejected % 100 == 0:
+                log.warning("%s: %s (%d rejected)", key, exc, self.rejected)
+            return
+        cam = (parts.cell, parts.camera)
+        if cam not in self.cameras:
+            self.cameras.add(cam)
+            for sink in self.sinks:
+                sink.cameras_changed(sorted(self.cameras))
+        if parts.kind == "depth":
+            self.on_depth(cam, msg)
+        elif parts.kind == "labels":
+            self.on_labels(cam, msg)
+        else:
+            for sink in self.sinks:
+                sink.stats(cam, msg)
+            self._first(f"{parts.cell}/{parts.camera}/stats")
+
+    def on_depth(self, cam, frame) -> None:
+        """Show the depth frame and keep it for pairing with its labels."""
+        for sink in self.sinks:
+            sink.depth(cam, frame)
+        frames = self.depth.setdefault(cam, OrderedDict())
+        frames[frame.seq] = frame
+        while len(frames) > PAIR_WINDOW:
+            frames.popitem(last=False)
+
+    def on_labels(self, cam, frame) -> None:
+        """Show the labels, with the labelled cloud when the depth frame of its seq is kept."""
+        from topseg.core.labelled_cloud import labelled_cloud
+
+        cloud = None
+        depth = self.depth.get(cam, {}).get(frame.seq)
+        if depth is not None and depth.depth.shape == frame.labels.shape:
+            cloud = labelled_cloud(
+                depth.depth, frame.labels, depth.intrinsics, depth.mount, self.stride
+            )
+        for sink in self.sinks:
+            sink.labels(cam, frame, cloud)
+        if cloud is not None:
+            self._first(f"{cam[0]}/{cam[1]}/points")
+
+
+def open_rerun(args: argparse.Namespace):
+    """A RecordingStream sending to the chosen Rerun sink, or None when Rerun is not wanted."""
+    import rerun as rr
+
+    from topseg.core.errors import TopsegError
+
+    if not (args.save or args.web or args.spawn or not args.foxglove):
+        return None
+    rec = rr.RecordingStream("topseg")
+    if args.save:
+        try:
+            rec.save(args.save)
+        except Exception as exc:
+            raise TopsegError(f"cannot write {args.save}: {exc}") from None
+    elif args.web:
+        try:
+            uri = rec.serve_grpc(grpc_port=args.grpc_port)
+            rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=uri)
+        except Exception as exc:
+            raise TopsegError(
+                f"cannot serve Rerun's web viewer on ports {args.web_port} and "
+                f"{args.grpc_port}: {exc}"
+            ) from None
+        page = f"http://localhost:{args.web_port}/?url={urllib.parse.quote(uri, safe=':/')}"
+        log.info("Rerun web viewer: %s", page)
+    else:
+        try:
+            rec.spawn()
+        except Exception as exc:
+            raise TopsegError(
+                f"cannot spawn the Rerun viewer ({exc}); try --web or --save"
+            ) from None
+    return rec
+
+
+def run(args: argparse.Namespace) -> int:
+    """Show what flows until SIGTERM/SIGINT or --duration; bad options fail first (exit 2)."""
+    from topseg.core.errors import TopsegError
+    from topseg.services.live.viewer_foxglove import FoxgloveSink
+
+    if args.stride < 1:
+        raise TopsegError(f"--stride must be >= 1, got {args.stride}")
+    if args.duration is not None and args.duration <= 0:
+        raise TopsegError(f"--duration must be > 0, got {args.duration}")
+    for name, lowest in (("web_port", 1), ("grpc_port", 1), ("foxglove_port", 0)):
+        port = getattr(args, name)
+        if not lowest <= port <= 65535:
+            option = f"--{name.replace('_', '-')}"
+            raise TopsegError(f"{option} must be a port {lowest}-65535, got {port}")
+    svc = ServiceLifecycle("viewer", args)
+    sinks: list = []
+    inbox = Inbox(QUEUE_SIZE)
+
+    rec = open_rerun(args)  # a sink that cannot open fails before Zenoh does (exit 2)
+    if rec is not None:
+        sinks.append(RerunSink(rec))
+        svc.defer(sinks[-1].close)  # the .rrd is complete on SIGTERM too
+    if args.foxglove:
+        sinks.append(FoxgloveSink.start(args.foxglove_host, args.foxglove_port))
+        svc.defer(sinks[-1].close)
+    viewer = Viewer(sinks, args.stride)
+    rerun = args.save or ("the web viewer" if args.web else "the Rerun viewer")
+    sink_names = ([rerun] if rec is not None else []) + (["Foxglove"] if args.foxglove else [])
+    where = " and ".join(sink_names)
+
+    def status_text() -> str:
+        n = len(viewer.cameras)
+        return (
+            f"logging {n} camera(s) to {where}; {viewer.rejected} rejected, {inbox.dropped} dropped"
+        )
+
+    with svc:
+        for kind in ("depth", "labels", "stats"):
+            svc.declare(svc.session.declare_subscriber(f"topseg/*/*/{kind}", inbox.on_sample))
+        svc.on_stop(inbox.wake)
+        log.info("viewer ready")
+        svc.ready(status=status_text)
+        end = None if args.duration is None else time.monotonic() + args.duration
+        while not svc.stopping:
+            svc.beat()  # watchdog ping from the logging loop, STATUS= every few s
+            timeout = svc.tick if end is None else min(svc.tick, end - time.monotonic())
+            if timeout <= 0:
+                break
+            item = inbox.get(timeout)
+            if item is not None:
+                viewer.handle(*item)
+    log.info("viewer done (%d rejected, %d dropped while busy)", viewer.rejected, inbox.dropped)
+    return 0
