@@ -171,6 +171,3 @@ def main(argv: list[str] | None = None) -> int:
         systemd_notify.failed(f"topseg {args.command}: crashed: {type(exc).__name__}: {exc}")
         raise
 
-
-if __name__ == "__main__":
-    sys.exit(main())

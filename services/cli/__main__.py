@@ -1,0 +1,7 @@
+"""`python -m topseg.services.cli`: the `topseg` command."""
+
+import sys
+
+from topseg.services.cli import main
+
+sys.exit(main())
