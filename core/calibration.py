@@ -538,7 +538,7 @@ def noise_scale(residual_mm: float, floor_depth_mm: np.ndarray, sensor: str) -> 
     floor points' depths, to 2 decimals, within `NOISE_SCALE_RANGE`: 1 on a camera that
     matches its model, below 1 on a quieter one (a time-of-flight camera taken for a Kinect v1).
     """
-    from topseg.core.forest.inputs import depth_sigma_mm
+    from topseg.core.sensors import depth_sigma_mm
 
     sigma = depth_sigma_mm(np.asarray(floor_depth_mm, np.float32), sensor).astype(np.float64)
     model = math.sqrt(float(np.mean(sigma * sigma))) if sigma.size else 0.0

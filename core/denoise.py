@@ -9,7 +9,7 @@ frames from a camera whose noise at the floor is at least `MIN_SIGMA_MM`:
 - each pass runs along every row left to right, then right to left, then along every column
   top down and bottom up; a pixel takes `ALPHA` of its own depth and 1 - `ALPHA` of its
   already smoothed neighbour, when both have depth and differ by less than `SIGMAS` sigma of
-  the sensor's noise at the pixel's depth (`inputs.depth_sigma_mm`, times the mount's
+  the sensor's noise at the pixel's depth (`sensors.depth_sigma_mm`, times the mount's
   measured `noise_scale`). A larger difference is an edge: the smoothing stops there, so a
   person's outline and a table's edge stay where they are;
 - pixels without depth stay without depth (the Segmenter fills small holes inside one
@@ -30,6 +30,8 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
+
+from topseg.core.sensors import depth_sigma_mm
 
 if TYPE_CHECKING:
     from topseg.core.camera import TopViewMount
@@ -60,8 +62,6 @@ def needs_denoise(mount: TopViewMount) -> bool:
 def floor_sigma_mm(mount: TopViewMount) -> float:
     """1 sigma of the mount's depth noise (mm) at the floor straight below the camera: its
     sensor's model at the camera's height, times the mount's `noise_scale`."""
-    from topseg.core.forest.inputs import depth_sigma_mm
-
     sigma = depth_sigma_mm(np.float32(mount.height_mm), mount.sensor)
     return float(sigma) * float(mount.noise_scale)
 
@@ -78,8 +78,6 @@ def smoothing_text(mount: TopViewMount) -> str:
 def edge_table(sensor: str, noise_scale: float) -> np.ndarray:
     """The edge threshold (mm, float32) at every uint16 depth: SIGMAS sigma of the sensor's
     noise times `noise_scale`; 0 at depth 0 (no pixel without depth is smoothed)."""
-    from topseg.core.forest.inputs import depth_sigma_mm
-
     sigma = depth_sigma_mm(np.arange(65536, dtype=np.float32), sensor)
     table = (np.float32(SIGMAS * noise_scale) * sigma).astype(np.float32)
     table[0] = 0.0

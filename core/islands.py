@@ -22,12 +22,12 @@ to the lower id. A blob with no such neighbour keeps its label.
 
 Some head blobs on an arm or a hand are as large as a small head (50-150 cm2), but they lie
 beside the person's own head. Such a satellite, a head blob under a maximum area whose
-centre lies within a radius (`segmenter.SATELLITE_RADIUS_CM`, 40 cm) of a larger head blob's
+centre lies within a radius (`SATELLITE_RADIUS_CM`, 40 cm) of a larger head blob's
 centre, takes its border's label the same way: two people's heads are not that close.
 
-A blob within a few pixels of the image's edge (`segmenter.ISLAND_EDGE_PX`, 2) may be cut
+A blob within a few pixels of the image's edge (`ISLAND_EDGE_PX`, 2) may be cut
 by it: a person walking in or out of view shows part of the head. Such a head blob is held
-to a share of the minimum (`segmenter.EDGE_HEAD_SHARE`, 0.4: 20 cm2 of the default 50).
+to a share of the minimum (`EDGE_HEAD_SHARE`, 0.4: 20 cm2 of the default 50).
 On the walker stand-ins every head missed before lay at the edge, and there the rule had
 relabelled most of them (`docs/results.md`).
 
@@ -45,9 +45,22 @@ import numpy as np
 from topseg.core import labels as L
 from topseg.core.camera import Intrinsics
 
+#: Two people's heads are a shoulder's breadth apart (~40 cm between centres): a smaller head
+#: blob closer than this to a larger one is not a second head (`segmenter.SATELLITE_HEAD_CM2`).
+SATELLITE_RADIUS_CM = 40.0
+#: head blobs within this many pixels of the image's edge are held to a smaller minimum
+#: (`islands`): the border cuts the head of a person walking in or out of view, and the part
+#: in view can be smaller than `SegmenterConfig.min_head_cm2` (2 px: time-of-flight and stereo cameras often
+#: leave the outermost pixel without depth)
+ISLAND_EDGE_PX = 2
+#: the share of `min_head_cm2` a head blob at the image's edge must reach: of 0, 0.2 and 0.4
+#: on the walker stand-ins, 0.4 kept the lower of head precision and recall highest on most
+#: sets, and the most head precision on the mounts table (docs/results.md)
+EDGE_HEAD_SHARE = 0.4
+
 #: the classes `min_furniture_cm2` applies to (`relabel_islands`)
 FURNITURE_ISLANDS = (L.CHAIR, L.STORAGE, L.TABLE)
-#: the classes `Segmentation.small_furniture` counts: those and plants (`min_plant_cm2`)
+#: the classes the `small_furniture` counter counts: those and plants (`min_plant_cm2`)
 FURNITURE_COUNTED = (L.CHAIR, L.PLANT, L.STORAGE, L.TABLE)
 
 #: the largest head blobs that may claim satellites: more people than this under one

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from topseg.core.camera import Intrinsics
-from topseg.core.errors import ConfigError
+from topseg.core.errors import ConfigError, TopsegError
 
 STRUCTURED_LIGHT = "structured_light"
 TIME_OF_FLIGHT = "time_of_flight"
@@ -154,3 +154,21 @@ def get_sensor(name: str) -> SensorModel:
         return _BY_NAME[name]
     except (KeyError, TypeError):
         raise ConfigError(f"unknown sensor {name!r}; known: {', '.join(NAMES)}") from None
+
+
+#: Kinect-like axial noise, sigma_z = KINECT_SIGMA_COEFF * z^2 (z and sigma in metres;
+#: Khoshelham & Elberink 2012, docs/research/sensor-noise-sources.md), for unknown sensors
+KINECT_SIGMA_COEFF = 1.4e-3
+
+
+def depth_sigma_mm(depth_mm: np.ndarray, sensor: str = "kinect_v1") -> np.ndarray:
+    """The sensor's axial depth noise (1 sigma, mm) at each depth (mm), float32.
+
+    The sensor model's (`SensorModel.sigma_mm`) when it knows the sensor; else the Kinect v1
+    structured-light law 1.4e-3 z^2 (z in metres).
+    """
+    z = np.asarray(depth_mm, np.float32)
+    try:
+        return np.asarray(get_sensor(sensor).sigma_mm(z * np.float32(1e-3)), np.float32)
+    except (ImportError, AttributeError, TopsegError):
+        return np.float32(KINECT_SIGMA_COEFF * 1e-3) * z * z  # (1.4e-3 / m) * z_mm^2

@@ -127,7 +127,7 @@ def record(
     """Write `n_frames` synthetic frames (depth + truth, 1/fps apart) to a ROS 2 MCAP recording
     that `replay:PATH` plays back with its ground truth; atomic like every RecordingWriter."""
     from topseg.core.formats import wire
-    from topseg.core.formats.ros2_recording import Ros2RecordingWriter
+    from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter
 
     if n_frames < 1:
         raise SourceError(f"a recording needs at least one frame, got {n_frames}")

@@ -3,7 +3,14 @@ rebuild its labels from the forest or the CRF (legacy path, segmenter, worker, s
 this one call, so a new rule argument is added in one place."""
 
 from topseg.core import segmenter as S
-from topseg.core.islands import edge_shares, island_areas, relabel_islands
+from topseg.core.islands import (
+    EDGE_HEAD_SHARE,
+    ISLAND_EDGE_PX,
+    SATELLITE_RADIUS_CM,
+    edge_shares,
+    island_areas,
+    relabel_islands,
+)
 
 #: the Segmenter's default minimum areas, per class
 AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2, S.MIN_PLANT_CM2)
@@ -13,6 +20,6 @@ def relabel_as_the_segmenter(labels, depth, k):
     """The Segmenter's island rules on `labels`, in place (depth and intrinsics `k` measure
     the blobs): (small blobs relabelled per class, satellite heads relabelled)."""
     return relabel_islands(
-        labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, S.SATELLITE_RADIUS_CM,
-        S.ISLAND_EDGE_PX, edge_shares(S.EDGE_HEAD_SHARE),
+        labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM,
+        ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
     )  # fmt: skip

@@ -19,8 +19,8 @@ from topseg.core.calibration import (
 )
 from topseg.core.camera import KINECT_V1, NOISE_SCALE_RANGE, Intrinsics, TopViewMount
 from topseg.core.errors import ConfigError
-from topseg.core.forest.inputs import depth_sigma_mm
 from topseg.core.formats.mount_file import read_mount_document, read_mount_file, write_mount_file
+from topseg.core.sensors import depth_sigma_mm
 
 K = KINECT_V1.scaled_to(320, 240)
 

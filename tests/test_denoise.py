@@ -22,8 +22,8 @@ from topseg.core.denoise import (
 )
 from topseg.core.fattening import unfatten
 from topseg.core.forest.features import FeatureConfig
-from topseg.core.forest.inputs import depth_sigma_mm, model_input
-from topseg.core.sensors import get_sensor
+from topseg.core.forest.inputs import model_input
+from topseg.core.sensors import depth_sigma_mm, get_sensor
 
 
 def mount_of(sensor: str, height_mm: float, noise_scale: float = 1.0) -> TopViewMount:

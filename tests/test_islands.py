@@ -12,11 +12,11 @@ from topseg.core.camera import Intrinsics
 from topseg.core.islands import (
     FURNITURE_ISLANDS,
     MAX_HEAD_ANCHORS,
+    SATELLITE_RADIUS_CM,
     edge_shares,
     island_areas,
     relabel_islands,
 )
-from topseg.core.segmenter import SATELLITE_RADIUS_CM
 
 K = Intrinsics()  # Kinect v1: fx = fy = 570.3
 

@@ -15,7 +15,6 @@ from topseg.core.forest import FeatureConfig, TrainConfig, train_forest
 from topseg.core.forest.inputs import (
     FLOOR_SIGMAS,
     MIN_FLOOR_MARGIN_MM,
-    depth_sigma_mm,
     floor_margin_mm,
     header_fields,
     legacy_input,
@@ -23,6 +22,7 @@ from topseg.core.forest.inputs import (
     trained_for,
 )
 from topseg.core.segmenter import Segmenter
+from topseg.core.sensors import depth_sigma_mm
 from topseg.core.synth import procedural
 from topseg.core.synth.noise import GaussianNoise
 

@@ -23,7 +23,7 @@ from topseg.core import labels as label_table
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import recording, wire
 from topseg.core.formats import ros2_messages as ros2
-from topseg.core.formats.ros2_recording import Ros2RecordingWriter, qos_profiles
+from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter, qos_profiles
 from topseg.core.formats.wire import DepthFrame, LabelFrame, WireError
 
 K = KINECT_V1.scaled_to(160, 120)

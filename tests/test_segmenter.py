@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 from segmenter_rules import relabel_as_the_segmenter
 
-from topseg.core import crf, forest
+from topseg.core import bundled_model, crf, forest
 from topseg.core import labels as L
 from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.errors import TopsegError
+from topseg.core.forest.model_header import model_camera
 from topseg.core.formats import recording, wire
 from topseg.core.holes import fill_holes
 from topseg.core.islands import FURNITURE_COUNTED
@@ -70,10 +71,10 @@ def test_from_file_none_is_the_bundled_model(bundled):
 
 
 def test_no_bundled_model_is_one_line(monkeypatch, tmp_path):
-    monkeypatch.setattr(S, "CHECKOUT_MODEL", Path("no-such-folder") / "none.npz")
-    monkeypatch.setattr(S, "INSTALLED_MODEL", tmp_path / "none.npz")
+    monkeypatch.setattr(bundled_model, "CHECKOUT_MODEL", Path("no-such-folder") / "none.npz")
+    monkeypatch.setattr(bundled_model, "INSTALLED_MODEL", tmp_path / "none.npz")
     with pytest.raises(TopsegError, match="no bundled model") as err:
-        S.bundled_model_path()
+        bundled_model.bundled_model_path()
     assert "\n" not in str(err.value)
 
 
@@ -92,8 +93,11 @@ def test_labels_are_those_of_the_forest_then_crf_path(legacy, mode):
             k = seg.camera
             small, satellites = relabel_as_the_segmenter(expected, depth, k)
         np.testing.assert_array_equal(got.labels, expected)
-        assert got.small_heads == small[L.HEAD] and got.satellite_heads == satellites
-        assert got.small_furniture == small[list(FURNITURE_COUNTED)].sum()
+        assert (
+            got.counts["small_heads"] == small[L.HEAD]
+            and got.counts["satellite_heads"] == satellites
+        )
+        assert got.counts["small_furniture"] == small[list(FURNITURE_COUNTED)].sum()
         np.testing.assert_array_equal(got.proba, proba)
         assert got.labels.dtype == np.uint8 and got.proba.dtype == np.float32
         t = got.timings
@@ -113,7 +117,7 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         depth = np.ascontiguousarray(depth[::4, ::4])
         got = seg.label(depth)
         depth, filled = fill_holes(depth, k)  # what the Segmenter labels
-        assert got.filled_holes == filled
+        assert got.counts["filled_holes"] == filled
         inp = model_input(depth, mount, seg.features)
         proba = forest.predict_proba(
             seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS, early_exit=EARLY_EXIT
@@ -155,10 +159,10 @@ def test_model_camera_from_the_header():
     header = {
         "dataset": {"attrs": {"camera": TopViewMount(SMALL, PAPER_MOUNT.height_mm).to_dict()}}
     }
-    assert S.model_camera(header) == SMALL
-    assert S.model_camera({}) == KINECT_V1
+    assert model_camera(header) == SMALL
+    assert model_camera({}) == KINECT_V1
     with pytest.raises(TopsegError, match="unreadable camera"):
-        S.model_camera({"dataset": {"attrs": {"camera": {"intrinsics": {}}}}})
+        model_camera({"dataset": {"attrs": {"camera": {"intrinsics": {}}}}})
 
 
 def hand_confusion(pairs):
@@ -421,7 +425,7 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
             downsample=1,
         ),
     )
-    assert not kept.relabels_islands
+    assert not kept.config.relabels_islands
     cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1))
     k = PAPER_MOUNT.intrinsics
     relabelled = np.zeros(L.NUM_CLASSES, np.int64)
@@ -431,10 +435,15 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
         n, satellites = relabel_as_the_segmenter(want, depth, k)
         got = cleaned.label(depth)
         np.testing.assert_array_equal(got.labels, want)
-        assert raw.small_heads == raw.small_furniture == raw.satellite_heads == 0
-        assert got.satellite_heads == satellites
-        assert got.small_heads == n[L.HEAD]
-        assert got.small_furniture == n[list(FURNITURE_COUNTED)].sum()
+        assert (
+            raw.counts["small_heads"]
+            == raw.counts["small_furniture"]
+            == raw.counts["satellite_heads"]
+            == 0
+        )
+        assert got.counts["satellite_heads"] == satellites
+        assert got.counts["small_heads"] == n[L.HEAD]
+        assert got.counts["small_furniture"] == n[list(FURNITURE_COUNTED)].sum()
         relabelled += n
     assert relabelled[L.HEAD] > 0 and relabelled[list(FURNITURE_COUNTED)].sum() > 0
 
@@ -451,7 +460,7 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
     got = auto.label(depth)
     assert got.downsample == 2 and got.labels.shape == depth.shape
     depth, filled = fill_holes(depth, PAPER_MOUNT.intrinsics)  # first, at the frame's size
-    assert got.filled_holes == filled > 0
+    assert got.counts["filled_holes"] == filled > 0
     small = decimate(depth, 2)
     unfilled = Segmenter.from_file(
         None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1, fill_holes_cm2=0.0)
@@ -466,8 +475,8 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
     t = got.timings
     assert t.forest_ms > 0 and t.crf_ms > 0 and t.total_ms >= t.forest_ms + t.crf_ms - 1e-6
     # every pixel at the frame's own resolution when asked, or when the model reads depth
-    assert one.label(depth).downsample == 1 == one.downsample_for(depth)
-    assert legacy.downsample_for(depth) == 1
+    assert one.label(depth).downsample == 1 == one.plan(depth).downsample
+    assert legacy.plan(depth).downsample == 1
     assert Segmenter(legacy.forest, legacy.header, SegmenterConfig(downsample=2)).label(
         depth
     ).labels.shape == (480, 640)
@@ -498,13 +507,17 @@ def test_a_noisy_camera_gets_the_heavier_crf_weight(bundled, legacy):
         config = SegmenterConfig(crf=CRFConfig(mode="realtime", **crf))
         return Segmenter(bundled.forest, bundled.header, config)
 
+    def crf_for(segmenter, mount):
+        """The CRF settings the segmenter's plan gives a frame from `mount`."""
+        frame = np.zeros(mount.intrinsics.shape, np.uint16)
+        return segmenter.plan(frame, mount=mount).crf
+
     default = seg()
-    assert default.crf_for(noisy).smoothness == crf.energy.NOISY_SMOOTHNESS == 3.0
-    assert default.crf_for(quiet) == default.crf_config
-    assert default.crf_for(None) == default.crf_config
-    assert seg(smoothness=4.0).crf_for(noisy).smoothness == 4.0  # never below smoothness
-    assert seg(noisy_smoothness=0.5).crf_for(noisy).smoothness == 1.0
-    assert legacy.crf_for(noisy) == legacy.crf_config  # a depth model has no noise model
+    assert crf_for(default, noisy).smoothness == crf.energy.NOISY_SMOOTHNESS == 3.0
+    assert crf_for(default, quiet) == default.crf_config
+    assert crf_for(seg(smoothness=4.0), noisy).smoothness == 4.0  # never below smoothness
+    assert crf_for(seg(noisy_smoothness=0.5), noisy).smoothness == 1.0
+    assert crf_for(legacy, noisy) == legacy.crf_config  # a depth model has no noise model
     with pytest.raises(TopsegError, match="noisy_smoothness must be in"):
         CRFConfig(noisy_smoothness=-1.0)
 

@@ -38,7 +38,7 @@ class CRFConfig:
     mode            none | exact | realtime
     smoothness      Potts weight per cut 4-neighbour edge, in nats
     noisy_smoothness  the weight for frames from a noisy camera (the Segmenter's
-                    `crf_for`: those it smooths, `denoise.needs_denoise`), when larger
+                    `stages.readers.noisy_crf`: those it smooths, `denoise.needs_denoise`), when larger
     depth_sigma_mm  > 0 weights an edge by exp(-dd^2 / 2 sigma^2) of its depth step; 0 = off
     eps             posterior floor before -log (caps a unary at -log(eps))
     confidence      realtime: a pixel whose top posterior reaches this and whose 4

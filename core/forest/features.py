@@ -64,7 +64,7 @@ class FeatureConfig:
         is Kinect v1's, so offsets keep their old meaning there).
     off_image: what a probe outside the image reads: "nearest", the pixel on the image's
         edge nearest to it, or "background", `background_mm` (models trained before the
-        twentieth session; their headers lack the key, `segmenter.model_features`). On the
+        twentieth session; their headers lack the key, `model_header.model_features`). On the
         time-of-flight walker stand-ins (2.4-3.6 m), two-tree models trained alike found
         heads at the image's edge with precision 0.82-0.94 reading "nearest" against
         0.52-0.75 reading "background" (docs/results.md).

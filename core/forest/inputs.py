@@ -40,9 +40,9 @@ import numpy as np
 
 from topseg.core.camera import check_depth
 from topseg.core.denoise import denoise
-from topseg.core.errors import TopsegError
 from topseg.core.fattening import unfatten
 from topseg.core.forest.edge_gaps import fill_edge_gaps
+from topseg.core.sensors import depth_sigma_mm
 
 if TYPE_CHECKING:
     from topseg.core.camera import TopViewMount
@@ -57,9 +57,6 @@ MIN_FLOOR_MARGIN_MM = 40.0
 MAX_FLOOR_MARGIN_MM = 150.0
 #: sigmas of the sensor's depth noise the floor gate allows
 FLOOR_SIGMAS = 3.0
-#: Kinect-like axial noise, sigma_z = KINECT_SIGMA_COEFF * z^2 (z and sigma in metres;
-#: Khoshelham & Elberink 2012, docs/research/sensor-noise-sources.md), for unknown sensors
-KINECT_SIGMA_COEFF = 1.4e-3
 
 
 @dataclass(frozen=True)
@@ -96,21 +93,6 @@ class ModelInput:
         return float(np.count_nonzero(self.floor)) / n if n else 0.0
 
 
-def depth_sigma_mm(depth_mm: np.ndarray, sensor: str = "kinect_v1") -> np.ndarray:
-    """The sensor's axial depth noise (1 sigma, mm) at each depth (mm), float32.
-
-    The sensor model's (`core.sensors`, `SensorModel.sigma_mm`) when it knows the sensor;
-    else the Kinect v1 structured-light law 1.4e-3 z^2 (z in metres).
-    """
-    z = np.asarray(depth_mm, np.float32)
-    try:
-        from topseg.core.sensors import get_sensor
-
-        return np.asarray(get_sensor(sensor).sigma_mm(z * np.float32(1e-3)), np.float32)
-    except (ImportError, AttributeError, TopsegError):
-        return np.float32(KINECT_SIGMA_COEFF * 1e-3) * z * z  # (1.4e-3 / m) * z_mm^2
-
-
 def floor_margin_mm(
     depth_mm: np.ndarray, sensor: str = "kinect_v1", noise_scale: float = 1.0
 ) -> np.ndarray:
@@ -135,13 +117,20 @@ def _margin_table(sensor: str, noise_scale: float) -> np.ndarray:
 def model_input(
     depth: np.ndarray, mount: TopViewMount, features: FeatureConfig, for_training: bool = False
 ) -> ModelInput:
-    """The input of a height model (see the module) for a uint16 depth frame from `mount`.
-
-    A radial camera's range is read as depth first (`TopViewMount.z_depth`), a stereo
-    camera's fattened edges are thinned (`core.fattening`), and frames from a noisy camera
-    are smoothed (`core.denoise`; `for_training`: with a training frame's passes). The frame
+    """The input of a height model (see the module) for a uint16 depth frame from `mount`, as
+    training reads it: a radial camera's range read as depth first (`TopViewMount.z_depth`),
+    a stereo camera's fattened edges thinned (`core.fattening`), frames from a noisy camera
+    smoothed (`core.denoise`; `for_training`: with a training frame's passes), then
+    `height_input`. The Segmenter runs the same steps as stages (`core.stages`). The frame
     must have the mount's intrinsics' shape; ValueError otherwise.
     """
+    depth = _checked(depth, mount)
+    depth = denoise(unfatten(mount.z_depth(depth), mount), mount, for_training)
+    return height_input(depth, mount, features)
+
+
+def _checked(depth: np.ndarray, mount: TopViewMount) -> np.ndarray:
+    """`depth` as a C-contiguous uint16 frame of the mount's size; ValueError otherwise."""
     depth = check_depth(depth, "model input")
     k = mount.intrinsics
     if depth.shape != k.shape:
@@ -149,7 +138,15 @@ def model_input(
             f"frame is {depth.shape[1]}x{depth.shape[0]} but its mount's camera is "
             f"{k.width}x{k.height}"
         )
-    depth = denoise(unfatten(mount.z_depth(depth), mount), mount, for_training)
+    return depth
+
+
+def height_input(depth: np.ndarray, mount: TopViewMount, features: FeatureConfig) -> ModelInput:
+    """Probe values, offset scales and the floor gate (see the module) of a depth frame from
+    `mount` that is already pre-processed; the probe image with edge gaps filled when the
+    features say so. ValueError when the frame is not the mount's size."""
+    depth = _checked(depth, mount)
+    k = mount.intrinsics
     values = np.empty(depth.shape, np.uint16)
     scale = np.empty(depth.shape, np.float32)
     floor = np.empty(depth.shape, np.bool_)

@@ -38,6 +38,7 @@ from topseg.core import labels
 from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
 from topseg.core.forest.features import OFF_IMAGE_READS
+from topseg.core.forest.model_header import model_camera, model_features
 from topseg.core.forest.tree import ARRAY_DTYPES, Forest
 
 MAGIC = "topseg-model"
@@ -217,8 +218,6 @@ def check_header(forest: Forest, header: dict[str, Any], path: str | os.PathLike
     for key in ("n_trees", "n_nodes"):
         if key not in described:
             raise ModelFileError(f"{path}: the header's forest description lacks {key!r}")
-    from topseg.core.segmenter import model_camera, model_features
-
     try:
         model_camera(header)
         features = model_features(header, forest)

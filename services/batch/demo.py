@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The live demo's recording, model and CRF; the --core demo's sizes."""
-    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument("--recording", type=Path, default=REPO / "recordings" / "demo.mcap")
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
@@ -69,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
 def run_live(args: argparse.Namespace) -> int:
     """Replay the recording through driver -> worker -> viewer; print the figures and F1."""
     from topseg.core import metrics
+    from topseg.core.bundled_model import bundled_model_path
     from topseg.core.errors import TopsegError
-    from topseg.core.segmenter import bundled_model_path
     from topseg.services.batch.pipeline import run_pipeline, summary
 
     model = bundled_model_path() if args.model is None else args.model
@@ -142,7 +142,7 @@ def run_core(args: argparse.Namespace) -> int:
     seconds = dict.fromkeys(("forest", *modes[1:]), 0.0)
     segmenters["none"].posteriors(test[0][0])  # compile once, outside the timings
     for frame_depth, frame_truth in test:
-        segmenters["none"].check_frame(frame_depth)
+        segmenters["none"].plan(frame_depth)  # a frame of the model's camera, or an error
         t0 = time.perf_counter()
         proba = segmenters["none"].posteriors(frame_depth)
         seconds["forest"] += time.perf_counter() - t0

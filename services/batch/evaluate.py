@@ -27,7 +27,7 @@ from topseg.services.cli.options import (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the bundled model), --data, --crf, --smoothness and what to write."""
-    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")

@@ -244,9 +244,9 @@ def run_pipeline(
     worker labels every frame (FIFO), and the drain waits for every frame seen. Raises
     TopsegError when a child fails to start.
     """
+    from topseg.core.bundled_model import bundled_model_path
     from topseg.core.formats import wire
     from topseg.core.metrics import ConfusionAccumulator, percentile
-    from topseg.core.segmenter import bundled_model_path
     from topseg.drivers.spec import parse_spec
     from topseg.services.runtime.zenoh_session import open_session
 

@@ -54,7 +54,7 @@ ESTIMATE_FRAMES = 30
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Inputs, --model (default: the bundled model), --out, --crf and --smoothness."""
-    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.bundled_model import MODEL_HELP
     from topseg.core.sensors import NAMES
 
     parser.add_argument(
@@ -160,17 +160,17 @@ def run(args: argparse.Namespace) -> int:
         )
     if segmenter.reads_height and segmenter.config.fill_holes_cm2 > 0 and run_.count:
         print(
-            f"holes filled: {run_.filled_holes} holes without depth inside one surface (under "
+            f"holes filled: {run_.counts['filled_holes']} holes without depth inside one surface (under "
             f"{segmenter.config.fill_holes_cm2:g} cm2) took that surface's depth and label in "
             f"{run_.count} frames"
         )
-    if segmenter.relabels_islands and run_.count:
+    if segmenter.config.relabels_islands and run_.count:
         cfg = segmenter.config
         print(
-            f"blobs relabelled as too small: {run_.small_heads} head (under "
-            f"{cfg.min_head_cm2:g} cm2), {run_.small_furniture} furniture (under "
+            f"blobs relabelled as too small: {run_.counts['small_heads']} head (under "
+            f"{cfg.min_head_cm2:g} cm2), {run_.counts['small_furniture']} furniture (under "
             f"{cfg.min_furniture_cm2:g} cm2, plants {cfg.min_plant_cm2:g}); head blobs beside a larger head: "
-            f"{run_.satellite_heads} (under {cfg.satellite_head_cm2:g} cm2) in {run_.count} "
+            f"{run_.counts['satellite_heads']} (under {cfg.satellite_head_cm2:g} cm2) in {run_.count} "
             "frames"
         )
     if run_.refused:
@@ -238,10 +238,7 @@ class _Run:
         self.count = 0
         self.refused = 0
         self.floor_share = 0.0
-        self.small_heads = 0  # head blobs the Segmenter relabelled as too small to be heads
-        self.small_furniture = 0  # the same for chair, storage, table and plant
-        self.satellite_heads = 0  # head blobs beside a larger head, relabelled
-        self.filled_holes = 0  # holes inside one surface filled before labelling
+        self.counts = dict.fromkeys(segmenter.counter_names, 0)  # every stage's counters
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
@@ -290,10 +287,8 @@ class _Run:
             entry[2] = name
             self.count += 1
             self.floor_share += result.floor_share
-            self.small_heads += result.small_heads
-            self.small_furniture += result.small_furniture
-            self.satellite_heads += result.satellite_heads
-            self.filled_holes += result.filled_holes
+            for name, n in result.counts.items():
+                self.counts[name] = self.counts.get(name, 0) + n
 
     def summary(self) -> None:
         """How many frames went where, per camera (a folder of PNGs is one camera)."""

@@ -170,4 +170,3 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         systemd_notify.failed(f"topseg {args.command}: crashed: {type(exc).__name__}: {exc}")
         raise
-

@@ -189,14 +189,13 @@ def add_island_arguments(parser: argparse.ArgumentParser) -> None:
     `--satellite-head-cm2 A`: so do head blobs smaller than A beside a larger head
     (`satellite_head_cm2`); `--fill-holes-cm2 A`: before labelling, holes up to A cm2 inside
     one surface take its depth (`fill_holes_cm2`). `island_config` reads them back."""
+    from topseg.core.islands import EDGE_HEAD_SHARE, SATELLITE_RADIUS_CM
     from topseg.core.segmenter import (
-        EDGE_HEAD_SHARE,
         FILL_HOLES_CM2,
         MIN_FURNITURE_CM2,
         MIN_HEAD_CM2,
         MIN_PLANT_CM2,
         SATELLITE_HEAD_CM2,
-        SATELLITE_RADIUS_CM,
     )
 
     parser.add_argument(

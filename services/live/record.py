@@ -87,7 +87,7 @@ def _check(args: argparse.Namespace) -> list[str]:
 def open_writer(fmt: str, path: str, metadata: dict[str, str]):
     """The writer of a `--format`: both take `write(key, wire bytes, log_time_ns=...)`."""
     from topseg.core.formats.recording import RecordingWriter
-    from topseg.core.formats.ros2_recording import Ros2RecordingWriter
+    from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter
 
     writer = Ros2RecordingWriter if fmt == "ros2" else RecordingWriter
     return writer(path, metadata=metadata)

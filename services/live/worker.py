@@ -4,13 +4,12 @@ For every camera it serves (all of `topseg/*/*/depth`, or the `--cameras` given)
 runs the forest and the CRF on the newest depth frame and publishes
 
 - labels on `topseg/<cell>/<camera>/labels` (the depth frame's `seq`, `stamp_ns`, `frame_id`);
-- stats on `.../stats`: ms per stage (receive = copy + decode, mount = estimating or checking
-  the mount, forest, crf, publish, total),
-  latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
-  / small_heads / small_furniture (blobs relabelled as too small to be a head or a piece of
-  furniture) / satellite_heads (head blobs beside a larger head, relabelled) / filled_holes
-  (holes without depth inside one surface filled before labelling), the share of pixels the floor gate skipped (`floor_share`) and the mount in
-  use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
+- stats on `.../stats`: ms per step (receive = copy + decode, mount = estimating or checking
+  the mount, forest and crf = the Segmenter's two headline figures, `stage_<name>` = each of
+  its stages, publish, total), latency (depth stamp to labels published), fps, the counts
+  processed / dropped / rejected and every counter the Segmenter's stages keep
+  (`Segmenter.counter_names`), the share of pixels the floor gate skipped (`floor_share`) and
+  the mount in use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
   was seen to move).
 
 Each frame is labelled with its camera's mount (`services/live/worker_mount.py`): the one the
@@ -100,7 +99,7 @@ DUPLICATE_WARN_S = 10.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The worker's options: the model, the CRF, the cameras, --lossless and Zenoh."""
-    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
     add_crf_arguments(parser)
@@ -183,17 +182,7 @@ class CameraState:
     stats_pub: Any = None
     token: Any = None
     subscriber: Any = None
-    counts: dict = field(
-        default_factory=lambda: {
-            "processed": 0,
-            "dropped": 0,
-            "rejected": 0,
-            "small_heads": 0,
-            "small_furniture": 0,
-            "satellite_heads": 0,
-            "filled_holes": 0,
-        }
-    )
+    counts: dict = field(default_factory=lambda: {"processed": 0, "dropped": 0, "rejected": 0})
     last_seq: int | None = None
     last_time: float | None = None
     fps: float = 0.0
@@ -492,6 +481,7 @@ class Worker:
         from topseg.core.formats import wire
 
         state = CameraState(cell, camera, discovered=not self.args.cameras)
+        state.counts.update(dict.fromkeys(self.segmenter.counter_names, 0))
         state.watch = MountWatch(f"{cell}/{camera}", self.mount_config)
         publish = dict(congestion_control=self.congestion, express=True)
         state.labels_pub = self.session.declare_publisher(wire.labels_key(cell, camera), **publish)
@@ -646,16 +636,15 @@ class Worker:
         t4 = time.perf_counter()
         state.note_seq(frame.seq)
         state.counts["processed"] += 1
-        state.counts["small_heads"] += result.small_heads
-        state.counts["small_furniture"] += result.small_furniture
-        state.counts["satellite_heads"] += result.satellite_heads
-        state.counts["filled_holes"] += result.filled_holes
+        for name, n in result.counts.items():  # every stage's counters, whatever they are
+            state.counts[name] = state.counts.get(name, 0) + n
         state.note_done(t4)
         timings = {
             "receive": 1000 * (t1 - t0),
             "mount": 1000 * (tm - t1),
             "forest": result.timings.forest_ms,
             "crf": result.timings.crf_ms,
+            **{f"stage_{name}": ms for name, ms in result.timings.stages_ms.items()},
             "publish": 1000 * (t4 - t3),
             "total": 1000 * (t4 - t0),
         }

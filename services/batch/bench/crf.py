@@ -97,7 +97,7 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
     """[(posteriors, depth, summary, fill, frame, factor)] and a sentence saying where the
     unaries came from: `segment_crf`'s arguments at the resolution the Segmenter works at
     (summary and fill None where the Segmenter has none), the frame at its own resolution
-    and the factor between the two (`Segmenter.working_frame`)."""
+    and the factor between the two (`Segmenter.prepare`)."""
     rng = np.random.default_rng(args.seed)
     if args.unaries == "synthetic":
         from topseg.services.batch.bench.crf_standin import forest_like_posteriors, synthetic_scene
@@ -124,18 +124,18 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
     pairs, what = bench_frames.bench_frames(args.frames_from, args.frames, args.seed + 1, mount)
     out = []
     for frame, _ in pairs:
-        depth, mount, factor = segmenter.working_frame(frame)
-        stride = segmenter.stride_for(depth, mount=mount)
-        proba = segmenter.posteriors(depth, mount=mount).copy()  # the buffer is reused
+        prepared = segmenter.prepare(frame)
+        depth, stride, factor = prepared.depth, prepared.plan.stride, prepared.plan.downsample
+        forest = segmenter.stages[segmenter.stage_names.index("forest")]
+        proba = forest.predict(prepared.inp, stride).copy()  # the buffer is reused
         # what the forest hands the CRF beside the posteriors (it computes them as it writes)
         summary = Summary(*argmax_confidence(proba, depth > 0))
         # on a grid the Segmenter stores the band's posteriors when the CRF asks for them
-        # (`Segmenter.label`): the realtime CRF's time includes that
+        # (`stages.forest`): the realtime CRF's time includes that
         fill = None
         if stride > 1 and segmenter.reads_height:
-            inp = segmenter.model_input(depth, mount=mount)
-            fill = functools.partial(fill_posteriors, inp, proba, stride)
-        out.append((proba, depth, summary, fill, frame, factor))
+            fill = functools.partial(fill_posteriors, prepared.inp, proba, stride)
+        out.append((proba, depth, summary, fill, prepared.full_depth, factor))
     resolution = f"downsample {factor}, " if factor > 1 else ""
     return out, f"{source} ({resolution}stride {stride}) on {what}"
 

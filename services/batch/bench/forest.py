@@ -67,7 +67,7 @@ def _forest(args, rng, procedural, forest_mod):
     from topseg.core.forest.features import FeatureConfig
 
     if args.model or args.forest == "bundled":
-        from topseg.core.segmenter import bundled_model_path
+        from topseg.core.bundled_model import bundled_model_path
 
         path = args.model or bundled_model_path()
         model, _ = forest_mod.load_model(path)
@@ -110,7 +110,7 @@ def _time_frames(predict, frames, repeats):
 
 def _node_visits(model, segmenter, frame) -> tuple[int, int, int, float]:
     """(node visits, factor, stride, mean levels a walk takes) of `segmenter`'s forest on
-    `frame`, at the resolution it works at (`Segmenter.working_frame`, decimated by factor):
+    `frame`, at the resolution it works at (`Segmenter.prepare`: its plan and pre-processing):
     the trees each pixel walks (none between grid pixels and at the adaptive grid's settled
     pixels, fewer than all where the early exit stops it) times the levels of the leaf it
     reaches in each."""
@@ -119,9 +119,8 @@ def _node_visits(model, segmenter, frame) -> tuple[int, int, int, float]:
     from topseg.core.forest.predict import apply, predict_proba
     from topseg.core.forest.tree import node_depths
 
-    small, mount, factor = segmenter.working_frame(frame)
-    inp = segmenter.model_input(small, mount=mount)
-    stride = segmenter.stride_for(small, mount=mount)
+    prepared = segmenter.prepare(frame)
+    inp, stride, factor = prepared.inp, prepared.plan.stride, prepared.plan.downsample
     walked = np.zeros(inp.shape, np.uint8)
     config = segmenter.config
     predict_proba(
@@ -146,9 +145,10 @@ def measure(args: argparse.Namespace) -> dict:
     import numpy as np
 
     from topseg.core import forest as forest_mod
+    from topseg.core.bundled_model import bundled_model_path
     from topseg.core.forest.inputs import header_fields
     from topseg.core.scoring import score
-    from topseg.core.segmenter import Segmenter, SegmenterConfig, bundled_model_path
+    from topseg.core.segmenter import Segmenter, SegmenterConfig
     from topseg.core.synth import procedural
 
     if args.threads:

@@ -27,7 +27,7 @@ from topseg.services.cli.options import (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Duration, rate, source, model (default: the bundled one) and the worker's mode."""
-    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument(
         "--duration",

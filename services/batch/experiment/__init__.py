@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="(default realtime)",
     )
     parser.add_argument("--test-frames", type=int, help="test set size (default: the scale's)")
-    from topseg.core.segmenter import MODEL_HELP
+    from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument("--model", type=Path, help=f"mounts: the model scored; {MODEL_HELP}")
     parser.add_argument(

@@ -1,0 +1,62 @@
+"""One frame's path through the Segmenter as a list of stages.
+
+`Segmenter.label` resolves a `FramePlan` once per frame (`plan.py`, through the model's input
+adapter in `readers.py`), then runs `STAGES` in order over one `FrameState`:
+
+  pre          range to depth, holes filled, decimation, edge thinning, smoothing
+  model_input  heights, offset scales and the floor gate (or a depth model's raw depth)
+  forest       the forest's posteriors (lazy on a grid)
+  crf          the Potts CRF
+  post         island rules, labels brought back to the frame's resolution
+
+Every stage is timed by `run_stages` and counts what it changed in `FrameState.counts` under
+the names it declares (`Stage.counters`), so callers report every stage and counter without
+naming them. A new stage is one module here and one line in `STAGES`.
+"""
+
+from __future__ import annotations
+
+import time
+
+from topseg.core.stages.base import FORESTS_SHARE, Stage, StageModel
+from topseg.core.stages.crf import CRFStage
+from topseg.core.stages.forest import ForestStage
+from topseg.core.stages.model_input import ModelInputStage
+from topseg.core.stages.plan import FramePlan, FrameState
+from topseg.core.stages.post import PostStage
+from topseg.core.stages.pre import PreStage
+
+#: the stages, in the order a frame goes through them
+STAGES: tuple[type[Stage], ...] = (PreStage, ModelInputStage, ForestStage, CRFStage, PostStage)
+
+__all__ = [
+    "FORESTS_SHARE",
+    "STAGES",
+    "FramePlan",
+    "FrameState",
+    "Stage",
+    "StageModel",
+    "build_stages",
+    "counter_names",
+    "run_stages",
+]
+
+
+def build_stages(model: StageModel) -> tuple[Stage, ...]:
+    """One instance of every registered stage for a loaded model (stages may keep buffers)."""
+    return tuple(cls(model) for cls in STAGES)
+
+
+def counter_names(stages: tuple[Stage, ...]) -> tuple[str, ...]:
+    """Every counter the stages keep, in stage order."""
+    return tuple(name for stage in stages for name in stage.counters)
+
+
+def run_stages(stages: tuple[Stage, ...], frame: FrameState) -> dict[str, float]:
+    """Run `stages` over `frame` in order; the milliseconds each took, by stage name."""
+    ms: dict[str, float] = {}
+    for stage in stages:
+        t0 = time.perf_counter()
+        stage.run(frame)
+        ms[stage.name] = 1000.0 * (time.perf_counter() - t0)
+    return ms
