@@ -171,3 +171,63 @@ def suggest(name: str, candidates: Iterable[str]) -> str:
     """` (did you mean 'x'?)` for the closest of `candidates`, or ''."""
     close = difflib.get_close_matches(name, list(candidates), n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Option:
+    """How a setting (a dataclass field) appears on a command line and in a service's TOML
+    table: `--<flag>` and the key `<flag>`. The command-line parser is generated from these
+    (`services.cli.options`), so a setting is declared once, beside its default.
+
+    kind     float | int | auto_int (`auto` or an int: None is auto) | share_or_off (a share
+             in (0, 1] or `off`: None is off) | choice
+    lo, hi   the bounds a value must lie in (inclusive; None: unbounded)
+    choices  the values of a `choice`
+    """
+
+    flag: str
+    help: str
+    metavar: str | None = None
+    kind: str = "float"
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[str, ...] = ()
+
+
+def setting(default: Any = dataclasses.MISSING, *, factory: Any = None, **option: Any) -> Any:
+    """A dataclass field with a default and, when `option` is given, its `Option`."""
+    meta = {"option": Option(**option)} if option else {}
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def options_of(cls: type) -> list[tuple[str, dataclasses.Field, Option]]:
+    """(path, field, option) of every field of a (nested) settings dataclass that has an
+    `Option`, in declaration order; `path` is dotted through nested settings (`crf.mode`)."""
+    out = []
+    for f in dataclasses.fields(cls):
+        hint = _hints(cls).get(f.name)
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            out += [(f"{f.name}.{p}", g, o) for p, g, o in options_of(hint)]
+        elif "option" in f.metadata:
+            out.append((f.name, f, f.metadata["option"]))
+    return out
+
+
+def with_options(config: T, values: Mapping[str, Any]) -> T:
+    """`config` (a settings dataclass) with every setting whose option is named in `values`
+    (by its flag with `_` for `-`: what argparse calls its dest) set to that value, nested
+    settings included; names of no setting are ignored."""
+    changes = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            nested = with_options(value, values)
+            if nested is not value:
+                changes[f.name] = nested
+        elif "option" in f.metadata:
+            dest = f.metadata["option"].flag.replace("-", "_")
+            if dest in values and values[dest] != value:
+                changes[f.name] = values[dest]
+    return dataclasses.replace(config, **changes) if changes else config

@@ -46,7 +46,7 @@ from topseg.core import labels as L
 from topseg.core.camera import Intrinsics
 
 #: Two people's heads are a shoulder's breadth apart (~40 cm between centres): a smaller head
-#: blob closer than this to a larger one is not a second head (`segmenter.SATELLITE_HEAD_CM2`).
+#: blob closer than this to a larger one is not a second head (`segmenter_config.SATELLITE_HEAD_CM2`).
 SATELLITE_RADIUS_CM = 40.0
 #: head blobs within this many pixels of the image's edge are held to a smaller minimum
 #: (`islands`): the border cuts the head of a person walking in or out of view, and the part

@@ -30,7 +30,7 @@ from topseg.core.forest.model_file import load_model
 from topseg.core.forest.model_header import model_camera, model_features
 from topseg.core.forest.predict import predict_proba
 from topseg.core.forest.tree import Forest
-from topseg.core.resolution import MAX_DOWNSAMPLE
+from topseg.core.segmenter_config import SegmenterConfig, crf_config
 from topseg.core.stages import (
     FramePlan,
     FrameState,
@@ -41,131 +41,6 @@ from topseg.core.stages import (
 )
 from topseg.core.stages.base import CRFS_SHARE
 from topseg.core.stages.readers import DepthReader, HeightReader, ModelReader
-
-#: Levels of the forest's adaptive grid by default (`SegmenterConfig.adaptive`): one, the grid
-#: twice as coarse first; measured in docs/performance.md
-ADAPTIVE_LEVELS = 1
-#: A walked pixel stops walking trees once its first two (or more) give one class this
-#: average posterior (`SegmenterConfig.early_exit`); measured in docs/performance.md. 0.95
-#: (rung 22) walks 4 % more nodes than 0.9 and keeps the grid's accuracy loss against full
-#: resolution under issue 15's 0.01 on both held-out sets (0.9 lost 0.0106 on one).
-EARLY_EXIT = 0.95
-#: After the CRF, blobs labelled head smaller than this on the surface (cm2) take their
-#: border's label: a fifth of a whole head seen from above (200-300 cm2), so that a head cut
-#: by the image's edge mostly keeps its label. On rendered time-of-flight frames it raised
-#: the share of head blobs that are heads from 0.31-0.54 to 0.79-0.92 (docs/results.md).
-MIN_HEAD_CM2 = 50.0
-#: After the CRF, blobs labelled chair, storage or table smaller than this on the surface
-#: (cm2) take their border's label: a fifth of a chair's seat seen from above (~1600 cm2).
-#: Measured in docs/crf.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
-#: person 1.1-1.4 points lower on rendered time-of-flight frames.
-MIN_FURNITURE_CM2 = 300.0
-#: After the CRF, blobs labelled plant smaller than this on the surface (cm2) take their
-#: border's label: two thirds of the smallest pot seen from above (14 cm across, ~150 cm2).
-#: A noisy camera leaves such specks of plant on table tops. Measured in docs/crf.md.
-MIN_PLANT_CM2 = 100.0
-#: After the CRF, head blobs smaller than this (cm2) whose centre lies within
-#: SATELLITE_RADIUS_CM of a larger head blob's take their border's label: an arm or a hand
-#: beside a head, as large as a small head (`islands.relabel_islands`). Measured in
-#: docs/results.md on rendered time-of-flight frames.
-SATELLITE_HEAD_CM2 = 150.0
-#: Before labelling, holes without depth inside one surface up to this size (cm2) take the
-#: surface's depth (`holes.fill_holes`): a time-of-flight camera's holes in dark hair. On
-#: rendered walker frames with hair dropout it took the bundled model's head blobs found
-#: from 0.23 to 0.90 at 3.3 m (docs/results.md).
-FILL_HOLES_CM2 = 100.0
-
-
-def _crf_config(mode: str = "realtime") -> CRFConfig:
-    """A CRFConfig of `mode` with the default settings."""
-    return CRFConfig(mode=mode)
-
-
-@dataclass(frozen=True)
-class SegmenterConfig:
-    """How a Segmenter runs: the seam where run settings are added as fields.
-
-    crf           the CRF settings (mode `none` is the forest's argmax)
-    check_camera  a model trained before heights: refuse frames that do not come from the
-                  model's camera (size, focal length); off where frames of other sizes are
-                  expected (the worker's tests). Height models take any camera.
-    stride        forest walked at every stride-th pixel of every stride-th row, the rest
-                  upsampled by height (1 = every pixel); None: from each frame's mount, the
-                  grid `forest.predict.grid_stride` spaces GRID_SPACING_MM apart on the floor
-    mount         the camera's mount, for frames labelled without one of their own (a
-                  height model needs one or the other)
-    adaptive      on a grid (stride > 1), levels of coarser grids walked first: each finer
-                  grid is walked only where the coarser one does not settle its pixels
-                  (`forest.predict.predict_proba`); 0 walks every grid pixel
-    early_exit    a walked pixel stops walking trees once the average of its first two (or
-                  more) gives one class at least this posterior; None walks every tree
-    min_head_cm2  after the CRF (realtime or exact), blobs labelled head smaller than this
-                  on the surface take their border's label (`islands.relabel_islands`);
-                  0 keeps them
-    min_furniture_cm2  the same for blobs of chair, storage and table
-                  (`islands.FURNITURE_ISLANDS`); 0 keeps them
-    min_plant_cm2  the same for blobs of plant; 0 keeps them
-    satellite_head_cm2  after the CRF, head blobs smaller than this whose centre lies
-                  within SATELLITE_RADIUS_CM of a larger head blob's take their
-                  border's label; 0 keeps them
-    fill_holes_cm2  a height model first fills each hole without depth up to this size
-                  that lies inside one surface with that surface's depth
-                  (`holes.fill_holes`), so that the hole is labelled with it; 0 fills none
-    downsample    a height model labels every downsample-th pixel of every downsample-th
-                  row of a frame (`resolution.decimate`: forest, CRF and island rules at
-                  that resolution) and brings the labels back to the frame's by depth
-                  (`resolution.upsample_labels`); None: from each frame's mount
-                  (`resolution.auto_downsample`: half where a labelled pixel then
-                  spans at most 14.4 mm of the floor, as for a Kinect v1 at 3.5 m); 1
-                  labels every pixel. Models that read depth work at 1
-    """
-
-    crf: CRFConfig = field(default_factory=_crf_config)
-    check_camera: bool = True
-    stride: int | None = None
-    mount: TopViewMount | None = None
-    adaptive: int = ADAPTIVE_LEVELS
-    early_exit: float | None = EARLY_EXIT
-    min_head_cm2: float = MIN_HEAD_CM2
-    min_furniture_cm2: float = MIN_FURNITURE_CM2
-    min_plant_cm2: float = MIN_PLANT_CM2
-    satellite_head_cm2: float = SATELLITE_HEAD_CM2
-    fill_holes_cm2: float = FILL_HOLES_CM2
-    downsample: int | None = None
-
-    def __post_init__(self) -> None:
-        if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
-            raise TopsegError(f"stride must be >= 1 (or None: from the mount), got {self.stride}")
-        if self.downsample is not None and (
-            isinstance(self.downsample, bool) or not 1 <= self.downsample <= MAX_DOWNSAMPLE
-        ):
-            raise TopsegError(
-                f"downsample must be 1-{MAX_DOWNSAMPLE} (or None: from the mount), "
-                f"got {self.downsample}"
-            )
-        if isinstance(self.adaptive, bool) or self.adaptive < 0:
-            raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
-        if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
-            raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
-        for name in (
-            "min_head_cm2",
-            "min_furniture_cm2",
-            "min_plant_cm2",
-            "satellite_head_cm2",
-            "fill_holes_cm2",
-        ):
-            area = getattr(self, name)
-            if not (np.isfinite(area) and area >= 0):
-                raise TopsegError(f"{name} must be >= 0 cm2, got {area}")
-
-    @property
-    def relabels_islands(self) -> bool:
-        """Whether labels get the island rules after the CRF: some minimum area above 0, and
-        a CRF (never in mode none: that is the forest's argmax, as it is)."""
-        largest = max(
-            self.min_head_cm2, self.min_furniture_cm2, self.min_plant_cm2, self.satellite_head_cm2
-        )
-        return largest > 0 and self.crf.mode != "none"
 
 
 @dataclass(frozen=True)
@@ -238,7 +113,7 @@ class Segmenter:
     ) -> None:
         config = config or SegmenterConfig()
         if crf is not None:
-            crf = _crf_config(crf) if isinstance(crf, str) else crf
+            crf = crf_config(crf) if isinstance(crf, str) else crf
             config = replace(config, crf=crf)
         self.forest = forest
         self.header: dict[str, Any] = dict(header or {})
@@ -389,9 +264,8 @@ class Segmenter:
         for frame_depth in (depth, read_only):
             for factor in factors:
                 for stride in (1, 2):  # every pixel walked, and a lazy grid upsampled
-                    warm = replace(
-                        self.config, stride=stride, downsample=factor, check_camera=False
-                    )
+                    grid = replace(self.config.grid, stride=stride, downsample=factor)
+                    warm = replace(self.config, grid=grid, check_camera=False)
                     plan = self.reader.plan(frame_depth, None, mount, "warm-up frame", warm)
                     frame = FrameState(plan, frame_depth)
                     self.run(frame)

@@ -2,7 +2,7 @@
 rebuild its labels from the forest or the CRF (legacy path, segmenter, worker, segment) share
 this one call, so a new rule argument is added in one place."""
 
-from topseg.core import segmenter as S
+from topseg.core import segmenter_config as S
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
     ISLAND_EDGE_PX,

@@ -99,7 +99,7 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
         decimated_mount,
         upsample_labels,
     )
-    from topseg.core.segmenter import ADAPTIVE_LEVELS
+    from topseg.core.segmenter_config import ADAPTIVE_LEVELS
 
     ds = D.open_dataset(data)
     config = TrainConfig(
@@ -151,6 +151,7 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
     from topseg.core.crf import CRFConfig
     from topseg.core.scoring import dataset_frames, score
     from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter_config import PostConfig
 
     ds = D.open_dataset(data)
     config = TrainConfig(
@@ -178,7 +179,11 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
     segmenter = Segmenter(
         model,
         {},
-        SegmenterConfig(min_head_cm2=0, min_furniture_cm2=0, min_plant_cm2=0, satellite_head_cm2=0),
+        SegmenterConfig(
+            post=PostConfig(
+                min_head_cm2=0, min_furniture_cm2=0, min_plant_cm2=0, satellite_head_cm2=0
+            )
+        ),
         crf=CRFConfig(mode="realtime", smoothness=5.0),
     )
     want = score(segmenter, dataset_frames(ds, range(3))).crf.confusion

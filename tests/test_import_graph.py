@@ -1,8 +1,6 @@
-"""The import graph of topseg's own modules: no cycle, counting imports made inside functions
-too (a cycle hidden in a function is still a cycle), and imports at module top.
-
-Imports under `if TYPE_CHECKING:` are for annotations only and are left out.
-"""
+"""The import graph of topseg's own modules has no cycle, counting every import: at module
+top, inside functions (a cycle hidden in a function is still a cycle) and under
+`if TYPE_CHECKING:` (a cycle of annotations still ties two modules together)."""
 
 import ast
 from pathlib import Path
@@ -31,13 +29,6 @@ def module_files() -> dict[str, Path]:
     return out
 
 
-def _type_checking_only(node: ast.If) -> bool:
-    test = node.test
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
-    )
-
-
 def imports_of(path: Path, modules: dict[str, Path], name: str) -> list[tuple[str, bool]]:
     """(imported topseg module, made inside a function) for every import in `path`."""
     tree = ast.parse(path.read_text(), str(path))
@@ -51,10 +42,6 @@ def imports_of(path: Path, modules: dict[str, Path], name: str) -> list[tuple[st
         return mod or None
 
     def visit(node: ast.AST, in_function: bool) -> None:
-        if isinstance(node, ast.If) and _type_checking_only(node):
-            for child in node.orelse:
-                visit(child, in_function)
-            return
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if (t := target(alias.name)) is not None:

@@ -9,13 +9,18 @@ import numpy as np
 import pytest
 
 from topseg.core import forest, metrics
+from topseg.core.crf import CRFConfig
 from topseg.core.errors import TopsegError
+from topseg.core.segmenter_config import SegmenterConfig
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.drivers import synthetic
 from topseg.services.batch.pipeline import run_pipeline, summary
 from topseg.services.live.worker import load_segmenter
 
 N = 8
+
+#: the forest's argmax, no CRF
+NO_CRF = SegmenterConfig(crf=CRFConfig(mode="none"))
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +48,7 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
     recording, model_path, tmp_path
 ):
     rrd = tmp_path / "out.rrd"
-    figures = run_pipeline(f"replay:{recording}", model_path, None, 10.0, "none", rrd, True)
+    figures = run_pipeline(f"replay:{recording}", model_path, None, 10.0, NO_CRF, rrd, True)
     assert figures["exit_codes"] == {"worker": 0, "viewer": 0, "driver": 0}
     assert figures["frames_sent"] == figures["frames_labelled"] == figures["frames_scored"] == N
     assert 0 < figures["latency_p50_ms"] <= figures["latency_p99_ms"]
@@ -56,7 +61,7 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
     driver_log = (Path(figures["logs"]) / "driver.log").read_text()
     assert f"frame {N - 1} labelled" in driver_log
 
-    segmenter = load_segmenter(str(model_path), "none")
+    segmenter = load_segmenter(str(model_path), NO_CRF)
     want = metrics.ConfusionAccumulator()
     with synthetic.open("seed=9", synthetic.SourceOptions(realtime=False)) as src:
         for i, frame in zip(range(N), src.frames(), strict=False):
@@ -68,7 +73,7 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
 
 
 def test_live_synthetic_source_runs_for_the_duration(model_path, tmp_path):
-    figures = run_pipeline("synthetic:seed=4", model_path, 2.0, 15.0, "realtime", None, False)
+    figures = run_pipeline("synthetic:seed=4", model_path, 2.0, 15.0, None, None, False)
     assert figures["exit_codes"] == {"worker": 0, "driver": 0}
     assert 0 < figures["frames_labelled"] <= figures["frames_sent"]
     assert figures["frames_scored"] > 0
@@ -76,7 +81,7 @@ def test_live_synthetic_source_runs_for_the_duration(model_path, tmp_path):
 
 def test_missing_model_is_a_clear_error(tmp_path):
     with pytest.raises(TopsegError, match="does not exist"):
-        run_pipeline("synthetic", tmp_path / "none.npz", 1.0, None, "none", None, False)
+        run_pipeline("synthetic", tmp_path / "none.npz", 1.0, None, NO_CRF, None, False)
 
 
 def test_bench_pipeline_prints_the_figures_as_json(model_path):
@@ -93,7 +98,7 @@ def test_bench_pipeline_prints_the_figures_as_json(model_path):
 @pytest.mark.slow
 def test_one_worker_labels_two_cameras(recording, model_path):
     figures = run_pipeline(
-        f"replay:{recording}", model_path, None, 10.0, "none", None, True, cameras=2
+        f"replay:{recording}", model_path, None, 10.0, NO_CRF, None, True, cameras=2
     )
     assert figures["exit_codes"] == {"worker": 0, "driver-cam0": 0, "driver-cam1": 0}
     assert figures["cameras"] == 2

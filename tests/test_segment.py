@@ -14,7 +14,7 @@ from topseg.core.forest.inputs import header_fields, model_input, trained_for
 from topseg.core.forest.predict import grid_stride
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import recording, wire
-from topseg.core.segmenter import ADAPTIVE_LEVELS
+from topseg.core.segmenter_config import ADAPTIVE_LEVELS
 from topseg.core.synth import procedural
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from segmenter_rules import relabel_as_the_segmenter
 
-from topseg.core import bundled_model, crf, forest
+from topseg.core import bundled_model, crf, forest, segmenter_config
 from topseg.core import labels as L
 from topseg.core import segmenter as S
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
@@ -17,7 +17,14 @@ from topseg.core.formats import recording, wire
 from topseg.core.holes import fill_holes
 from topseg.core.islands import FURNITURE_COUNTED
 from topseg.core.scoring import score
-from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT, Segmenter, SegmenterConfig
+from topseg.core.segmenter import Segmenter, SegmenterConfig
+from topseg.core.segmenter_config import (
+    ADAPTIVE_LEVELS,
+    EARLY_EXIT,
+    GridConfig,
+    PostConfig,
+    PreConfig,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = KINECT_V1.scaled_to(40, 30)
@@ -112,7 +119,9 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
 
     k = KINECT_V1.scaled_to(160, 120)
     mount = TopViewMount(k, PAPER_MOUNT.height_mm)
-    seg = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2), crf=mode)
+    seg = Segmenter.from_file(
+        None, SegmenterConfig(mount=mount, grid=GridConfig(stride=2)), crf=mode
+    )
     for depth, _ in demo_frames(2):
         depth = np.ascontiguousarray(depth[::4, ::4])
         got = seg.label(depth)
@@ -296,13 +305,17 @@ def test_a_depth_model_says_when_a_mount_is_not_its_own(legacy):
 
 
 def test_the_adaptive_grid_is_a_config_field_checked_up_front():
-    assert SegmenterConfig().adaptive == ADAPTIVE_LEVELS >= 1
+    assert SegmenterConfig().grid.adaptive == ADAPTIVE_LEVELS >= 1
     with pytest.raises(TopsegError, match="adaptive"):
-        SegmenterConfig(adaptive=-1)
+        SegmenterConfig(grid=GridConfig(adaptive=-1))
     k = KINECT_V1.scaled_to(160, 120)
     mount = TopViewMount(k, PAPER_MOUNT.height_mm)
-    plain = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2, adaptive=0))
-    adaptive = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2, adaptive=1))
+    plain = Segmenter.from_file(
+        None, SegmenterConfig(mount=mount, grid=GridConfig(stride=2, adaptive=0))
+    )
+    adaptive = Segmenter.from_file(
+        None, SegmenterConfig(mount=mount, grid=GridConfig(stride=2, adaptive=1))
+    )
     depth = np.ascontiguousarray(demo_frames(1)[0][0][::4, ::4])
     got, want = adaptive.label(depth), plain.label(depth)
     assert (got.labels == want.labels).mean() > 0.9  # the same scene ...
@@ -310,14 +323,16 @@ def test_the_adaptive_grid_is_a_config_field_checked_up_front():
 
 
 def test_the_early_exit_is_a_config_field_checked_up_front():
-    assert SegmenterConfig().early_exit == EARLY_EXIT
+    assert SegmenterConfig().grid.early_exit == EARLY_EXIT
     for bad in (0.0, -0.5, 1.01):
         with pytest.raises(TopsegError, match="early_exit"):
-            SegmenterConfig(early_exit=bad)
+            SegmenterConfig(grid=GridConfig(early_exit=bad))
     k = KINECT_V1.scaled_to(160, 120)
     mount = TopViewMount(k, PAPER_MOUNT.height_mm)
-    every = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2, early_exit=None))
-    early = Segmenter.from_file(None, SegmenterConfig(mount=mount, stride=2))
+    every = Segmenter.from_file(
+        None, SegmenterConfig(mount=mount, grid=GridConfig(stride=2, early_exit=None))
+    )
+    early = Segmenter.from_file(None, SegmenterConfig(mount=mount, grid=GridConfig(stride=2)))
     depth = np.ascontiguousarray(demo_frames(1)[0][0][::4, ::4])
     got, want = early.label(depth), every.label(depth)
     assert (got.labels == want.labels).mean() > 0.97  # the same scene ...
@@ -405,28 +420,29 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
     """`min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`: the CRF's labels, then head,
     furniture and plant blobs under them relabelled with the frame's own focal lengths; 0
     keeps the CRF's labels."""
-    assert SegmenterConfig().min_head_cm2 == S.MIN_HEAD_CM2 > 0
-    assert SegmenterConfig().min_furniture_cm2 == S.MIN_FURNITURE_CM2 > 0
-    assert SegmenterConfig().min_plant_cm2 == S.MIN_PLANT_CM2 > 0
+    assert SegmenterConfig().post.min_head_cm2 == segmenter_config.MIN_HEAD_CM2 > 0
+    assert SegmenterConfig().post.min_furniture_cm2 == segmenter_config.MIN_FURNITURE_CM2 > 0
+    assert SegmenterConfig().post.min_plant_cm2 == segmenter_config.MIN_PLANT_CM2 > 0
     for name in ("min_head_cm2", "min_furniture_cm2", "min_plant_cm2", "satellite_head_cm2"):
         for bad in (-1.0, float("nan"), float("inf")):
             with pytest.raises(TopsegError, match=name):
-                SegmenterConfig(**{name: bad})
+                PostConfig(**{name: bad})
     # at the frame's own resolution, where the rule runs on the labels it returns (at half
     # resolution it runs before they are brought back: tested with the downsample below)
     kept = Segmenter.from_file(
         None,
         SegmenterConfig(
             mount=PAPER_MOUNT,
-            min_head_cm2=0,
-            min_furniture_cm2=0,
-            min_plant_cm2=0,
-            satellite_head_cm2=0,
-            downsample=1,
+            post=PostConfig(
+                min_head_cm2=0, min_furniture_cm2=0, min_plant_cm2=0, satellite_head_cm2=0
+            ),
+            grid=GridConfig(downsample=1),
         ),
     )
     assert not kept.config.relabels_islands
-    cleaned = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1))
+    cleaned = Segmenter.from_file(
+        None, SegmenterConfig(mount=PAPER_MOUNT, grid=GridConfig(downsample=1))
+    )
     k = PAPER_MOUNT.intrinsics
     relabelled = np.zeros(L.NUM_CLASSES, np.int64)
     for depth, _ in demo_frames(6):
@@ -456,14 +472,19 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
 
     depth = demo_frames(1)[0][0]
     auto = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
-    one = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1))
+    one = Segmenter.from_file(
+        None, SegmenterConfig(mount=PAPER_MOUNT, grid=GridConfig(downsample=1))
+    )
     got = auto.label(depth)
     assert got.downsample == 2 and got.labels.shape == depth.shape
     depth, filled = fill_holes(depth, PAPER_MOUNT.intrinsics)  # first, at the frame's size
     assert got.counts["filled_holes"] == filled > 0
     small = decimate(depth, 2)
     unfilled = Segmenter.from_file(
-        None, SegmenterConfig(mount=PAPER_MOUNT, downsample=1, fill_holes_cm2=0.0)
+        None,
+        SegmenterConfig(
+            mount=PAPER_MOUNT, grid=GridConfig(downsample=1), pre=PreConfig(fill_holes_cm2=0.0)
+        ),
     )  # the frame's holes were filled at its own size, before decimating
     want = unfilled.label(small, mount=decimated_mount(PAPER_MOUNT, 2))
     np.testing.assert_array_equal(got.labels, upsample_labels(depth, want.labels, small, 2))
@@ -477,16 +498,16 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
     # every pixel at the frame's own resolution when asked, or when the model reads depth
     assert one.label(depth).downsample == 1 == one.plan(depth).downsample
     assert legacy.plan(depth).downsample == 1
-    assert Segmenter(legacy.forest, legacy.header, SegmenterConfig(downsample=2)).label(
-        depth
-    ).labels.shape == (480, 640)
+    assert Segmenter(
+        legacy.forest, legacy.header, SegmenterConfig(grid=GridConfig(downsample=2))
+    ).label(depth).labels.shape == (480, 640)
 
 
 def test_the_downsample_is_a_config_field_checked_up_front():
-    assert SegmenterConfig().downsample is None  # from each frame's mount
+    assert SegmenterConfig().grid.downsample is None  # from each frame's mount
     for bad in (0, 5, True, -1):
         with pytest.raises(TopsegError, match="downsample"):
-            SegmenterConfig(downsample=bad)
+            SegmenterConfig(grid=GridConfig(downsample=bad))
     seg = Segmenter.from_file(None, SegmenterConfig(mount=PAPER_MOUNT))
     with pytest.raises(TopsegError, match=r"f9: .*uint16"):
         seg.label(np.zeros((480, 640), np.float32), name="f9")

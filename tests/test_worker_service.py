@@ -158,10 +158,14 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
         "filled_holes": 0,  # a model that reads depth: no holes filled
     }  # fmt: skip
     assert last["role"] == "worker" and last["model_id"] == model_path.name
+    # the worker's own steps, the Segmenter's two headline figures and each of its stages
+    stages = {f"stage_{name}" for name in ("plan", "pre", "model_input", "forest", "crf", "post")}
     assert set(last["timings_ms"]) == {
-        "receive", "mount", "forest", "crf", "publish", "total", "latency"
+        "receive", "mount", "forest", "crf", "publish", "total", "latency", *stages
     }  # fmt: skip
     assert last["timings_ms"]["total"] >= last["timings_ms"]["forest"] > 0
+    timings = last["timings_ms"]
+    assert timings["stage_forest"] <= timings["forest"]  # the forest's share holds its stage
     assert last["seq"] == 7 and last["fps"] > 0
 
 

@@ -11,7 +11,6 @@ of all samples that reach them; node ids are assigned level by level, children i
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -19,10 +18,8 @@ import numpy as np
 from topseg.core import labels as label_table
 from topseg.core.forest.criterion import xlogx_table
 from topseg.core.forest.splitter import _best_split, _node_state, _partition
+from topseg.core.forest.train_config import TrainConfig
 from topseg.core.forest.tree import Tree
-
-if TYPE_CHECKING:
-    from topseg.core.forest.train import TrainConfig
 
 
 @numba.njit(cache=True, parallel=True)

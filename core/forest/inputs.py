@@ -42,11 +42,11 @@ from topseg.core.camera import check_depth
 from topseg.core.denoise import denoise
 from topseg.core.fattening import unfatten
 from topseg.core.forest.edge_gaps import fill_edge_gaps
+from topseg.core.forest.feature_config import FeatureConfig
 from topseg.core.sensors import depth_sigma_mm
 
 if TYPE_CHECKING:
     from topseg.core.camera import TopViewMount
-    from topseg.core.forest.features import FeatureConfig
 
 #: the header value of models that read heights (`model_input`)
 HEIGHT_INPUT = "height"

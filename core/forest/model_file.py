@@ -37,7 +37,7 @@ import numpy as np
 from topseg.core import labels
 from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
-from topseg.core.forest.features import OFF_IMAGE_READS
+from topseg.core.forest.feature_config import OFF_IMAGE_READS
 from topseg.core.forest.model_header import model_camera, model_features
 from topseg.core.forest.tree import ARRAY_DTYPES, Forest
 

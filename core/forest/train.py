@@ -36,7 +36,6 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -44,82 +43,12 @@ import numpy as np
 from topseg.core import labels as label_table
 from topseg.core.errors import TopsegError
 from topseg.core.forest.builder import grow_tree
-from topseg.core.forest.features import FeatureConfig, extract_features, sample_offsets
+from topseg.core.forest.features import extract_features, sample_offsets
 from topseg.core.forest.inputs import legacy_input, model_input
+from topseg.core.forest.train_config import TrainConfig
 from topseg.core.forest.tree import Forest, Tree
 
 log = logging.getLogger(__name__)
-
-SPLITS = ("linear", "axis")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Forest training parameters; the defaults are the paper's (Sharma et al. 2016, V).
-
-    pixels_per_frame: 2000 keeps the paper's full configuration (F = 1600 frames per tree)
-        at 3.2 M samples and 1.9 GB of features per tree, while giving each of the ~5
-        classes of a frame a few hundred samples.
-    max_split_samples: samples used to choose a split at a node; larger nodes are
-        subsampled for the choice (all of their samples are still partitioned). Only the
-        top levels of a large tree are affected, and 20 000 samples estimate a gain well.
-    min_gain: a split must gain more than this many bits.
-    """
-
-    n_trees: int = 5
-    max_depth: int = 19
-    frames_per_tree: int = 1600
-    pixels_per_frame: int = 2000
-    n_candidates: int = 100
-    n_thresholds: int = 100
-    split: str = "linear"
-    linear_k: int = 2
-    min_samples_split: int = 20
-    min_gain: float = 0.0
-    max_split_samples: int = 20000
-    features: FeatureConfig = field(default_factory=FeatureConfig)
-
-    def __post_init__(self) -> None:
-        if self.split not in SPLITS:
-            raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
-        for name in (
-            "n_trees",
-            "frames_per_tree",
-            "pixels_per_frame",
-            "n_candidates",
-            "n_thresholds",
-            "linear_k",
-        ):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not 0 <= self.max_depth <= 30:
-            raise ValueError(f"max_depth must be in [0, 30], got {self.max_depth}")
-        if self.min_samples_split < 2:
-            raise ValueError(f"min_samples_split must be >= 2, got {self.min_samples_split}")
-        if self.max_split_samples < 2:
-            raise ValueError(f"max_split_samples must be >= 2, got {self.max_split_samples}")
-        if self.min_gain < 0:
-            raise ValueError(f"min_gain must be >= 0, got {self.min_gain}")
-
-    @property
-    def features_per_node(self) -> int:
-        """k: pool features one split combines (1 for axis-aligned splits)."""
-        return self.linear_k if self.split == "linear" else 1
-
-    def to_dict(self) -> dict[str, Any]:
-        """The config as a plain dict (as model headers hold it; `from_dict` reads it back)."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str = "train config") -> TrainConfig:
-        """The config in `d` (`to_dict`'s form, as model headers hold it); a key missing takes
-        its default, an unknown or mistyped one is a ConfigError naming it."""
-        from topseg.core.config import from_dict
-
-        return from_dict(cls, d, source)
-
-
-# --- sampling ------------------------------------------------------------------------------
 
 
 def balanced_counts(class_counts: np.ndarray, budget: int) -> np.ndarray:

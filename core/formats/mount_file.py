@@ -15,14 +15,23 @@ from __future__ import annotations
 
 import json
 import os
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from topseg.core.atomic import atomic_write
 from topseg.core.camera import TopViewMount
 from topseg.core.errors import ConfigError
 
-if TYPE_CHECKING:
-    from topseg.core.calibration import MountEstimate
+
+class MountEstimate(Protocol):
+    """A fitted mount as a mount file stores it (`calibration.MountEstimate` is one)."""
+
+    mount: TopViewMount
+    made_at: str
+
+    def fit_dict(self) -> dict:
+        """The fit's figures as a plain dict (the file's `fit` section)."""
+        ...
+
 
 #: the mount file format this code writes and the newest it reads
 MOUNT_FILE_VERSION = 1

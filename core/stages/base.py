@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
+from topseg.core.segmenter_config import SegmenterConfig
+
 if TYPE_CHECKING:
     from topseg.core.forest.tree import Forest
-    from topseg.core.segmenter import SegmenterConfig
     from topseg.core.stages.plan import FrameState
     from topseg.core.stages.readers import ModelReader
 

@@ -45,8 +45,8 @@ class ForestStage(Stage):
             stride=stride,
             summary=self._summary,
             lazy=lazy,
-            adaptive=config.adaptive,
-            early_exit=config.early_exit,
+            adaptive=config.grid.adaptive,
+            early_exit=config.grid.early_exit,
         )
 
     def run(self, frame: FrameState) -> None:

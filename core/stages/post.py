@@ -41,9 +41,9 @@ class PostStage(Stage):
 
     def _relabel_islands(self, frame: FrameState) -> tuple[int, int, int]:
         """(small head blobs, small furniture and plant blobs, satellite heads) relabelled."""
-        cfg = self.model.config
-        if not cfg.relabels_islands:
+        if not self.model.config.relabels_islands:
             return 0, 0, 0
+        cfg = self.model.config.post
         areas = island_areas(cfg.min_head_cm2, cfg.min_furniture_cm2, cfg.min_plant_cm2)
         small, satellites = relabel_islands(
             frame.labels, frame.depth, frame.plan.island_intrinsics, areas,

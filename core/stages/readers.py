@@ -21,12 +21,12 @@ from topseg.core.fattening import thinning_of
 from topseg.core.forest.inputs import ModelInput, height_input, legacy_input
 from topseg.core.forest.predict import grid_stride
 from topseg.core.resolution import auto_downsample, decimated_mount
+from topseg.core.segmenter_config import SegmenterConfig
 from topseg.core.stages.plan import FramePlan
 
 if TYPE_CHECKING:
     from topseg.core.crf import CRFConfig
     from topseg.core.forest.features import FeatureConfig
-    from topseg.core.segmenter import SegmenterConfig
 
 #: slack on the trained height range and tilt before a camera counts as outside them
 HEIGHT_SLACK_MM = 100.0
@@ -110,18 +110,19 @@ class HeightReader:
         """The plan of a frame read through its mount (see the module)."""
         given = self.frame_mount(np.shape(depth), intrinsics, mount, name, config)
         full = replace(given, radial=False) if given.radial else given
-        factor = config.downsample if config.downsample is not None else auto_downsample(full)
+        grid = config.grid
+        factor = grid.downsample if grid.downsample is not None else auto_downsample(full)
         work = full if factor == 1 else decimated_mount(full, factor)
         return FramePlan(
             name=name,
             range_mount=given if given.radial else None,
             mount=full,
-            fill_holes_cm2=config.fill_holes_cm2,
+            fill_holes_cm2=config.pre.fill_holes_cm2,
             downsample=factor,
             work_mount=work,
             thinning=thinning_of(work),
             smoothing=passes(work),
-            stride=config.stride if config.stride is not None else grid_stride(work),
+            stride=grid.stride if grid.stride is not None else grid_stride(work),
             crf=noisy_crf(config.crf, work),
             island_intrinsics=work.intrinsics,
         )
@@ -205,7 +206,7 @@ class DepthReader:
             work_mount=None,
             thinning=(0, 0.0),
             smoothing=0,
-            stride=config.stride if config.stride is not None else 1,
+            stride=config.grid.stride if config.grid.stride is not None else 1,
             crf=config.crf,
             island_intrinsics=intrinsics if intrinsics is not None else self.camera,
         )

@@ -16,9 +16,11 @@ import argparse
 import time
 from pathlib import Path
 
+from topseg.core.crf import CRFConfig
+from topseg.core.segmenter_config import SegmenterConfig
 from topseg.services.cli.options import finite, int_range, non_negative_int
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -89,7 +91,7 @@ def run_live(args: argparse.Namespace) -> int:
         model,
         duration_s=None,
         fps=args.fps,
-        crf=args.crf,
+        config=SegmenterConfig(crf=CRFConfig(mode=args.crf)),
         rrd=args.rrd,
         lossless=args.lossless,
         web=args.web,

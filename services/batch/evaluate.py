@@ -14,14 +14,10 @@ import json
 from pathlib import Path
 
 from topseg.services.cli.options import (
-    add_crf_arguments,
-    add_grid_arguments,
-    add_island_arguments,
-    crf_config,
-    grid_config,
-    island_config,
+    add_segmenter_arguments,
     non_negative_int,
     positive_int,
+    segmenter_config,
 )
 
 
@@ -31,9 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
-    add_crf_arguments(parser)
-    add_grid_arguments(parser)
-    add_island_arguments(parser)
+    add_segmenter_arguments(parser)
     parser.add_argument(
         "--frames", type=positive_int, default=None, help="score only the first N frames"
     )
@@ -51,10 +45,9 @@ def run(args: argparse.Namespace) -> int:
     from topseg.core import metrics
     from topseg.core.formats.dataset import open_dataset
     from topseg.core.scoring import dataset_frames, score
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter import Segmenter
 
-    config = SegmenterConfig(**grid_config(args), **island_config(args))
-    segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
+    segmenter = Segmenter.from_file(args.model, segmenter_config(args))
     ds = open_dataset(args.data)
     if args.json_out:  # before the scoring: a folder we cannot write costs no work
         _check_writable(args.json_out.parent, args.json_out)

@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core.errors import TopsegError
-from topseg.core.segmenter import EARLY_EXIT
+from topseg.core.segmenter_config import SegmenterConfig
+from topseg.services.cli.options import setting_argv
 
 CELL = "pipeline"
 CAMERA = "cam0"
@@ -209,19 +210,14 @@ def run_pipeline(
     model: Path | None,
     duration_s: float | None,
     fps: float | None,
-    crf: str = "realtime",
+    config: SegmenterConfig | None = None,
     rrd: Path | None = None,
     lossless: bool = False,
     *,
     web: bool = False,
     port: int | None = None,
     logs_dir: Path | None = None,
-    stride: int | None = None,
-    adaptive: int | None = None,
     cameras: int = 1,
-    downsample: int | None = None,
-    early_exit: float | None = EARLY_EXIT,
-    islands: dict | None = None,
 ) -> dict:
     """Run driver, worker (and viewer when `rrd` is given) and return the figures.
 
@@ -229,12 +225,9 @@ def run_pipeline(
     Returns {"fps", "latency_p50_ms", "latency_p99_ms", "worker_<stage>_p50_ms" and "_p99_ms"
     (the worker's own forest, crf and total: receive to publish, from its stats),
     "frames_sent", "frames_labelled", "frames_scored", "scores" (ConfusionAccumulator.scores(),
-    None without truth), "confusion", "exit_codes", "logs"}. `downsample` and `stride` are
-    the worker's (None: auto), `adaptive` its adaptive grid's levels (None: its default), `early_exit` its trees'
-    early exit (`SegmenterConfig.early_exit`; None: off), `islands` its blob rules
-    (`SegmenterConfig` fields min_head_cm2, min_furniture_cm2, min_plant_cm2,
-    satellite_head_cm2, as
-    `cli_types.island_config` gives them; None: the defaults). `cameras` > 1 runs that many
+    None without truth), "confusion", "exit_codes", "logs"}. `config` is the worker's
+    Segmenter configuration (None: the defaults), given to it as options
+    (`options.setting_argv`). `cameras` > 1 runs that many
     drivers of the same source (cameras cam0, cam1, ...; each at `fps`) into the one
     worker; the figures are over all of them. `web` adds a second viewer serving Rerun's web
     viewer. `duration_s` None runs a finite source to its end (and a live one until
@@ -281,14 +274,8 @@ def run_pipeline(
     kids = _Children(logs)
     codes: dict[str, int | None] = {}
     try:
-        worker = ["worker", "--model", str(model), "--crf", crf, "--cameras"]
-        worker += [f"{CELL}/{name}" for name in names]
-        worker += ["--downsample", "auto" if downsample is None else str(downsample)]
-        worker += ["--stride", "auto" if stride is None else str(stride)]
-        worker += [] if adaptive is None else ["--adaptive", str(adaptive)]
-        worker += ["--early-exit", "off" if early_exit is None else str(early_exit)]
-        for name, value in (islands or {}).items():  # e.g. min_head_cm2 -> --min-head-cm2
-            worker += ["--" + name.replace("_", "-"), str(value)]
+        worker = ["worker", "--model", str(model), *setting_argv(config or SegmenterConfig())]
+        worker += ["--cameras", *(f"{CELL}/{name}" for name in names)]
         kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
             kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))

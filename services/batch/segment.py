@@ -37,12 +37,8 @@ import threading
 from pathlib import Path
 
 from topseg.services.cli.options import (
-    add_crf_arguments,
-    add_grid_arguments,
-    add_island_arguments,
-    crf_config,
-    grid_config,
-    island_config,
+    add_segmenter_arguments,
+    segmenter_config,
 )
 from topseg.services.runtime.lifecycle import stop_between_steps
 
@@ -64,9 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
     )
-    add_crf_arguments(parser)
-    add_grid_arguments(parser)
-    add_island_arguments(parser)
+    add_segmenter_arguments(parser)
     parser.add_argument(
         "--mount",
         type=Path,
@@ -116,10 +110,9 @@ def save_png(path: Path, array) -> None:
 def run(args: argparse.Namespace) -> int:
     """Segment every input; a damaged one is skipped with one line, and exit 2 at the end."""
     from topseg.core.errors import TopsegError
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter import Segmenter
 
-    config = SegmenterConfig(**grid_config(args), **island_config(args))
-    segmenter = Segmenter.from_file(args.model, config, crf=crf_config(args))
+    segmenter = Segmenter.from_file(args.model, segmenter_config(args))
     given = None
     if args.mount is not None and segmenter.reads_height:
         from topseg.core.calibration import read_mount_file
@@ -158,19 +151,19 @@ def run(args: argparse.Namespace) -> int:
             f"floor skipped: {100 * run_.floor_share / run_.count:.1f} % of the pixels with "
             "depth went to background without the forest"
         )
-    if segmenter.reads_height and segmenter.config.fill_holes_cm2 > 0 and run_.count:
+    if segmenter.reads_height and segmenter.config.pre.fill_holes_cm2 > 0 and run_.count:
         print(
             f"holes filled: {run_.counts['filled_holes']} holes without depth inside one surface (under "
-            f"{segmenter.config.fill_holes_cm2:g} cm2) took that surface's depth and label in "
+            f"{segmenter.config.pre.fill_holes_cm2:g} cm2) took that surface's depth and label in "
             f"{run_.count} frames"
         )
     if segmenter.config.relabels_islands and run_.count:
         cfg = segmenter.config
         print(
             f"blobs relabelled as too small: {run_.counts['small_heads']} head (under "
-            f"{cfg.min_head_cm2:g} cm2), {run_.counts['small_furniture']} furniture (under "
-            f"{cfg.min_furniture_cm2:g} cm2, plants {cfg.min_plant_cm2:g}); head blobs beside a larger head: "
-            f"{run_.counts['satellite_heads']} (under {cfg.satellite_head_cm2:g} cm2) in {run_.count} "
+            f"{cfg.post.min_head_cm2:g} cm2), {run_.counts['small_furniture']} furniture (under "
+            f"{cfg.post.min_furniture_cm2:g} cm2, plants {cfg.post.min_plant_cm2:g}); head blobs beside a larger head: "
+            f"{run_.counts['satellite_heads']} (under {cfg.post.satellite_head_cm2:g} cm2) in {run_.count} "
             "frames"
         )
     if run_.refused:

@@ -23,64 +23,28 @@ import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from topseg.services.cli.options import finite, int_range, non_negative_int, positive_int
-
-if TYPE_CHECKING:
-    from topseg.core.forest.train import TrainConfig
+from topseg.core.config import options_of
+from topseg.core.forest.train_config import TrainConfig
+from topseg.services.cli.options import (
+    add_setting_arguments,
+    finite,
+    non_negative_int,
+    positive_int,
+    settings_from_args,
+)
 
 log = logging.getLogger("topseg.train")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg train`'s options; `TrainJob.from_args` turns them into a job."""
-    from topseg.core.forest.features import OFF_IMAGE_READS, FeatureConfig
-
     parser.add_argument(
         "--data", required=True, type=Path, help="dataset written by `topseg datagen`"
     )
     parser.add_argument("--out", required=True, type=Path, help="model file to write")
     g = parser.add_argument_group("forest (defaults: the paper's)")
-    g.add_argument("--trees", type=positive_int, default=5)
-    g.add_argument("--depth", type=int_range(0, 30), default=19, help="maximum tree depth")
-    g.add_argument(
-        "--features", type=int_range(1, 1_000_000), default=300, help="feature pool per tree (PC)"
-    )
-    g.add_argument(
-        "--responses", type=positive_int, default=100, help="candidate responses per node (R)"
-    )
-    g.add_argument(
-        "--thresholds", type=positive_int, default=100, help="thresholds per candidate (K)"
-    )
-    g.add_argument(
-        "--frames-per-tree", type=positive_int, default=1600, help="bagged frames per tree (F)"
-    )
-    g.add_argument("--pixels-per-frame", type=positive_int, default=2000)
-    g.add_argument("--split", choices=("linear", "axis"), default="linear")
-    g.add_argument(
-        "--absolute-fraction",
-        type=finite(0, 1),
-        default=0.0,
-        help="share of the pool comparing a probe with a fixed depth (not in the paper; 0)",
-    )
-    g.add_argument(
-        "--off-image",
-        choices=OFF_IMAGE_READS,
-        default=FeatureConfig.off_image,  # the training default lives in one place
-        help="what a probe off the image reads: the nearest pixel on the image's edge "
-        "(default; a person cut by the edge reads as going on), or the background "
-        "constant (models before the twentieth session)",
-    )
-    g.add_argument(
-        "--edge-gaps",
-        choices=OFF_IMAGE_READS,
-        default=FeatureConfig.edge_gaps,
-        help="what a probe on a no-depth region touching the image's edge reads (a "
-        "time-of-flight camera's ring, a stereo camera's invalid band): the surface nearest "
-        "to it (default; as if off the image), or the background constant like any pixel "
-        "without depth (models before the twenty-first session)",
-    )
+    add_setting_arguments(g, TrainConfig)
     g.add_argument("--seed", type=non_negative_int, default=0)
     g.add_argument(
         "--validation",
@@ -112,19 +76,12 @@ def split_frames(n: int, fraction: float, seed: int) -> tuple[list[int], list[in
 
 
 #: TrainConfig field -> the `topseg train` option that sets it (for error messages)
-OPTION_OF = {
-    "n_trees": "--trees",
-    "max_depth": "--depth",
-    "frames_per_tree": "--frames-per-tree",
-    "pixels_per_frame": "--pixels-per-frame",
-    "n_candidates": "--responses",
-    "n_thresholds": "--thresholds",
-    "split": "--split",
-    "n_features": "--features",
-    "absolute_fraction": "--absolute-fraction",
-    "off_image": "--off-image",
-    "edge_gaps": "--edge-gaps",
-}
+def option_of(field_name: str) -> str:
+    """The `topseg train` option of a `TrainConfig` (or nested) field, else the name."""
+    for _, f, option in options_of(TrainConfig):
+        if f.name == field_name:
+            return f"--{option.flag}"
+    return field_name
 
 
 @dataclass(frozen=True)
@@ -170,28 +127,12 @@ class TrainJob:
         """The job `topseg train`'s command line describes (see `add_arguments`); a bad
         value is a ConfigError naming its option."""
         from topseg.core.errors import ConfigError
-        from topseg.core.forest.features import FeatureConfig
-        from topseg.core.forest.train import TrainConfig
 
         try:
-            config = TrainConfig(
-                n_trees=args.trees,
-                max_depth=args.depth,
-                frames_per_tree=args.frames_per_tree,
-                pixels_per_frame=args.pixels_per_frame,
-                n_candidates=args.responses,
-                n_thresholds=args.thresholds,
-                split=args.split,
-                features=FeatureConfig(
-                    n_features=args.features,
-                    absolute_fraction=args.absolute_fraction,
-                    off_image=args.off_image,
-                    edge_gaps=args.edge_gaps,
-                ),
-            )
+            config = settings_from_args(args, TrainConfig())
         except ValueError as exc:
             field, _, rest = str(exc).partition(" ")
-            raise ConfigError(f"{OPTION_OF.get(field, field)} {rest}") from None
+            raise ConfigError(f"{option_of(field)} {rest}") from None
         return cls(
             data=args.data,
             out=args.out,

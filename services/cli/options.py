@@ -1,15 +1,26 @@
-"""Argparse `type=` helpers that refuse a bad number up front: finite, in range, positive.
+"""Argparse options: `type=` helpers that refuse a bad number up front (finite, in range,
+positive), and the Segmenter's settings as options generated from `SegmenterConfig`.
 
 `topseg`'s subcommand parsers turn the ArgumentTypeError into one line naming the option
 (`cli.OneLineParser`), e.g. `topseg driver: error: argument --fps: must be in [0.1, 1000],
 got 1e-300`, exit 2: never a crash or a day-long sleep later.
+
+Every setting of the Segmenter (`SegmenterConfig`) and of training (`TrainConfig`) is declared
+once, on its field (`core.config.setting`: flag, bounds, help); `add_setting_arguments` makes
+the options (and so the services' TOML keys, `config_file`), `settings_from_args` reads them
+back and `setting_argv` writes a configuration as the flags that give it.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import MISSING, replace
+from typing import Any, TypeVar
+
+from topseg.core.config import Option, options_of, with_options
+from topseg.core.segmenter_config import SegmenterConfig
 
 
 def _fmt(x: float) -> str:
@@ -58,29 +69,6 @@ positive_int = int_range(1)
 non_negative_int = int_range(0)
 
 
-def stride(text: str) -> int | None:
-    """A `type=` for the forest's `--stride`: `auto` (None: from each frame's mount) or >= 1."""
-    if text == "auto":
-        return None
-    return positive_int(text)
-
-
-stride.__name__ = "stride"
-
-
-def downsample(text: str) -> int | None:
-    """A `type=` for the Segmenter's `--downsample`: `auto` (None: from each frame's mount)
-    or a factor 1-MAX_DOWNSAMPLE."""
-    from topseg.core.resolution import MAX_DOWNSAMPLE  # here: --help compiles no numba
-
-    if text == "auto":
-        return None
-    return int_range(1, MAX_DOWNSAMPLE)(text)
-
-
-downsample.__name__ = "downsample"
-
-
 def early_exit(text: str) -> float | None:
     """A `type=` for the forest's `--early-exit`: `off` (None: every tree) or a posterior in
     (0, 1]."""
@@ -95,170 +83,99 @@ def early_exit(text: str) -> float | None:
 early_exit.__name__ = "early exit"
 
 
-def add_grid_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--downsample auto|N`, `--stride auto|N`, `--adaptive N` and `--early-exit P|off`: the
-    resolution the Segmenter works at and where the forest walks (`SegmenterConfig.downsample`,
-    `.stride`, `.adaptive` and `.early_exit`; `grid_config` reads them back)."""
-    from topseg.core.segmenter import ADAPTIVE_LEVELS, EARLY_EXIT
+T = TypeVar("T")
 
-    parser.add_argument(
-        "--downsample",
-        type=downsample,
-        default=None,
-        metavar="auto|N",
-        help="label every N-th pixel of every N-th row (forest, CRF and blob rules) and give "
-        "each pixel the label of its nearest neighbour in depth among them; auto (default) "
-        "takes half where a labelled pixel then spans at most 14.4 mm of the floor (a Kinect v1 "
-        "up to 4.1 m; 1 for coarser cameras); 1: the frame's own resolution",
-    )
-    parser.add_argument(
-        "--stride",
-        type=stride,
-        default=None,
-        metavar="auto|N",
-        help="walk the forest at every N-th pixel of every N-th row and upsample the rest by "
-        "height; auto (default) spaces walked pixels ~25 mm apart on the floor; 1: every pixel",
-    )
-    parser.add_argument(
-        "--adaptive",
-        type=non_negative_int,
-        default=ADAPTIVE_LEVELS,
-        metavar="N",
-        help="on a grid, walk N coarser grids first and the finer ones only where the coarser "
-        "one is unsure or crosses a height edge; 0 walks every grid pixel (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--early-exit",
-        type=early_exit,
-        default=EARLY_EXIT,
-        metavar="P|off",
-        help="a pixel stops walking trees once its first two (or more) give one class an "
-        "average posterior >= P; off walks every tree (default: %(default)s)",
-    )
+#: the groups of `SegmenterConfig` a command can take as options, in order
+SEGMENTER_GROUPS = ("pre", "grid", "crf", "post")
 
 
-def grid_config(args: argparse.Namespace) -> dict:
-    """The `SegmenterConfig` fields of `add_grid_arguments`' options."""
-    return {
-        "downsample": args.downsample,
-        "stride": args.stride,
-        "adaptive": args.adaptive,
-        "early_exit": args.early_exit,
-    }
+def auto_int(lo: int, hi: int | None) -> Callable[[str], int | None]:
+    """A `type=` for `auto` (None) or an integer in [lo, hi]."""
+    number = int_range(lo, hi)
+
+    def parse(text: str) -> int | None:
+        return None if text == "auto" else number(text)
+
+    parse.__name__ = "auto or integer"
+    return parse
 
 
-def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--crf MODE`, `--smoothness S` and `--noisy-smoothness S`: how the CRF smooths the
-    forest's posteriors (`SegmenterConfig.crf`; `crf_config` reads them back)."""
-    from topseg.core.crf.energy import (
-        DEFAULT_SMOOTHNESS,
-        MAX_SMOOTHNESS,
-        MODES,
-        NOISY_SMOOTHNESS,
-    )
-
-    parser.add_argument(
-        "--crf",
-        choices=MODES,
-        default="realtime",
-        help="CRF smoothing after the forest (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--smoothness",
-        type=finite(0, MAX_SMOOTHNESS),
-        default=DEFAULT_SMOOTHNESS,
-        metavar="S",
-        help="the CRF's Potts weight per cut edge, in nats (default: %(default)s; 3 scores "
-        "~0.015 avg F1 higher and costs the realtime CRF ~2 ms a frame: docs/crf.md)",
-    )
-    parser.add_argument(
-        "--noisy-smoothness",
-        type=finite(0, MAX_SMOOTHNESS),
-        default=NOISY_SMOOTHNESS,
-        metavar="S",
-        help="the Potts weight for frames from a noisy camera (20 mm or more of depth noise "
-        "at the floor, a stereo camera at range: the frames topseg smooths), when larger "
-        "than --smoothness (default: %(default)s: docs/crf.md)",
-    )
+def _parser(option: Option) -> dict[str, Any]:
+    """The `add_argument` keywords that parse and check an option of its kind."""
+    lo = -math.inf if option.lo is None else option.lo
+    hi = math.inf if option.hi is None else option.hi
+    if option.kind == "choice":
+        return {"choices": option.choices}
+    if option.kind == "float":
+        return {"type": finite(lo, hi)}
+    int_hi = None if option.hi is None else int(option.hi)
+    if option.kind == "int":
+        return {"type": int_range(int(option.lo or 0), int_hi)}
+    if option.kind == "auto_int":
+        return {"type": auto_int(int(option.lo or 0), int_hi)}
+    if option.kind == "share_or_off":
+        return {"type": early_exit}
+    raise ValueError(f"unknown option kind {option.kind!r}")
 
 
-def add_island_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--min-head-cm2 A`, `--min-furniture-cm2 A`, `--min-plant-cm2 A`: after the CRF, head,
-    furniture and plant blobs smaller than A cm2 take their border's label
-    (`SegmenterConfig.min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`);
-    `--satellite-head-cm2 A`: so do head blobs smaller than A beside a larger head
-    (`satellite_head_cm2`); `--fill-holes-cm2 A`: before labelling, holes up to A cm2 inside
-    one surface take its depth (`fill_holes_cm2`). `island_config` reads them back."""
-    from topseg.core.islands import EDGE_HEAD_SHARE, SATELLITE_RADIUS_CM
-    from topseg.core.segmenter import (
-        FILL_HOLES_CM2,
-        MIN_FURNITURE_CM2,
-        MIN_HEAD_CM2,
-        MIN_PLANT_CM2,
-        SATELLITE_HEAD_CM2,
-    )
-
-    parser.add_argument(
-        "--min-head-cm2",
-        type=finite(0, 10000),
-        default=MIN_HEAD_CM2,
-        metavar="A",
-        help="after the CRF, blobs labelled head smaller than A cm2 on the surface (a whole "
-        "head seen from above is 200-300) take their border's label, those at the image's "
-        f"edge (cut by it) under {EDGE_HEAD_SHARE:g} A; 0 keeps them (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--min-furniture-cm2",
-        type=finite(0, 100000),
-        default=MIN_FURNITURE_CM2,
-        metavar="A",
-        help="the same for blobs labelled chair, storage or table (a chair's seat seen from "
-        "above is ~1600 cm2) (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--min-plant-cm2",
-        type=finite(0, 100000),
-        default=MIN_PLANT_CM2,
-        metavar="A",
-        help="the same for blobs labelled plant (the smallest pot seen from above is ~150 "
-        "cm2; a noisy camera leaves specks of plant on table tops) (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--satellite-head-cm2",
-        type=finite(0, 10000),
-        default=SATELLITE_HEAD_CM2,
-        metavar="A",
-        help="after the CRF, head blobs smaller than A cm2 whose centre lies within "
-        f"{SATELLITE_RADIUS_CM:g} cm of a larger head blob's (an arm or a hand beside a head) "
-        "take their border's label; 0 keeps them (default: %(default)s)",
-    )
-
-    parser.add_argument(
-        "--fill-holes-cm2",
-        type=finite(0, 10000),
-        default=FILL_HOLES_CM2,
-        metavar="A",
-        help="before labelling, holes without depth up to A cm2 that lie inside one surface "
-        "(dark hair on a time-of-flight camera) take its depth and its label; 0 leaves them "
-        "(default: %(default)s)",
-    )
+def _dest(option: Option) -> str:
+    return option.flag.replace("-", "_")
 
 
-def island_config(args: argparse.Namespace) -> dict:
-    """The `SegmenterConfig` fields of `add_island_arguments`' options."""
-    return {
-        "min_head_cm2": args.min_head_cm2,
-        "min_furniture_cm2": args.min_furniture_cm2,
-        "min_plant_cm2": args.min_plant_cm2,
-        "satellite_head_cm2": args.satellite_head_cm2,
-        "fill_holes_cm2": args.fill_holes_cm2,
-    }
+def add_setting_arguments(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    cls: type,
+    groups: Sequence[str] | None = None,
+) -> None:
+    """Every setting of the settings dataclass `cls` (of its nested `groups` only, when
+    given) as an option, generated from the fields' `Option`s; `settings_from_args` reads
+    them back."""
+    for path, f, option in options_of(cls):
+        if groups is None or path.split(".")[0] in groups:
+            default = f.default_factory() if f.default is MISSING else f.default
+            parser.add_argument(
+                f"--{option.flag}",
+                dest=_dest(option),
+                default=default,
+                metavar=option.metavar or {"int": "N", "float": "X"}.get(option.kind),
+                help=option.help,
+                **_parser(option),
+            )
 
 
-def crf_config(args: argparse.Namespace):
-    """The `CRFConfig` of `add_crf_arguments`' options."""
-    from topseg.core.crf import CRFConfig
+def settings_from_args(args: argparse.Namespace, base: T) -> T:
+    """`base` (a settings dataclass) with every setting `args` has an option for."""
+    return with_options(base, vars(args))
 
-    return CRFConfig(
-        mode=args.crf, smoothness=args.smoothness, noisy_smoothness=args.noisy_smoothness
-    )
+
+def add_segmenter_arguments(
+    parser: argparse.ArgumentParser, groups: Sequence[str] = SEGMENTER_GROUPS
+) -> None:
+    """The Segmenter's settings of `groups` as options (`--crf`, `--stride`, ...)."""
+    add_setting_arguments(parser, SegmenterConfig, groups)
+
+
+def segmenter_config(
+    args: argparse.Namespace, base: SegmenterConfig | None = None, **fixed: Any
+) -> SegmenterConfig:
+    """`base` (the defaults when None) with every Segmenter option `args` has, and `fixed`
+    fields (`mount`, `check_camera`) set."""
+    return replace(settings_from_args(args, base or SegmenterConfig()), **fixed)
+
+
+def _text(value: Any, option: Option) -> str:
+    if value is None:
+        return "off" if option.kind == "share_or_off" else "auto"
+    return str(value)
+
+
+def setting_argv(config: Any, groups: Sequence[str] | None = None) -> list[str]:
+    """The command-line options that give `config`'s settings (of its nested `groups` only,
+    when given): for a command started by another, such as the worker of `run_pipeline`."""
+    argv = []
+    for path, _, option in options_of(type(config)):
+        *group, name = path.split(".")
+        if groups is None or (group[:1] and group[0] in groups):
+            owner = getattr(config, group[0]) if group else config
+            argv += [f"--{option.flag}", _text(getattr(owner, name), option)]
+    return argv

@@ -57,19 +57,16 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from topseg.core.errors import TopsegError
+from topseg.core.segmenter_config import SegmenterConfig
 from topseg.services.cli.options import (
-    add_crf_arguments,
-    add_grid_arguments,
-    add_island_arguments,
-    crf_config,
+    add_segmenter_arguments,
     finite,
-    grid_config,
     int_range,
-    island_config,
+    segmenter_config,
 )
 from topseg.services.live.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.live.worker_mount import warm_up as mount_warm_up
@@ -77,7 +74,6 @@ from topseg.services.runtime import identity, zenoh_session
 from topseg.services.runtime.lifecycle import ServiceLifecycle
 
 if TYPE_CHECKING:
-    from topseg.core.crf import CRFConfig
     from topseg.core.segmenter import Segmenter
 
 log = logging.getLogger("topseg.worker")
@@ -102,9 +98,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
-    add_crf_arguments(parser)
-    add_grid_arguments(parser)
-    add_island_arguments(parser)
+    add_segmenter_arguments(parser)
     parser.add_argument(
         "--threads",
         type=int_range(0, 256),
@@ -732,19 +726,14 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
     return MountWatchConfig(recheck_s=check, sensor=sensor)
 
 
-def load_segmenter(model: str | None, crf: CRFConfig | str, **grid: Any) -> Segmenter:
-    """The worker's Segmenter: `model` (None = the bundled one) with the CRF `crf` (settings,
-    or a mode with the default settings) and the other `SegmenterConfig` fields in `grid`
-    (the forest's grid, `grid_config`; the head and furniture blobs' minimum areas and the
-    satellite heads' largest, `island_config`).
+def load_segmenter(model: str | None, config: SegmenterConfig | None = None) -> Segmenter:
+    """The worker's Segmenter: `model` (None = the bundled one) with `config` (None: the
+    defaults). Frames are not checked against the model's camera: the worker labels
+    whatever size a camera sends, through its mount."""
+    from topseg.core.segmenter import Segmenter
 
-    Frames are not checked against the model's camera yet: the worker labels whatever size
-    a camera sends (mount-aware checks come with the camera-mount work).
-    """
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
-
-    config = SegmenterConfig(check_camera=False, **grid)
-    return Segmenter.from_file(model, config, crf=crf)
+    config = replace(config or SegmenterConfig(), check_camera=False)
+    return Segmenter.from_file(model, config)
 
 
 def refuse_if_labelled(session, cameras: list[tuple[str, str]], me: identity.Identity) -> None:
@@ -778,9 +767,7 @@ def run(args: argparse.Namespace) -> int:
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     # ModelFileError: one line, exit 2
-    segmenter = load_segmenter(
-        args.model, crf_config(args), **grid_config(args), **island_config(args)
-    )
+    segmenter = load_segmenter(args.model, segmenter_config(args))
     t0 = time.perf_counter()
     segmenter.warm_up()
     mount_warm_up()

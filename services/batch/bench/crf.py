@@ -38,11 +38,11 @@ import numpy as np
 
 from topseg.services.batch.bench import frames as bench_frames
 from topseg.services.cli.options import (
-    add_grid_arguments,
+    add_segmenter_arguments,
     finite,
-    grid_config,
     int_range,
     non_negative_int,
+    segmenter_config,
 )
 
 
@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the model's posteriors (default), a small forest trained here, or the stand-in",
     )
     parser.add_argument("--model", type=Path, help="topseg model file (default: the bundled one)")
-    add_grid_arguments(parser)
+    add_segmenter_arguments(parser, ("grid",))
     bench_frames.add_arguments(parser)
     parser.add_argument(
         "--smoothness", type=finite(0, 1e6), default=None, help="Potts weight (nats)"
@@ -110,11 +110,11 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
     from topseg.core.crf import Summary, argmax_confidence
     from topseg.core.forest import FeatureConfig, fill_posteriors
     from topseg.core.forest.inputs import header_fields
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter import Segmenter
 
     # the model's camera need not be these frames'; a height model reads them through theirs
     mount = bench_frames.bench_mount(args)
-    config = SegmenterConfig(check_camera=False, mount=mount, **grid_config(args))
+    config = segmenter_config(args, check_camera=False, mount=mount)
     if args.unaries == "quick-forest":
         segmenter = Segmenter(_quick_forest(rng), header_fields(FeatureConfig()), config)
         source = "small forest (3 trees, depth 16, 60 frames) trained here"

@@ -22,10 +22,14 @@ import argparse
 import os
 import tempfile
 import time
-from dataclasses import replace
 
 from topseg.services.batch.bench import frames as bench_frames
-from topseg.services.cli.options import add_grid_arguments, grid_config, int_range, non_negative_int
+from topseg.services.cli.options import (
+    add_segmenter_arguments,
+    int_range,
+    non_negative_int,
+    segmenter_config,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--repeats", type=int_range(1, 100000), default=3, help="passes over the frames"
     )
-    add_grid_arguments(parser)
+    add_segmenter_arguments(parser, ("grid",))
     parser.add_argument(
         "--threads", type=int_range(0, 1024), default=0, help="numba threads (0: all cores)"
     )
@@ -127,9 +131,9 @@ def _node_visits(model, segmenter, frame) -> tuple[int, int, int, float]:
         model,
         inp,
         stride=stride,
-        adaptive=config.adaptive,
+        adaptive=config.grid.adaptive,
         walked=walked,
-        early_exit=config.early_exit,
+        early_exit=config.grid.early_exit,
     )
     leaves = apply(model, inp)
     levels = node_depths(model.left, model.roots)
@@ -149,6 +153,7 @@ def measure(args: argparse.Namespace) -> dict:
     from topseg.core.forest.inputs import header_fields
     from topseg.core.scoring import score
     from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter_config import GridConfig
     from topseg.core.synth import procedural
 
     if args.threads:
@@ -168,10 +173,14 @@ def measure(args: argparse.Namespace) -> dict:
     full = Segmenter(
         model,
         header,
-        SegmenterConfig(check_camera=False, mount=mount, stride=1, early_exit=None, downsample=1),
+        SegmenterConfig(
+            check_camera=False,
+            mount=mount,
+            grid=GridConfig(stride=1, early_exit=None, downsample=1),
+        ),
         crf="none",
     )
-    grid = Segmenter(model, header, replace(full.config, **grid_config(args)), crf="none")
+    grid = Segmenter(model, header, segmenter_config(args, full.config), crf="none")
     figures: dict = {
         "forest": kind,
         "frames": f"{len(frames)} {what}",

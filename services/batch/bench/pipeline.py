@@ -17,11 +17,10 @@ import argparse
 from pathlib import Path
 
 from topseg.services.cli.options import (
-    add_grid_arguments,
-    add_island_arguments,
+    add_segmenter_arguments,
     finite,
     int_range,
-    island_config,
+    segmenter_config,
 )
 
 
@@ -48,12 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="depth source; a replay is looped (default: the bundled recording)",
     )
     parser.add_argument("--model", type=Path, default=None, metavar="PATH", help=MODEL_HELP)
-    parser.add_argument(
-        "--crf", choices=("none", "exact", "realtime"), default="realtime", help="worker CRF mode"
-    )
     parser.add_argument("--lossless", action="store_true", help="worker labels every frame (FIFO)")
-    add_grid_arguments(parser)
-    add_island_arguments(parser)
+    add_segmenter_arguments(parser)
     parser.add_argument(
         "--cameras",
         type=int_range(1, 16),
@@ -72,14 +67,9 @@ def measure(args: argparse.Namespace) -> dict:
         args.model,
         args.duration,
         args.fps,
-        args.crf,
+        segmenter_config(args),
         None,
         args.lossless,
-        downsample=args.downsample,
-        stride=args.stride,
-        adaptive=args.adaptive,
-        early_exit=args.early_exit,
-        islands=island_config(args),
         cameras=args.cameras,
     )
     scores = figures.pop("scores")

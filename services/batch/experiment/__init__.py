@@ -71,11 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--baseline", type=Path, help="mounts: a second model scored on the same frames"
     )
-    from topseg.services.cli.options import downsample
+    from topseg.core.resolution import MAX_DOWNSAMPLE
+    from topseg.services.cli.options import auto_int
 
     parser.add_argument(
         "--downsample",
-        type=downsample,
+        type=auto_int(1, MAX_DOWNSAMPLE),
         default=None,
         metavar="auto|N",
         help="mounts: the resolution --model labels at (`topseg evaluate --downsample`; "
@@ -83,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--baseline-downsample",
-        type=downsample,
+        type=auto_int(1, MAX_DOWNSAMPLE),
         default=None,
         metavar="auto|N",
         help="mounts: the same for --baseline (e.g. the same model at 1, the frames' own "

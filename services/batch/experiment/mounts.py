@@ -134,9 +134,12 @@ def run_mounts(
     """Score `model` (and `baseline`, when given) on every cell; write and return the report.
     `downsample` is each one's `SegmenterConfig.downsample` (None: from each cell's mount)."""
     from topseg.core.segmenter import Segmenter, SegmenterConfig
+    from topseg.core.segmenter_config import GridConfig
 
     # no size check: a model that reads raw depth is run on every sensor's frames as they are
-    configs = [SegmenterConfig(check_camera=False, downsample=d) for d in downsample]
+    configs = [
+        SegmenterConfig(check_camera=False, grid=GridConfig(downsample=d)) for d in downsample
+    ]
     models = {"model": Segmenter.from_file(model, configs[0], crf="realtime")}
     if baseline is not None:
         models["baseline"] = Segmenter.from_file(baseline, configs[1], crf="realtime")
@@ -171,7 +174,7 @@ def run_mounts(
             name: {
                 "path": str(seg.path),
                 "model_id": seg.model_id,
-                "downsample": seg.config.downsample or "auto",
+                "downsample": seg.config.grid.downsample or "auto",
             }
             for name, seg in models.items()
         },

@@ -21,7 +21,9 @@ import logging
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from topseg.core.config import with_options
 from topseg.core.errors import TopsegError
+from topseg.core.forest.train_config import TrainConfig
 
 log = logging.getLogger("topseg.experiment")
 
@@ -221,21 +223,10 @@ class ModelRecipe:
         """The model's name in OUT/models/: a hash of everything that decides it."""
         return short_hash(self.to_dict())
 
-    def train_config(self):
-        """The forest's `TrainConfig` (the paper's defaults for what the recipe leaves out)."""
-        from topseg.core.forest.features import FeatureConfig
-        from topseg.core.forest.train import TrainConfig
-
-        return TrainConfig(
-            n_trees=self.trees,
-            max_depth=self.depth,
-            frames_per_tree=self.frames,
-            pixels_per_frame=self.pixels_per_frame,
-            n_candidates=self.responses,
-            n_thresholds=self.thresholds,
-            split=self.split,
-            features=FeatureConfig(n_features=self.features),
-        )
+    def train_config(self) -> TrainConfig:
+        """The forest's `TrainConfig`: the recipe's fields are named as `topseg train`'s
+        options (`frames` is --frames-per-tree); the paper's defaults for the rest."""
+        return with_options(TrainConfig(), {**asdict(self), "frames_per_tree": self.frames})
 
     def train_job(
         self, data_path: Path, out: Path, workers: int | None, serial: bool,

@@ -1,0 +1,251 @@
+"""How a Segmenter runs: one nested configuration, `SegmenterConfig` = pre / grid / crf / post
+(plus the mount and the camera check), with every setting's default, bounds, command-line
+flag and help declared once on its field (`core.config.setting`). The command-line options
+and the services' TOML keys are generated from it (`services.cli.options`), and
+`SegmenterConfig.from_dict` reads it from a nested table."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from topseg.core.camera import TopViewMount
+from topseg.core.config import from_dict, setting
+from topseg.core.crf import CRFConfig
+from topseg.core.errors import TopsegError
+from topseg.core.resolution import MAX_DOWNSAMPLE
+
+#: Levels of the forest's adaptive grid by default (`GridConfig.adaptive`): one, the grid
+#: twice as coarse first; measured in docs/performance.md
+ADAPTIVE_LEVELS = 1
+#: A walked pixel stops walking trees once its first two (or more) give one class this
+#: average posterior (`GridConfig.early_exit`); measured in docs/performance.md. 0.95
+#: (rung 22) walks 4 % more nodes than 0.9 and keeps the grid's accuracy loss against full
+#: resolution under issue 15's 0.01 on both held-out sets (0.9 lost 0.0106 on one).
+EARLY_EXIT = 0.95
+#: After the CRF, blobs labelled head smaller than this on the surface (cm2) take their
+#: border's label: a fifth of a whole head seen from above (200-300 cm2), so that a head cut
+#: by the image's edge mostly keeps its label. On rendered time-of-flight frames it raised
+#: the share of head blobs that are heads from 0.31-0.54 to 0.79-0.92 (docs/results.md).
+MIN_HEAD_CM2 = 50.0
+#: After the CRF, blobs labelled chair, storage or table smaller than this on the surface
+#: (cm2) take their border's label: a fifth of a chair's seat seen from above (~1600 cm2).
+#: Measured in docs/crf.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
+#: person 1.1-1.4 points lower on rendered time-of-flight frames.
+MIN_FURNITURE_CM2 = 300.0
+#: After the CRF, blobs labelled plant smaller than this on the surface (cm2) take their
+#: border's label: two thirds of the smallest pot seen from above (14 cm across, ~150 cm2).
+#: A noisy camera leaves such specks of plant on table tops. Measured in docs/crf.md.
+MIN_PLANT_CM2 = 100.0
+#: After the CRF, head blobs smaller than this (cm2) whose centre lies within
+#: SATELLITE_RADIUS_CM of a larger head blob's take their border's label: an arm or a hand
+#: beside a head, as large as a small head (`islands.relabel_islands`). Measured in
+#: docs/results.md on rendered time-of-flight frames.
+SATELLITE_HEAD_CM2 = 150.0
+#: Before labelling, holes without depth inside one surface up to this size (cm2) take the
+#: surface's depth (`holes.fill_holes`): a time-of-flight camera's holes in dark hair. On
+#: rendered walker frames with hair dropout it took the bundled model's head blobs found
+#: from 0.23 to 0.90 at 3.3 m (docs/results.md).
+FILL_HOLES_CM2 = 100.0
+
+
+def crf_config(mode: str = "realtime") -> CRFConfig:
+    """A CRFConfig of `mode` with the default settings."""
+    return CRFConfig(mode=mode)
+
+
+def _check_areas(config: Any) -> None:
+    """Every field of `config` is an area in cm2: finite and >= 0; TopsegError otherwise."""
+    for f in fields(config):
+        area = getattr(config, f.name)
+        if not (np.isfinite(area) and area >= 0):
+            raise TopsegError(f"{f.name} must be >= 0 cm2, got {area}")
+
+
+@dataclass(frozen=True)
+class PreConfig:
+    """Before labelling: holes without depth up to `fill_holes_cm2` that lie inside one
+    surface take its depth (`holes.fill_holes`), so that they are labelled; 0 fills none.
+    Models that read raw depth get no pre-processing."""
+
+    fill_holes_cm2: float = setting(
+        FILL_HOLES_CM2,
+        flag="fill-holes-cm2",
+        metavar="A",
+        lo=0.0,
+        hi=10000.0,
+        help="before labelling, holes without depth up to A cm2 that lie inside one surface "
+        "(dark hair on a time-of-flight camera) take its depth and its label; 0 leaves them "
+        "(default: %(default)s)",
+    )
+
+    def __post_init__(self) -> None:
+        _check_areas(self)
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """The resolution a frame is labelled at and where the forest walks.
+
+    downsample  label every downsample-th pixel of every downsample-th row (forest, CRF and
+                island rules at that resolution), the labels brought back to the frame's by
+                depth (`resolution`); None: from each frame's mount (`auto_downsample`)
+    stride      walk the forest at every stride-th pixel of every stride-th row, the rest
+                upsampled by height; None: from each frame's mount (`grid_stride`)
+    adaptive    on a grid, levels of coarser grids walked first; 0 walks every grid pixel
+    early_exit  a walked pixel stops walking trees once its first two (or more) give one
+                class this average posterior; None walks every tree
+    Models that read raw depth work at their camera's resolution (downsample 1).
+    """
+
+    downsample: int | None = setting(
+        None,
+        flag="downsample",
+        metavar="auto|N",
+        kind="auto_int",
+        lo=1,
+        hi=MAX_DOWNSAMPLE,
+        help="label every N-th pixel of every N-th row (forest, CRF and blob rules) and give "
+        "each pixel the label of its nearest neighbour in depth among them; auto (default) "
+        "takes half where a labelled pixel then spans at most 14.4 mm of the floor (a Kinect "
+        "v1 up to 4.1 m; 1 for coarser cameras); 1: the frame's own resolution",
+    )
+    stride: int | None = setting(
+        None,
+        flag="stride",
+        metavar="auto|N",
+        kind="auto_int",
+        lo=1,
+        help="walk the forest at every N-th pixel of every N-th row and upsample the rest by "
+        "height; auto (default) spaces walked pixels ~25 mm apart on the floor; 1: every pixel",
+    )
+    adaptive: int = setting(
+        ADAPTIVE_LEVELS,
+        flag="adaptive",
+        metavar="N",
+        kind="int",
+        lo=0,
+        help="on a grid, walk N coarser grids first and the finer ones only where the coarser "
+        "one is unsure or crosses a height edge; 0 walks every grid pixel (default: %(default)s)",
+    )
+    early_exit: float | None = setting(
+        EARLY_EXIT,
+        flag="early-exit",
+        metavar="P|off",
+        kind="share_or_off",
+        help="a pixel stops walking trees once its first two (or more) give one class an "
+        "average posterior >= P; off walks every tree (default: %(default)s)",
+    )
+
+    def __post_init__(self) -> None:
+        if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
+            raise TopsegError(f"stride must be >= 1 (or None: from the mount), got {self.stride}")
+        if self.downsample is not None and (
+            isinstance(self.downsample, bool) or not 1 <= self.downsample <= MAX_DOWNSAMPLE
+        ):
+            raise TopsegError(
+                f"downsample must be 1-{MAX_DOWNSAMPLE} (or None: from the mount), "
+                f"got {self.downsample}"
+            )
+        if isinstance(self.adaptive, bool) or self.adaptive < 0:
+            raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
+        if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
+            raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
+
+
+@dataclass(frozen=True)
+class PostConfig:
+    """After the CRF (realtime or exact, never mode none), blobs too small to be what they
+    are labelled take their border's label (`islands.relabel_islands`); 0 keeps them.
+
+    min_head_cm2       head blobs smaller than this on the surface (those at the image's
+                       edge under `islands.EDGE_HEAD_SHARE` of it)
+    min_furniture_cm2  blobs of chair, storage and table (`islands.FURNITURE_ISLANDS`)
+    min_plant_cm2      blobs of plant
+    satellite_head_cm2 head blobs smaller than this whose centre lies within
+                       `islands.SATELLITE_RADIUS_CM` of a larger head blob's
+    """
+
+    min_head_cm2: float = setting(
+        MIN_HEAD_CM2,
+        flag="min-head-cm2",
+        metavar="A",
+        lo=0.0,
+        hi=10000.0,
+        help="after the CRF, blobs labelled head smaller than A cm2 on the surface (a whole "
+        "head seen from above is 200-300) take their border's label, those at the image's "
+        "edge (cut by it) under 0.4 A; 0 keeps them (default: %(default)s)",
+    )
+    min_furniture_cm2: float = setting(
+        MIN_FURNITURE_CM2,
+        flag="min-furniture-cm2",
+        metavar="A",
+        lo=0.0,
+        hi=100000.0,
+        help="the same for blobs labelled chair, storage or table (a chair's seat seen from "
+        "above is ~1600 cm2) (default: %(default)s)",
+    )
+    min_plant_cm2: float = setting(
+        MIN_PLANT_CM2,
+        flag="min-plant-cm2",
+        metavar="A",
+        lo=0.0,
+        hi=100000.0,
+        help="the same for blobs labelled plant (the smallest pot seen from above is ~150 "
+        "cm2; a noisy camera leaves specks of plant on table tops) (default: %(default)s)",
+    )
+    satellite_head_cm2: float = setting(
+        SATELLITE_HEAD_CM2,
+        flag="satellite-head-cm2",
+        metavar="A",
+        lo=0.0,
+        hi=10000.0,
+        help="after the CRF, head blobs smaller than A cm2 whose centre lies within 40 cm of "
+        "a larger head blob's (an arm or a hand beside a head) take their border's label; 0 "
+        "keeps them (default: %(default)s)",
+    )
+
+    def __post_init__(self) -> None:
+        _check_areas(self)
+
+    @property
+    def any(self) -> bool:
+        """Whether some rule is on (some area above 0)."""
+        return max(getattr(self, f.name) for f in fields(self)) > 0
+
+
+@dataclass(frozen=True)
+class SegmenterConfig:
+    """How a Segmenter runs: one nested configuration.
+
+    pre           pre-processing (`PreConfig`)
+    grid          working resolution and where the forest walks (`GridConfig`)
+    crf           the CRF (`crf.CRFConfig`; mode `none` is the forest's argmax)
+    post          the island rules after the CRF (`PostConfig`)
+    mount         the camera's mount, for frames labelled without one of their own (a
+                  height model needs one or the other)
+    check_camera  a model trained before heights: refuse frames that do not come from the
+                  model's camera (size, focal length); off where frames of other sizes are
+                  expected. Height models take any camera.
+    """
+
+    pre: PreConfig = field(default_factory=PreConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
+    crf: CRFConfig = field(default_factory=crf_config)
+    post: PostConfig = field(default_factory=PostConfig)
+    mount: TopViewMount | None = None
+    check_camera: bool = True
+
+    @property
+    def relabels_islands(self) -> bool:
+        """Whether labels get the island rules after the CRF: some minimum area above 0, and
+        a CRF (never in mode none: that is the forest's argmax, as it is)."""
+        return self.post.any and self.crf.mode != "none"
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "segmenter config") -> SegmenterConfig:
+        """The configuration from a nested table (`pre`, `grid`, `crf`, `post`); unknown or
+        mistyped keys are a ConfigError naming them. The mount is not read from a table."""
+        return from_dict(cls, d, source)
