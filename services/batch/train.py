@@ -1,4 +1,7 @@
-"""Train a forest on a datagen dataset: trees in parallel on Dask, one model file out.
+"""Train a forest on a dataset from `topseg datagen` and write one model file: trees in
+parallel on Dask (or `--serial`), the paper's T=5, D=19 recipe by default. A rerun after an
+interruption keeps the finished trees and trains only the rest; the model's header holds its
+validation scores and what it was trained for (heights, tilt, sensors).
 
 Each tree is a Dask task that opens the dataset itself, trains with its own seed
 (`tree_seed(seed, t)`, so any number of workers gives the same trees as a serial run) and
@@ -70,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=FeatureConfig.off_image,  # the training default lives in one place
         help="what a probe off the image reads: the nearest pixel on the image's edge "
         "(default; a person cut by the edge reads as going on), or the background "
-        "constant (models before the twentieth session)",
+        "constant (what a model file that does not name this setting reads)",
     )
     g.add_argument(
         "--edge-gaps",
@@ -79,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="what a probe on a no-depth region touching the image's edge reads (a "
         "time-of-flight camera's ring, a stereo camera's invalid band): the surface nearest "
         "to it (default; as if off the image), or the background constant like any pixel "
-        "without depth (models before the twenty-first session)",
+        "without depth (what a model file that does not name this setting reads)",
     )
     g.add_argument("--seed", type=non_negative_int, default=0)
     g.add_argument(

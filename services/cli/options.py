@@ -169,7 +169,7 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_SMOOTHNESS,
         metavar="S",
         help="the CRF's Potts weight per cut edge, in nats (default: %(default)s; 3 scores "
-        "~0.015 avg F1 higher and costs the realtime CRF ~2 ms a frame: docs/crf.md)",
+        "~0.015 avg F1 higher and costs the realtime CRF ~2 ms a frame: docs/explanation/crf.md)",
     )
     parser.add_argument(
         "--noisy-smoothness",
@@ -178,7 +178,7 @@ def add_crf_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="the Potts weight for frames from a noisy camera (20 mm or more of depth noise "
         "at the floor, a stereo camera at range: the frames topseg smooths), when larger "
-        "than --smoothness (default: %(default)s: docs/crf.md)",
+        "than --smoothness (default: %(default)s: docs/explanation/crf.md)",
     )
 
 
