@@ -62,8 +62,9 @@ def broken(target: str, page: Path) -> str | None:
         return None
     path_part, _, fragment = target.partition("#")
     dest = (page.parent / path_part).resolve() if path_part else page
+    shown = dest.relative_to(ROOT) if dest.is_relative_to(ROOT) else dest
     if not dest.exists():
-        return f"no file {dest.relative_to(ROOT) if dest.is_relative_to(ROOT) else dest}"
+        return f"no file {shown}"
     if fragment and dest.suffix == ".md" and fragment not in anchors(dest):
-        return f"no heading #{fragment} in {dest.relative_to(ROOT)}"
+        return f"no heading #{fragment} in {shown}"
     return None

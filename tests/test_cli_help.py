@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 
 import pytest
+from docsutil import ROOT, broken
 
-from topseg.services.cli import COMMANDS, build_parser, describe
+from topseg.services.cli import COMMANDS, DETAILS, build_parser, describe
 
 #: the most lines a command's description may take at 80 columns, its Details line included
 MAX_DESCRIPTION_LINES = 8
@@ -46,6 +47,14 @@ def test_help_is_a_short_summary_then_details_then_the_options(name, monkeypatch
         )
 
 
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_command_names_a_page_that_exists(name):
+    assert name in DETAILS, f"topseg {name}: add its docs page to cli.DETAILS"
+    target = DETAILS[name]
+    assert target.startswith("docs/")
+    assert broken(target, ROOT / "README.md") is None, broken(target, ROOT / "README.md")
+
+
 def test_summary_is_the_first_paragraph_on_one_line():
     doc = """First line
     goes on.
@@ -53,5 +62,5 @@ def test_summary_is_the_first_paragraph_on_one_line():
     Second paragraph.
     """
     assert describe.summary(doc) == "First line goes on."
-    assert describe.description(doc, "docs/x.md") == "First line goes on.\n\nDetails: docs/x.md"
+    assert describe.description(doc, "PAGE") == "First line goes on.\n\nDetails: PAGE"
     assert describe.summary(None) == ""
