@@ -5,7 +5,7 @@ TOPSEG := $(VENV)/bin/topseg
 STAMP  := $(VENV)/.installed
 PYTEST := $(PY) -m pytest
 
-.PHONY: install test test-all demo bench lint format clean model recording experiments
+.PHONY: install test test-all demo bench lint format clean model recording experiments docs
 
 install: $(STAMP)
 
@@ -43,6 +43,10 @@ model: install
 ## rebuild the bundled demo recording (recordings/demo.mcap)
 recording: install
 	bash scripts/make_recording.sh
+
+## the command-line reference, docs/reference/cli.md, from the parsers
+docs: install
+	$(PY) docs/reference/make_cli.py
 
 ## the paper's experiments at the quick scale (docs/results.md): out/experiments-quick/
 experiments: install

@@ -17,10 +17,10 @@ frames from a camera whose noise at the floor is at least `MIN_SIGMA_MM`:
 - `ITERATIONS` passes; a frame being labelled whose noise at the floor is `HEAVY_SIGMA_MM`
   or more (a D435 from ~4.25 m up) gets `HEAVY_ITERATIONS`. Training keeps
   `ITERATIONS` for every frame: a forest trained on the noisier input and shown the cleaner
-  one labels those frames better than one trained and shown the same (`docs/noise.md`).
+  one labels those frames better than one trained and shown the same (`docs/explanation/noise.md`).
 
 Quieter cameras (a Kinect v1 below ~4.3 m, time-of-flight) are left as they are: their noise
-is below the depth steps the filter could remove. Measured in `docs/noise.md`.
+is below the depth steps the filter could remove. Measured in `docs/explanation/noise.md`.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ ALPHA = 0.25
 ITERATIONS = 2
 #: smallest 1-sigma depth noise (mm) at the floor for which a frame being labelled gets
 #: HEAVY_ITERATIONS passes: a D435 from ~4.25 m up; an OAK-D only when noisier than its
-#: model (65 mm at 4.5 m, where a third pass did not pay: docs/noise.md)
+#: model (65 mm at 4.5 m, where a third pass did not pay: docs/explanation/noise.md)
 HEAVY_SIGMA_MM = 75.0
 #: passes of the four directions for such a frame (training keeps ITERATIONS)
 HEAVY_ITERATIONS = 3

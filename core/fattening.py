@@ -16,7 +16,7 @@ of a true outline has three outside it, each left unfattened 30 % of the time. A
 without depth, and its neighbours without depth, are left alone.
 Time-of-flight and structured-light frames are not changed, nor are a stereo camera's whose
 mount says its edges are not fattened (`TopViewMount.edge_thinning` False: a camera whose own
-filters already cleaned them; thinning clean edges costs accuracy). Measured in docs/noise.md
+filters already cleaned them; thinning clean edges costs accuracy). Measured in docs/explanation/noise.md
 ("Thinning a stereo camera's fattened edges").
 """
 

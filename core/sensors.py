@@ -4,7 +4,7 @@ A `SensorModel` says what a frame from that camera looks like: its resolution an
 length (the synthesiser renders at these; features scale by the focal length), its noise
 (a `core.synth.noise.parse_noise` spec of the sensor's family) and the range it measures.
 `get_sensor(name)` looks one up; `SENSORS` lists them all. Values and their sources:
-docs/research/sensor-noise-sources.md (codes R/S/K/D there), summarised in docs/noise.md.
+docs/research/sensor-noise-sources.md (codes R/S/K/D there), summarised in docs/reference/sensors.md.
 
 - kinect_v1: structured light (PrimeSense), 640x480, fx 570.3; today's `kinect` noise.
 - kinect_v2: time of flight, 512x424, fx ~365 (70.6 x 60 deg). The Azure Kinect's NFOV

@@ -4,7 +4,7 @@
 # the Zenoh configs (/etc/topseg/zenoh/) and example service configs (/etc/topseg/*.toml).
 # Idempotent: a second run changes nothing. Configs an operator has edited are kept (the new
 # default goes beside them as FILE.dist). Says what it did, one line per item.
-# Enables nothing: see docs/operations.md for the next steps.
+# Enables nothing: see docs/howto/deploy.md for the next steps.
 #
 #   sudo deploy/install.sh [--root DIR] [--no-systemctl] [--python PY] [--extras LIST]
 #                          [--source PATH] [--pip-args "ARGS"]
@@ -217,8 +217,8 @@ fi
 # 3. Data and docs the configs and units point at.
 install_file "$CHECKOUT/models/default.npz" "$OPT/models/default.npz" 0644
 install_file "$CHECKOUT/recordings/demo.mcap" "$OPT/recordings/demo.mcap" 0644
-for doc in "$CHECKOUT"/docs/operations.md "$CHECKOUT"/docs/security.md; do
-    [ -f "$doc" ] && install_file "$doc" "$OPT/docs/$(basename "$doc")" 0644
+for doc in howto/deploy.md howto/ros2.md security.md; do
+    [ -f "$CHECKOUT/docs/$doc" ] && install_file "$CHECKOUT/docs/$doc" "$OPT/docs/$doc" 0644
 done
 
 # 4. systemd units and udev rules (package files: operators override with drop-ins).
@@ -278,4 +278,4 @@ else
     say "skipped systemctl daemon-reload and udevadm control --reload"
 fi
 say "done; next: edit /etc/topseg/<camera>.toml, then" \
-    "systemctl enable --now topseg-driver@<camera> topseg-worker@<camera> (docs/operations.md)"
+    "systemctl enable --now topseg-driver@<camera> topseg-worker@<camera> (docs/howto/deploy.md)"

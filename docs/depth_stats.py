@@ -1,6 +1,6 @@
-"""Statistics of a depth frame that describe its sensor, not its scene (for docs/noise.md).
+"""Statistics of a depth frame that describe its sensor, not its scene (for docs/explanation/noise.md).
 
-Used to compare the synthetic Kinect v1 model with real Kinect v1 frames (docs/noise.md):
+Used to compare the synthetic Kinect v1 model with real Kinect v1 frames (docs/explanation/noise.md):
 how far apart the depth levels are at each depth (disparity quantisation), how rough flat
 surfaces are at each depth (noise), how wide the no-depth bands beside depth jumps are and on
 which side (projector shadows), how often pixels beside jumps are missing, and how often they

@@ -1,4 +1,4 @@
-"""Regenerate the figures and numbers of docs/noise.md.
+"""Regenerate the figures and numbers of docs/explanation/noise.md.
 
     .venv/bin/python docs/noise_figure.py [--real ../shared/data/real-kinect-v1]
     .venv/bin/python docs/noise_figure.py --sensors-only
@@ -6,7 +6,7 @@
 Compares the Kinect v1 noise model with the real Kinect v1 frames two ways: on the real
 frames' own geometry (each real frame's holes filled and its noise median-filtered away,
 then the model applied) and on synthetic top-view scenes. Writes docs/img/noise.png and
-docs/img/noise_examples.png and prints the tables docs/noise.md quotes. Then (alone with
+docs/img/noise_examples.png and prints the tables docs/explanation/noise.md quotes. Then (alone with
 `--sensors-only`) renders one scene through each sensor of core/sensors.py and each effect
 of the time-of-flight and stereo models beside what it models: docs/img/noise_sensors.png
 and docs/img/noise_effects.png.

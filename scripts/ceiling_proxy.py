@@ -1,6 +1,6 @@
-"""A stand-in for the real frames that judge issue 14, run the way they are run.
+"""A stand-in for a real judging sequence, run the way it is run (docs/results.md).
 
-Those frames (not shared) are a time-of-flight sequence from one ceiling, resampled to Kinect
+Such frames (not in the repository) are a time-of-flight sequence from one ceiling, resampled to Kinect
 v1 geometry (640x480, fx 570) and labelled by `topseg segment --out DIR FRAMES/` with no
 mount given. This script renders a folder of such frames per ceiling height: one mount for
 the folder (a little tilt), Kinect v1 intrinsics, time-of-flight noise, modeled scenes with

@@ -157,7 +157,7 @@ STATURE = (1.6285, 1.756)
 
 def test_the_body_seen_from_above_is_within_two_sd_of_ansur():
     """At each sex's mean stature the humanoid's top-view dimensions lie within 2 SD of that
-    sex's ANSUR II mean (the table in docs/synthesis.md)."""
+    sex's ANSUR II mean (the table in docs/explanation/method.md)."""
     for stature, which in ((STATURE[0], 0), (STATURE[1], 1)):
         dims = humanoid.top_view_dimensions(stature)
         for name, pair in ANSUR.items():

@@ -314,6 +314,18 @@ def lines_with(lines: list[str], text: str) -> list[str]:
     return [line for line in lines if text in line]
 
 
+def test_every_units_documentation_is_installed(tmp_path, checkout, wheel):
+    """Each unit's `Documentation=file:/opt/...` names a page install.sh puts there."""
+    root = tmp_path / "root"
+    install(checkout, root, wheel)
+    pages = []
+    for unit in sorted((DEPLOY / "systemd").glob("*.service")):
+        pages += re.findall(r"^Documentation=file:/(\S+)$", unit.read_text(), re.M)
+    assert pages, "no Documentation= lines"
+    missing = [page for page in pages if not (root / page).is_file()]
+    assert not missing, f"units name documentation install.sh does not install: {missing}"
+
+
 def test_install_twice_then_uninstall(tmp_path, checkout, wheel):
     root = tmp_path / "root"
     first = install(checkout, root, wheel)

@@ -215,7 +215,7 @@ def test_bands_beside_shadows_and_jumps_drop_their_fractions():
         dropped = (out == 0)[band].mean()
         assert dropped == pytest.approx(p, abs=4 * np.sqrt(p * (1 - p) / band.sum()))
     assert not (out == 0)[lit & (bits == 0)].any()
-    # real frames' no-depth bands are a few pixels wider than the projector's shadow (docs/noise.md)
+    # real frames' no-depth bands are a few pixels wider than the projector's shadow (docs/explanation/noise.md)
     model = noise.KinectNoise()
     runs = depth_stats.gap_runs(model.apply(depth, np.random.default_rng(2)))
     far_left = runs[:, 3] == 1

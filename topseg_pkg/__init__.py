@@ -1,4 +1,4 @@
-"""topseg: real-time segmentation of top-view depth frames (see docs/architecture.md)."""
+"""topseg: real-time segmentation of top-view depth frames (see docs/index.md)."""
 
 from importlib.metadata import PackageNotFoundError, version
 

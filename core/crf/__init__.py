@@ -13,7 +13,7 @@ method) and `realtime` (`topseg.core.crf.realtime`: the same energy, minimised b
 alpha-expansion on the uncertain band only). Both solvers work on integers: unaries and
 weights are multiplied by ENERGY_SCALE and rounded (0.001-nat resolution); reported
 energies are always recomputed in float from the labeling by `potts_energy`, the one
-definition every mode and test uses. See docs/crf.md.
+definition every mode and test uses. See docs/explanation/crf.md.
 """
 
 from __future__ import annotations

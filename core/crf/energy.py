@@ -19,13 +19,13 @@ ENERGY_SCALE = 1000.0
 MAX_SMOOTHNESS = 1000.0
 #: The Potts weight CRFConfig defaults to (nats per cut edge). On validation frames 3 scores
 #: ~0.015 avg F1 higher, but costs the realtime CRF ~2 ms a frame that the 30 fps budget does
-#: not have (docs/crf.md; `--smoothness` chooses per command)
+#: not have (docs/explanation/crf.md; `--smoothness` chooses per command)
 DEFAULT_SMOOTHNESS = 1.0
 #: The Potts weight CRFConfig defaults to for frames from a noisy camera (`denoise.needs_denoise`:
 #: 20 mm or more of depth noise at the floor, a stereo camera at range), never below
 #: `smoothness`: their posteriors are noisier, and on the mounts table (300 frames a cell) 3 nats
 #: lifted every stereo cell by 0.003-0.009 avg F1 for ~2.5-3.3 ms of CRF p50 on those cameras
-#: only (docs/crf.md, docs/results.md)
+#: only (docs/explanation/crf.md, docs/results.md)
 NOISY_SMOOTHNESS = 3.0
 
 Mode = Literal["none", "exact", "realtime"]

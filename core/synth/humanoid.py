@@ -12,7 +12,7 @@ that no clip covers (sitting, standing, stretching, working, bending, bowing, ti
 swinging). The model is y-up (x forward, z to its right); `base_quat` turns it upright in the
 z-up world and faces it along +x rotated by the human's yaw.
 
-Seen from above, three of the URDF's shapes are far from people (docs/synthesis.md measures
+Seen from above, three of the URDF's shapes are far from people (docs/explanation/method.md measures
 the body against ANSUR II): its head is a 205 mm ball (heads are ~150 mm broad and ~195 mm
 long), its chest a 220 mm ball (chests are ~270-290 mm broad), its pelvis a 180 mm ball
 (hips are ~350 mm broad). `PROPORTION_FIXES` replaces them with capsules of measured size;
@@ -110,7 +110,7 @@ POSES: tuple[str, ...] = (*PRESETS, *CLIPS)
 #: link -> (capsule radius, capsule cylinder length, origin xyz, origin rpy) replacing the
 #: URDF's shape, in model units (x 0.25 m at REFERENCE_SCALING, ~1.6 m tall). Head: 140 x
 #: 182 mm, long axis forward, centre 12 mm above the old ball's; chest: 220 mm deep, 265 mm
-#: broad (lateral capsule); pelvis: 180 mm deep, 330 mm broad. See docs/synthesis.md.
+#: broad (lateral capsule); pelvis: 180 mm deep, 330 mm broad. See docs/explanation/method.md.
 PROPORTION_FIXES: dict[str, tuple[float, float, tuple, tuple]] = {
     "neck": (0.28, 0.167, (0.0, 0.75, 0.0), (0.0, 1.570796, 0.0)),
     "chest": (0.44, 0.18, (0.0, 0.48, 0.0), (0.0, 0.0, 0.0)),
@@ -727,7 +727,7 @@ def hip_position(p: Pose, scale: float, base_pos, base_q, side: str = "right") -
 def top_view_dimensions(height_m: float) -> dict[str, float]:
     """What a ceiling camera sees of the upright, arms-down humanoid `height_m` tall (mm):
     head breadth and length, bideltoid (shoulders and upper arms) and hip breadth, chest
-    breadth and depth, upper-arm, forearm and hand thickness; docs/synthesis.md compares them
+    breadth and depth, upper-arm, forearm and hand thickness; docs/explanation/method.md compares them
     with ANSUR II."""
     prims = posed_primitives(
         identity_pose(), scale_for_height(height_m), (0.0, 0.0, 0.0), base_quat((0, 0, 0, 1), 0.0)

@@ -4,9 +4,9 @@
 
 - "none": the clean rendering.
 - "gaussian:<sigma_mm>": the paper's additive white Gaussian noise on depth, sigma in
-  millimetres (swept 0..100 in the paper, best at 15; see docs/noise.md on "15 cm").
+  millimetres (swept 0..100 in the paper, best at 15; see docs/explanation/noise.md on "15 cm").
 - "kinect" (optionally "kinect:key=value,..."): a structured-light Kinect v1 model, each
-  effect from how the sensor works (docs/noise.md compares it with real frames):
+  effect from how the sensor works (docs/explanation/noise.md compares it with real frames):
   * projector shadows: the IR projector sits `baseline_m` to the right of the camera, so
     surfaces it cannot light (left of anything nearer) read no depth;
   * edge dropouts: block matching fails in a band beside shadows (often, widening them as
@@ -550,7 +550,7 @@ def _tof_kernel(
 
 @dataclass(frozen=True)
 class ToFNoise:
-    """A time-of-flight sensor model (Kinect v2 defaults; docs/noise.md gives the sources).
+    """A time-of-flight sensor model (Kinect v2 defaults; docs/reference/sensors.md gives the sources).
 
     Effects: range-dependent Gaussian noise sigma(z) = c0 + c1 z + c2 z^2 mm (Fankhauser et
     al. 2015), growing towards the image corners (less light there); flying pixels mixing
@@ -748,7 +748,7 @@ def _stereo_kernel(
 
 @dataclass(frozen=True)
 class StereoNoise:
-    """An active stereo sensor model (RealSense D435 defaults; docs/noise.md for sources).
+    """An active stereo sensor model (RealSense D435 defaults; docs/reference/sensors.md for sources).
 
     The left imager is the reference, the second sits `baseline_m` to its right. Effects:
     disparity d = f B / z with matching noise (`disparity_sigma_px`, the "subpixel RMS",

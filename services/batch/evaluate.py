@@ -1,4 +1,8 @@
-"""Score a model on a dataset: the paper's per-class table, JSON, and pictures.
+"""Score a model on a dataset from `topseg datagen`: the forest and the CRF label every
+complete frame through its own mount, and it prints the per-class precision / recall / F1
+table in the paper's Table I layout, with mAP, mAR and avg F1 over the ten classes and heads
+counted as blobs. `--json FILE` writes the scores, `--plots DIR` the confusion matrix and
+example frames.
 
 The forest runs on every complete frame of the dataset, each read through its own mount
 (`Dataset.mount`; cropped to its camera); the CRF mode (`none`, `exact`,

@@ -1,4 +1,8 @@
-"""Segment depth offline: 16-bit PNGs (mm) or MCAP recordings in, label PNGs and overlays out.
+"""Label depth offline: 16-bit PNGs (mm), folders of them or MCAP recordings in; for each
+frame NAME, `NAME_labels.png` (label ids, 255 = no depth) and `NAME_overlay.png` out. Each
+frame is labelled through its camera's mount: `--mount FILE`, else the one a recording
+carries, else one estimated from the frames and printed. A damaged input is skipped with one
+line (exit 2); Ctrl-C stops after the frame at hand (exit 130).
 
 For each input frame NAME it writes `NAME_labels.png` (8-bit label ids, 255 = no depth) and
 `NAME_overlay.png` (depth in grey with the label colours blended on top), both or neither

@@ -1,4 +1,7 @@
-"""Train a forest on a datagen dataset: trees in parallel on Dask, one model file out.
+"""Train a forest on a dataset from `topseg datagen` and write one model file: trees in
+parallel on Dask (or `--serial`), the paper's T=5, D=19 recipe by default. A rerun after an
+interruption keeps the finished trees and trains only the rest; the model's header holds its
+validation scores and what it was trained for (heights, tilt, sensors).
 
 Each tree is a Dask task that opens the dataset itself, trains with its own seed
 (`tree_seed(seed, t)`, so any number of workers gives the same trees as a serial run) and

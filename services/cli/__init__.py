@@ -16,7 +16,7 @@ import warnings
 
 from topseg import __version__
 from topseg.core.errors import TopsegError
-from topseg.services.cli import config_file
+from topseg.services.cli import config_file, describe
 from topseg.services.runtime import systemd_notify
 
 #: subcommand -> (module, one-line help). Add a line here to add a command.
@@ -74,6 +74,28 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: subcommand -> the page its `--help` sends a user to for the details ("Details: ...")
+DETAILS: dict[str, str] = {
+    "demo": "docs/tutorial.md",
+    "train": "docs/howto/retrain.md",
+    "evaluate": "docs/howto/retrain.md",
+    "segment": "docs/howto/label-offline.md",
+    "experiment": "docs/results.md",
+    "bench": "docs/performance.md",
+    "driver": "docs/reference/services.md#driver",
+    "record": "docs/reference/services.md#record",
+    "devices": "docs/howto/add-sensor.md",
+    "datagen": "docs/howto/retrain.md",
+    "worker": "docs/reference/services.md#worker",
+    "viewer": "docs/reference/services.md#viewer",
+    "router": "docs/reference/services.md#router",
+    "bridge": "docs/howto/ros2.md",
+    "status": "docs/reference/services.md#status",
+    "calibrate": "docs/howto/calibrate.md",
+    "compile": "docs/howto/deploy.md",
+}
+
+
 class UsageError(TopsegError):
     """A command line argparse refuses (a bad option value, a missing argument)."""
 
@@ -109,7 +131,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     chosen = next((a for a in argv if a in COMMANDS), None)
     parser = argparse.ArgumentParser(
         prog="topseg",
-        description="Real-time segmentation of top-view depth frames (see README.md).",
+        description="Real-time segmentation of top-view depth frames (see docs/index.md).",
     )
     parser.add_argument("--version", action="version", version=f"topseg {__version__}")
     parser.add_argument(
@@ -123,7 +145,12 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
             sub.add_parser(name, help=help_text)
             continue
         module = importlib.import_module(module_name)
-        p = sub.add_parser(name, help=help_text, description=module.__doc__)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=describe.description(module.__doc__, DETAILS.get(name)),
+            formatter_class=describe.ParagraphFormatter,
+        )
         module.add_arguments(p)
         config_file.add_arguments(p, name, argv, COMMANDS)  # --config FILE: TOML defaults
         p.set_defaults(_run=module.run)
@@ -140,7 +167,7 @@ def fail(command: str | None, exc: BaseException) -> None:
 
 #: OpenMP threads (numba's parallel kernels) sleep between parallel regions instead of
 #: spinning: on the 2-core target a driver, a viewer and the worker share the cores, and
-#: spinning threads took their time (docs/performance.md). The environment can override it.
+#: spinning threads took their time (docs/explanation/speed.md). The environment can override it.
 OMP_WAIT_POLICY = "PASSIVE"
 
 

@@ -1,4 +1,6 @@
-"""Compile numba's kernels into its cache before they are first needed: `topseg compile`.
+"""Compile numba's kernels into its cache before they are first needed (about two minutes on
+2 cores), so that a worker's first start takes seconds rather than minutes; `make install`
+and `deploy/install.sh` run it. Run it again after upgrading numba or editing a kernel.
 
 topseg's kernels are compiled by numba on first use and kept in numba's cache (beside the
 sources, or in $NUMBA_CACHE_DIR). With the cache empty (a fresh install, a numba upgrade,
@@ -137,8 +139,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--processes",
         type=int_range(1, 64),
         default=default_processes(),
-        help=f"jobs compiled at once, one process each (default here: {default_processes()}, "
-        "one per core up to the jobs that can run at once)",
+        help="jobs compiled at once, one process each (default: one per core this process "
+        "may use, up to the jobs that can run at once)",
     )
 
 

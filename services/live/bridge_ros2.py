@@ -1,4 +1,6 @@
-"""Publish topseg's cameras to ROS 2 over rmw_zenoh: `topseg bridge ros2 [--domain N]`.
+"""Publish topseg's cameras to ROS 2 over rmw_zenoh (`topseg bridge ros2`), as a node
+`/topseg_bridge`: `/topseg/<cell>/<camera>/depth`, `.../labels`, `.../camera_info`, and the
+cameras' mounts on `/tf_static`. Needs a Zenoh router that both sides reach; no ROS install.
 
 For every camera seen on `topseg/<cell>/<camera>/{depth,labels}` (or the `--cameras` given)
 it publishes, as a ROS 2 node `/topseg_bridge` would under `rmw_zenoh_cpp`:

@@ -1,4 +1,8 @@
-"""Find where the camera hangs: fit the floor in a few seconds of frames, write a mount file.
+"""Find where a camera hangs: fit the floor in a few seconds of its frames (the floor mostly
+clear, the camera still), print the height above the floor, pitch, roll and the fit's
+residual, and write a mount file for `topseg driver --mount` with a picture beside it to
+check by eye. Refuses with one line when it finds no floor, the camera moved, or it is
+tilted too far.
 
     topseg calibrate --source freenect --out cell1-mount.json
 
@@ -11,7 +15,7 @@ picture beside it: the depth, the floor inliers over it, and the height above th
 It refuses with one line when the source gives no depth, no plane covers enough of the view,
 the frames disagree (the camera moved), or the camera is tilted beyond what is supported.
 A camera that sends range along each pixel's ray instead of depth is recognised, and its
-mount says so (`radial`, docs/calibration.md). A stereo camera's edges are thinned before
+mount says so (`radial`, docs/howto/calibrate.md). A stereo camera's edges are thinned before
 labelling (`core/fattening.py`); `--no-edge-thinning` writes a mount that says its edges are
 not fattened (a camera whose own filters already clean them), so they are left as they are.
 """

@@ -1,4 +1,6 @@
-"""List the depth sensors attached to this machine: `topseg devices`.
+"""List the depth sensors attached to this machine (Kinect v1, Luxonis OAK), each with the
+`--source` spec to give `topseg driver` and, when this user cannot open it, how to fix the
+permissions with topseg's udev rules.
 
 Kinect v1 cameras are found on USB with pyusb (045e:02ae); Luxonis OAK devices with pyusb
 (03e7:2485 before boot, 03e7:f63b after) and depthai's device list. For each it prints the

@@ -1,4 +1,8 @@
-"""Publish one camera's depth on Zenoh: `topseg driver --source SPEC`.
+"""Publish one camera's depth frames on Zenoh (`topseg/<cell>/<camera>/depth`) from a
+source: a Kinect v1 (`freenect`), an OpenNI2 device, an OAK-D (`oak`), a recording or a PNG
+folder (`replay:PATH`) or rendered scenes (`synthetic`). `--mount FILE` sends the camera's
+mount with every frame. A sensor that drops out is reopened with backoff; a second driver
+for a camera that already has one refuses to start.
 
 Reads frames from a source (`replay:PATH`, `freenect[:index]`, `openni2[:uri]`,
 `oak[:device-id]`, `synthetic`) and publishes them as wire messages on

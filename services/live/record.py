@@ -1,4 +1,7 @@
-"""Record topseg's Zenoh traffic to an MCAP file: `topseg record --out FILE.mcap`.
+"""Record what is on Zenoh to an MCAP file: every camera's depth, labels, ground truth and
+stats by default, as ROS 2 messages (`--format ros2`, which ROS 2 tools and `replay:` read)
+or as the raw wire bytes (`--format msgpack`). Stops after `--duration`, `--count` or
+Ctrl-C, then moves the finished file into place.
 
 Subscribes to `--keys` (default: every camera's depth, labels, ground truth and stats).
 `--format ros2` (the default) writes a ROS 2 recording (`core/formats/ros2_recording.py`:

@@ -1,8 +1,11 @@
-"""Run a Zenoh router: `topseg router [--zenoh-config FILE] [--listen ENDPOINT ...]`.
+"""Run a Zenoh router, for a cell whose services run on several machines. Without a config
+it listens on loopback at the rendezvous port; with `--zenoh-config` (such as
+`deploy/zenoh/router.json5`, or the TLS `secure-router.json5`) the file is used as is.
+`--listen` replaces the listen endpoints.
 
 zenohd is on neither PyPI nor Debian, so this opens a Zenoh session in `router` mode, which
 runs Zenoh's own router: it routes between the peers and clients connected to it, on this
-host or others (see `deploy/zenoh/` and docs/operations.md). With `--zenoh-config` the file
+host or others (see `deploy/zenoh/` and docs/howto/deploy.md). With `--zenoh-config` the file
 is used as is, except that a file without `mode` gets `"router"`; a file with another mode is
 refused (it would not route). Without a file the router listens on loopback at the
 rendezvous port (`--zenoh-port`, default 7447) with multicast scouting off, where topseg's

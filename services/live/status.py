@@ -1,4 +1,7 @@
-"""Show each camera's health: `topseg status [--timeout S] [--json] [--watch] [--cell C]`.
+"""Show each camera's health over a window of `--timeout` seconds: driver and worker alive
+or DOWN, fps, latency p50/p99, dropped and rejected counts, the model and the mount. Exit
+status 0 when every camera's driver and worker are alive, 1 when one is DOWN or no service
+answered, 2 for bad arguments or no Zenoh session.
 
 For every camera seen on Zenoh (a liveliness token, a stats message or a driver `info`
 reply under `topseg/<cell>/<camera>/`, or named with `--expect`) it reports, over a window
@@ -63,7 +66,6 @@ INSTANCE_FIELD = "_instance"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The window, output format, watch mode, cell filter and expected cameras."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
         "--timeout",
         type=finite(0.1, 3600),

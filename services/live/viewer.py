@@ -1,4 +1,6 @@
-"""Show what flows on Zenoh in Rerun and/or Foxglove.
+"""Show what flows on Zenoh: every camera's depth, labels, labelled point cloud and the
+worker's timings, in Rerun (`--spawn`, `--web`, or `--save FILE.rrd`) and/or Foxglove
+(`--foxglove`).
 
     topseg viewer [--spawn | --web | --save FILE.rrd] [--foxglove] [...]
 

@@ -1,4 +1,8 @@
-"""Label depth frames from Zenoh: `topseg worker --model M [--crf MODE] [--cameras cell/cam ...]`.
+"""Label depth frames from Zenoh: for every camera it serves (all of `topseg/*/*/depth`, or
+`--cameras`) it runs the forest and the CRF on the newest frame, through the camera's mount
+(the one the frames carry, or one it estimates and re-checks), and publishes labels and
+stats (ms per stage, fps, counts). A slow worker skips frames rather than queue them;
+`--lossless` labels every frame.
 
 For every camera it serves (all of `topseg/*/*/depth`, or the `--cameras` given) the worker
 runs the forest and the CRF on the newest depth frame and publishes

@@ -1,4 +1,6 @@
-"""Measure a stage's speed and memory: `topseg bench forest|crf|...`.
+"""Measure a stage's speed and memory: `topseg bench
+forest|crf|synthesis|datagen|transport|pipeline|train|calibrate`, printed as a table or, with
+`--json`, as one JSON object.
 
 Each benchmark lives in its own module with `add_arguments(parser)` and
 `measure(args) -> dict`; this module prints the figures as a table, or as one JSON
@@ -12,6 +14,8 @@ import importlib
 import json
 import resource
 import sys
+
+from topseg.services.cli import describe
 
 #: benchmark -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
@@ -47,7 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub.required = True
     for name, (module_name, help_text) in BENCHES.items():
         module = importlib.import_module(module_name)
-        p = sub.add_parser(name, help=help_text, description=module.__doc__)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=describe.description(module.__doc__, "docs/performance.md"),
+            formatter_class=describe.ParagraphFormatter,
+        )
         p.add_argument(
             "--json", action="store_true", help="print one JSON object instead of a table"
         )

@@ -1,4 +1,8 @@
-"""Render a synthetic dataset on Dask into a Zarr store (see `topseg.core.formats.dataset`).
+"""Render a synthetic dataset into a Zarr store on Dask: scenes drawn from the density
+function, ray cast from a camera mount and sensor drawn for each frame (`--mounts random`) or
+from the paper's Kinect v1 3.5 m up (`--mounts paper`), with the sensor's noise and exact
+labels. Frame i depends only on (--seed, i), so a rerun resumes where it stopped.
+`topseg datagen preview PATH` draws a contact sheet to check the scenes by eye.
 
     topseg datagen --mode modeled --frames 2000 --out data/modeled.zarr --seed 1
     topseg datagen --mounts paper --noise gaussian:15 --frames 2000 --out data/paper.zarr
@@ -37,6 +41,7 @@ import numpy as np
 
 from topseg.core.errors import TopsegError
 from topseg.services.batch.dask_cluster import dask_client, default_workers
+from topseg.services.cli import describe
 from topseg.services.cli.options import int_range, non_negative_int
 
 __all__ = ["add_arguments", "dask_client", "default_workers", "generate", "render_chunk", "run"]
@@ -109,7 +114,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="datagen_command", metavar="{preview}")
     from topseg.services.batch.datagen import preview as datagen_preview
 
-    p = sub.add_parser("preview", help=datagen_preview.HELP, description=datagen_preview.__doc__)
+    p = sub.add_parser(
+        "preview",
+        help=datagen_preview.HELP,
+        description=describe.description(datagen_preview.__doc__, "docs/howto/retrain.md"),
+        formatter_class=describe.ParagraphFormatter,
+    )
     datagen_preview.add_arguments(p)
 
 

@@ -1,4 +1,7 @@
-"""`topseg experiment`: the paper's experiments (Sharma et al. 2016, Fig. 4 and Table I).
+"""The paper's experiments (Sharma et al. 2016, Fig. 4 and Table I) on topseg's synthetic data:
+`noise`, `features`, `frames`, `overlap` and `table` train forests and score them on one
+held-out test set, beside the paper's figures; `mounts` scores one model across ceiling
+heights, tilts and sensors. Each writes OUT/<experiment>.md, .json and .png; a rerun resumes.
 
     topseg experiment noise|features|frames|overlap|table [--scale tiny|quick|paper] --out DIR
     topseg experiment mounts [--model M] [--baseline OLD] --out DIR   (experiment/mounts.py)

@@ -27,7 +27,7 @@ from topseg.core.forest.train_config import TrainConfig
 
 log = logging.getLogger("topseg.experiment")
 
-TRAIN_NOISE = "gaussian:15"  # the paper's best training noise (sigma in mm, see docs/noise.md)
+TRAIN_NOISE = "gaussian:15"  # the paper's best training noise (mm; docs/explanation/noise.md)
 TEST_NOISE = "kinect"  # the held-out set: realistic Kinect v1 noise
 TEST_SEED_OFFSET = 1000  # the test set's dataset seed is --seed + this: other scenes
 DEFAULT_THETA = 0.30  # the density's default theta' (DensityConfig)
