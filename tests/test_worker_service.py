@@ -554,3 +554,45 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
         "small_furniture": 0, "satellite_heads": 0, "filled_holes": mock.ANY,
     }, worker.err  # fmt: skip
     assert "not a msgpack" not in worker.err
+
+
+# ------------------------------------------------------------------ odd keys, seqs and stamps
+
+
+def test_depth_on_the_reserved_any_key_is_dropped_and_counted_never_fatal(run, peers, model_path):
+    """`_any/_any` names the token of a worker serving every camera, not a camera: one
+    message there (a byte, or a well-formed frame) stopped every such worker with exit 2.
+    Each is now dropped, counted and warned about; real cameras are labelled on."""
+    port, cell = free_port(), "rsv"
+    peer = peers(port, cell)
+    reserved = peer.session.declare_publisher(
+        f"topseg/{wire.ANY}/{wire.ANY}/depth", congestion_control=zenoh.CongestionControl.BLOCK
+    )
+    from_any: list[str] = []  # labels or stats for the reserved pair: there must be none
+    peer.session.declare_subscriber(
+        f"topseg/{wire.ANY}/{wire.ANY}/*", lambda s: from_any.append(str(s.key_expr))
+    )
+    worker = run("worker", "--model", model_path, "--crf", "none", "--zenoh-port", port)
+    worker.wait_line("worker ready", 120)
+    wait_for(lambda: reserved.matching_status.matching, 30, "the worker's wildcard subscriber")
+    ((depth, _),) = frames(7, 1)
+    reserved.put(b"x")
+    worker.wait_line(f"dropped depth on topseg/{wire.ANY}/{wire.ANY}/depth", 60)
+    reserved.put(wire.encode_depth(wire.DepthFrame(depth, K, 0, time.time_ns(), "cam0")))
+
+    def labelled(n):
+        seq, deadline = len(peer.labels) * 1000, time.monotonic() + 60
+        while len(peer.labels) < n and time.monotonic() < deadline:
+            peer.put_depth(depth, seq)  # the first only announces the camera (ring mode)
+            seq += 1
+            time.sleep(0.05)
+        return len(peer.labels) >= n
+
+    assert labelled(3), worker.err
+    reserved.put(b"x")  # a worker that survived the first one died at the next
+    assert labelled(len(peer.labels) + 2), worker.err
+    assert worker.alive()
+    assert worker.stop() == 0, worker.err
+    assert "3 depth messages on keys that name no camera were dropped" in worker.err
+    assert "worker: error:" not in worker.err and "Traceback" not in worker.err
+    assert [k for k in from_any if not k.endswith("/depth")] == []

@@ -25,8 +25,11 @@ Only the newest frame is kept: one `zenoh.handlers.RingChannel(1)` per camera, s
 worker skips frames and its memory never grows. Skipped frames are counted from gaps in
 `seq`. `--lossless` uses a FIFO instead (tests, offline labelling of a replay). Messages that
 do not decode (or that the forest cannot take) are dropped, counted as `rejected` and logged;
-they never stop the worker. Without `--cameras`, a camera is served from its first depth
-message on (that message only announces it; the ring subscriber takes the next one).
+they never stop the worker; nor does depth on a key that names no camera (`_any/_any`, the
+chunks of the token below, or a name the wire format refuses): dropped, counted in the
+status line and warned about at most every 10 s. Without `--cameras`, a camera is served
+from its first depth message on (that message only announces it; the ring subscriber takes
+the next one).
 
 A flood of camera names is bounded: without `--cameras` at most `--max-cameras` discovered
 cameras are served at once; names beyond it are ignored, counted (in the status line) and
@@ -62,6 +65,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from topseg.core.errors import TopsegError
+from topseg.core.printable import printable
 from topseg.services.cli.options import (
     add_crf_arguments,
     add_grid_arguments,
@@ -292,6 +296,10 @@ class Worker:
         self.other_workers: dict[tuple[str, str], set[str]] = {}  # under self.bell
         self.contested: set[tuple[str, str]] = set()  # another worker appeared (self.bell)
         self.left_to_others: set[tuple[str, str]] = set()  # said once each
+        self.bad_keys = 0  # depth messages on keys that name no camera (under self.bell)
+        self.last_bad_key: tuple[str, str] | None = None  # (key, why) of the newest one
+        self.bad_keys_said = 0  # how many the last warning counted
+        self.last_bad_key_warning = -math.inf
         self.any_token = None
         self.congestion = (
             zenoh.CongestionControl.BLOCK if args.lossless else zenoh.CongestionControl.DROP
@@ -325,7 +333,8 @@ class Worker:
         if self.discover and key not in self.depth_keys:
             try:
                 parts = wire.parse_key(key)
-            except wire.WireError:
+            except wire.WireError as exc:
+                self.note_bad_key(key, exc)
                 return
             new = (parts.cell, parts.camera)
         with self.bell:
@@ -333,6 +342,32 @@ class Worker:
             if new is not None and len(self.announced) < self.max_cameras + MAX_IGNORED_NAMES:
                 self.announced.add(new)  # bounded: the main loop refuses and counts the excess
             self.bell.notify()
+
+    def note_bad_key(self, key: str, why: Exception) -> None:
+        """Count a depth message on a key that names no camera (`_any/_any`, reserved for
+        the tokens of workers like this one, or a name the wire format refuses); the main
+        loop warns about them (`warn_bad_keys`). Such a message is dropped, never served."""
+        with self.bell:
+            self.bad_keys += 1
+            self.last_bad_key = (key, str(why))
+            self.rung = True
+            self.bell.notify()
+
+    def warn_bad_keys(self) -> None:
+        """Warn about new depth messages on keys that name no camera, at most every
+        LIMIT_WARN_S (the key shown escaped and cut short)."""
+        now = time.monotonic()
+        with self.bell:
+            count, last = self.bad_keys, self.last_bad_key
+        if count == self.bad_keys_said or now - self.last_bad_key_warning < LIMIT_WARN_S:
+            return
+        self.bad_keys_said, self.last_bad_key_warning = count, now
+        log.warning(
+            "dropped depth on %s: %s (%d messages on keys that name no camera so far)",
+            printable(last[0]),
+            printable(last[1]),
+            count,
+        )
 
     def _on_token(self, sample) -> None:
         """Zenoh's callback thread: note drivers that went away (a camera following one may
@@ -519,6 +554,7 @@ class Worker:
         none had."""
         with self.bell:
             new, self.announced = self.announced, set()
+        self.warn_bad_keys()
         self.settle_contested()
         for cell, camera in sorted(new):
             if (cell, camera) not in self.cameras and self.admissible(cell, camera):
@@ -570,7 +606,8 @@ class Worker:
         if state is None:  # the shared FIFO: the key says which camera
             try:
                 parts = wire.parse_key(str(sample.key_expr))
-            except wire.WireError:
+            except wire.WireError as exc:
+                self.note_bad_key(str(sample.key_expr), exc)
                 return
             state = self.cameras.get((parts.cell, parts.camera))
             if state is None:
@@ -710,8 +747,13 @@ class Worker:
 
 def status_line(worker: Worker) -> str:
     """One line for `systemctl status`: each camera's fps and counts."""
+    dropped = (
+        [f"{worker.bad_keys} depth messages on keys that name no camera dropped"]
+        if worker.bad_keys
+        else []
+    )
     if not worker.cameras:
-        return f"model {worker.segmenter.model_id}: waiting for depth frames"
+        return "; ".join([f"model {worker.segmenter.model_id}: waiting for depth frames", *dropped])
     now, parts = time.perf_counter(), []
     for s in list(worker.cameras.values()):  # another thread asks; the dict may change
         c = s.counts
@@ -725,7 +767,7 @@ def status_line(worker: Worker) -> str:
         parts.append(
             f"{len(worker.ignored)} camera names ignored (--max-cameras {worker.max_cameras})"
         )
-    return "serving " + "; ".join(parts)
+    return "serving " + "; ".join([*parts, *dropped])
 
 
 def mount_config(args: argparse.Namespace) -> MountWatchConfig:
@@ -815,5 +857,9 @@ def run(args: argparse.Namespace) -> int:
                 worker.max_cameras,
                 worker.ignored_messages,
                 worker.forgotten,
+            )
+        if worker.bad_keys:
+            log.warning(
+                "%d depth messages on keys that name no camera were dropped", worker.bad_keys
             )
     return 0
