@@ -13,6 +13,10 @@ of `--timeout` seconds:
   and the camera's mount (height, tilt, and whether it came from the frames or the worker's
   estimate; "MOVED" when the worker saw the camera move).
 
+Text from the wire (the model, the driver's source and last error) is printed escaped and
+cut short (`topseg.core.printable`): escape codes, carriage returns and newlines in it cannot
+forge a row or move the terminal's cursor.
+
 Liveliness comes from a `get` at the end of the window plus a subscriber for the window, so
 a service that goes away during the window shows as DOWN. A service killed outright is seen
 as soon as its TCP link closes; one on a host that vanished, after Zenoh's lease (10 s).
@@ -49,6 +53,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from topseg.core.metrics import percentile
+from topseg.core.printable import printable
 from topseg.services.cli.options import finite
 from topseg.services.runtime import zenoh_session
 
@@ -59,6 +64,12 @@ REQUIRED_ROLES = ("driver", "worker")
 #: the key under which a stats message keeps the id of the worker that sent it (from its
 #: attachment; not a wire field)
 INSTANCE_FIELD = "_instance"
+#: The longest text kept from a driver's info reply (its source, its last error).
+MAX_INFO_TEXT = 256
+#: The widest a table cell of text from the wire (model, source) is printed, and the longest
+#: such text on a line of its own (the driver's last error): escaped, then cut.
+MAX_CELL = 40
+MAX_LINE_TEXT = 200
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,16 +116,34 @@ class Observed:
     incomplete: list = field(default_factory=list)  # queries cut off at their deadline
 
 
+def _info_count(info: dict, name: str) -> int | None:
+    """A count from a driver's info reply (whatever answered on the key): an int >= 0,
+    else None."""
+    value = info.get(name)
+    return value if type(value) is int and value >= 0 else None
+
+
+def _info_text(info: dict, name: str) -> str | None:
+    """A text from a driver's info reply, cut to MAX_INFO_TEXT characters; None when it is
+    not a string."""
+    value = info.get(name)
+    return value[:MAX_INFO_TEXT] if isinstance(value, str) else None
+
+
 def _driver_report(alive: bool, start: tuple | None, end: tuple | None) -> dict:
     out: dict[str, Any] = {"alive": alive}
     info = (end or start or (None, None))[1]
     if info:
-        for name in ("source", "frames", "reconnects", "last_error"):
-            out[name] = info.get(name)
-        out["nominal_fps"] = info.get("fps")
+        for name in ("source", "last_error"):
+            out[name] = _info_text(info, name)
+        for name in ("frames", "reconnects"):
+            out[name] = _info_count(info, name)
+        fps = info.get("fps")
+        out["nominal_fps"] = fps if type(fps) in (int, float) and math.isfinite(fps) else None
     if start and end and end[0] > start[0]:
-        frames = end[1].get("frames", 0) - start[1].get("frames", 0)
-        out["fps"] = max(0, frames) / (end[0] - start[0])
+        first, last = _info_count(start[1], "frames"), _info_count(end[1], "frames")
+        if first is not None and last is not None:
+            out["fps"] = max(0, last - first) / (end[0] - start[0])
     return out
 
 
@@ -332,9 +361,9 @@ def format_table(rep: dict) -> str:
                 str(w.get("rejected", "-")),
                 f"{100 * w['floor_share']:.0f}%" if "floor_share" in w else "-",
                 mount_cell(w.get("mount")),
-                str(w.get("model") or "-"),
-                str(d.get("source") or "-"),
-                str(d.get("reconnects", "-")),
+                printable(w.get("model") or "-", MAX_CELL),
+                printable(d.get("source") or "-", MAX_CELL),
+                str(d["reconnects"]) if d.get("reconnects") is not None else "-",
             )
         )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
@@ -346,7 +375,8 @@ def format_table(rep: dict) -> str:
             out.append(f"{row['cell']}/{row['camera']}: {p}")
         if row["driver"].get("last_error") and row["driver"]["alive"]:
             out.append(
-                f"{row['cell']}/{row['camera']}: driver's last error: {row['driver']['last_error']}"
+                f"{row['cell']}/{row['camera']}: driver's last error: "
+                + printable(row["driver"]["last_error"], MAX_LINE_TEXT)
             )
     out += waiting
     for what in rep.get("incomplete", ()):
