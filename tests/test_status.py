@@ -316,3 +316,32 @@ def test_text_from_the_wire_is_printed_escaped_and_short():
     error = next(line for line in lines if "driver's last error" in line)
     assert error.startswith(f"{cell}/cam0: driver's last error: gone\\r\\ngone"), error
     assert error.endswith("..."), error
+
+
+def test_seq_resets_jumps_and_stamps_off_the_clock_are_shown_when_they_grew():
+    seen = status.Observed(window_s=2.0)
+    seen.alive = {("c", "k", "driver"), ("c", "k", "worker")}
+    seen.stats[("c", "k")] = [
+        {
+            "stamp_ns": i * 100_000_000,
+            "timings_ms": {"total": 5.0},
+            "counts": {
+                "processed": 10 + i, "dropped": 0, "rejected": 0,
+                "seq_resets": 3, "seq_jumps": 4 + i, "stamps_out_of_window": 2 * i,
+            },
+        }
+        for i in range(3)
+    ]  # fmt: skip
+    rep = status.report(seen)
+    row = rep["cameras"][0]
+    w = row["worker"]
+    assert (w["seq_resets"], w["seq_jumps"], w["stamps_out_of_window"]) == (3, 6, 4)
+    assert (w["seq_resets_in_window"], w["seq_jumps_in_window"]) == (0, 2)
+    assert w["stamps_out_of_window_in_window"] == 4
+    assert row["ok"] and status.exit_status(rep) == 0  # said, not a failure
+    table = status.format_table(rep)
+    assert "c/k: the depth's seq jumped ahead 2 times" in table
+    assert (
+        "c/k: 4 depth frames stamped over 1 s ahead of or 60 s behind the worker's clock" in table
+    )
+    assert "started again" not in table  # no reset in the window

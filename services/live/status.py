@@ -11,7 +11,9 @@ of `--timeout` seconds:
   published, from the worker's stats messages in the window), processed / dropped / rejected
   counts since the worker started, the model in use, the share of pixels skipped as floor
   and the camera's mount (height, tilt, and whether it came from the frames or the worker's
-  estimate; "MOVED" when the worker saw the camera move).
+  estimate; "MOVED" when the worker saw the camera move); and a line when, in the window,
+  the depth's `seq` started again or jumped ahead or its stamps lay off the worker's clock
+  (the worker's `seq_resets`, `seq_jumps`, `stamps_out_of_window`).
 
 Text from the wire (the model, the driver's source and last error) is printed escaped and
 cut short (`topseg.core.printable`): escape codes, carriage returns and newlines in it cannot
@@ -70,6 +72,16 @@ MAX_INFO_TEXT = 256
 #: such text on a line of its own (the driver's last error): escaped, then cut.
 MAX_CELL = 40
 MAX_LINE_TEXT = 200
+#: The worker's counts of frames that did not fit the stream, and what a line says of them
+#: (when they grew in the window): a restarted or foreign `seq`, stamps off the clock.
+ODD_FRAME_COUNTS = ("seq_resets", "seq_jumps", "stamps_out_of_window")
+ODD_FRAME_LINES = {
+    "seq_resets": "the depth's seq started again {n} times (a driver restarted?)",
+    "seq_jumps": "the depth's seq jumped ahead {n} times, further than the camera could count "
+    "(another source on its key?); not counted as dropped",
+    "stamps_out_of_window": "{n} depth frames stamped over {ahead:g} s ahead of or {age:g} s "
+    "behind the worker's clock: no latency for them; are the hosts' clocks in step?",
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -178,10 +190,24 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "small_furniture",
         "satellite_heads",
         "filled_holes",
+        *ODD_FRAME_COUNTS,
     ):
         out[name] = last["counts"].get(name, 0)
         out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))
     return out
+
+
+def _odd_frame_lines(worker: dict) -> list[str]:
+    """A line for each count of odd frames (`ODD_FRAME_COUNTS`) that grew in the window."""
+    from topseg.services.live.worker import STAMP_AGE_S, STAMP_AHEAD_S
+
+    return [
+        ODD_FRAME_LINES[name].format(
+            n=worker[f"{name}_in_window"], ahead=STAMP_AHEAD_S, age=STAMP_AGE_S
+        )
+        for name in ODD_FRAME_COUNTS
+        if worker.get(f"{name}_in_window")
+    ]
 
 
 def _by_worker(stats: list[dict]) -> dict[str, list[dict]]:
@@ -241,6 +267,7 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
                 f"depth from two drivers: the worker dropped {worker['foreign_in_window']} "
                 "frames of the one it does not follow"
             )
+        problems += _odd_frame_lines(worker)
         problems += [
             f"{r} went down during the window"
             for c, cam, r in sorted(seen.went_down)

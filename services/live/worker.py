@@ -9,9 +9,13 @@ runs the forest and the CRF on the newest depth frame and publishes
   latency (depth stamp to labels published), fps, the counts processed / dropped / rejected
   / small_heads / small_furniture (blobs relabelled as too small to be a head or a piece of
   furniture) / satellite_heads (head blobs beside a larger head, relabelled) / filled_holes
-  (holes without depth inside one surface filled before labelling), the share of pixels the floor gate skipped (`floor_share`) and the mount in
-  use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
-  was seen to move).
+  (holes without depth inside one surface filled before labelling) / seq_resets (a `seq`
+  not above the last one: a restarted driver) / seq_jumps (a `seq` further ahead than the
+  camera could have counted since, `MAX_SEQ_RATE`: not counted as dropped) /
+  stamps_out_of_window (stamps over 1 s ahead of the worker's clock or 60 s behind it: no
+  latency for those frames), the share of pixels the floor gate skipped (`floor_share`) and
+  the mount in use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated",
+  times the camera was seen to move).
 
 Each frame is labelled with its camera's mount (`services/live/worker_mount.py`): the one the
 frames carry (`topseg driver --mount`), or, when they carry none, one the worker estimates
@@ -100,6 +104,16 @@ FPS_ALPHA = 0.2
 SOURCE_SWITCH_S = 1.0
 #: At most one warning about another worker on a camera this often (s).
 DUPLICATE_WARN_S = 10.0
+#: The most frames a second a camera is taken to send (a driver's --fps is 1000 at most):
+#: a forward step in `seq` larger than this rate allows since the last labelled frame
+#: (plus one second) is counted as a jump (`seq_jumps`), not as that many dropped frames.
+MAX_SEQ_RATE = 10_000
+#: A depth stamp's sane window against the worker's clock: at most STAMP_AHEAD_S ahead
+#: (more is clock skew between hosts) and STAMP_AGE_S old (more is a clock far behind, or
+#: a stamp that is no time at all). Frames outside it get no latency and are counted as
+#: `stamps_out_of_window`.
+STAMP_AHEAD_S = 1.0
+STAMP_AGE_S = 60.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -196,9 +210,13 @@ class CameraState:
             "small_furniture": 0,
             "satellite_heads": 0,
             "filled_holes": 0,
+            "seq_resets": 0,
+            "seq_jumps": 0,
+            "stamps_out_of_window": 0,
         }
     )
     last_seq: int | None = None
+    last_seq_time: float = 0.0  # when last_seq was labelled (monotonic)
     last_time: float | None = None
     fps: float = 0.0
     watch: MountWatch | None = None
@@ -209,6 +227,7 @@ class CameraState:
     source: str | None = None  # the driver instance whose depth this camera follows
     source_seen: float = 0.0  # when its last frame was taken (monotonic)
     last_duplicate_warning: float = -math.inf
+    stamp_sides_said: set = field(default_factory=set)  # "ahead", "behind": logged once each
 
     def follow(self, source: str | None, now: float, followed_gone: bool = False) -> bool:
         """Whether a depth message from driver instance `source` is this camera's: the one
@@ -245,11 +264,42 @@ class CameraState:
             )
         return False
 
-    def note_seq(self, seq: int) -> None:
-        """Count the frames skipped between the last labelled seq and this one."""
-        if self.last_seq is not None and seq > self.last_seq + 1:
-            self.counts["dropped"] += seq - self.last_seq - 1
-        self.last_seq = seq  # a smaller seq: the source restarted, nothing to count
+    def note_seq(self, seq: int, now: float) -> None:
+        """Count the frames skipped between the last labelled seq and this one (`now`:
+        monotonic s). A seq that is not larger (a restarted source) counts as a reset; a
+        step larger than the camera could have sent since (MAX_SEQ_RATE) as a jump; neither
+        as dropped frames, so one odd frame cannot spoil `dropped` for good."""
+        last, self.last_seq = self.last_seq, seq
+        then, self.last_seq_time = self.last_seq_time, now
+        if last is None:
+            return
+        if seq <= last:
+            self.counts["seq_resets"] += 1
+        elif seq - last - 1 > MAX_SEQ_RATE * (now - then + 1.0):
+            self.counts["seq_jumps"] += 1
+        else:
+            self.counts["dropped"] += seq - last - 1
+
+    def latency_ms(self, stamp_ns: int, now_ns: int) -> float | None:
+        """Depth stamp to `now_ns` in ms; None (and counted as `stamps_out_of_window`; the
+        first ahead, the first behind and every hundredth logged) for a stamp outside the
+        sane window (STAMP_AHEAD_S, STAMP_AGE_S): a clock skew is said, not hidden as 0."""
+        age_s = (now_ns - stamp_ns) / 1e9
+        if -STAMP_AHEAD_S <= age_s <= STAMP_AGE_S:
+            return max(0.0, 1000 * age_s)
+        n = self.counts["stamps_out_of_window"] = self.counts["stamps_out_of_window"] + 1
+        side = "ahead" if age_s < 0 else "behind"
+        if side not in self.stamp_sides_said or n % 100 == 0:
+            self.stamp_sides_said.add(side)
+            log.warning(
+                "%s/%s: a depth frame stamped %s this host's clock: its latency is not "
+                "measured; are the hosts' clocks in step? (%d such frames)",
+                self.cell,
+                self.camera,
+                f"{-age_s:.3g} s ahead of" if age_s < 0 else f"{age_s:.3g} s behind",
+                n,
+            )
+        return None
 
     def note_done(self, now: float) -> None:
         """Update the fps estimate with the time since the last labelled frame."""
@@ -681,7 +731,7 @@ class Worker:
         out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
         state.labels_pub.put(wire.encode_labels(out), attachment=self.attachment)
         t4 = time.perf_counter()
-        state.note_seq(frame.seq)
+        state.note_seq(frame.seq, time.monotonic())
         state.counts["processed"] += 1
         state.counts["small_heads"] += result.small_heads
         state.counts["small_furniture"] += result.small_furniture
@@ -697,7 +747,9 @@ class Worker:
             "total": 1000 * (t4 - t0),
         }
         if frame.stamp_ns:  # end to end: capture (driver host clock) -> labels published
-            timings["latency"] = max(0.0, (time.time_ns() - frame.stamp_ns) / 1e6)
+            latency = state.latency_ms(frame.stamp_ns, time.time_ns())
+            if latency is not None:
+                timings["latency"] = latency
         self.publish_stats(
             state,
             timings,
