@@ -329,3 +329,19 @@ def test_status_ends_within_its_timeout_when_the_rendezvous_holder_is_frozen(run
     assert rc == 2 and len(lines) == 1 and "cannot open a Zenoh session within 3 s" in err, err
     assert "does not answer as Zenoh" in err and ".rs:" not in err
     assert drv.stop() == 0 and router.stop() == 0, drv.err + router.err
+
+
+def test_a_clean_driver_stop_raises_no_alarm_about_the_rendezvous_port(run, recording):
+    """A worker that met the driver holding the rendezvous port warned, once the driver
+    stopped on SIGTERM, that the port "is held by something that does not answer as
+    Zenoh" though nothing listened there. Now it says, once, that nothing holds the port."""
+    port, cell = free_port(), "calm"
+    drv = driver(run, port, cell, recording)
+    drv.wait_line("publishing", 60)  # it holds the port: it started first
+    wk = worker(run, port, f"{cell}/cam0")
+    wk.wait_line("frames labelled at", 120)  # it met the driver
+    stopped = time.monotonic()
+    assert drv.stop() == 0, drv.err
+    wk.wait_line(f"nothing holds the rendezvous port tcp/127.0.0.1:{port}", 30, after=stopped)
+    assert "does not answer as Zenoh" not in wk.err, wk.err
+    assert wk.stop() == 0, wk.err
