@@ -104,6 +104,9 @@ FPS_ALPHA = 0.2
 SOURCE_SWITCH_S = 1.0
 #: At most one warning about another worker on a camera this often (s).
 DUPLICATE_WARN_S = 10.0
+#: A worker that keeps a camera another worker took too waits this long for the other one
+#: to step back (two workers serving every camera settle on one) before it warns (s).
+CONTEST_GRACE_S = 5.0
 #: The most frames a second a camera is taken to send (a driver's --fps is 1000 at most):
 #: a forward step in `seq` larger than this rate allows since the last labelled frame
 #: (plus one second) is counted as a jump (`seq_jumps`), not as that many dropped frames.
@@ -227,6 +230,8 @@ class CameraState:
     source: str | None = None  # the driver instance whose depth this camera follows
     source_seen: float = 0.0  # when its last frame was taken (monotonic)
     last_duplicate_warning: float = -math.inf
+    contested_since: float | None = None  # another worker took it too (monotonic); None: not
+    contested_by: tuple[str, ...] = ()  # the workers that took it too
     stamp_sides_said: set = field(default_factory=set)  # "ahead", "behind": logged once each
 
     def follow(self, source: str | None, now: float, followed_gone: bool = False) -> bool:
@@ -463,7 +468,9 @@ class Worker:
 
     def settle_contested(self) -> None:
         """Another worker took a token for a camera served here: a discovered camera goes to
-        the worker with the smaller instance id; a named one stays, warned about loudly."""
+        the worker with the smaller instance id; a named one stays. A worker that keeps the
+        camera warns loudly only if the other one still labels it CONTEST_GRACE_S later
+        (`check_duplicates`): two workers serving every camera settle before that."""
         with self.bell:
             contested, self.contested = self.contested, set()
         now = time.monotonic()
@@ -479,7 +486,37 @@ class Worker:
                     min(others),
                     *camera,
                 )
-            elif now - state.last_duplicate_warning >= DUPLICATE_WARN_S:
+            elif state.contested_since is None:  # the other may step back: wait and see
+                state.contested_since = now
+                log.info(
+                    "worker %s took %s/%s too; this worker keeps it%s",
+                    ", ".join(sorted(others)),
+                    *camera,
+                    " (the smaller instance id)" if state.discovered else " (--cameras)",
+                )
+            state.contested_by = tuple(sorted(others))
+        self.check_duplicates(now)
+
+    def check_duplicates(self, now: float) -> None:
+        """For each camera kept here that another worker took too: once the other is gone
+        (it stepped back, or stopped), say so; while it stays past CONTEST_GRACE_S, warn
+        loudly, every DUPLICATE_WARN_S."""
+        for state in list(self.cameras.values()):
+            if state.contested_since is None:
+                continue
+            camera = (state.cell, state.camera)
+            others = self.labelled_elsewhere(camera)
+            if not others:
+                log.info(
+                    "worker %s no longer labels %s/%s: labelled by this worker only",
+                    ", ".join(state.contested_by),
+                    *camera,
+                )
+                state.contested_since, state.contested_by = None, ()
+            elif (
+                now - state.contested_since >= CONTEST_GRACE_S
+                and now - state.last_duplicate_warning >= DUPLICATE_WARN_S
+            ):
                 state.last_duplicate_warning = now
                 log.warning(
                     "ANOTHER WORKER labels %s/%s too: %s; both publish labels for it: stop "
@@ -487,6 +524,15 @@ class Worker:
                     *camera,
                     ", ".join(sorted(others)),
                 )
+
+    def seconds_to_duplicate_check(self) -> float | None:
+        """Until a contested camera's next check is due (`check_duplicates`); None: none."""
+        due = [
+            max(s.contested_since + CONTEST_GRACE_S, s.last_duplicate_warning + DUPLICATE_WARN_S)
+            for s in self.cameras.values()
+            if s.contested_since is not None
+        ]
+        return max(0.0, min(due) - time.monotonic()) if due else None
 
     def wake(self) -> None:
         """Wake the main loop now (a stopping signal)."""
@@ -633,7 +679,7 @@ class Worker:
             svc.beat()  # watchdog ping from the serving loop, STATUS= every few s
             if not self.handle_ready():
                 due = [s.watch.seconds_to_due() for s in self.cameras.values()]
-                due = [d for d in due if d is not None]
+                due = [d for d in (*due, self.seconds_to_duplicate_check()) if d is not None]
                 if self.forget_after > 0 and self.discovered_count():
                     due.append(max(0.0, self.next_sweep - time.monotonic()))
                 self.wait(min([svc.tick, *due]))
