@@ -399,6 +399,35 @@ def test_a_silent_camera_leaves_the_ros_graph_and_frees_its_place(run, sessions)
     assert f"released {cell}/a: nothing for 1 s" in bridge.err
 
 
+def test_depth_on_the_reserved_any_pair_or_a_bad_key_is_rejected_not_bridged(run, sessions):
+    """`topseg/_any/_any/depth` (where a worker serving every camera holds its token) was
+    bridged as a camera `_any/_any`; a key with escape codes went raw to the log. Both are
+    now rejected and counted, the key logged escaped; a real camera is bridged on."""
+    port, cell, domain = free_port(), "rb4", 9
+    ros = RosSide(port, domain)
+    sessions.append(ros)
+    bridge = run("bridge", "ros2", "--domain", domain, "--zenoh-port", port)
+    bridge.wait_line("bridge ready", 60)
+    depth = np.full(K.shape, 1500, np.uint16)
+    frame = wire.encode_depth(wire.DepthFrame(depth, K, 1, 10**18, ""))
+    # the first rejection is logged (then one line per 10 s): the one with escape codes
+    for key in ("topseg/x\x1b[2J\r/cam0/depth", f"topseg/{wire.ANY}/{wire.ANY}/depth"):
+        pub = ros.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        wait_for(lambda pub=pub: pub.matching_status.matching, 30, "the bridge's subscriber")
+        pub.put(frame)
+    real = ros.session.declare_publisher(
+        wire.depth_key(cell, "cam0"), congestion_control=zenoh.CongestionControl.BLOCK
+    )
+    wait_for(lambda: real.matching_status.matching, 30, "the bridge's subscriber")
+    real.put(frame)
+    wait_for(lambda: ros.on(ros2.ros2_topic(cell, "cam0", "depth"), ros2.IMAGE), 60, "cam0")
+    assert all(k.startswith(f"{domain}/topseg/{cell}/") for k in ros.keys()), ros.keys()
+    assert bridge.stop() == 0
+    err = bridge.err
+    assert "2 rejected" in err.splitlines()[-1], err  # the reserved pair too
+    assert "topseg/x\\x1b[2J\\r/cam0/depth" in err and "\x1b" not in err, err
+
+
 @pytest.mark.parametrize(
     "args, error",
     [

@@ -144,6 +144,31 @@ def test_count_and_chosen_keys(tmp_path, publisher):
     assert [m.data for m in recording.read_messages(out)] == sent[:3]
 
 
+def test_a_message_on_a_bad_key_is_dropped_and_logged_escaped(tmp_path, publisher):
+    """A key is whatever its publisher chose: escape codes in it went raw to the log. The
+    ROS 2 form drops it (and depth on the reserved `_any/_any`), counted, the key escaped."""
+    port, cell = free_port(), "rec3"
+    out = tmp_path / "ros.mcap"
+    proc = start_recorder(port, out, "--count", "1")
+    pub = publisher(port, cell)
+    depth = np.zeros(K.shape, np.uint16)
+    frame = wire.encode_depth(wire.DepthFrame(depth, K, 0, 10))
+    bad = ["topseg/x\x1b[2J\r/cam0/depth", f"topseg/{wire.ANY}/{wire.ANY}/depth"]
+    try:
+        pub.wait_matched([*bad, wire.depth_key(cell)])
+        for key in bad:
+            pub.pub(key).put(frame)
+        pub.pub(wire.depth_key(cell)).put(frame)  # the one message --count waits for
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "recorded 1 messages" in err and "2 rejected" in err, err
+    assert "topseg/x\\x1b[2J\\r/cam0/depth" in err and "\x1b" not in err, err
+    assert f"topseg/{wire.ANY}/{wire.ANY}/depth that is not a topseg message" in err, err
+
+
 def test_duration_ends_an_idle_recording(tmp_path):
     out = tmp_path / "idle.mcap"
     t0 = time.monotonic()

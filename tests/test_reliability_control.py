@@ -329,3 +329,47 @@ def test_status_ends_within_its_timeout_when_the_rendezvous_holder_is_frozen(run
     assert rc == 2 and len(lines) == 1 and "cannot open a Zenoh session within 3 s" in err, err
     assert "does not answer as Zenoh" in err and ".rs:" not in err
     assert drv.stop() == 0 and router.stop() == 0, drv.err + router.err
+
+
+def test_the_worker_that_keeps_a_camera_warns_only_about_a_worker_that_stays(run, recording):
+    """Of two workers serving every camera that both took one, the one that kept it warned
+    `ANOTHER WORKER labels ... too` after the other had stepped back. A stand-in second
+    worker (its token; an instance id above any Zenoh id, so it is the one to step back)
+    takes the real worker's camera and leaves it: the real one says so and warns not;
+    taken again and kept past the grace, it is warned about."""
+    port, cell = free_port(), "keep"
+    wk = worker(run, port)
+    wk.wait_line("worker ready", 120)
+    driver(run, port, cell, recording)
+    wk.wait_line(f"serving {cell}/cam0", 60)
+    other = "f" * 32
+    session = open_session(port=port)
+    try:
+        token = session.liveliness().declare_token(wire.alive_key(cell, "cam0", "worker", other))
+        wk.wait_line(f"worker {other} took {cell}/cam0 too; this worker keeps it", 30)
+        token.undeclare()  # what the other does once it has seen the smaller id
+        wk.wait_line(f"worker {other} no longer labels {cell}/cam0", 30)
+        assert "ANOTHER WORKER" not in wk.err, wk.err
+        taken = time.monotonic()
+        token = session.liveliness().declare_token(wire.alive_key(cell, "cam0", "worker", other))
+        wk.wait_line(f"ANOTHER WORKER labels {cell}/cam0 too: {other}", 60, after=taken)
+        token.undeclare()
+    finally:
+        session.close()
+    assert wk.stop() == 0, wk.err
+
+
+def test_a_clean_driver_stop_raises_no_alarm_about_the_rendezvous_port(run, recording):
+    """A worker that met the driver holding the rendezvous port warned, once the driver
+    stopped on SIGTERM, that the port "is held by something that does not answer as
+    Zenoh" though nothing listened there. Now it says, once, that nothing holds the port."""
+    port, cell = free_port(), "calm"
+    drv = driver(run, port, cell, recording)
+    drv.wait_line("publishing", 60)  # it holds the port: it started first
+    wk = worker(run, port, f"{cell}/cam0")
+    wk.wait_line("frames labelled at", 120)  # it met the driver
+    stopped = time.monotonic()
+    assert drv.stop() == 0, drv.err
+    wk.wait_line(f"nothing holds the rendezvous port tcp/127.0.0.1:{port}", 30, after=stopped)
+    assert "does not answer as Zenoh" not in wk.err, wk.err
+    assert wk.stop() == 0, wk.err

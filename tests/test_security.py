@@ -291,3 +291,36 @@ def test_topseg_status_works_with_the_viewer_identity(secure):
     assert cam["driver"]["alive"] and cam["worker"]["alive"]
     assert cam["driver"]["source"] == "synthetic" and cam["worker"]["model"] == "m"
     assert cam["worker"]["latency_ms"]["p50"] == 20.0
+
+
+def test_no_role_sends_anything_for_the_reserved_any_camera(secure):
+    """`topseg/*/*/depth` matches `_any/_any`, the chunks of a wildcard worker's token: a
+    driver certificate could publish depth there (and once stopped every such worker). The
+    router denies every message on `topseg/_any/_any/...` but a worker's own token."""
+    driver, worker, viewer = (secure.client(r) for r in ("driver", "worker", "viewer"))
+    observer = secure.client("viewer")
+    depth, truth = collect(worker, "topseg/*/*/depth"), collect(viewer, "topseg/*/*/truth")
+    labels, stats = collect(viewer, "topseg/*/*/labels"), collect(viewer, "topseg/*/*/stats")
+    forged = b"forged on the reserved pair"
+    token = driver.liveliness().declare_token("topseg/_any/_any/alive/driver/d9")
+    kept = worker.liveliness().declare_token("topseg/_any/_any/alive/worker/w9")
+    for _ in range(5):
+        driver.put("topseg/_any/_any/depth", forged)
+        driver.put("topseg/_any/_any/truth", forged)
+        worker.put("topseg/_any/_any/labels", forged)
+        worker.put("topseg/_any/_any/stats", forged)
+    keep_putting(driver, "topseg/c/r1/depth", b"real", lambda: b"real" in depth, "depth")
+    keep_putting(driver, "topseg/c/r1/truth", b"real", lambda: b"real" in truth, "truth")
+    keep_putting(worker, "topseg/c/r1/labels", b"real", lambda: b"real" in labels, "labels")
+    keep_putting(worker, "topseg/c/r1/stats", b"real", lambda: b"real" in stats, "stats")
+
+    def alive():
+        replies = observer.liveliness().get("topseg/_any/_any/alive/**", timeout=1.0)
+        return {str(r.ok.key_expr) for r in replies if r.ok is not None}
+
+    wait_for(lambda: "topseg/_any/_any/alive/worker/w9" in alive(), 10, "the worker's token")
+    time.sleep(SETTLE_S)
+    assert forged not in depth + truth + labels + stats
+    assert alive() == {"topseg/_any/_any/alive/worker/w9"}
+    token.undeclare()
+    kept.undeclare()

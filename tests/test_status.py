@@ -250,3 +250,98 @@ def test_two_workers_of_one_camera_and_a_waiting_wildcard_worker_are_shown():
     assert "c/k: 2 workers: w1, w2" in table
     assert "worker w3 serves every camera: waiting for a first depth frame" in table
     assert "c/other: no worker labels it yet" in table and "c/other: worker DOWN" not in table
+
+
+def test_text_from_the_wire_is_printed_escaped_and_short():
+    """A stats message's model id and a driver's info with escape codes, carriage returns
+    and newlines forged rows on the operator's terminal (and a `frames` that is not a number
+    crashed status). Now every such text is printed escaped and cut short."""
+    import threading
+    import time
+
+    from topseg.core.formats import wire
+    from topseg.services.runtime.zenoh_session import open_session
+
+    port, cell = free_port(), "esc"
+    forged_row = f"\r\x1b[2K{cell}/cam0  alive  alive  30.0  1/1  9  0  0"
+    model = f"m\x1b[31m{forged_row}\nall cameras up (window 3.0 s)\x1b]0;owned\x07"
+    info = {
+        "source": "synthetic\x1b[2J\x1b[H" + "x" * 5000,
+        "frames": "many",
+        "reconnects": "\x1b[1A",
+        "last_error": "\r\n".join(["gone"] * 500),
+        "instance": "d1",
+    }
+    session = open_session(port=port)
+    stop = threading.Event()
+    try:
+        liveliness = session.liveliness()
+        tokens = [  # held while status runs
+            liveliness.declare_token(wire.alive_key(cell, "cam0", role, role[0] + "1"))
+            for role in ("driver", "worker")
+        ]
+        session.declare_queryable(
+            wire.info_key(cell, "cam0"),
+            lambda q: q.reply(wire.info_key(cell, "cam0"), json.dumps(info).encode()),
+        )
+        stats = session.declare_publisher(wire.stats_key(cell, "cam0"))
+
+        def publish():
+            processed = 0
+            while not stop.wait(0.05):
+                processed += 1
+                message = {
+                    "stamp_ns": time.time_ns(),
+                    "role": "worker",
+                    "model_id": model,
+                    "timings_ms": {"total": 1.0},
+                    "counts": {"processed": processed, "dropped": 0, "rejected": 0},
+                }
+                stats.put(wire.encode_stats(message), attachment=b"w1")
+
+        threading.Thread(target=publish, daemon=True).start()
+        rc, out = topseg_status(port, "--cell", cell)
+        for token in tokens:
+            token.undeclare()
+    finally:
+        stop.set()
+        session.close()
+    assert rc == 0, out
+    assert not {"\x1b", "\r", "\x07"} & set(out), repr(out)
+    lines = out.splitlines()
+    assert sum("all cameras up" in line for line in lines) == 1, out  # the verdict only
+    assert all(len(line) < 400 for line in lines), out
+    row = next(line for line in lines if line.startswith(f"{cell}/cam0 "))
+    assert "m\\x1b[31m\\r\\x1b[2K" in row and "synthetic\\x1b[2J" in row, row
+    error = next(line for line in lines if "driver's last error" in line)
+    assert error.startswith(f"{cell}/cam0: driver's last error: gone\\r\\ngone"), error
+    assert error.endswith("..."), error
+
+
+def test_seq_resets_jumps_and_stamps_off_the_clock_are_shown_when_they_grew():
+    seen = status.Observed(window_s=2.0)
+    seen.alive = {("c", "k", "driver"), ("c", "k", "worker")}
+    seen.stats[("c", "k")] = [
+        {
+            "stamp_ns": i * 100_000_000,
+            "timings_ms": {"total": 5.0},
+            "counts": {
+                "processed": 10 + i, "dropped": 0, "rejected": 0,
+                "seq_resets": 3, "seq_jumps": 4 + i, "stamps_out_of_window": 2 * i,
+            },
+        }
+        for i in range(3)
+    ]  # fmt: skip
+    rep = status.report(seen)
+    row = rep["cameras"][0]
+    w = row["worker"]
+    assert (w["seq_resets"], w["seq_jumps"], w["stamps_out_of_window"]) == (3, 6, 4)
+    assert (w["seq_resets_in_window"], w["seq_jumps_in_window"]) == (0, 2)
+    assert w["stamps_out_of_window_in_window"] == 4
+    assert row["ok"] and status.exit_status(rep) == 0  # said, not a failure
+    table = status.format_table(rep)
+    assert "c/k: the depth's seq jumped ahead 2 times" in table
+    assert (
+        "c/k: 4 depth frames stamped over 1 s ahead of or 60 s behind the worker's clock" in table
+    )
+    assert "started again" not in table  # no reset in the window

@@ -331,6 +331,16 @@ def test_keys():
             wire.depth_key(cell, cam)
 
 
+def test_a_message_key_on_the_reserved_pair_names_no_camera():
+    """`_any/_any` is the token of a worker serving every camera; a message there (a forged
+    depth frame) names no camera: parse_key refuses it, as the services' readers need."""
+    for kind in wire.KINDS:
+        with pytest.raises(WireError, match="reserved"):
+            wire.parse_key(f"topseg/{wire.ANY}/{wire.ANY}/{kind}")
+    assert wire.parse_key(wire.any_alive_key("worker", "w1")).cell == wire.ANY
+    assert wire.parse_key(f"topseg/{wire.ANY}/cam0/depth").camera == "cam0"
+
+
 def test_decode_for_key():
     rng = np.random.default_rng(6)
     f = small_labels(rng)

@@ -79,8 +79,10 @@ class Peer:
             history=True,
         )
 
-    def put_depth(self, depth, seq):
-        self.pub.put(wire.encode_depth(wire.DepthFrame(depth, K, seq, 1000 + seq, "cam0")))
+    def put_depth(self, depth, seq, stamp_ns=None):
+        """A depth frame stamped `stamp_ns`, by default now (its latency is measured)."""
+        stamp = time.time_ns() if stamp_ns is None else stamp_ns
+        self.pub.put(wire.encode_depth(wire.DepthFrame(depth, K, seq, stamp, "cam0")))
 
 
 @pytest.fixture
@@ -122,8 +124,9 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
         wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
         test = frames(1, 6)
         seqs = [0, 1, 2, 3, 4, 7]  # 5 and 6 never sent: counted as dropped
+        t0 = time.time_ns()
         for (depth, _), seq in zip(test, seqs, strict=True):
-            peer.put_depth(depth, seq)
+            peer.put_depth(depth, seq, t0 + seq)
         wait_for(lambda: len(peer.labels) == len(test), 60, "labels for every frame")
         wait_for(lambda: len(peer.stats) >= len(test), 10, "stats for every frame")
         key, kind = peer.alive[0]  # the worker's token names its instance (its Zenoh id)
@@ -146,7 +149,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
         small_heads += heads
         small_furniture += furniture
         satellite_heads += satellites
-        assert (g.stamp_ns, g.frame_id) == (1000 + seq, "cam0")
+        assert (g.stamp_ns, g.frame_id) == (t0 + seq, "cam0")
         scores.add(truth, g.labels)
     s = scores.scores()
     assert s["avg_f1"] > 0.15 and s["accuracy"] > 0.5, s
@@ -156,6 +159,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
         "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads,
         "small_furniture": small_furniture, "satellite_heads": satellite_heads,
         "filled_holes": 0,  # a model that reads depth: no holes filled
+        "seq_resets": 0, "seq_jumps": 0, "stamps_out_of_window": 0,
     }  # fmt: skip
     assert last["role"] == "worker" and last["model_id"] == model_path.name
     # the worker's own steps, the Segmenter's two headline figures and each of its stages
@@ -219,6 +223,9 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
         "small_furniture": 0,
         "satellite_heads": 0,
         "filled_holes": 0,
+        "seq_resets": 0,
+        "seq_jumps": 0,
+        "stamps_out_of_window": 0,
     }
     assert "rejected" in err
 
@@ -348,6 +355,7 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     assert counts == {
         "processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY,
         "small_furniture": mock.ANY, "satellite_heads": mock.ANY, "filled_holes": mock.ANY,
+        "seq_resets": 0, "seq_jumps": 0, "stamps_out_of_window": 0,
     }  # fmt: skip
 
 
@@ -556,5 +564,85 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
     assert counts == {
         "processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0,
         "small_furniture": 0, "satellite_heads": 0, "filled_holes": mock.ANY,
+        "seq_resets": 0, "seq_jumps": 0, "stamps_out_of_window": 0,
     }, worker.err  # fmt: skip
     assert "not a msgpack" not in worker.err
+
+
+# ------------------------------------------------------------------ odd keys, seqs and stamps
+
+
+def test_depth_on_the_reserved_any_key_is_dropped_and_counted_never_fatal(run, peers, model_path):
+    """`_any/_any` names the token of a worker serving every camera, not a camera: one
+    message there (a byte, or a well-formed frame) stopped every such worker with exit 2.
+    Each is now dropped, counted and warned about; real cameras are labelled on."""
+    port, cell = free_port(), "rsv"
+    peer = peers(port, cell)
+    reserved = peer.session.declare_publisher(
+        f"topseg/{wire.ANY}/{wire.ANY}/depth", congestion_control=zenoh.CongestionControl.BLOCK
+    )
+    from_any: list[str] = []  # labels or stats for the reserved pair: there must be none
+    peer.session.declare_subscriber(
+        f"topseg/{wire.ANY}/{wire.ANY}/*", lambda s: from_any.append(str(s.key_expr))
+    )
+    worker = run("worker", "--model", model_path, "--crf", "none", "--zenoh-port", port)
+    worker.wait_line("worker ready", 120)
+    wait_for(lambda: reserved.matching_status.matching, 30, "the worker's wildcard subscriber")
+    ((depth, _),) = frames(7, 1)
+    reserved.put(b"x")
+    worker.wait_line(f"dropped depth on topseg/{wire.ANY}/{wire.ANY}/depth", 60)
+    reserved.put(wire.encode_depth(wire.DepthFrame(depth, K, 0, time.time_ns(), "cam0")))
+
+    def labelled(n):
+        seq, deadline = len(peer.labels) * 1000, time.monotonic() + 60
+        while len(peer.labels) < n and time.monotonic() < deadline:
+            peer.put_depth(depth, seq)  # the first only announces the camera (ring mode)
+            seq += 1
+            time.sleep(0.05)
+        return len(peer.labels) >= n
+
+    assert labelled(3), worker.err
+    reserved.put(b"x")  # a worker that survived the first one died at the next
+    assert labelled(len(peer.labels) + 2), worker.err
+    assert worker.alive()
+    assert worker.stop() == 0, worker.err
+    assert "3 depth messages on keys that name no camera were dropped" in worker.err
+    assert "worker: error:" not in worker.err and "Traceback" not in worker.err
+    assert [k for k in from_any if not k.endswith("/depth")] == []
+
+
+def test_a_wild_seq_or_stamp_is_counted_as_such_and_spoils_no_statistic(peers, model_path):
+    """One frame with seq 2**62 made `dropped` read ~2**62 for the worker's life; a stamp a
+    day ahead read as latency 0 (clock skew hidden), a stamp of 1 ns as 1.8e12 ms. Now a
+    seq that went back is a reset, a jump further than a camera counts is a jump, and a
+    stamp off the worker's clock gets no latency but a count: none spoils the others."""
+    port, cell = free_port(), "odd"
+    peer = peers(port, cell)
+    proc = start_worker(
+        port, model_path, "--lossless", "--crf", "none", "--cameras", f"{cell}/cam0"
+    )
+    day = 86_400 * 10**9
+    try:
+        wait_for(lambda: peer.pub.matching_status.matching, 120, "the worker's subscriber")
+        ((depth, _),) = frames(8, 1)
+        now = time.time_ns()
+        sent = [(0, now), (1, now), (2**62, now), (2, now + day), (3, 1), (5, now)]
+        for seq, stamp in sent:
+            peer.put_depth(depth, seq, stamp)
+        wait_for(lambda: len(peer.stats) >= len(sent), 60, "stats for every frame")
+        rc, err = stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert rc == 0, err
+    assert [s["seq"] for s in peer.stats] == [seq for seq, _ in sent]
+    counts = peer.stats[-1]["counts"]
+    assert (counts["processed"], counts["dropped"], counts["rejected"]) == (6, 1, 0), counts
+    assert (counts["seq_jumps"], counts["seq_resets"], counts["stamps_out_of_window"]) == (
+        1, 1, 2
+    ), counts  # fmt: skip
+    latency = [s["timings_ms"].get("latency") for s in peer.stats]
+    assert [ms is None for ms in latency] == [False, False, False, True, True, False], latency
+    assert all(0 <= ms < 60_000 for ms in latency if ms is not None), latency
+    assert "a depth frame stamped 8.64e+04 s ahead of this host's clock" in err, err
+    assert "s behind this host's clock" in err, err

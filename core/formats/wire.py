@@ -625,7 +625,8 @@ class KeyParts:
 
 
 def parse_key(key: str) -> KeyParts:
-    """Split a concrete topseg key expression; WireError if it is not one."""
+    """Split a concrete topseg key expression; WireError if it is not one. `ANY/ANY` is a
+    token's only (`any_alive_key`): a message key that names it names no camera."""
     parts = key.split("/") if isinstance(key, str) else []
     if len(parts) in (5, 6) and parts[0] == ROOT and parts[3] == "alive":
         _check_name("cell", parts[1]), _check_name("camera", parts[2])
@@ -635,7 +636,8 @@ def parse_key(key: str) -> KeyParts:
         raise WireError(
             f"{_short(key)} is not a topseg key (topseg/<cell>/<camera>/<{'|'.join(KINDS)}>)"
         )
-    return KeyParts(_check_name("cell", parts[1]), _check_name("camera", parts[2]), parts[3])
+    camera_prefix(parts[1], parts[2])  # plain names, and not the reserved pair
+    return KeyParts(parts[1], parts[2], parts[3])
 
 
 def instance_attachment(instance: str) -> bytes:

@@ -39,6 +39,7 @@ import time
 from typing import Any
 
 from topseg.core.errors import TopsegError
+from topseg.core.printable import printable
 from topseg.services.cli.options import finite, int_range
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.inbox import Inbox
@@ -271,7 +272,9 @@ class Bridge:
                 raise wire.WireError(f"{key!r} carries nothing the bridge publishes")
         except wire.WireError as exc:
             self.rejected += 1
-            self._warn("rejected", "%s: %s (%d rejected)", key, exc, self.rejected)
+            self._warn(
+                "rejected", "%s: %s (%d rejected)", printable(key), printable(exc), self.rejected
+            )
             return
         topics = self.topics(parts.cell, parts.camera)
         if topics is None:

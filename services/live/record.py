@@ -27,6 +27,7 @@ import logging
 import time
 
 from topseg.core.errors import TopsegError
+from topseg.core.printable import printable
 from topseg.services.cli.options import finite, positive_int
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.inbox import Inbox
@@ -113,7 +114,11 @@ def run(args: argparse.Namespace) -> int:
             writer.write(key, data, log_time_ns=log_time)
         except WireError as exc:  # only the ros2 form reads what it writes
             rejected += 1
-            log.warning("dropped a message on %s that is not a topseg message: %s", key, exc)
+            log.warning(
+                "dropped a message on %s that is not a topseg message: %s",
+                printable(key),
+                printable(exc),
+            )
             return
         written += 1
 

@@ -14,7 +14,13 @@ of `--timeout` seconds:
   published, from the worker's stats messages in the window), processed / dropped / rejected
   counts since the worker started, the model in use, the share of pixels skipped as floor
   and the camera's mount (height, tilt, and whether it came from the frames or the worker's
-  estimate; "MOVED" when the worker saw the camera move).
+  estimate; "MOVED" when the worker saw the camera move); and a line when, in the window,
+  the depth's `seq` started again or jumped ahead or its stamps lay off the worker's clock
+  (the worker's `seq_resets`, `seq_jumps`, `stamps_out_of_window`).
+
+Text from the wire (the model, the driver's source and last error) is printed escaped and
+cut short (`topseg.core.printable`): escape codes, carriage returns and newlines in it cannot
+forge a row or move the terminal's cursor.
 
 Liveliness comes from a `get` at the end of the window plus a subscriber for the window, so
 a service that goes away during the window shows as DOWN. A service killed outright is seen
@@ -52,6 +58,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from topseg.core.metrics import percentile
+from topseg.core.printable import printable
 from topseg.services.cli.options import finite
 from topseg.services.runtime import zenoh_session
 
@@ -62,6 +69,22 @@ REQUIRED_ROLES = ("driver", "worker")
 #: the key under which a stats message keeps the id of the worker that sent it (from its
 #: attachment; not a wire field)
 INSTANCE_FIELD = "_instance"
+#: The longest text kept from a driver's info reply (its source, its last error).
+MAX_INFO_TEXT = 256
+#: The widest a table cell of text from the wire (model, source) is printed, and the longest
+#: such text on a line of its own (the driver's last error): escaped, then cut.
+MAX_CELL = 40
+MAX_LINE_TEXT = 200
+#: The worker's counts of frames that did not fit the stream, and what a line says of them
+#: (when they grew in the window): a restarted or foreign `seq`, stamps off the clock.
+ODD_FRAME_COUNTS = ("seq_resets", "seq_jumps", "stamps_out_of_window")
+ODD_FRAME_LINES = {
+    "seq_resets": "the depth's seq started again {n} times (a driver restarted?)",
+    "seq_jumps": "the depth's seq jumped ahead {n} times, further than the camera could count "
+    "(another source on its key?); not counted as dropped",
+    "stamps_out_of_window": "{n} depth frames stamped over {ahead:g} s ahead of or {age:g} s "
+    "behind the worker's clock: no latency for them; are the hosts' clocks in step?",
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -107,16 +130,34 @@ class Observed:
     incomplete: list = field(default_factory=list)  # queries cut off at their deadline
 
 
+def _info_count(info: dict, name: str) -> int | None:
+    """A count from a driver's info reply (whatever answered on the key): an int >= 0,
+    else None."""
+    value = info.get(name)
+    return value if type(value) is int and value >= 0 else None
+
+
+def _info_text(info: dict, name: str) -> str | None:
+    """A text from a driver's info reply, cut to MAX_INFO_TEXT characters; None when it is
+    not a string."""
+    value = info.get(name)
+    return value[:MAX_INFO_TEXT] if isinstance(value, str) else None
+
+
 def _driver_report(alive: bool, start: tuple | None, end: tuple | None) -> dict:
     out: dict[str, Any] = {"alive": alive}
     info = (end or start or (None, None))[1]
     if info:
-        for name in ("source", "frames", "reconnects", "last_error"):
-            out[name] = info.get(name)
-        out["nominal_fps"] = info.get("fps")
+        for name in ("source", "last_error"):
+            out[name] = _info_text(info, name)
+        for name in ("frames", "reconnects"):
+            out[name] = _info_count(info, name)
+        fps = info.get("fps")
+        out["nominal_fps"] = fps if type(fps) in (int, float) and math.isfinite(fps) else None
     if start and end and end[0] > start[0]:
-        frames = end[1].get("frames", 0) - start[1].get("frames", 0)
-        out["fps"] = max(0, frames) / (end[0] - start[0])
+        first, last = _info_count(start[1], "frames"), _info_count(end[1], "frames")
+        if first is not None and last is not None:
+            out["fps"] = max(0, last - first) / (end[0] - start[0])
     return out
 
 
@@ -151,10 +192,24 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "small_furniture",
         "satellite_heads",
         "filled_holes",
+        *ODD_FRAME_COUNTS,
     ):
         out[name] = last["counts"].get(name, 0)
         out[f"{name}_in_window"] = max(0, out[name] - first["counts"].get(name, 0))
     return out
+
+
+def _odd_frame_lines(worker: dict) -> list[str]:
+    """A line for each count of odd frames (`ODD_FRAME_COUNTS`) that grew in the window."""
+    from topseg.services.live.worker import STAMP_AGE_S, STAMP_AHEAD_S
+
+    return [
+        ODD_FRAME_LINES[name].format(
+            n=worker[f"{name}_in_window"], ahead=STAMP_AHEAD_S, age=STAMP_AGE_S
+        )
+        for name in ODD_FRAME_COUNTS
+        if worker.get(f"{name}_in_window")
+    ]
 
 
 def _by_worker(stats: list[dict]) -> dict[str, list[dict]]:
@@ -214,6 +269,7 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
                 f"depth from two drivers: the worker dropped {worker['foreign_in_window']} "
                 "frames of the one it does not follow"
             )
+        problems += _odd_frame_lines(worker)
         problems += [
             f"{r} went down during the window"
             for c, cam, r in sorted(seen.went_down)
@@ -334,9 +390,9 @@ def format_table(rep: dict) -> str:
                 str(w.get("rejected", "-")),
                 f"{100 * w['floor_share']:.0f}%" if "floor_share" in w else "-",
                 mount_cell(w.get("mount")),
-                str(w.get("model") or "-"),
-                str(d.get("source") or "-"),
-                str(d.get("reconnects", "-")),
+                printable(w.get("model") or "-", MAX_CELL),
+                printable(d.get("source") or "-", MAX_CELL),
+                str(d["reconnects"]) if d.get("reconnects") is not None else "-",
             )
         )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
@@ -348,7 +404,8 @@ def format_table(rep: dict) -> str:
             out.append(f"{row['cell']}/{row['camera']}: {p}")
         if row["driver"].get("last_error") and row["driver"]["alive"]:
             out.append(
-                f"{row['cell']}/{row['camera']}: driver's last error: {row['driver']['last_error']}"
+                f"{row['cell']}/{row['camera']}: driver's last error: "
+                + printable(row["driver"]["last_error"], MAX_LINE_TEXT)
             )
     out += waiting
     for what in rep.get("incomplete", ()):

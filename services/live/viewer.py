@@ -33,6 +33,7 @@ import urllib.parse
 from collections import OrderedDict
 from typing import Any
 
+from topseg.core.printable import printable
 from topseg.services.cli.options import finite
 from topseg.services.live import viewer_layout
 from topseg.services.runtime import zenoh_session
@@ -230,7 +231,7 @@ class Viewer:
         except wire.WireError as exc:
             self.rejected += 1
             if self.rejected <= 10 or self.rejected % 100 == 0:
-                log.warning("%s: %s (%d rejected)", key, exc, self.rejected)
+                log.warning("%s: %s (%d rejected)", printable(key), printable(exc), self.rejected)
             return
         cam = (parts.cell, parts.camera)
         if cam not in self.cameras:

@@ -11,10 +11,13 @@ runs the forest and the CRF on the newest depth frame and publishes
 - stats on `.../stats`: ms per step (receive = copy + decode, mount = estimating or checking
   the mount, forest and crf = the Segmenter's two headline figures, `stage_<name>` = each of
   its stages, publish, total), latency (depth stamp to labels published), fps, the counts
-  processed / dropped / rejected and every counter the Segmenter's stages keep
-  (`Segmenter.counter_names`), the share of pixels the floor gate skipped (`floor_share`) and
-  the mount in use (`mount`: height, pitch, roll, sensor, source "frame" | "estimated", times the camera
-  was seen to move).
+  processed / dropped / rejected / seq_resets (a `seq` not above the last one: a restarted
+  driver) / seq_jumps (a `seq` further ahead than the camera could have counted since,
+  `MAX_SEQ_RATE`: not counted as dropped) / stamps_out_of_window (stamps over 1 s ahead of
+  the worker's clock or 60 s behind it: no latency for those frames) and every counter the
+  Segmenter's stages keep (`Segmenter.counter_names`), the share of pixels the floor gate
+  skipped (`floor_share`) and the mount in use (`mount`: height, pitch, roll, sensor, source
+  "frame" | "estimated", times the camera was seen to move).
 
 Each frame is labelled with its camera's mount (`services/live/worker_mount.py`): the one the
 frames carry (`topseg driver --mount`), or, when they carry none, one the worker estimates
@@ -28,8 +31,11 @@ Only the newest frame is kept: one `zenoh.handlers.RingChannel(1)` per camera, s
 worker skips frames and its memory never grows. Skipped frames are counted from gaps in
 `seq`. `--lossless` uses a FIFO instead (tests, offline labelling of a replay). Messages that
 do not decode (or that the forest cannot take) are dropped, counted as `rejected` and logged;
-they never stop the worker. Without `--cameras`, a camera is served from its first depth
-message on (that message only announces it; the ring subscriber takes the next one).
+they never stop the worker; nor does depth on a key that names no camera (`_any/_any`, the
+chunks of the token below, or a name the wire format refuses): dropped, counted in the
+status line and warned about at most every 10 s. Without `--cameras`, a camera is served
+from its first depth message on (that message only announces it; the ring subscriber takes
+the next one).
 
 A flood of camera names is bounded: without `--cameras` at most `--max-cameras` discovered
 cameras are served at once; names beyond it are ignored, counted (in the status line) and
@@ -65,6 +71,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from topseg.core.errors import TopsegError
+from topseg.core.printable import printable
 from topseg.core.segmenter_config import SegmenterConfig
 from topseg.services.cli.options import (
     add_segmenter_arguments,
@@ -95,6 +102,19 @@ FPS_ALPHA = 0.2
 SOURCE_SWITCH_S = 1.0
 #: At most one warning about another worker on a camera this often (s).
 DUPLICATE_WARN_S = 10.0
+#: A worker that keeps a camera another worker took too waits this long for the other one
+#: to step back (two workers serving every camera settle on one) before it warns (s).
+CONTEST_GRACE_S = 5.0
+#: The most frames a second a camera is taken to send (a driver's --fps is 1000 at most):
+#: a forward step in `seq` larger than this rate allows since the last labelled frame
+#: (plus one second) is counted as a jump (`seq_jumps`), not as that many dropped frames.
+MAX_SEQ_RATE = 10_000
+#: A depth stamp's sane window against the worker's clock: at most STAMP_AHEAD_S ahead
+#: (more is clock skew between hosts) and STAMP_AGE_S old (more is a clock far behind, or
+#: a stamp that is no time at all). Frames outside it get no latency and are counted as
+#: `stamps_out_of_window`.
+STAMP_AHEAD_S = 1.0
+STAMP_AGE_S = 60.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -180,8 +200,18 @@ class CameraState:
     stats_pub: Any = None
     token: Any = None
     subscriber: Any = None
-    counts: dict = field(default_factory=lambda: {"processed": 0, "dropped": 0, "rejected": 0})
+    counts: dict = field(
+        default_factory=lambda: {
+            "processed": 0,
+            "dropped": 0,
+            "rejected": 0,
+            "seq_resets": 0,
+            "seq_jumps": 0,
+            "stamps_out_of_window": 0,
+        }
+    )
     last_seq: int | None = None
+    last_seq_time: float = 0.0  # when last_seq was labelled (monotonic)
     last_time: float | None = None
     fps: float = 0.0
     watch: MountWatch | None = None
@@ -192,6 +222,9 @@ class CameraState:
     source: str | None = None  # the driver instance whose depth this camera follows
     source_seen: float = 0.0  # when its last frame was taken (monotonic)
     last_duplicate_warning: float = -math.inf
+    contested_since: float | None = None  # another worker took it too (monotonic); None: not
+    contested_by: tuple[str, ...] = ()  # the workers that took it too
+    stamp_sides_said: set = field(default_factory=set)  # "ahead", "behind": logged once each
 
     def follow(self, source: str | None, now: float, followed_gone: bool = False) -> bool:
         """Whether a depth message from driver instance `source` is this camera's: the one
@@ -228,11 +261,42 @@ class CameraState:
             )
         return False
 
-    def note_seq(self, seq: int) -> None:
-        """Count the frames skipped between the last labelled seq and this one."""
-        if self.last_seq is not None and seq > self.last_seq + 1:
-            self.counts["dropped"] += seq - self.last_seq - 1
-        self.last_seq = seq  # a smaller seq: the source restarted, nothing to count
+    def note_seq(self, seq: int, now: float) -> None:
+        """Count the frames skipped between the last labelled seq and this one (`now`:
+        monotonic s). A seq that is not larger (a restarted source) counts as a reset; a
+        step larger than the camera could have sent since (MAX_SEQ_RATE) as a jump; neither
+        as dropped frames, so one odd frame cannot spoil `dropped` for good."""
+        last, self.last_seq = self.last_seq, seq
+        then, self.last_seq_time = self.last_seq_time, now
+        if last is None:
+            return
+        if seq <= last:
+            self.counts["seq_resets"] += 1
+        elif seq - last - 1 > MAX_SEQ_RATE * (now - then + 1.0):
+            self.counts["seq_jumps"] += 1
+        else:
+            self.counts["dropped"] += seq - last - 1
+
+    def latency_ms(self, stamp_ns: int, now_ns: int) -> float | None:
+        """Depth stamp to `now_ns` in ms; None (and counted as `stamps_out_of_window`; the
+        first ahead, the first behind and every hundredth logged) for a stamp outside the
+        sane window (STAMP_AHEAD_S, STAMP_AGE_S): a clock skew is said, not hidden as 0."""
+        age_s = (now_ns - stamp_ns) / 1e9
+        if -STAMP_AHEAD_S <= age_s <= STAMP_AGE_S:
+            return max(0.0, 1000 * age_s)
+        n = self.counts["stamps_out_of_window"] = self.counts["stamps_out_of_window"] + 1
+        side = "ahead" if age_s < 0 else "behind"
+        if side not in self.stamp_sides_said or n % 100 == 0:
+            self.stamp_sides_said.add(side)
+            log.warning(
+                "%s/%s: a depth frame stamped %s this host's clock: its latency is not "
+                "measured; are the hosts' clocks in step? (%d such frames)",
+                self.cell,
+                self.camera,
+                f"{-age_s:.3g} s ahead of" if age_s < 0 else f"{age_s:.3g} s behind",
+                n,
+            )
+        return None
 
     def note_done(self, now: float) -> None:
         """Update the fps estimate with the time since the last labelled frame."""
@@ -279,6 +343,10 @@ class Worker:
         self.other_workers: dict[tuple[str, str], set[str]] = {}  # under self.bell
         self.contested: set[tuple[str, str]] = set()  # another worker appeared (self.bell)
         self.left_to_others: set[tuple[str, str]] = set()  # said once each
+        self.bad_keys = 0  # depth messages on keys that name no camera (under self.bell)
+        self.last_bad_key: tuple[str, str] | None = None  # (key, why) of the newest one
+        self.bad_keys_said = 0  # how many the last warning counted
+        self.last_bad_key_warning = -math.inf
         self.any_token = None
         self.congestion = (
             zenoh.CongestionControl.BLOCK if args.lossless else zenoh.CongestionControl.DROP
@@ -312,7 +380,8 @@ class Worker:
         if self.discover and key not in self.depth_keys:
             try:
                 parts = wire.parse_key(key)
-            except wire.WireError:
+            except wire.WireError as exc:
+                self.note_bad_key(key, exc)
                 return
             new = (parts.cell, parts.camera)
         with self.bell:
@@ -320,6 +389,32 @@ class Worker:
             if new is not None and len(self.announced) < self.max_cameras + MAX_IGNORED_NAMES:
                 self.announced.add(new)  # bounded: the main loop refuses and counts the excess
             self.bell.notify()
+
+    def note_bad_key(self, key: str, why: Exception) -> None:
+        """Count a depth message on a key that names no camera (`_any/_any`, reserved for
+        the tokens of workers like this one, or a name the wire format refuses); the main
+        loop warns about them (`warn_bad_keys`). Such a message is dropped, never served."""
+        with self.bell:
+            self.bad_keys += 1
+            self.last_bad_key = (key, str(why))
+            self.rung = True
+            self.bell.notify()
+
+    def warn_bad_keys(self) -> None:
+        """Warn about new depth messages on keys that name no camera, at most every
+        LIMIT_WARN_S (the key shown escaped and cut short)."""
+        now = time.monotonic()
+        with self.bell:
+            count, last = self.bad_keys, self.last_bad_key
+        if count == self.bad_keys_said or now - self.last_bad_key_warning < LIMIT_WARN_S:
+            return
+        self.bad_keys_said, self.last_bad_key_warning = count, now
+        log.warning(
+            "dropped depth on %s: %s (%d messages on keys that name no camera so far)",
+            printable(last[0]),
+            printable(last[1]),
+            count,
+        )
 
     def _on_token(self, sample) -> None:
         """Zenoh's callback thread: note drivers that went away (a camera following one may
@@ -365,7 +460,9 @@ class Worker:
 
     def settle_contested(self) -> None:
         """Another worker took a token for a camera served here: a discovered camera goes to
-        the worker with the smaller instance id; a named one stays, warned about loudly."""
+        the worker with the smaller instance id; a named one stays. A worker that keeps the
+        camera warns loudly only if the other one still labels it CONTEST_GRACE_S later
+        (`check_duplicates`): two workers serving every camera settle before that."""
         with self.bell:
             contested, self.contested = self.contested, set()
         now = time.monotonic()
@@ -381,7 +478,37 @@ class Worker:
                     min(others),
                     *camera,
                 )
-            elif now - state.last_duplicate_warning >= DUPLICATE_WARN_S:
+            elif state.contested_since is None:  # the other may step back: wait and see
+                state.contested_since = now
+                log.info(
+                    "worker %s took %s/%s too; this worker keeps it%s",
+                    ", ".join(sorted(others)),
+                    *camera,
+                    " (the smaller instance id)" if state.discovered else " (--cameras)",
+                )
+            state.contested_by = tuple(sorted(others))
+        self.check_duplicates(now)
+
+    def check_duplicates(self, now: float) -> None:
+        """For each camera kept here that another worker took too: once the other is gone
+        (it stepped back, or stopped), say so; while it stays past CONTEST_GRACE_S, warn
+        loudly, every DUPLICATE_WARN_S."""
+        for state in list(self.cameras.values()):
+            if state.contested_since is None:
+                continue
+            camera = (state.cell, state.camera)
+            others = self.labelled_elsewhere(camera)
+            if not others:
+                log.info(
+                    "worker %s no longer labels %s/%s: labelled by this worker only",
+                    ", ".join(state.contested_by),
+                    *camera,
+                )
+                state.contested_since, state.contested_by = None, ()
+            elif (
+                now - state.contested_since >= CONTEST_GRACE_S
+                and now - state.last_duplicate_warning >= DUPLICATE_WARN_S
+            ):
                 state.last_duplicate_warning = now
                 log.warning(
                     "ANOTHER WORKER labels %s/%s too: %s; both publish labels for it: stop "
@@ -389,6 +516,15 @@ class Worker:
                     *camera,
                     ", ".join(sorted(others)),
                 )
+
+    def seconds_to_duplicate_check(self) -> float | None:
+        """Until a contested camera's next check is due (`check_duplicates`); None: none."""
+        due = [
+            max(s.contested_since + CONTEST_GRACE_S, s.last_duplicate_warning + DUPLICATE_WARN_S)
+            for s in self.cameras.values()
+            if s.contested_since is not None
+        ]
+        return max(0.0, min(due) - time.monotonic()) if due else None
 
     def wake(self) -> None:
         """Wake the main loop now (a stopping signal)."""
@@ -507,6 +643,7 @@ class Worker:
         none had."""
         with self.bell:
             new, self.announced = self.announced, set()
+        self.warn_bad_keys()
         self.settle_contested()
         for cell, camera in sorted(new):
             if (cell, camera) not in self.cameras and self.admissible(cell, camera):
@@ -535,7 +672,7 @@ class Worker:
             svc.beat()  # watchdog ping from the serving loop, STATUS= every few s
             if not self.handle_ready():
                 due = [s.watch.seconds_to_due() for s in self.cameras.values()]
-                due = [d for d in due if d is not None]
+                due = [d for d in (*due, self.seconds_to_duplicate_check()) if d is not None]
                 if self.forget_after > 0 and self.discovered_count():
                     due.append(max(0.0, self.next_sweep - time.monotonic()))
                 self.wait(min([svc.tick, *due]))
@@ -558,7 +695,8 @@ class Worker:
         if state is None:  # the shared FIFO: the key says which camera
             try:
                 parts = wire.parse_key(str(sample.key_expr))
-            except wire.WireError:
+            except wire.WireError as exc:
+                self.note_bad_key(str(sample.key_expr), exc)
                 return
             state = self.cameras.get((parts.cell, parts.camera))
             if state is None:
@@ -632,7 +770,7 @@ class Worker:
         out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
         state.labels_pub.put(wire.encode_labels(out), attachment=self.attachment)
         t4 = time.perf_counter()
-        state.note_seq(frame.seq)
+        state.note_seq(frame.seq, time.monotonic())
         state.counts["processed"] += 1
         for name, n in result.counts.items():  # every stage's counters, whatever they are
             state.counts[name] = state.counts.get(name, 0) + n
@@ -647,7 +785,9 @@ class Worker:
             "total": 1000 * (t4 - t0),
         }
         if frame.stamp_ns:  # end to end: capture (driver host clock) -> labels published
-            timings["latency"] = max(0.0, (time.time_ns() - frame.stamp_ns) / 1e6)
+            latency = state.latency_ms(frame.stamp_ns, time.time_ns())
+            if latency is not None:
+                timings["latency"] = latency
         self.publish_stats(
             state,
             timings,
@@ -697,8 +837,13 @@ class Worker:
 
 def status_line(worker: Worker) -> str:
     """One line for `systemctl status`: each camera's fps and counts."""
+    dropped = (
+        [f"{worker.bad_keys} depth messages on keys that name no camera dropped"]
+        if worker.bad_keys
+        else []
+    )
     if not worker.cameras:
-        return f"model {worker.segmenter.model_id}: waiting for depth frames"
+        return "; ".join([f"model {worker.segmenter.model_id}: waiting for depth frames", *dropped])
     now, parts = time.perf_counter(), []
     for s in list(worker.cameras.values()):  # another thread asks; the dict may change
         c = s.counts
@@ -712,7 +857,7 @@ def status_line(worker: Worker) -> str:
         parts.append(
             f"{len(worker.ignored)} camera names ignored (--max-cameras {worker.max_cameras})"
         )
-    return "serving " + "; ".join(parts)
+    return "serving " + "; ".join([*parts, *dropped])
 
 
 def mount_config(args: argparse.Namespace) -> MountWatchConfig:
@@ -795,5 +940,9 @@ def run(args: argparse.Namespace) -> int:
                 worker.max_cameras,
                 worker.ignored_messages,
                 worker.forgotten,
+            )
+        if worker.bad_keys:
+            log.warning(
+                "%d depth messages on keys that name no camera were dropped", worker.bad_keys
             )
     return 0

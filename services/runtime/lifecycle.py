@@ -24,10 +24,13 @@ That collection now runs in `ready`, before the first frame, and later full coll
 scan only what came after it. (It did not change the demo path's or `bench pipeline`'s
 figures measurably: in runs of 10-20 s that collection came once, near the end.)
 
-A session that has met no Zenoh peer or router `ISOLATION_WARN_S` after opening, though it
-should have (it connects to a rendezvous port it does not hold, or to configured endpoints),
-is warned about once (`zenoh_session.isolation_problem`: another program or a frozen
-process on the port leaves services "ready" and never meeting), and the recovery logged.
+A session that has been alone (no Zenoh peer or router) for `ISOLATION_WARN_S`, since it
+opened or since its last peer went, though it should not be (it connects to a rendezvous
+port it does not hold and that something holds, or to configured endpoints), is warned
+about once (`zenoh_session.isolation_problem`: another program or a frozen process on the
+port leaves services "ready" and never meeting), and the recovery logged. When nothing
+holds the rendezvous port any more (the other services, its holder among them, stopped),
+that is no fault: it is said once, at INFO.
 
 On the way out every clean-up runs, last registered first, even when one fails; then the
 session closes; then the original handlers come back. More stopping signals meanwhile (an
@@ -60,8 +63,11 @@ TICK_S = 0.5
 #: A stopping signal during a shut-down that has taken this long forces it (s); before, the
 #: signal is logged and the clean-up goes on.
 FORCE_AFTER_S = 5.0
-#: A session that met nobody this long after opening (and should have) is warned about (s).
+#: A session that met nobody this long after opening or after its last peer went (and
+#: should have) is warned about (s).
 ISOLATION_WARN_S = 5.0
+#: How often the session's peers are looked at (s).
+ISOLATION_CHECK_S = 1.0
 
 
 class ServiceStopped(BaseException):
@@ -263,24 +269,43 @@ class ServiceLifecycle:
                 return self.stop.is_set()
 
     def _watch_isolation(self) -> None:
-        """Warn once when the session met nobody it should have; log when it does later."""
-        warned = False
-        wait = ISOLATION_WARN_S
-        while not self.stop.wait(wait):
-            wait = 1.0
+        """Once the session has been alone ISOLATION_WARN_S (since it opened, or since its
+        last peer went): warn when it should have met someone (`isolation_problem`), or say
+        at INFO that nothing holds the rendezvous port (the others stopped); log when a peer
+        comes again."""
+        alone_since, said = time.monotonic(), False
+        while not self.stop.wait(ISOLATION_CHECK_S):
             try:
-                problem = zenoh_session.isolation_problem(
-                    self.session, self.config, self.rendezvous
-                )
+                now = time.monotonic()
+                if zenoh_session.has_peers(self.session):
+                    if said:
+                        self.log.info("Zenoh: a peer or router is reached now")
+                    alone_since, said = now, False
+                    continue
+                if said or now - alone_since < ISOLATION_WARN_S:
+                    continue
+                said = self._say_alone(now - alone_since)
             except Exception as err:  # a closing session: nothing to say
                 self.log.debug("checking Zenoh peers failed: %s", err)
                 return
-            if problem and not warned:
-                self.log.warning("%s (after %.0f s)", problem, ISOLATION_WARN_S)
-                warned = True
-            elif warned and not problem:
-                self.log.info("Zenoh: a peer or router is reached now")
-                warned = False
+
+    def _say_alone(self, alone_s: float) -> bool:
+        """Warn about a session alone that should not be, or note one whose rendezvous port
+        nobody holds any more; True when something was said."""
+        problem = zenoh_session.isolation_problem(self.session, self.config, self.rendezvous)
+        if problem:
+            self.log.warning("%s (alone for %.0f s)", problem, alone_s)
+            return True
+        if self.rendezvous is not None and zenoh_session.rendezvous_free(self.rendezvous):
+            self.log.info(
+                "Zenoh: no peer for %.0f s and nothing holds the rendezvous port "
+                "tcp/127.0.0.1:%d: the other services stopped (or none started yet); the "
+                "next one to start takes the port and they meet again",
+                alone_s,
+                self.rendezvous,
+            )
+            return True
+        return False
 
     # -- signals ------------------------------------------------------------------------------
 

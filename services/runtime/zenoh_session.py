@@ -25,6 +25,7 @@ import argparse
 import json
 import os
 import re
+import socket
 import time
 from typing import Any
 
@@ -215,17 +216,42 @@ def holds_port(port: int) -> bool:
     )
 
 
+def has_peers(session: Any) -> bool:
+    """Whether `session` is connected to a peer or a router now."""
+    return any(True for _ in session.info.peers_zid()) or any(
+        True for _ in session.info.routers_zid()
+    )
+
+
+def port_answers(port: int, timeout: float = 0.5) -> bool:
+    """Whether something accepts TCP connections on loopback `port` now (the connection is
+    closed at once)."""
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+def rendezvous_free(port: int) -> bool:
+    """Whether nothing holds the rendezvous `port` now: not this process, not another one
+    (nothing accepts a connection there)."""
+    return not holds_port(port) and not port_answers(port)
+
+
 def isolation_problem(session: Any, config: Any, port: int | None) -> str | None:
     """Why `session`, open for a while, has met nobody, when that is a fault; else None.
 
     Alone is normal for the process holding the rendezvous port (`port`, topseg's default
-    config: it waits for the others) and for a config that connects nowhere. Otherwise the
-    endpoint it connects to is held by something that does not answer as Zenoh: another
-    program on the port, or a frozen process (Zenoh retries without a word)."""
-    if any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid()):
+    config: it waits for the others), when nothing listens on that port (the others, its
+    holder among them, stopped: the next service to start takes it) and for a config that
+    connects nowhere. Otherwise the endpoint it connects to is held by something that does
+    not answer as Zenoh: another program on the port, or a frozen process (Zenoh retries
+    without a word)."""
+    if has_peers(session):
         return None
     if port is not None:
-        if holds_port(port):
+        if holds_port(port) or rendezvous_free(port):
             return None
         where = f"tcp/127.0.0.1:{port}"
         return (
