@@ -14,7 +14,9 @@
 #                    into DIR (a venv cannot be moved).
 #   --no-systemctl   do not run systemctl daemon-reload / udevadm control --reload
 #   --python PY      the Python (>= 3.11) that makes the venv (default: python3)
-#   --extras LIST    pip extras (default: kinect when libfreenect-dev is installed, else none)
+#   --extras LIST    pip extras, comma-separated (default: cell, the live services; plus kinect
+#                    when libfreenect-dev is installed and openni2 when libopenni2 is; add oak
+#                    for an OAK camera: --extras cell,oak)
 #   --source PATH    what pip installs (default: this checkout); a wheel works too
 #   --pip-args ARGS  more pip install arguments (e.g. "--no-deps --no-index" for offline tests)
 #   --no-venv-pip    make the venv without pip and install with --python's pip (faster; tests)
@@ -159,8 +161,9 @@ fi
 # 2. topseg in its own venv. A stamp of what was installed makes a rerun a no-op.
 VENV=$OPT/venv
 if [ "$EXTRAS" = auto ]; then
-    EXTRAS=""
-    [ -f /usr/include/libfreenect/libfreenect.h ] && EXTRAS=kinect
+    EXTRAS=cell
+    [ -f /usr/include/libfreenect/libfreenect.h ] && EXTRAS=$EXTRAS,kinect
+    compgen -G "/usr/lib/*/libOpenNI2.so*" >/dev/null && EXTRAS=$EXTRAS,openni2
 fi
 if [ -d "$SOURCE" ]; then
     [ -f "$SOURCE/pyproject.toml" ] || die "$SOURCE has no pyproject.toml"
