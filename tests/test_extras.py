@@ -328,6 +328,12 @@ def test_the_core_and_cell_leave_out_the_training_stack_and_sdks(package):
     assert package not in core | extra("cell")
 
 
+def test_every_package_is_installed():
+    """A package left out of pyproject's list works from the checkout but not installed."""
+    packages = {n for n, path in module_files().items() if path.name == "__init__.py"}
+    assert packages <= set(PYPROJECT["tool"]["setuptools"]["packages"])
+
+
 def test_the_installers_ask_for_the_extras():
     make = (REPO / "scripts" / "install.sh").read_text()
     assert '-e ".[all,kinect,test]"' in make
