@@ -314,6 +314,18 @@ def lines_with(lines: list[str], text: str) -> list[str]:
     return [line for line in lines if text in line]
 
 
+@pytest.mark.parametrize("extras, installed", [("oak", "cell,oak"), ("", "cell")])
+def test_install_always_takes_the_cell_extra(tmp_path, checkout, wheel, extras, installed):
+    """The live services' packages come with every install; --extras adds sensors' SDKs."""
+    lines = run_script(
+        checkout / "deploy" / "install.sh",
+        "--root", str(tmp_path / "root"), "--no-systemctl", "--python", sys.executable,
+        "--no-venv-pip", "--no-compile", "--source", str(wheel),
+        "--pip-args", "--no-deps --no-index", "--extras", extras,
+    )  # fmt: skip
+    assert lines_with(lines, f", extras {installed})"), lines
+
+
 def test_install_twice_then_uninstall(tmp_path, checkout, wheel):
     root = tmp_path / "root"
     first = install(checkout, root, wheel)
