@@ -14,7 +14,9 @@
 #                    into DIR (a venv cannot be moved).
 #   --no-systemctl   do not run systemctl daemon-reload / udevadm control --reload
 #   --python PY      the Python (>= 3.11) that makes the venv (default: python3)
-#   --extras LIST    pip extras (default: kinect when libfreenect-dev is installed, else none)
+#   --extras LIST    pip extras besides cell (the live services, always installed), comma-
+#                    separated: the sensors' SDKs, e.g. oak or kinect,openni2 (default: kinect
+#                    when libfreenect-dev is installed, openni2 when libopenni2 is)
 #   --source PATH    what pip installs (default: this checkout); a wheel works too
 #   --pip-args ARGS  more pip install arguments (e.g. "--no-deps --no-index" for offline tests)
 #   --no-venv-pip    make the venv without pip and install with --python's pip (faster; tests)
@@ -161,7 +163,12 @@ VENV=$OPT/venv
 if [ "$EXTRAS" = auto ]; then
     EXTRAS=""
     [ -f /usr/include/libfreenect/libfreenect.h ] && EXTRAS=kinect
+    compgen -G "/usr/lib/*/libOpenNI2.so*" >/dev/null && EXTRAS=${EXTRAS:+$EXTRAS,}openni2
 fi
+case ",$EXTRAS," in
+    *,cell,*) ;;
+    *) EXTRAS=cell${EXTRAS:+,$EXTRAS} ;;
+esac
 if [ -d "$SOURCE" ]; then
     [ -f "$SOURCE/pyproject.toml" ] || die "$SOURCE has no pyproject.toml"
     if git -C "$SOURCE" rev-parse --git-dir >/dev/null 2>&1; then

@@ -21,6 +21,7 @@ import sys
 import time
 
 from topseg.core.camera import KINECT_V1
+from topseg.core.extras import import_failure
 from topseg.drivers.base import SourceError, SourceOptions, SourceUnavailable, Throttle
 from topseg.drivers.child import ChildSource, child_argv, serve
 
@@ -52,10 +53,8 @@ def _produce(index: int, fps: float | None):
     try:
         import freenect
     except ImportError as exc:
-        raise SourceError(
-            f"cannot import the freenect wrapper ({exc}); install libfreenect-dev and "
-            "`pip install topseg[kinect]`"
-        ) from exc
+        line = import_failure("freenect", "freenect", "kinect", exc)
+        raise SourceError(f"{line}; its wheel builds against libfreenect-dev") from exc
     from topseg.drivers.fakenect_dump import raw_to_mm
 
     got = freenect.sync_get_depth(index, freenect.DEPTH_11BIT)

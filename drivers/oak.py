@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from topseg.core.camera import Intrinsics
+from topseg.core.extras import import_failure
 from topseg.core.formats.wire import MAX_SIDE, DepthFrame, WireError
 from topseg.drivers.base import (
     Source,
@@ -39,7 +40,7 @@ def import_depthai() -> Any:
     try:
         import depthai
     except ImportError as exc:
-        raise SourceError(f"cannot import depthai: {exc}") from exc
+        raise SourceError(import_failure("oak", "depthai", "oak", exc)) from exc
     return depthai
 
 

@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from topseg.core.camera import KINECT_V1, Intrinsics
+from topseg.core.extras import import_failure
 from topseg.drivers.base import SourceError, SourceOptions, SourceUnavailable, Throttle
 from topseg.drivers.child import ChildSource, child_argv, serve
 
@@ -50,7 +51,7 @@ def _produce(uri: str, fps: float | None, wait_ms: int):
         from openni import openni2
         from openni.utils import OpenNIError
     except ImportError as exc:
-        raise SourceError(f"cannot import the openni wrapper: {exc}") from exc
+        raise SourceError(import_failure("openni2", "openni", "openni2", exc)) from exc
     redist = os.environ.get("OPENNI2_REDIST", DEFAULT_REDIST)
     try:
         openni2.initialize(redist)

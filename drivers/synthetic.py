@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from topseg.core.errors import TopsegError
+from topseg.core.extras import is_installed, needs_extra
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.synth.density import MODES
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
@@ -95,6 +96,8 @@ class SyntheticSource(Source):
         self.intrinsics = config.camera.intrinsics
         self.mount = config.camera
         self.nominal_fps = options.fps or DEFAULT_FPS
+        if not is_installed("pybullet"):
+            raise SourceError(needs_extra("synthetic", "pybullet", "train"))
         self.synth = Synthesizer(config)
         self._stop = threading.Event()
 

@@ -26,7 +26,8 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip "setuptools>=77" wheel Cython
 echo "install: topseg and its Python dependencies into .venv"
-.venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test,kinect]"
+# every extra: the live services, synthesis and training, each sensor SDK, the tests
+.venv/bin/python -m pip install -q --disable-pip-version-check -e ".[all,kinect,test]"
 .venv/bin/topseg --version
 # numba's kernels compiled into its cache now, a process per core (~2 min on 2 cores), not on a
 # worker's first start or spread over the test suite's first runs

@@ -326,6 +326,18 @@ def test_every_units_documentation_is_installed(tmp_path, checkout, wheel):
     assert not missing, f"units name documentation install.sh does not install: {missing}"
 
 
+@pytest.mark.parametrize("extras, installed", [("oak", "cell,oak"), ("", "cell")])
+def test_install_always_takes_the_cell_extra(tmp_path, checkout, wheel, extras, installed):
+    """The live services' packages come with every install; --extras adds sensors' SDKs."""
+    lines = run_script(
+        checkout / "deploy" / "install.sh",
+        "--root", str(tmp_path / "root"), "--no-systemctl", "--python", sys.executable,
+        "--no-venv-pip", "--no-compile", "--source", str(wheel),
+        "--pip-args", "--no-deps --no-index", "--extras", extras,
+    )  # fmt: skip
+    assert lines_with(lines, f", extras {installed})"), lines
+
+
 def test_install_twice_then_uninstall(tmp_path, checkout, wheel):
     root = tmp_path / "root"
     first = install(checkout, root, wheel)

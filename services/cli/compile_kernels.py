@@ -19,6 +19,9 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 
+from topseg.core.errors import TopsegError
+from topseg.core.extras import is_installed, needs_extra
+
 
 def compile_forest() -> None:
     """Labelling's forest side: the model input, the tree walks, blobs, resolution, smoothing
@@ -94,6 +97,8 @@ JOBS = {
     "synthesis": compile_synthesis,
 }
 LAST = {"labelling": compile_labelling}
+#: job -> (the optional package it needs, the extra that installs it)
+NEEDS = {"synthesis": ("pybullet", "train")}
 
 
 def _timed(name: str) -> tuple[str, float]:
@@ -144,16 +149,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def installed_jobs(names: list[str], asked: bool, report=print) -> list[str]:
+    """`names` less the jobs whose optional package is not installed: each skipped with a
+    line naming its extra, or an error when the job was asked for by name."""
+    kept = []
+    for name in names:
+        module, extra = NEEDS.get(name, (None, None))
+        if module is None or is_installed(module):
+            kept.append(name)
+        elif asked:
+            raise TopsegError(needs_extra(f"compile {name}", module, extra))
+        else:
+            report(needs_extra(f"skipped {name} kernels", module, extra))
+    return kept
+
+
 def run(args: argparse.Namespace) -> int:
     """Compile the chosen jobs' kernels into numba's cache and say how long each took."""
     import numba
-
-    from topseg.core.errors import TopsegError
 
     names = args.jobs or [*JOBS, *LAST]
     unknown = [n for n in names if n not in JOBS and n not in LAST]
     if unknown:
         raise TopsegError(f"unknown job {unknown[0]!r}; choose from {', '.join([*JOBS, *LAST])}")
+    names = installed_jobs(names, asked=bool(args.jobs))
     where = numba.config.CACHE_DIR or "beside topseg's sources"
     print(f"compiling numba kernels ({', '.join(names)}) into its cache ({where}) ...")
     t0 = time.perf_counter()

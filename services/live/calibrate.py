@@ -10,7 +10,8 @@ takes `--frames` frames from the source (the floor should be mostly clear and th
 still), fits the floor plane robustly (RANSAC over the back-projected points), prints the
 camera's height above the floor, its pitch and roll, the fit's residual and the share of the
 view on the floor, and writes the mount file (`topseg driver --mount FILE` reads it) and a
-picture beside it: the depth, the floor inliers over it, and the height above the floor.
+picture beside it: the depth, the floor inliers over it, and the height above the floor (the
+picture needs matplotlib, which `topseg[train]` installs; without it only the mount file).
 
 It refuses with one line when the source gives no depth, no plane covers enough of the view,
 the frames disagree (the camera moved), or the camera is tilted beyond what is supported.
@@ -29,6 +30,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from topseg.core.errors import TopsegError
+from topseg.core.extras import is_installed, needs_extra
 from topseg.services.cli.options import positive_int
 
 log = logging.getLogger("topseg.calibrate")
@@ -206,6 +208,16 @@ def with_edge_thinning(estimate, given: bool | None, frame_mount):
     return replace(estimate, mount=replace(estimate.mount, edge_thinning=given))
 
 
+def picture_path(asked: Path | None, out: Path) -> Path | None:
+    """Where the picture goes (`asked`, else OUT with .png); None without matplotlib, which
+    is an error when the picture was asked for."""
+    if is_installed("matplotlib"):
+        return asked or out.with_suffix(".png")
+    if asked:
+        raise TopsegError(needs_extra("--picture", "matplotlib", "train"))
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     """Grab frames, estimate the mount, print it, write the mount file and the picture."""
     from topseg.core.calibration import CalibrationConfig, estimate_mount
@@ -214,9 +226,10 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 1:
         raise TopsegError(f"--frames must be at least 1, got {args.frames}")
     out: Path = args.out
-    pic: Path = args.picture or out.with_suffix(".png")
+    pic = picture_path(args.picture, out)
     check_writable(out)
-    check_writable(pic)
+    if pic:
+        check_writable(pic)
     if args.sensor and args.sensor != "unknown":
         sensor_name(args.sensor, args.source, None)  # an unknown name fails before the camera
     frames, intrinsics, frame_mount, known = grab(args.source, args.frames)
@@ -232,9 +245,10 @@ def run(args: argparse.Namespace) -> int:
     print(estimate.summary())
     try:
         write_mount_file(out, estimate)
-        picture(pic, frames[-1], estimate)
+        if pic:
+            picture(pic, frames[-1], estimate)
     except OSError as exc:
         raise TopsegError(f"cannot write {exc.filename or out}: {exc.strerror or exc}") from exc
     print(f"mount file {out}")
-    print(f"picture    {pic}")
+    print(f"picture    {pic or needs_extra('not written', 'matplotlib', 'train')}")
     return 0

@@ -15,6 +15,8 @@ import json
 import os
 from dataclasses import asdict, dataclass
 
+from topseg.core.extras import needs_extra
+
 KINECT_CAMERA = (0x045E, 0x02AE)
 OAK_IDS = {(0x03E7, 0x2485): "unbooted", (0x03E7, 0xF63B): "booted"}
 UDEV_HINT = (
@@ -55,7 +57,7 @@ def probe_usb() -> tuple[list[UsbDevice], str]:
     try:
         import usb.core
     except ImportError:
-        return [], "pyusb is not installed"
+        return [], needs_extra("devices", "pyusb", "cell")
     wanted = {KINECT_CAMERA, *OAK_IDS}
     try:
         found = usb.core.find(find_all=True)
@@ -74,10 +76,13 @@ def probe_usb() -> tuple[list[UsbDevice], str]:
 def probe_oak() -> tuple[list[dict], str]:
     """OAK devices as depthai sees them (id, name, state)."""
     try:
+        from topseg.drivers import SourceError
         from topseg.drivers.oak import import_depthai
 
         dai = import_depthai()
         infos = dai.Device.getAllAvailableDevices()
+    except SourceError as exc:  # depthai is not installed, or cannot load
+        return [], str(exc)
     except Exception as exc:  # a missing or broken depthai only hides OAK devices
         return [], f"depthai cannot list devices: {exc}"
     return [
