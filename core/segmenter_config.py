@@ -32,12 +32,12 @@ EARLY_EXIT = 0.95
 MIN_HEAD_CM2 = 50.0
 #: After the CRF, blobs labelled chair, storage or table smaller than this on the surface
 #: (cm2) take their border's label: a fifth of a chair's seat seen from above (~1600 cm2).
-#: Measured in docs/crf.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
+#: Measured in docs/results.md: avg F1 +0.005 / +0.003 on the held-out sets, furniture on a
 #: person 1.1-1.4 points lower on rendered time-of-flight frames.
 MIN_FURNITURE_CM2 = 300.0
 #: After the CRF, blobs labelled plant smaller than this on the surface (cm2) take their
 #: border's label: two thirds of the smallest pot seen from above (14 cm across, ~150 cm2).
-#: A noisy camera leaves such specks of plant on table tops. Measured in docs/crf.md.
+#: A noisy camera leaves such specks of plant on table tops. Measured in docs/results.md.
 MIN_PLANT_CM2 = 100.0
 #: After the CRF, head blobs smaller than this (cm2) whose centre lies within
 #: SATELLITE_RADIUS_CM of a larger head blob's take their border's label: an arm or a hand

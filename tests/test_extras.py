@@ -254,7 +254,7 @@ def third_party_imports(path: Path) -> set[tuple[str, bool]]:
 def reached(include_functions: bool) -> dict[str, set[str]]:
     """Third-party import name -> the topseg modules importing it, over every module the
     live modules reach (a package's parents included)."""
-    graph, files = import_graph(include_functions), module_files()
+    graph, files = import_graph(include_functions, type_checking=False), module_files()
     seen, todo = set(), live_modules()
     while todo:
         name = todo.pop()

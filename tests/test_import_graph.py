@@ -29,8 +29,19 @@ def module_files() -> dict[str, Path]:
     return out
 
 
-def imports_of(path: Path, modules: dict[str, Path], name: str) -> list[tuple[str, bool]]:
-    """(imported topseg module, made inside a function) for every import in `path`."""
+def _type_checking_only(node: ast.If) -> bool:
+    """Whether `node` is `if TYPE_CHECKING:` (imports for annotations only)."""
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def imports_of(
+    path: Path, modules: dict[str, Path], name: str, type_checking: bool = True
+) -> list[tuple[str, bool]]:
+    """(imported topseg module, made inside a function) for every import in `path` (those
+    under `if TYPE_CHECKING:` too unless `type_checking` is False)."""
     tree = ast.parse(path.read_text(), str(path))
     found: list[tuple[str, bool]] = []
     is_package = path.name == "__init__.py"
@@ -42,6 +53,10 @@ def imports_of(path: Path, modules: dict[str, Path], name: str) -> list[tuple[st
         return mod or None
 
     def visit(node: ast.AST, in_function: bool) -> None:
+        if not type_checking and isinstance(node, ast.If) and _type_checking_only(node):
+            for child in node.orelse:
+                visit(child, in_function)
+            return
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if (t := target(alias.name)) is not None:
@@ -65,12 +80,15 @@ def imports_of(path: Path, modules: dict[str, Path], name: str) -> list[tuple[st
     return [(t, f) for t, f in found if t != name]
 
 
-def import_graph(include_functions: bool = True) -> dict[str, set[str]]:
-    """module -> the topseg modules it imports."""
+def import_graph(
+    include_functions: bool = True, type_checking: bool = True
+) -> dict[str, set[str]]:
+    """module -> the topseg modules it imports (inside functions and for annotations only
+    too, unless told otherwise)."""
     modules = module_files()
     graph = {}
     for name, path in modules.items():
-        edges = imports_of(path, modules, name)
+        edges = imports_of(path, modules, name, type_checking)
         graph[name] = {t for t, in_fn in edges if include_functions or not in_fn}
     return graph
 

@@ -63,7 +63,7 @@ class CRFConfig:
         lo=0.0,
         hi=MAX_SMOOTHNESS,
         help="the CRF's Potts weight per cut edge, in nats (default: %(default)s; 3 scores "
-        "~0.015 avg F1 higher and costs the realtime CRF ~2 ms a frame: docs/crf.md)",
+        "~0.015 avg F1 higher and costs the realtime CRF ~2 ms a frame: docs/explanation/crf.md)",
     )
     noisy_smoothness: float = setting(
         NOISY_SMOOTHNESS,
@@ -73,7 +73,7 @@ class CRFConfig:
         hi=MAX_SMOOTHNESS,
         help="the Potts weight for frames from a noisy camera (20 mm or more of depth noise "
         "at the floor, a stereo camera at range: the frames topseg smooths), when larger "
-        "than --smoothness (default: %(default)s: docs/crf.md)",
+        "than --smoothness (default: %(default)s: docs/explanation/crf.md)",
     )
     depth_sigma_mm: float = 0.0
     eps: float = 1e-6
