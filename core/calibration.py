@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from topseg.core import sensors
 from topseg.core.camera import (
     NOISE_SCALE_RANGE,
     Intrinsics,
@@ -41,7 +42,10 @@ from topseg.core.camera import (
     check_depth,
     range_to_depth,
 )
+from topseg.core.denoise import MIN_SIGMA_MM, floor_sigma_mm, needs_denoise
 from topseg.core.errors import TopsegError
+from topseg.core.fattening import thinning_line
+from topseg.core.sensors import depth_sigma_mm
 
 #: frames `_fits_as_range` tries reading as range when no floor fits them as depth
 RADIAL_TRIES = 5
@@ -122,8 +126,6 @@ class Threshold:
     @classmethod
     def of(cls, sensor: str, cfg: CalibrationConfig) -> Threshold:
         """The threshold for `sensor` under `cfg`."""
-        from topseg.core import sensors
-
         z_m = cls.GRID_MM / 1000.0
         try:
             sigma = np.asarray(sensors.get_sensor(sensor).sigma_mm(z_m), np.float64)
@@ -175,8 +177,6 @@ class MountEstimate:
     def summary(self) -> str:
         """Human lines: height, pitch, roll, tilt, residual, inlier share, camera, sensor, and
         whether its frames are thinned (`core.fattening`) and smoothed before the forest."""
-        from topseg.core.fattening import thinning_line
-
         m, k = self.mount, self.mount.intrinsics
         return "\n".join(
             [
@@ -207,8 +207,6 @@ class MountEstimate:
 
 def _smoothing_line(m: TopViewMount) -> str:
     """Whether frames from this mount are smoothed before the forest (`core.denoise`)."""
-    from topseg.core.denoise import MIN_SIGMA_MM, floor_sigma_mm, needs_denoise
-
     sigma = floor_sigma_mm(m)
     if needs_denoise(m):
         return f"smoothing  on: noise {sigma:.0f} mm at the floor (>= {MIN_SIGMA_MM:g} mm)"
@@ -538,8 +536,6 @@ def noise_scale(residual_mm: float, floor_depth_mm: np.ndarray, sensor: str) -> 
     floor points' depths, to 2 decimals, within `NOISE_SCALE_RANGE`: 1 on a camera that
     matches its model, below 1 on a quieter one (a time-of-flight camera taken for a Kinect v1).
     """
-    from topseg.core.sensors import depth_sigma_mm
-
     sigma = depth_sigma_mm(np.asarray(floor_depth_mm, np.float32), sensor).astype(np.float64)
     model = math.sqrt(float(np.mean(sigma * sigma))) if sigma.size else 0.0
     if not (model > 0 and math.isfinite(residual_mm)):

@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass
 import numba
 import numpy as np
 
+from topseg.core.config import from_dict
+
 #: the widest or tallest frame a camera may have, px (a sanity bound on intrinsics read from files)
 MAX_CAMERA_SIDE = 16384
 
@@ -52,8 +54,6 @@ class Intrinsics:
     @classmethod
     def from_dict(cls, d: dict, source: str = "camera intrinsics") -> Intrinsics:
         """The intrinsics in `d`; all six keys are required (no silent Kinect fallback)."""
-        from topseg.core.config import from_dict
-
         return from_dict(cls, d, source, required=("width", "height", "fx", "fy", "cx", "cy"))
 
     def scaled_to(self, width: int, height: int) -> Intrinsics:
@@ -367,8 +367,6 @@ class TopViewMount:
         the tilt, sensor, noise scale, `radial` and `edge_thinning` default (straight down,
         Kinect v1, as modelled, depth, thinned as the sensor model says), so dicts written
         before they existed still load."""
-        from topseg.core.config import from_dict
-
         return from_dict(cls, d, source, required=("intrinsics", "height_mm"))
 
 

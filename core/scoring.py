@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from topseg.core.forest.inputs import dataset_mount
 from topseg.core.metrics import ConfusionAccumulator, HeadDetections
 from topseg.core.segmenter import Segmenter
 
@@ -91,8 +92,6 @@ def dataset_frames(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, TopViewMount]]:
     """(depth, truth, mount) of the dataset frames at `indices`, read one at a time, each
     cropped to its mount's camera (a smaller sensor's frame is stored top-left)."""
-    from topseg.core.forest.inputs import dataset_mount
-
     for i in indices:
         mount = dataset_mount(ds, i)
         h, w = mount.intrinsics.shape

@@ -23,6 +23,7 @@ import numpy as np
 
 from topseg.core.camera import Intrinsics
 from topseg.core.errors import ConfigError, TopsegError
+from topseg.core.synth.noise import parse_noise
 
 STRUCTURED_LIGHT = "structured_light"
 TIME_OF_FLIGHT = "time_of_flight"
@@ -57,8 +58,6 @@ class SensorModel:
 
     def noise(self):
         """The sensor's noise model (`parse_noise(noise_spec)`)."""
-        from topseg.core.synth.noise import parse_noise
-
         return parse_noise(self.noise_spec)
 
     def sigma_mm(self, z_m):

@@ -21,6 +21,7 @@ import threading
 from collections.abc import Iterator
 
 from topseg.drivers.base import Source, SourceError, SourceFrame, SourceOptions, SourceUnavailable
+from topseg.drivers.spec import open_source, parse_spec
 
 _KEYS = ("fail_opens", "fail_after", "stall_after", "faults")
 USAGE = "faulty:KEY=N[,KEY=N...]@INNER-SPEC with KEY one of " + ", ".join(_KEYS)
@@ -83,8 +84,6 @@ class FaultySource(Source):
 
 def open(arg: str | None, options: SourceOptions) -> Source:
     """`faulty:OPTIONS@INNER` -> a FaultySource around INNER (or SourceUnavailable at open)."""
-    from topseg.drivers.spec import open_source, parse_spec
-
     text, sep, inner_spec = (arg or "").partition("@")
     if not sep or not inner_spec:
         raise SourceError(f"faulty needs an inner source: {USAGE}")

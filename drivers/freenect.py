@@ -24,6 +24,7 @@ from topseg.core.camera import KINECT_V1
 from topseg.core.extras import import_failure
 from topseg.drivers.base import SourceError, SourceOptions, SourceUnavailable, Throttle
 from topseg.drivers.child import ChildSource, child_argv, serve
+from topseg.drivers.fakenect_dump import raw_to_mm
 
 FAKENECT_LIBRARY_DIR = "/usr/lib/x86_64-linux-gnu/fakenect"
 
@@ -55,7 +56,6 @@ def _produce(index: int, fps: float | None):
     except ImportError as exc:
         line = import_failure("freenect", "freenect", "kinect", exc)
         raise SourceError(f"{line}; its wheel builds against libfreenect-dev") from exc
-    from topseg.drivers.fakenect_dump import raw_to_mm
 
     got = freenect.sync_get_depth(index, freenect.DEPTH_11BIT)
     if got is None:

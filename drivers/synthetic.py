@@ -20,10 +20,16 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
+
+from topseg.core.camera import PAPER_MOUNT
 from topseg.core.errors import TopsegError
 from topseg.core.extras import is_installed, needs_extra
+from topseg.core.formats import wire
+from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.synth.density import MODES
+from topseg.core.synth.synthesis import MountDistribution, SynthesisConfig, Synthesizer
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
 
 DEFAULT_FPS = 30.0
@@ -58,11 +64,6 @@ def parse_options(arg: str | None) -> dict:
 
 def synthesis_config(kw: dict):
     """`parse_options`' result -> a SynthesisConfig with one fixed mount for the stream."""
-    import numpy as np
-
-    from topseg.core.camera import PAPER_MOUNT
-    from topseg.core.synth.synthesis import MountDistribution, SynthesisConfig
-
     kw = dict(kw)
     mount_kind, sensor = kw.pop("mount", "paper"), kw.pop("sensor", None)
     if mount_kind == "paper" and sensor is None:
@@ -83,7 +84,6 @@ class SyntheticSource(Source):
     finite = False
 
     def __init__(self, arg: str | None, options: SourceOptions) -> None:
-        from topseg.core.synth.synthesis import Synthesizer
 
         try:
             config = synthesis_config(parse_options(arg))
@@ -129,9 +129,6 @@ def record(
 ) -> Path:
     """Write `n_frames` synthetic frames (depth + truth, 1/fps apart) to a ROS 2 MCAP recording
     that `replay:PATH` plays back with its ground truth; atomic like every RecordingWriter."""
-    from topseg.core.formats import wire
-    from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter
-
     if n_frames < 1:
         raise SourceError(f"a recording needs at least one frame, got {n_frames}")
     source = SyntheticSource(arg, SourceOptions(realtime=False))

@@ -80,9 +80,7 @@ def imports_of(
     return [(t, f) for t, f in found if t != name]
 
 
-def import_graph(
-    include_functions: bool = True, type_checking: bool = True
-) -> dict[str, set[str]]:
+def import_graph(include_functions: bool = True, type_checking: bool = True) -> dict[str, set[str]]:
     """module -> the topseg modules it imports (inside functions and for annotations only
     too, unless told otherwise)."""
     modules = module_files()

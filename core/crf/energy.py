@@ -10,7 +10,7 @@ import numba
 import numpy as np
 
 from topseg.core import labels as L
-from topseg.core.config import setting
+from topseg.core.config import from_dict, setting
 from topseg.core.errors import TopsegError
 
 #: Factor from float energies (nats) to the solvers' integer energy terms.
@@ -106,8 +106,6 @@ class CRFConfig:
     @classmethod
     def from_dict(cls, d: dict, source: str = "crf settings") -> CRFConfig:
         """The settings in `d` (a TOML table); ConfigError naming an unknown or mistyped key."""
-        from topseg.core.config import from_dict
-
         return from_dict(cls, d, source)
 
 

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numba
 import numpy as np
 
-from topseg.core.camera import check_depth
+from topseg.core.camera import TopViewMount, check_depth
 from topseg.core.denoise import denoise
 from topseg.core.fattening import unfatten
 from topseg.core.forest.edge_gaps import fill_edge_gaps
@@ -254,8 +254,6 @@ def trained_for(mounts: list[TopViewMount]) -> dict[str, Any]:
 def dataset_mount(ds: Any, k: int) -> TopViewMount:
     """The mount of the k-th frame of a dataset: `ds.mount(k)` where the dataset stores one
     per frame, else its `camera` attribute (datasets made before mounts were drawn)."""
-    from topseg.core.camera import TopViewMount
-
     per_frame = getattr(ds, "mount", None)
     if callable(per_frame):
         return per_frame(k)

@@ -49,6 +49,7 @@ from numba.extending import intrinsic
 from topseg.core.camera import TopViewMount
 from topseg.core.crf.argmax import (
     Summary,
+    segment_argmax,
     summarise_no_depth,
     summarise_pixel,
     summarise_values,
@@ -904,8 +905,6 @@ def predict_labels(
     """(H, W) uint8 most probable label per pixel; NO_DEPTH where depth == 0 (through the
     one argmax, `crf.segment_argmax`, that the CRF's mode `none` is). `stride` and
     `adaptive` as for `predict_proba`."""
-    from topseg.core.crf.argmax import segment_argmax
-
     inp = as_input(frame)
     proba = predict_proba(forest, inp, stride=stride, adaptive=adaptive)
     return segment_argmax(proba, inp.values > 0)

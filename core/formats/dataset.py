@@ -50,8 +50,11 @@ from typing import Any
 
 import numpy as np
 
+from topseg import __version__
 from topseg.core import labels as label_table
+from topseg.core.camera import PAPER_MOUNT, TopViewMount
 from topseg.core.errors import TopsegError
+from topseg.core.formats.zarr_chunks import ChunkWriter
 
 FORMAT = "topseg-dataset"
 FORMAT_VERSION = 1
@@ -133,9 +136,6 @@ def make_attrs(
 ) -> dict:
     """The root attributes of a new dataset (see the module docstring); `mounts` None: every
     frame is seen from `camera` (the paper's mount when that is None too)."""
-    from topseg import __version__
-    from topseg.core.camera import PAPER_MOUNT, TopViewMount
-
     camera = camera if camera is not None else PAPER_MOUNT.to_dict()
     if mounts is None:
         mounts = _fixed_summary(TopViewMount.from_dict(camera, "dataset camera"))
@@ -428,7 +428,6 @@ class FrameWriter:
     """
 
     def __init__(self, path: str | os.PathLike):
-        from topseg.core.formats.zarr_chunks import ChunkWriter
 
         self.path = Path(path)
         group, attrs = _open_group(self.path, "r+")
@@ -598,8 +597,6 @@ class Dataset:
     def mount(self, k: int):
         """The camera mount (`TopViewMount`) of the k-th complete frame: its scene's "mount",
         or the dataset's `camera` for frames that record none (datasets made before)."""
-        from topseg.core.camera import TopViewMount
-
         m = self.scene(k).get("mount")
         if isinstance(m, dict):
             return TopViewMount.from_dict(m, f"{self.path}: mount of frame {int(self.indices[k])}")
@@ -614,8 +611,6 @@ class Dataset:
     def mount_summary(self) -> dict:
         """What the frames' mounts span (the `mounts` attribute; derived from `camera` for
         datasets made before it): height_mm [lo, hi], tilt_deg, sensors, resolutions."""
-        from topseg.core.camera import TopViewMount
-
         if isinstance(self.attrs.get("mounts"), dict):
             return dict(self.attrs["mounts"])
         return _fixed_summary(TopViewMount.from_dict(self.attrs["camera"], "dataset camera"))

@@ -30,7 +30,9 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from topseg import __version__
 from topseg.core.errors import TopsegError
+from topseg.core.formats.wire import WireError
 
 log = logging.getLogger(__name__)
 
@@ -91,8 +93,6 @@ class RecordingWriter:
         profile: str = "",
     ) -> None:
         from mcap.writer import CompressionType, Writer
-
-        from topseg import __version__
 
         self.path = Path(path)
         if self.path.is_dir():
@@ -302,8 +302,6 @@ def read_messages(
     (`info.truncated`), its profile and metadata.
     """
     from mcap.records import Channel, Header, Message, Metadata, Schema
-
-    from topseg.core.formats.wire import WireError
 
     wanted = None if keys is None else set(keys)
     info = RecordingInfo() if info is None else info

@@ -23,6 +23,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from zenoh.ext import Int64, z_serialize
+
 from topseg.core.errors import TopsegError
 from topseg.core.formats.ros2_messages import dds_type_name, type_hash
 
@@ -151,8 +153,6 @@ def entity_gid(token: str) -> bytes:
 def attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> bytes:
     """A sample's attachment: int64 sequence number, int64 source time (ns since the epoch),
     then the GID as a length-prefixed byte sequence, in Zenoh's serialisation (33 bytes)."""
-    from zenoh.ext import Int64, z_serialize
-
     if len(gid) != GID_SIZE:
         raise ValueError(f"a GID is {GID_SIZE} bytes, got {len(gid)}")
     return z_serialize((Int64(sequence_number), Int64(source_timestamp_ns), bytes(gid))).to_bytes()

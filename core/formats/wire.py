@@ -53,6 +53,7 @@ from topseg.core.camera import (
     Intrinsics,
     TopViewMount,
 )
+from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
 
 #: The version every message is written with.
@@ -389,8 +390,6 @@ def check_mount_map(d: Any) -> dict:
 
 def mount_from_map(d: Any) -> TopViewMount:
     """A checked mount map -> TopViewMount; WireError when it is not one."""
-    from topseg.core.config import from_dict
-
     d = check_mount_map(d)
     try:
         return from_dict(TopViewMount, d, "mount", required=("intrinsics", "height_mm"))
@@ -670,3 +669,11 @@ def decode_for_key(key: str, data: bytes) -> DepthFrame | LabelFrame | dict:
     if kind == "stats":
         return decode_stats(data)
     raise WireError(f"{key!r} does not carry a msgpack frame message")
+
+
+#: A depth stamp's sane window against a receiver's clock (the worker's, `topseg status`'s): at most STAMP_AHEAD_S ahead
+#: (more is clock skew between hosts) and STAMP_AGE_S old (more is a clock far behind, or
+#: a stamp that is no time at all). Frames outside it get no latency and are counted as
+#: `stamps_out_of_window`.
+STAMP_AHEAD_S = 1.0
+STAMP_AGE_S = 60.0

@@ -36,6 +36,7 @@ import numpy as np
 
 from topseg.core import labels
 from topseg.core.camera import PAPER_MOUNT, TopViewMount
+from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
 from topseg.core.synth import furniture, humanoid, relations, rooms
 from topseg.core.synth.geometry import inside_rect, overlap_fraction
@@ -210,8 +211,6 @@ class DensityConfig:
     def from_dict(cls, d: dict, source: str = "density config") -> DensityConfig:
         """The config a `to_dict` mapping or a TOML table describes; an unknown or mistyped
         key is a ConfigError naming it."""
-        from topseg.core.config import from_dict
-
         return from_dict(cls, d, source)
 
 

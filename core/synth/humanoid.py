@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.atomic import atomic_write
 from topseg.core.synth.geometry import (
     BOX,
     CAPSULE,
@@ -43,6 +44,7 @@ from topseg.core.synth.geometry import (
     quat_normalize,
     quat_to_matrix,
     quats_to_matrices,
+    rot2,
     rotation_between,
     yaw_quat,
 )
@@ -197,8 +199,6 @@ def _fixed_urdf_root(path: str | None = None) -> ET.Element:
 def urdf_path() -> str:
     """A URDF file of the fixed humanoid for pybullet's loadURDF (written once, atomically,
     under the temp folder, named by its content's hash)."""
-    from topseg.core.atomic import atomic_write
-
     text = ET.tostring(_fixed_urdf_root(), encoding="utf-8")
     digest = hashlib.sha256(text).hexdigest()[:16]
     path = Path(tempfile.gettempdir()) / f"topseg-humanoid-{digest}.urdf"
@@ -406,8 +406,6 @@ def prims_xy_bounds(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bounds (lo, hi) of the body on the floor, in the frame of `origin` turned by `yaw`;
     `arms=False` leaves out upper arms, forearms and hands."""
-    from topseg.core.synth.geometry import rot2
-
     keep = (
         np.ones(len(p.kind), bool)
         if arms

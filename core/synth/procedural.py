@@ -24,6 +24,7 @@ from topseg.core.camera import PAPER_MOUNT, TopViewMount, metres_to_mm
 from topseg.core.synth.geometry import BOX, CYLINDER, SPHERE
 from topseg.core.synth.noise import GaussianNoise
 from topseg.core.synth.render import Primitives, raycast_m
+from topseg.core.synth.rooms import view_rect
 
 
 @dataclass(frozen=True)
@@ -124,8 +125,6 @@ def _spot(
     rng: np.random.Generator, mount: TopViewMount, margin: float, top_m: float = 0.0
 ) -> tuple[float, float]:
     """A floor position whose point `top_m` above it is in view, `margin` m from the edge."""
-    from topseg.core.synth.rooms import view_rect
-
     (x0, y0), (x1, y1) = view_rect(mount)
     shrink = max(1.0 - 1000.0 * top_m / mount.height_mm, 0.0)  # perspective at that height
     mx, my = (x0 + x1) / 2 * shrink, (y0 + y1) / 2 * shrink

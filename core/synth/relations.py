@@ -19,6 +19,7 @@ import numpy as np
 from topseg.core import labels as L
 from topseg.core.synth import furniture, humanoid
 from topseg.core.synth.geometry import (
+    aabb,
     clip_convex,
     overlap_fraction,
     points_in_convex,
@@ -309,8 +310,6 @@ def body_front(pose: humanoid.Pose, scale: float, base_z: float, below_z: float 
     Only parts that reach below `below_z` count: a trunk leaning over a table top may pass
     its edge, the legs may not.
     """
-    from topseg.core.synth.geometry import aabb
-
     prims = humanoid.posed_primitives(
         pose, scale, (0.0, 0.0, base_z), humanoid.base_quat(pose.tilt, 0.0)
     )

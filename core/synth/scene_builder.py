@@ -23,7 +23,15 @@ import numpy as np
 from topseg.core import labels
 from topseg.core.camera import PAPER_MOUNT, TopViewMount
 from topseg.core.synth import furniture, humanoid, rooms
-from topseg.core.synth.geometry import BOX, CAPSULE, CYLINDER, SPHERE, quat_to_matrix, yaw_quat
+from topseg.core.synth.geometry import (
+    BOX,
+    CAPSULE,
+    CYLINDER,
+    SPHERE,
+    Part,
+    quat_to_matrix,
+    yaw_quat,
+)
 from topseg.core.synth.render import Primitives
 from topseg.core.synth.scene import Scene
 
@@ -191,8 +199,6 @@ class SceneBuilder:
     def _make_floor(self) -> Body:
         import pybullet as p
 
-        from topseg.core.synth.geometry import Part
-
         body = _create_compound(
             self.client,
             [Part(BOX, (FLOOR_HALF_M, FLOOR_HALF_M, 0.05), (0.0, 0.0, -0.05))],
@@ -205,8 +211,6 @@ class SceneBuilder:
 
     def _wall_body(self, half: tuple, copy: int) -> Body:
         """A pooled wall slab with half extents `half` (long along x or y), centred on its base."""
-        from topseg.core.synth.geometry import Part
-
         key = ("x" if half[0] >= half[1] else "y", copy)
         if key not in self._walls:
             body = _create_compound(self.client, [Part(BOX, tuple(half), (0.0, 0.0, 0.0))],

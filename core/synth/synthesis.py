@@ -25,12 +25,16 @@ import numpy as np
 
 from topseg.core import labels
 from topseg.core.camera import PAPER_MOUNT, TopViewMount
+from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
+from topseg.core.sensors import NAMES, get_sensor
 from topseg.core.synth import rooms
 from topseg.core.synth.density import MODES, DensityConfig, DensityFunction
 from topseg.core.synth.humanoid import POSES
 from topseg.core.synth.noise import parse_noise
+from topseg.core.synth.render import raycast
 from topseg.core.synth.scene import Scene
+from topseg.core.synth.scene_builder import SceneBuilder
 
 ROOMS: tuple[str, ...] = rooms.ROOMS
 __all__ = [
@@ -49,7 +53,6 @@ SENSOR_NOISE = "sensor"
 
 
 def _all_sensors() -> tuple[str, ...]:
-    from topseg.core.sensors import NAMES
 
     return tuple(NAMES)
 
@@ -65,7 +68,6 @@ class MountDistribution:
     sensors: tuple[str, ...] = field(default_factory=_all_sensors)
 
     def __post_init__(self) -> None:
-        from topseg.core.sensors import get_sensor
 
         self.height_m = tuple(float(v) for v in self.height_m)
         self.sensors = tuple(str(v) for v in self.sensors)
@@ -84,8 +86,6 @@ class MountDistribution:
 
     def draw(self, rng: np.random.Generator) -> TopViewMount:
         """One mount: sensor, height, pitch, roll, in that order from `rng`."""
-        from topseg.core.sensors import get_sensor
-
         sensor = get_sensor(self.sensors[int(rng.integers(len(self.sensors)))])
         height = float(rng.uniform(*self.height_m))
         pitch, roll = (float(v) for v in rng.uniform(-self.tilt_deg, self.tilt_deg, 2))
@@ -105,8 +105,6 @@ class MountDistribution:
     @classmethod
     def from_dict(cls, d: dict, source: str = "mount distribution") -> MountDistribution:
         """The distribution in `d` (`to_dict`'s form)."""
-        from topseg.core.config import from_dict
-
         return from_dict(cls, d, source)
 
 
@@ -121,7 +119,6 @@ def mount_summary(mounts: MountDistribution | None, camera: TopViewMount) -> dic
             "sensors": [camera.sensor],
             "resolutions": [[k.width, k.height]],
         }
-    from topseg.core.sensors import get_sensor
 
     sizes = []
     for name in mounts.sensors:
@@ -194,8 +191,6 @@ class SynthesisConfig:
     @classmethod
     def from_dict(cls, d: dict, source: str = "synthesis config") -> SynthesisConfig:
         """The config in `d` (`to_dict`'s form); ConfigError naming an unknown or mistyped key."""
-        from topseg.core.config import from_dict
-
         return from_dict(cls, d, source)
 
 
@@ -221,8 +216,6 @@ class Synthesizer:
         """`warm` creates every pooled pybullet body the config can draw up front (~1.5 s), so
         no frame waits for one; without it bodies are created when first needed."""
         import pybullet as p
-
-        from topseg.core.synth.scene_builder import SceneBuilder
 
         self.config = config or SynthesisConfig()
         self.density = DensityFunction(
@@ -287,8 +280,6 @@ class Synthesizer:
     ) -> SyntheticFrame:
         """Render a given scene description from its mount (the config's camera when it records
         none), noise drawn from `noise_rng`."""
-        from topseg.core.synth.render import raycast
-
         self._check_open()
         mount = scene.mount or self.config.camera
         if scene.mount is None:

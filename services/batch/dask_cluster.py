@@ -23,6 +23,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -88,9 +90,6 @@ def dask_client(
 def dask_setup(worker: Any) -> None:
     """Dask's preload hook, run in each local worker process: ignore SIGINT, which the
     terminal sends to the whole process group; the client closes the workers itself."""
-    import signal
-    import threading
-
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 

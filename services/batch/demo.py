@@ -20,8 +20,16 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
+
+from topseg.core import forest, metrics
+from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
 from topseg.core.crf import CRFConfig
+from topseg.core.errors import TopsegError
+from topseg.core.segmenter import Segmenter
 from topseg.core.segmenter_config import SegmenterConfig
+from topseg.core.synth import procedural
+from topseg.services.batch.pipeline import run_pipeline, summary
 from topseg.services.cli.options import finite, int_range, non_negative_int
 
 REPO = Path(__file__).resolve().parents[2]
@@ -29,8 +37,6 @@ REPO = Path(__file__).resolve().parents[2]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The live demo's recording, model and CRF; the --core demo's sizes."""
-    from topseg.core.bundled_model import MODEL_HELP
-
     parser.add_argument("--recording", type=Path, default=REPO / "recordings" / "demo.mcap")
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--crf", choices=("none", "exact", "realtime"), default="realtime")
@@ -74,11 +80,6 @@ def run(args: argparse.Namespace) -> int:
 
 def run_live(args: argparse.Namespace) -> int:
     """Replay the recording through driver -> worker -> viewer; print the figures and F1."""
-    from topseg.core import metrics
-    from topseg.core.bundled_model import bundled_model_path
-    from topseg.core.errors import TopsegError
-    from topseg.services.batch.pipeline import run_pipeline, summary
-
     model = bundled_model_path() if args.model is None else args.model
     for what, path in (("recording", args.recording), ("model", model)):
         if not path.exists():
@@ -116,12 +117,6 @@ def run_live(args: argparse.Namespace) -> int:
 
 def run_core(args: argparse.Namespace) -> int:
     """Train a small forest on procedural frames; score forest, realtime and exact CRF."""
-    import numpy as np
-
-    from topseg.core import forest, metrics
-    from topseg.core.segmenter import Segmenter
-    from topseg.core.synth import procedural
-
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
     train = [procedural.procedural_frame(rng) for _ in range(args.train_frames)]

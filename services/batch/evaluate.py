@@ -15,8 +15,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 from pathlib import Path
 
+from topseg.core import metrics
+from topseg.core.atomic import atomic_write
+from topseg.core.bundled_model import MODEL_HELP
+from topseg.core.errors import TopsegError
+from topseg.core.formats.dataset import open_dataset
+from topseg.core.scoring import dataset_frames, score
+from topseg.core.segmenter import Segmenter
 from topseg.services.cli.options import (
     add_segmenter_arguments,
     non_negative_int,
@@ -27,8 +35,6 @@ from topseg.services.cli.options import (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the bundled model), --data, --crf, --smoothness and what to write."""
-    from topseg.core.bundled_model import MODEL_HELP
-
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument("--data", required=True, type=Path, help="dataset from `topseg datagen`")
     add_segmenter_arguments(parser)
@@ -45,11 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Score the model on the dataset; print the tables, write the JSON and plots asked for."""
     from tqdm import tqdm
-
-    from topseg.core import metrics
-    from topseg.core.formats.dataset import open_dataset
-    from topseg.core.scoring import dataset_frames, score
-    from topseg.core.segmenter import Segmenter
 
     segmenter = Segmenter.from_file(args.model, segmenter_config(args))
     ds = open_dataset(args.data)
@@ -116,10 +117,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_writable(folder: Path, target: Path) -> None:
     """TopsegError (one line naming `target`) unless a file can be made in `folder`."""
-    import tempfile
-
-    from topseg.core.errors import TopsegError
-
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):
@@ -130,8 +127,6 @@ def _check_writable(folder: Path, target: Path) -> None:
 
 def _writing(path: Path, write) -> None:
     """Run `write()`; an OSError becomes one line naming `path` (the scores were printed)."""
-    from topseg.core.errors import TopsegError
-
     try:
         write()
     except OSError as exc:
@@ -143,8 +138,6 @@ def _writing(path: Path, write) -> None:
 
 def _write_text(path: Path, text: str) -> None:
     """Atomic: a reader sees the old file or the whole new one."""
-    from topseg.core.atomic import atomic_write
-
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as f:
         f.write((text + "\n").encode())

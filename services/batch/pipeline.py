@@ -32,9 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
+from topseg.core.bundled_model import bundled_model_path
 from topseg.core.errors import TopsegError
+from topseg.core.formats import wire
+from topseg.core.metrics import ConfusionAccumulator, percentile
 from topseg.core.segmenter_config import SegmenterConfig
+from topseg.drivers.spec import parse_spec
 from topseg.services.cli.options import setting_argv
+from topseg.services.runtime.zenoh_session import open_session
 
 CELL = "pipeline"
 CAMERA = "cam0"
@@ -98,7 +103,6 @@ class _Collector:
             self.frames_sent += 1
 
     def on_truth(self, sample) -> None:
-        from topseg.core.formats import wire
 
         try:
             frame = wire.decode_labels(sample.payload.to_bytes())
@@ -110,7 +114,6 @@ class _Collector:
                 self.truth[_camera_of(sample), frame.seq] = frame.labels
 
     def on_labels(self, sample) -> None:
-        from topseg.core.formats import wire
 
         now_ns, now_s = time.time_ns(), time.monotonic()
         try:
@@ -129,7 +132,6 @@ class _Collector:
                 self.labels[_camera_of(sample), frame.seq] = frame.labels
 
     def on_stats(self, sample) -> None:
-        from topseg.core.formats import wire
 
         try:
             stats = wire.decode_stats(sample.payload.to_bytes())
@@ -237,12 +239,6 @@ def run_pipeline(
     worker labels every frame (FIFO), and the drain waits for every frame seen. Raises
     TopsegError when a child fails to start.
     """
-    from topseg.core.bundled_model import bundled_model_path
-    from topseg.core.formats import wire
-    from topseg.core.metrics import ConfusionAccumulator, percentile
-    from topseg.drivers.spec import parse_spec
-    from topseg.services.runtime.zenoh_session import open_session
-
     spec = parse_spec(source)
     model = bundled_model_path() if model is None else Path(model)
     if not model.is_file():

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from topseg.core.atomic import atomic_write
+from topseg.core.labels import NAMES, colorize
+
 
 def _plt():
     import matplotlib
@@ -21,8 +24,6 @@ def _plt():
 
 def confusion_figure(confusion: np.ndarray, path: Path, title: str = "") -> None:
     """Row-normalised confusion matrix (recall on the diagonal) with counts per row."""
-    from topseg.core.labels import NAMES
-
     plt = _plt()
     cm = np.asarray(confusion, np.float64)
     rows = cm.sum(axis=1, keepdims=True)
@@ -51,8 +52,6 @@ def confusion_figure(confusion: np.ndarray, path: Path, title: str = "") -> None
 
 def frames_figure(examples, path: Path, crf_name: str = "crf") -> None:
     """One row per frame: depth, ground truth, forest argmax, CRF result."""
-    from topseg.core.labels import colorize
-
     plt = _plt()
     n = max(len(examples), 1)
     fig, axes = plt.subplots(n, 4, figsize=(16, 3.2 * n), dpi=80, squeeze=False)
@@ -74,7 +73,5 @@ def frames_figure(examples, path: Path, crf_name: str = "crf") -> None:
 
 def _save(fig, path: Path) -> None:
     """Atomic: the figure replaces `path` whole or not at all."""
-    from topseg.core.atomic import atomic_write
-
     with atomic_write(path) as f:
         fig.savefig(f, format=Path(path).suffix.lstrip(".") or "png")

@@ -35,11 +35,33 @@ lay beside a larger head (`--satellite-head-cm2`), and took their border's label
 from __future__ import annotations
 
 import argparse
+import io
 import logging
 import sys
 import threading
+from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
+from topseg.core.atomic import atomic_write, atomic_write_all
+from topseg.core.bundled_model import MODEL_HELP
+from topseg.core.calibration import estimate_mount
+from topseg.core.camera import range_text
+from topseg.core.denoise import smoothing_text
+from topseg.core.errors import TopsegError
+from topseg.core.fattening import thinning_text
+from topseg.core.labels import BACKGROUND, NO_DEPTH, colorize
+from topseg.core.segmenter import Segmenter
+from topseg.core.sensors import NAMES, get_sensor, sensor_of_frames
+from topseg.drivers.replay import (
+    RecordingFrames,
+    depth_channels,
+    input_frames,
+    png_files,
+    read_depth_png,
+)
 from topseg.services.cli.options import (
     add_segmenter_arguments,
     segmenter_config,
@@ -54,9 +76,6 @@ ESTIMATE_FRAMES = 30
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Inputs, --model (default: the bundled model), --out, --crf and --smoothness."""
-    from topseg.core.bundled_model import MODEL_HELP
-    from topseg.core.sensors import NAMES
-
     parser.add_argument(
         "inputs", nargs="+", type=Path, metavar="INPUT", help="PNG files, folders of PNGs, .mcap"
     )
@@ -84,10 +103,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def overlay(depth, labels):
     """Depth in grey (near = bright) with label colours blended on the foreground."""
-    import numpy as np
-
-    from topseg.core.labels import BACKGROUND, NO_DEPTH, colorize
-
     valid = depth > 0
     grey = np.zeros(depth.shape, np.float32)
     if valid.any():
@@ -105,17 +120,12 @@ def save_png(path: Path, array) -> None:
     """Atomic PNG write."""
     from PIL import Image
 
-    from topseg.core.atomic import atomic_write
-
     with atomic_write(path) as f:
         Image.fromarray(array).save(f, format="PNG")
 
 
 def run(args: argparse.Namespace) -> int:
     """Segment every input; a damaged one is skipped with one line, and exit 2 at the end."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.segmenter import Segmenter
-
     segmenter = Segmenter.from_file(args.model, segmenter_config(args))
     given = None
     if args.mount is not None and segmenter.reads_height:
@@ -184,8 +194,6 @@ def run(args: argparse.Namespace) -> int:
 def _segment_all(run_: _Run, inputs: list, given, sensor: str | None = None) -> int:
     """Segment every input (`run`'s loop), mounts estimated with `sensor`'s model (None:
     from the frames' size) where none is given; how many inputs were skipped."""
-    from topseg.core.errors import TopsegError
-
     skipped = 0
     segmenter = run_.segmenter
     for arg, sources in inputs:
@@ -243,10 +251,6 @@ class _Run:
 
     def segment(self, arg: Path, source: Path, estimates: dict) -> None:
         """Label every frame of one source and write its PNGs (both of a frame or neither)."""
-        from topseg.core.atomic import atomic_write_all
-        from topseg.core.errors import TopsegError
-        from topseg.drivers.replay import input_frames
-
         for frame in input_frames(source, on_recording=_report_skipped):
             if self.stop.is_set():
                 raise _Interrupted
@@ -306,8 +310,6 @@ class _Run:
 
 def _png_bytes(array) -> bytes:
     """An array encoded as PNG."""
-    import io
-
     from PIL import Image
 
     buf = io.BytesIO()
@@ -317,8 +319,6 @@ def _png_bytes(array) -> bytes:
 
 def _png_names(sources: list[Path]) -> dict[Path, str]:
     """Output names of the PNG inputs whose stems collide: `<parent folder>-<stem>`."""
-    from collections import Counter
-
     pngs = [p for p in sources if p.suffix.lower() == ".png"]
     stems = Counter(p.stem for p in pngs)
     return {p: f"{p.resolve().parent.name}-{p.stem}" for p in pngs if stems[p.stem] > 1}
@@ -327,9 +327,6 @@ def _png_names(sources: list[Path]) -> dict[Path, str]:
 def _count_frames(sources: list[Path]) -> int:
     """Frames the inputs hold, as far as a quick look tells (a PNG is one; a recording's
     depth messages)."""
-    from topseg.core.errors import TopsegError
-    from topseg.drivers.replay import depth_channels
-
     total = 0
     for source in sources:
         if source.suffix.lower() == ".mcap":
@@ -344,8 +341,6 @@ def _count_frames(sources: list[Path]) -> int:
 
 def _png_mount(frame):
     """No mount for a frame that says none: a one-line error."""
-    from topseg.core.errors import TopsegError
-
     raise TopsegError(f"{frame.name}: no camera mount for this frame (give --mount)")
 
 
@@ -353,7 +348,6 @@ def _spread(items: list, n: int) -> list:
     """At most `n` of `items`, evenly spread from first to last."""
     if len(items) <= n:
         return list(items)
-    import numpy as np
 
     return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
 
@@ -379,9 +373,6 @@ def _estimates(arg: Path, sources: list[Path], sensor: str | None = None) -> dic
     None when its frames all carry their own, or the TopsegError saying why there is none}.
     A folder of PNGs is one camera; each depth channel of a recording is one. TopsegError
     when an input cannot be read at all."""
-    from topseg.core.errors import TopsegError
-    from topseg.drivers.replay import RecordingFrames, depth_channels, input_frames, read_depth_png
-
     if all(p.suffix.lower() == ".png" for p in sources):
         frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
         return {None: _estimate(str(arg), frames, None, False, sensor)}
@@ -406,12 +397,6 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
     """The mount estimated from one camera's frames (printed) with sensor `name`'s model
     (None: the sensor of the frames' size), or None when its frames all carry their own.
     TopsegError (one line) when it cannot be estimated."""
-    from dataclasses import replace
-
-    from topseg.core.calibration import estimate_mount
-    from topseg.core.errors import TopsegError
-    from topseg.core.sensors import get_sensor, sensor_of_frames
-
     if all_mounted and frames:
         return None
     if not frames:
@@ -432,9 +417,6 @@ def _estimate(label: str, frames: list, intrinsics, all_mounted: bool, name: str
     mount = estimate.mount
     if sensor is not None and mount.sensor != sensor.name:
         mount = replace(mount, sensor=sensor.name)
-    from topseg.core.camera import range_text
-    from topseg.core.denoise import smoothing_text
-    from topseg.core.fattening import thinning_text
 
     print(
         f"{label}: estimated mount: height {mount.height_mm / 1000:.2f} m, pitch "
@@ -461,8 +443,6 @@ def _report_skipped(reader) -> None:
 
 def _expand(path: Path) -> list[Path]:
     """A folder of PNGs -> its PNGs (each one an input of its own); anything else as is."""
-    from topseg.drivers.replay import png_files
-
     if path.is_dir():
         return png_files(path) or [path]  # an empty folder: input_frames says so
     return [path]

@@ -27,8 +27,21 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from topseg import __version__
 from topseg.core.config import options_of
+from topseg.core.errors import ConfigError, TopsegError
+from topseg.core.forest.inputs import HEIGHT_INPUT, dataset_mount, header_fields
+from topseg.core.forest.inputs import trained_for as describe
+from topseg.core.forest.model_file import load_model, save_model
 from topseg.core.forest.train_config import TrainConfig
+from topseg.core.forest.tree import Forest
+from topseg.core.formats.dataset import open_dataset
+from topseg.core.metrics import to_json
+from topseg.core.scoring import dataset_frames, score
+from topseg.core.segmenter import Segmenter
+from topseg.services.batch.dask_cluster import dask_client, default_workers
 from topseg.services.cli.options import (
     add_setting_arguments,
     finite,
@@ -69,8 +82,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def split_frames(n: int, fraction: float, seed: int) -> tuple[list[int], list[int]]:
     """A seeded split of frame positions into (training, validation)."""
-    import numpy as np
-
     if not 0.0 <= fraction < 1.0:
         raise ValueError(f"--validation must be in [0, 1), got {fraction}")
     order = np.random.default_rng([seed, 0x5EED]).permutation(n)
@@ -107,7 +118,6 @@ class TrainJob:
     serial: bool = False
 
     def __post_init__(self) -> None:
-        from topseg.core.errors import ConfigError
 
         if not 0.0 <= self.validation < 1.0:
             raise ConfigError(f"--validation must be in [0, 1), got {self.validation}")
@@ -129,8 +139,6 @@ class TrainJob:
     def from_args(cls, args: argparse.Namespace) -> TrainJob:
         """The job `topseg train`'s command line describes (see `add_arguments`); a bad
         value is a ConfigError naming its option."""
-        from topseg.core.errors import ConfigError
-
         try:
             config = settings_from_args(args, TrainConfig())
         except ValueError as exc:
@@ -166,8 +174,6 @@ class FrameSubset:
 
 def recipe(job: TrainJob, fingerprint: str) -> dict:
     """What decides every tree: a part file is reused only when its recipe is the same."""
-    from topseg.core.forest.inputs import HEIGHT_INPUT
-
     return {
         "dataset": fingerprint,
         "seed": job.seed,
@@ -187,11 +193,7 @@ def train_one_tree(
     data: str, train_idx: list[int], recipe_: dict, tree: int, part: str, queue=None
 ) -> str:
     """Dask task: train tree `tree` and write it to `part`; returns the part's path."""
-    from topseg.core.forest.inputs import dataset_mount
-    from topseg.core.forest.model_file import save_model
     from topseg.core.forest.train import TrainConfig, train_tree, tree_seed
-    from topseg.core.forest.tree import Forest
-    from topseg.core.formats.dataset import open_dataset
 
     ds = open_dataset(data)
     config = TrainConfig.from_dict(recipe_["config"], source=f"the train recipe of {part}")
@@ -216,9 +218,6 @@ def train_one_tree(
 
 def _finished_part(part: Path, recipe_: dict):
     """The tree in `part` if it exists, loads whole and was made by the same recipe."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.forest.model_file import load_model
-
     if not part.exists():
         return None
     try:
@@ -234,9 +233,6 @@ def _finished_part(part: Path, recipe_: dict):
 
 def run(args: argparse.Namespace) -> int:
     """`topseg train`: the command line as a `TrainJob`, trained on its dataset's split."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.formats.dataset import open_dataset
-
     job = TrainJob.from_args(args)
     ds = open_dataset(job.data)
     train_idx, val_idx = split_frames(len(ds), job.validation, job.seed)
@@ -259,8 +255,6 @@ def train_on(
     `topseg experiment` trains on a chosen subset this way, naming that subset's identity
     in `fingerprint` (default: the whole dataset's).
     """
-    from topseg.core.errors import TopsegError
-
     recipe_ = recipe(job, fingerprint or dataset_fingerprint(ds))
     parts_dir = job.out.with_name(job.out.name + ".parts")
     try:
@@ -352,8 +346,6 @@ def _dask_trees(job: TrainJob, train_idx, recipe_, todo, parts, advance) -> None
     `job.workers` processes (default: one per tree, at most one per core)."""
     from distributed import Queue
 
-    from topseg.services.batch.dask_cluster import dask_client, default_workers
-
     workers = job.workers or max(1, min(len(todo), default_workers()))
     with dask_client(job.scheduler, None if job.scheduler else workers) as client:
         queue = Queue(f"topseg-train-{uuid.uuid4().hex}", client=client)
@@ -382,14 +374,7 @@ def _dask_trees(job: TrainJob, train_idx, recipe_, todo, parts, advance) -> None
 
 
 def _write_model(args, ds, val_idx, recipe_, trees, seconds) -> None:
-    from topseg import __version__
-    from topseg.core.forest.inputs import header_fields
-    from topseg.core.forest.model_file import save_model
     from topseg.core.forest.train import TrainConfig
-    from topseg.core.forest.tree import Forest
-    from topseg.core.metrics import to_json
-    from topseg.core.scoring import dataset_frames, score
-    from topseg.core.segmenter import Segmenter
 
     forest = Forest.from_trees(trees)
     config = TrainConfig.from_dict(recipe_["config"], source="the train recipe")
@@ -431,9 +416,6 @@ def trained_for(ds, indices: list[int]) -> dict:
     """What a model trained on frames `indices` of `ds` was trained for (`inputs.trained_for`):
     the synthesis' mount distribution when the dataset records one, else the range of the
     frames' own mounts."""
-    from topseg.core.forest.inputs import dataset_mount
-    from topseg.core.forest.inputs import trained_for as describe
-
     summary = getattr(ds, "mount_summary", None)
     if isinstance(ds.attrs.get("mounts"), dict) and callable(summary):
         return summary()

@@ -15,30 +15,37 @@ end to end with every CRF mode and compiles what the others left. `make install`
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 
+import numba
+import numpy as np
+
+from topseg.core import labels as L
+from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.crf import CRFConfig, realtime, segment_crf
+from topseg.core.crf.energy import MODES
 from topseg.core.errors import TopsegError
 from topseg.core.extras import is_installed, needs_extra
+from topseg.core.forest.train import TrainConfig, train_forest
+from topseg.core.segmenter import Segmenter, SegmenterConfig
+from topseg.core.sensors import SENSORS
+from topseg.core.synth.procedural import procedural_frames
+from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
+from topseg.services.cli.options import int_range
 
 
 def compile_forest() -> None:
     """Labelling's forest side: the model input, the tree walks, blobs, resolution, smoothing
     (the bundled model, whose features decide the walk kernel's variant)."""
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
-
     Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf="none").warm_up()
 
 
 def compile_crf() -> None:
     """The realtime CRF: its band problem and solve, serial and parallel, on random
     posteriors over a small frame, writable and read-only (as frames off the wire are)."""
-    import numpy as np
-
-    from topseg.core import labels as L
-    from topseg.core.crf import CRFConfig, realtime, segment_crf
-
     rng = np.random.default_rng(0)
     proba = rng.dirichlet(np.ones(L.NUM_CLASSES), (48, 64)).astype(np.float32)
     depth = rng.integers(1500, 3000, (48, 64)).astype(np.uint16)
@@ -52,10 +59,6 @@ def compile_crf() -> None:
 def compile_synthesis() -> None:
     """Rendering and each supported sensor's noise model (structured light, time of flight,
     stereo), on one small frame each."""
-    from topseg.core.camera import TopViewMount
-    from topseg.core.sensors import SENSORS
-    from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
-
     for sensor in SENSORS:
         k = sensor.intrinsics
         small = k.scaled_to(k.width // 4, k.height // 4)
@@ -66,12 +69,6 @@ def compile_synthesis() -> None:
 def compile_training() -> None:
     """Training on heights above the floor, as `topseg train` does: sampling, features, the
     splitter, the criterion and the tree builder, on a few small procedural frames."""
-    import numpy as np
-
-    from topseg.core.camera import KINECT_V1, TopViewMount
-    from topseg.core.forest.train import TrainConfig, train_forest
-    from topseg.core.synth.procedural import procedural_frames
-
     mount = TopViewMount(KINECT_V1.scaled_to(160, 120), 3000.0)
     depth, labels = procedural_frames(np.random.default_rng(0), 3, mount)
     config = TrainConfig(n_trees=1, max_depth=3, frames_per_tree=3, pixels_per_frame=200)
@@ -81,9 +78,6 @@ def compile_training() -> None:
 def compile_labelling() -> None:
     """A frame labelled end to end with each CRF mode, as the worker and `segment` do: after
     the jobs above this loads their kernels and compiles only what they left."""
-    from topseg.core.crf.energy import MODES
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
-
     for mode in MODES:
         Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf=mode).warm_up()
 
@@ -126,16 +120,12 @@ def compile_all(names: list[str], processes: int, report=print) -> dict[str, flo
 
 def default_processes() -> int:
     """One process per core this process may run on, up to the jobs that run side by side."""
-    import os
-
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(len(JOBS), cores or 1))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg compile [JOB ...] [--processes N]`."""
-    from topseg.services.cli.options import int_range
-
     names = [*JOBS, *LAST]
     parser.add_argument(
         "jobs", nargs="*", metavar="JOB", help=f"what to compile (default: all): {', '.join(names)}"
@@ -166,8 +156,6 @@ def installed_jobs(names: list[str], asked: bool, report=print) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Compile the chosen jobs' kernels into numba's cache and say how long each took."""
-    import numba
-
     names = args.jobs or [*JOBS, *LAST]
     unknown = [n for n in names if n not in JOBS and n not in LAST]
     if unknown:

@@ -20,6 +20,8 @@ from dataclasses import MISSING, replace
 from typing import Any, TypeVar
 
 from topseg.core.config import Option, options_of, with_options
+from topseg.core.errors import TopsegError
+from topseg.core.formats import wire
 from topseg.core.segmenter_config import SegmenterConfig
 
 
@@ -179,3 +181,15 @@ def setting_argv(config: Any, groups: Sequence[str] | None = None) -> list[str]:
             owner = getattr(config, group[0]) if group else config
             argv += [f"--{option.flag}", _text(getattr(owner, name), option)]
     return argv
+
+
+def parse_camera(text: str) -> tuple[str, str]:
+    """A `--cameras` entry 'cell/camera' -> (cell, camera); TopsegError naming a bad one."""
+    parts = text.split("/")
+    if len(parts) != 2:
+        raise TopsegError(f"--cameras entry {text!r} must be CELL/CAMERA")
+    try:
+        wire.camera_prefix(*parts)
+    except wire.WireError as exc:
+        raise TopsegError(f"--cameras entry {text!r}: {exc}") from None
+    return parts[0], parts[1]

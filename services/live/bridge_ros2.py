@@ -38,9 +38,16 @@ import os
 import time
 from typing import Any
 
+import zenoh
+from zenoh import ext
+
+from topseg.core.camera import axis_depth
 from topseg.core.errors import TopsegError
+from topseg.core.formats import rmw_zenoh as rz
+from topseg.core.formats import ros2_messages as ros2
+from topseg.core.formats import wire
 from topseg.core.printable import printable
-from topseg.services.cli.options import finite, int_range
+from topseg.services.cli.options import finite, int_range, parse_camera
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.inbox import Inbox
 from topseg.services.runtime.lifecycle import ServiceLifecycle
@@ -125,7 +132,6 @@ class Ros2Publisher:
     sequence numbers."""
 
     def __init__(self, session: Any, node, entity_id: int, topic: str, typename: str, qos) -> None:
-        from topseg.core.formats import rmw_zenoh as rz
 
         self.topic = topic
         self.key = rz.topic_key(node.domain, topic, typename)
@@ -137,8 +143,6 @@ class Ros2Publisher:
 
     def put(self, payload: bytes) -> None:
         """Publish one CDR message with rmw_zenoh's attachment (sequence numbers from 1)."""
-        from topseg.core.formats import rmw_zenoh as rz
-
         self.sequence_number += 1
         meta = rz.attachment(self.sequence_number, time.time_ns(), self.gid)
         self.publisher.put(payload, attachment=meta)
@@ -151,11 +155,6 @@ class Ros2Publisher:
 
 def declare_publisher(session: Any, key: str, qos) -> Any:
     """A Zenoh AdvancedPublisher with the options rmw_zenoh gives a publisher of this QoS."""
-    import zenoh
-    from zenoh import ext
-
-    from topseg.core.formats import rmw_zenoh as rz
-
     reliable = qos.reliability == rz.RELIABLE
     options: dict[str, Any] = {
         "reliability": zenoh.Reliability.RELIABLE if reliable else zenoh.Reliability.BEST_EFFORT,
@@ -184,7 +183,6 @@ class Bridge:
         wanted=None,
         forget_after: float = 0.0,
     ) -> None:
-        from topseg.core.formats import rmw_zenoh as rz
 
         self.session, self.max_cameras = session, max_cameras
         self.forget_after = forget_after
@@ -216,9 +214,6 @@ class Bridge:
     def topics(self, cell: str, camera: str) -> dict[str, Ros2Publisher] | None:
         """The camera's publishers by stream, declared on its first message; None for a camera
         that is not bridged (not in --cameras, over --max-cameras, or a name ROS 2 refuses)."""
-        from topseg.core.formats import rmw_zenoh as rz
-        from topseg.core.formats import ros2_messages as ros2
-
         name = (cell, camera)
         found = self.cameras.get(name)
         if found is not None:
@@ -260,8 +255,6 @@ class Bridge:
 
     def handle(self, key: str, payload: bytes) -> None:
         """Decode one topseg message by its key and publish its ROS 2 messages."""
-        from topseg.core.formats import wire
-
         try:
             parts = wire.parse_key(key)
             if parts.kind == "depth":
@@ -288,9 +281,6 @@ class Bridge:
 
     def publish_depth(self, cam: tuple[str, str], topics: dict[str, Ros2Publisher], frame) -> None:
         """The depth image, its camera info, and /tf_static when the mount is new."""
-        from topseg.core.camera import axis_depth
-        from topseg.core.formats import ros2_messages as ros2
-
         frame_id = ros2.optical_frame(*cam)
         depth = axis_depth(frame.depth, frame.mount)  # REP 118: z, also from a range camera
         topics["depth"].put(ros2.image_message(depth, frame.stamp_ns, frame_id))
@@ -303,8 +293,6 @@ class Bridge:
 
     def publish_labels(self, cam: tuple[str, str], topics: dict[str, Ros2Publisher], frame) -> None:
         """The label image (mono8), stamped like the depth frame it came from."""
-        from topseg.core.formats import ros2_messages as ros2
-
         topics["labels"].put(
             ros2.image_message(frame.labels, frame.stamp_ns, ros2.optical_frame(*cam))
         )
@@ -312,9 +300,6 @@ class Bridge:
 
     def publish_mounts(self, stamp_ns: int) -> None:
         """Every known mount in one /tf_static message (its publisher keeps the last one)."""
-        from topseg.core.formats import rmw_zenoh as rz
-        from topseg.core.formats import ros2_messages as ros2
-
         if self.tf_static is None:
             self.tf_static = self._publisher("/tf_static", ros2.TF_MESSAGE, rz.STATIC_TF_QOS)
         self.tf_static.put(ros2.mount_transforms_message(self.mounts, stamp_ns))
@@ -352,10 +337,6 @@ class Bridge:
 
 def wanted_cameras(entries: list[str] | None) -> set[tuple[str, str]] | None:
     """The --cameras entries as (cell, camera), each one ROS 2 can name; None for all."""
-    from topseg.core.formats import rmw_zenoh as rz
-    from topseg.core.formats import ros2_messages as ros2
-    from topseg.services.live.worker import parse_camera
-
     if not entries:
         return None
     wanted = set()
@@ -371,8 +352,6 @@ def wanted_cameras(entries: list[str] | None) -> set[tuple[str, str]] | None:
 
 def run(args: argparse.Namespace) -> int:
     """Bridge until SIGTERM/SIGINT; bad options or Zenoh config fail first (exit 2)."""
-    from topseg.core.formats import wire
-
     domain = ros_domain(args.domain)
     wanted = wanted_cameras(args.cameras)
     svc = ServiceLifecycle("bridge", args)

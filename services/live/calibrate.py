@@ -29,8 +29,16 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
+from topseg.core.atomic import atomic_write
+from topseg.core.calibration import CalibrationConfig, estimate_mount, floor_mask
 from topseg.core.errors import TopsegError
 from topseg.core.extras import is_installed, needs_extra
+from topseg.core.formats.mount_file import write_mount_file
+from topseg.core.sensors import get_sensor, sensor_of_frames
+from topseg.drivers import SourceOptions, open_source
+from topseg.drivers.spec import parse_spec
 from topseg.services.cli.options import positive_int
 
 log = logging.getLogger("topseg.calibrate")
@@ -89,9 +97,6 @@ def check_writable(path: Path) -> None:
 def sensor_name(given: str | None, source: str, frame_mount) -> str:
     """--sensor (checked against `core.sensors`), else the sensor the frames' own mount
     names, else the usual sensor of the driver kind, else 'unknown'."""
-    from topseg.core.sensors import get_sensor
-    from topseg.drivers.spec import parse_spec
-
     if given:
         if given != "unknown":
             get_sensor(given)  # a one-line ConfigError listing the known sensors
@@ -106,8 +111,6 @@ def grab(source: str, n: int) -> tuple[list, object, object, bool]:
     the first frame carries (None when the source sends none), and whether the source knows
     its optics (a PNG does not: its frames carry `replay.png_intrinsics`, a guess)."""
     from tqdm import tqdm
-
-    from topseg.drivers import SourceOptions, open_source
 
     frames, intrinsics, mount = [], None, None
     with open_source(source, SourceOptions(realtime=False)) as src:
@@ -140,8 +143,6 @@ def png_optics(intrinsics, sensor: str | None):
     another size), else the supported sensor of the frames' size, else (and for `--sensor
     unknown`) the guess they came with, a Kinect v1's scaled to their size, sensor
     'unknown'; and a line saying which."""
-    from topseg.core.sensors import sensor_of_frames
-
     found = None if sensor == "unknown" else sensor_of_frames(intrinsics.shape, sensor)
     if found is not None:
         k = found.intrinsics
@@ -163,10 +164,6 @@ def picture(path: Path, depth, estimate) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
-
-    from topseg.core.atomic import atomic_write
-    from topseg.core.calibration import floor_mask
 
     mount = estimate.mount
     valid = depth > 0
@@ -220,9 +217,6 @@ def picture_path(asked: Path | None, out: Path) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     """Grab frames, estimate the mount, print it, write the mount file and the picture."""
-    from topseg.core.calibration import CalibrationConfig, estimate_mount
-    from topseg.core.formats.mount_file import write_mount_file
-
     if args.frames < 1:
         raise TopsegError(f"--frames must be at least 1, got {args.frames}")
     out: Path = args.out

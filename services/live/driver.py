@@ -47,8 +47,14 @@ import logging
 import threading
 import time
 
+import zenoh
+
+from topseg import __version__
 from topseg.core.errors import TopsegError
+from topseg.core.formats import wire
+from topseg.core.formats.mount_file import read_mount_file
 from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
+from topseg.drivers import Reconnecting, SourceOptions, SourceUnavailable, open_source, parse_spec
 from topseg.services.cli.options import finite
 from topseg.services.live.driver_drain import LabelsSeen, drain
 from topseg.services.runtime import identity, zenoh_session
@@ -118,7 +124,6 @@ class DriverState:
     """What the `info` queryable reports; updated by the publishing loop."""
 
     def __init__(self, args: argparse.Namespace, keys: dict[str, str]) -> None:
-        from topseg import __version__
 
         self.lock = threading.Lock()
         self.info = {
@@ -171,8 +176,6 @@ def _wait_for_subscriber(publisher, key: str, svc: ServiceLifecycle) -> None:
 def read_mount(path: str):
     """The mount in a mount file (`topseg calibrate --out`); ConfigError (one line) when the
     file is missing or is not one."""
-    from topseg.core.formats.mount_file import read_mount_file
-
     return read_mount_file(path)
 
 
@@ -214,7 +217,6 @@ class OneDriverPerCamera:
     RECHECK_MAX_S = 30.0
 
     def __init__(self, session, args: argparse.Namespace, me, state: DriverState) -> None:
-        from topseg.core.formats import wire
 
         self.session, self.args, self.me, self.state = session, args, me, state
         self.token = wire.alive_key(args.cell, args.camera, "driver")
@@ -229,7 +231,6 @@ class OneDriverPerCamera:
         )
 
     def _on_token(self, sample) -> None:
-        from topseg.core.formats import wire
 
         try:
             parts = wire.parse_key(str(sample.key_expr))
@@ -270,10 +271,6 @@ class OneDriverPerCamera:
 
     def check(self, found: set[str]) -> None:
         """TopsegError when a live driver that started first serves this camera."""
-        import zenoh
-
-        from topseg.core.formats import wire
-
         with self.lock:
             others = found | self.others
         if not others:
@@ -327,17 +324,6 @@ class OneDriverPerCamera:
 
 def run(args: argparse.Namespace) -> int:
     """Publish the source's frames until it ends or a signal comes; 0 either way."""
-    import zenoh
-
-    from topseg.core.formats import wire
-    from topseg.drivers import (
-        Reconnecting,
-        SourceOptions,
-        SourceUnavailable,
-        open_source,
-        parse_spec,
-    )
-
     spec = parse_spec(args.source)
     mount = None if args.mount is None else read_mount(args.mount)  # fails before Zenoh
     if args.congestion == "auto":

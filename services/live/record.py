@@ -26,7 +26,12 @@ import argparse
 import logging
 import time
 
+import zenoh
+
 from topseg.core.errors import TopsegError
+from topseg.core.formats.recording import RecordingWriter
+from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter
+from topseg.core.formats.wire import WireError
 from topseg.core.printable import printable
 from topseg.services.cli.options import finite, positive_int
 from topseg.services.runtime import zenoh_session
@@ -71,7 +76,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> list[str]:
-    import zenoh
 
     if args.duration is not None and args.duration <= 0:
         raise TopsegError(f"--duration must be positive, got {args.duration}")
@@ -90,9 +94,6 @@ def _check(args: argparse.Namespace) -> list[str]:
 
 def open_writer(fmt: str, path: str, metadata: dict[str, str]):
     """The writer of a `--format`: both take `write(key, wire bytes, log_time_ns=...)`."""
-    from topseg.core.formats.recording import RecordingWriter
-    from topseg.core.formats.ros2_recording_writer import Ros2RecordingWriter
-
     writer = Ros2RecordingWriter if fmt == "ros2" else RecordingWriter
     return writer(path, metadata=metadata)
 
@@ -100,8 +101,6 @@ def open_writer(fmt: str, path: str, metadata: dict[str, str]):
 def run(args: argparse.Namespace) -> int:
     """Record until --duration, --count or SIGTERM/SIGINT; 2 (and the part written) on a
     full disk, 2 when the output folder was deleted (what it held is lost)."""
-    from topseg.core.formats.wire import WireError
-
     keys = _check(args)
     svc = ServiceLifecycle("record", args, signal_note="finishing the recording")
     inbox = Inbox(args.queue, stamp=True)

@@ -24,6 +24,8 @@ import re
 from collections import Counter
 from typing import Any
 
+import zenoh
+
 from topseg.core.errors import TopsegError
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.lifecycle import ServiceLifecycle
@@ -52,8 +54,6 @@ def listen_endpoints(config: Any) -> list[str]:
 
 def router_config(config_file: str | None, port: int | None, listen: list[str] | None) -> Any:
     """The zenoh.Config to route with; TopsegError when the file asks for another mode."""
-    import zenoh
-
     if config_file:
         config = zenoh_session.make_config(config_file)
         mode = json.loads(config.get_json("mode"))

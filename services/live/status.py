@@ -57,9 +57,13 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import zenoh
+
+from topseg.core.errors import TopsegError
+from topseg.core.formats import wire
 from topseg.core.metrics import percentile
 from topseg.core.printable import printable
-from topseg.services.cli.options import finite
+from topseg.services.cli.options import finite, parse_camera
 from topseg.services.runtime import zenoh_session
 
 log = logging.getLogger("topseg.status")
@@ -201,11 +205,10 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
 
 def _odd_frame_lines(worker: dict) -> list[str]:
     """A line for each count of odd frames (`ODD_FRAME_COUNTS`) that grew in the window."""
-    from topseg.services.live.worker import STAMP_AGE_S, STAMP_AHEAD_S
 
     return [
         ODD_FRAME_LINES[name].format(
-            n=worker[f"{name}_in_window"], ahead=STAMP_AHEAD_S, age=STAMP_AGE_S
+            n=worker[f"{name}_in_window"], ahead=wire.STAMP_AHEAD_S, age=wire.STAMP_AGE_S
         )
         for name in ODD_FRAME_COUNTS
         if worker.get(f"{name}_in_window")
@@ -309,8 +312,6 @@ def observed_tokens(tokens: set, went_down: set) -> Observed:
     """Observed's token fields from (cell, camera, role, instance) entries: roles alive per
     camera, the instances of each, the workers for every camera (with how many cameras they
     hold tokens for), and the roles that went down and did not come back."""
-    from topseg.core.formats import wire
-
     seen = Observed()
     any_ids = {inst for c, _, r, inst in tokens if c == wire.ANY and r == "worker" and inst}
     seen.any_workers = {inst: set() for inst in any_ids}
@@ -419,7 +420,6 @@ def format_table(rep: dict) -> str:
 
 
 def _camera_of(key: str) -> tuple[str, str] | None:
-    from topseg.core.formats import wire
 
     try:
         parts = wire.parse_key(key)
@@ -441,7 +441,6 @@ class Replies:
     GRACE_S = 0.5
 
     def __init__(self, get, key: str, timeout: float) -> None:
-        import zenoh
 
         self.lock = threading.Lock()
         self.items: list = []  # (monotonic, reply) of the ok replies
@@ -488,7 +487,6 @@ class Listener:
         self._subs.append(session.declare_subscriber(f"topseg/{cell}/*/stats", self._on_stats))
 
     def _on_token(self, sample) -> None:
-        from topseg.core.formats import wire
 
         try:
             parts = wire.parse_key(str(sample.key_expr))
@@ -503,7 +501,6 @@ class Listener:
                 self.tokens.add(entry)
 
     def _on_stats(self, sample) -> None:
-        from topseg.core.formats import wire
 
         camera = _camera_of(str(sample.key_expr))
         if camera is None:
@@ -519,7 +516,6 @@ class Listener:
     def info(self, timeout: float):
         """Ask every driver's info queryable; the returned callable collects the replies as
         {(cell, camera): (monotonic, info dict)} (so other queries can go out meanwhile)."""
-        import zenoh
 
         def get(key, handler, timeout):  # every driver's reply, not one per key
             none = zenoh.ConsolidationMode.NONE
@@ -554,8 +550,6 @@ class Listener:
     def live_tokens(self, timeout: float):
         """Ask for the live tokens; the returned callable collects
         {(cell, camera, role, instance)}."""
-        from topseg.core.formats import wire
-
         gets = [Replies(self.session.liveliness().get, key, timeout) for key in self.alive_keys]
 
         def collect() -> set:
@@ -608,16 +602,12 @@ class Listener:
 
 
 def _expected(entries: list[str]) -> list[tuple[str, str]]:
-    from topseg.services.live.worker import parse_camera
 
     return [parse_camera(e) for e in entries]
 
 
 def run(args: argparse.Namespace) -> int:
     """Watch the window(s) and print the report; the exit status says whether all is up."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.formats import wire
-
     if not args.timeout > 0:
         raise TopsegError(f"--timeout must be > 0, got {args.timeout}")
     if args.cell != "*":

@@ -33,9 +33,16 @@ import urllib.parse
 from collections import OrderedDict
 from typing import Any
 
+from topseg.core import labels
+from topseg.core.camera import axis_depth
+from topseg.core.errors import TopsegError
+from topseg.core.formats import wire
+from topseg.core.formats.ros2_messages import mount_pose
+from topseg.core.labelled_cloud import labelled_cloud
 from topseg.core.printable import printable
 from topseg.services.cli.options import finite
 from topseg.services.live import viewer_layout
+from topseg.services.live.viewer_foxglove import FoxgloveSink, add_foxglove_arguments
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.inbox import Inbox
 from topseg.services.runtime.lifecycle import ServiceLifecycle
@@ -52,8 +59,6 @@ WEB_PORT, GRPC_PORT = 9090, 9876
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The viewer's options: the sinks, --duration, --stride and Zenoh."""
-    from topseg.services.live.viewer_foxglove import add_foxglove_arguments
-
     sink = parser.add_mutually_exclusive_group()
     sink.add_argument(
         "--spawn",
@@ -91,8 +96,6 @@ def annotation_context():
     """The label table as a Rerun AnnotationContext (ids, names, colours)."""
     import rerun as rr
 
-    from topseg.core import labels
-
     return rr.AnnotationContext(
         [
             (lab.id, lab.name, tuple(int(c) for c in lab.color))
@@ -126,9 +129,6 @@ class RerunSink:
     def depth(self, cam: tuple[str, str], frame) -> None:
         """The camera's mount and Pinhole (when they changed) and the depth image."""
         import rerun as rr
-
-        from topseg.core.camera import axis_depth
-        from topseg.core.formats.ros2_messages import mount_pose
 
         k = frame.intrinsics
         if self.mounts.get(cam, ...) != frame.mount:  # static: a mount changes rarely
@@ -198,7 +198,6 @@ class Viewer:
     """Decodes topseg messages, pairs depth with labels and hands both to the sinks."""
 
     def __init__(self, sinks: list, stride: int) -> None:
-        from topseg.core.formats import wire
 
         self.sinks, self.stride = sinks, stride
         #: the kinds the viewer subscribes to, and their decoders
@@ -220,8 +219,6 @@ class Viewer:
 
     def handle(self, key: str, payload: bytes) -> None:
         """Decode one message by the kind its key names (parsed once) and pass it on."""
-        from topseg.core.formats import wire
-
         try:
             parts = wire.parse_key(key)
             decode = self.decoders.get(parts.kind)
@@ -258,8 +255,6 @@ class Viewer:
 
     def on_labels(self, cam, frame) -> None:
         """Show the labels, with the labelled cloud when the depth frame of its seq is kept."""
-        from topseg.core.labelled_cloud import labelled_cloud
-
         cloud = None
         depth = self.depth.get(cam, {}).get(frame.seq)
         if depth is not None and depth.depth.shape == frame.labels.shape:
@@ -275,8 +270,6 @@ class Viewer:
 def open_rerun(args: argparse.Namespace):
     """A RecordingStream sending to the chosen Rerun sink, or None when Rerun is not wanted."""
     import rerun as rr
-
-    from topseg.core.errors import TopsegError
 
     if not (args.save or args.web or args.spawn or not args.foxglove):
         return None
@@ -309,9 +302,6 @@ def open_rerun(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     """Show what flows until SIGTERM/SIGINT or --duration; bad options fail first (exit 2)."""
-    from topseg.core.errors import TopsegError
-    from topseg.services.live.viewer_foxglove import FoxgloveSink
-
     if args.stride < 1:
         raise TopsegError(f"--stride must be >= 1, got {args.stride}")
     if args.duration is not None and args.duration <= 0:

@@ -31,6 +31,8 @@ import logging
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.camera import axis_depth
+from topseg.core.errors import TopsegError
 from topseg.core.formats import ros2_messages
 
 log = logging.getLogger("topseg.viewer")
@@ -139,8 +141,6 @@ class FoxgloveSink:
         """Start the WebSocket server on host:port; a TopsegError when it cannot."""
         import foxglove
 
-        from topseg.core.errors import TopsegError
-
         context = foxglove.Context()
         try:
             server = foxglove.start_server(
@@ -182,8 +182,6 @@ class FoxgloveSink:
     def depth(self, cam: tuple[str, str], frame) -> None:
         """The depth image, the camera's calibration and its mount (when known)."""
         from foxglove.messages import CameraCalibration, FrameTransform, Quaternion, Vector3
-
-        from topseg.core.camera import axis_depth
 
         channels, optical = self.channels[cam], ros2_messages.optical_frame(*cam)
         stamp = _timestamp(frame.stamp_ns)

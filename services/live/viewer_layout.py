@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from topseg.core import labels
+
 WORLD = "world"
 LEGEND = "legend"
 #: spacing of the 3-D view's floor grid, metres
@@ -49,8 +51,6 @@ def stats_entity(cell: str, camera: str) -> str:
 def legend_points():
     """The label legend: one dot per label (and no-depth) in a column, coloured and named."""
     import rerun as rr
-
-    from topseg.core import labels
 
     table = (*labels.LABELS, labels.NO_DEPTH_LABEL)
     return rr.Points2D(

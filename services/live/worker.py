@@ -70,13 +70,19 @@ import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
+import zenoh
+
+from topseg.core.bundled_model import MODEL_HELP
 from topseg.core.errors import TopsegError
+from topseg.core.formats import wire
 from topseg.core.printable import printable
+from topseg.core.segmenter import Segmenter
 from topseg.core.segmenter_config import SegmenterConfig
 from topseg.services.cli.options import (
     add_segmenter_arguments,
     finite,
     int_range,
+    parse_camera,
     segmenter_config,
 )
 from topseg.services.live.worker_mount import MountWatch, MountWatchConfig
@@ -109,18 +115,10 @@ CONTEST_GRACE_S = 5.0
 #: a forward step in `seq` larger than this rate allows since the last labelled frame
 #: (plus one second) is counted as a jump (`seq_jumps`), not as that many dropped frames.
 MAX_SEQ_RATE = 10_000
-#: A depth stamp's sane window against the worker's clock: at most STAMP_AHEAD_S ahead
-#: (more is clock skew between hosts) and STAMP_AGE_S old (more is a clock far behind, or
-#: a stamp that is no time at all). Frames outside it get no latency and are counted as
-#: `stamps_out_of_window`.
-STAMP_AHEAD_S = 1.0
-STAMP_AGE_S = 60.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The worker's options: the model, the CRF, the cameras, --lossless and Zenoh."""
-    from topseg.core.bundled_model import MODEL_HELP
-
     parser.add_argument("--model", metavar="PATH", help=MODEL_HELP)
     add_segmenter_arguments(parser)
     parser.add_argument(
@@ -173,21 +171,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="label every frame (FIFO) instead of only the newest one per camera",
     )
     zenoh_session.add_arguments(parser)
-
-
-def parse_camera(text: str) -> tuple[str, str]:
-    """'cell/camera' -> (cell, camera); TopsegError naming the bad entry."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.formats import wire
-
-    parts = text.split("/")
-    if len(parts) != 2:
-        raise TopsegError(f"--cameras entry {text!r} must be CELL/CAMERA")
-    try:
-        wire.camera_prefix(*parts)
-    except wire.WireError as exc:
-        raise TopsegError(f"--cameras entry {text!r}: {exc}") from None
-    return parts[0], parts[1]
 
 
 @dataclass
@@ -280,9 +263,9 @@ class CameraState:
     def latency_ms(self, stamp_ns: int, now_ns: int) -> float | None:
         """Depth stamp to `now_ns` in ms; None (and counted as `stamps_out_of_window`; the
         first ahead, the first behind and every hundredth logged) for a stamp outside the
-        sane window (STAMP_AHEAD_S, STAMP_AGE_S): a clock skew is said, not hidden as 0."""
+        sane window (wire.STAMP_AHEAD_S, wire.STAMP_AGE_S): a clock skew is said, not hidden as 0."""
         age_s = (now_ns - stamp_ns) / 1e9
-        if -STAMP_AHEAD_S <= age_s <= STAMP_AGE_S:
+        if -wire.STAMP_AHEAD_S <= age_s <= wire.STAMP_AGE_S:
             return max(0.0, 1000 * age_s)
         n = self.counts["stamps_out_of_window"] = self.counts["stamps_out_of_window"] + 1
         side = "ahead" if age_s < 0 else "behind"
@@ -318,9 +301,6 @@ class Worker:
     """
 
     def __init__(self, args: argparse.Namespace, session, segmenter: Segmenter) -> None:
-        import zenoh
-
-        from topseg.core.formats import wire
 
         self.args, self.session, self.segmenter = args, session, segmenter
         self.me = identity.Identity.of(session)
@@ -373,8 +353,6 @@ class Worker:
     def _ring(self, sample) -> None:
         """Zenoh's callback thread: note that depth came, and from which new camera; wake
         the main loop. Never decodes or labels (that is the main thread's job)."""
-        from topseg.core.formats import wire
-
         key = str(sample.key_expr)
         new = None
         if self.discover and key not in self.depth_keys:
@@ -420,8 +398,6 @@ class Worker:
         """Zenoh's callback thread: note drivers that went away (a camera following one may
         take the next driver's frames at once) and other workers' tokens per camera (a new
         one on a camera is looked at by the main loop, `settle_contested`)."""
-        from topseg.core.formats import wire
-
         try:
             parts = wire.parse_key(str(sample.key_expr))
         except wire.WireError:
@@ -599,8 +575,6 @@ class Worker:
 
     def release(self, state: CameraState) -> None:
         """Stop serving one camera: undeclare its token, subscriber and publishers."""
-        from topseg.core.formats import wire
-
         self.cameras.pop((state.cell, state.camera), None)
         self.depth_keys.pop(wire.depth_key(state.cell, state.camera), None)
         for entity in (state.token, state.subscriber, state.labels_pub, state.stats_pub):
@@ -610,10 +584,6 @@ class Worker:
 
     def serve(self, cell: str, camera: str, own_subscriber: bool) -> CameraState:
         """Start serving one camera: publishers, liveliness token, maybe its own subscriber."""
-        import zenoh
-
-        from topseg.core.formats import wire
-
         state = CameraState(cell, camera, discovered=not self.args.cameras)
         state.counts.update(dict.fromkeys(self.segmenter.counter_names, 0))
         state.watch = MountWatch(f"{cell}/{camera}", self.mount_config)
@@ -689,8 +659,6 @@ class Worker:
 
     def handle(self, sample, state: CameraState | None) -> None:
         """Decode, label and publish one depth message; count and drop what is not one."""
-        from topseg.core.formats import wire
-
         t0 = time.perf_counter()
         if state is None:  # the shared FIFO: the key says which camera
             try:
@@ -731,8 +699,6 @@ class Worker:
     def label_one(self, state: CameraState, frame, t0: float, t1: float, tm: float) -> None:
         """Label one decoded frame with the camera's mount and publish labels and stats
         (`t0` taken, `t1` decoded, `tm` mount settled: perf_counter seconds)."""
-        from topseg.core.formats import wire
-
         mount = state.watch.mount
         if mount is not None and not state.warned_outside:
             why = self.segmenter.outside_trained_for(mount)
@@ -806,8 +772,6 @@ class Worker:
 
     def publish_stats(self, state: CameraState, timings: dict, **extra) -> None:
         """One stats message: ms per stage, fps, counts and `extra` (seq, frame_id)."""
-        from topseg.core.formats import wire
-
         stats = {
             "stamp_ns": time.time_ns(),
             "role": "worker",
@@ -862,8 +826,6 @@ def status_line(worker: Worker) -> str:
 
 def mount_config(args: argparse.Namespace) -> MountWatchConfig:
     """The mount estimate's settings from the worker's options; TopsegError when bad."""
-    from topseg.core.errors import TopsegError
-
     check = getattr(args, "mount_check", 30.0)
     if not check >= 0:
         raise TopsegError(f"--mount-check must be >= 0 s, got {check}")
@@ -879,8 +841,6 @@ def load_segmenter(model: str | None, config: SegmenterConfig | None = None) -> 
     """The worker's Segmenter: `model` (None = the bundled one) with `config` (None: the
     defaults). Frames are not checked against the model's camera: the worker labels
     whatever size a camera sends, through its mount."""
-    from topseg.core.segmenter import Segmenter
-
     config = replace(config or SegmenterConfig(), check_camera=False)
     return Segmenter.from_file(model, config)
 
@@ -888,8 +848,6 @@ def load_segmenter(model: str | None, config: SegmenterConfig | None = None) -> 
 def refuse_if_labelled(session, cameras: list[tuple[str, str]], me: identity.Identity) -> None:
     """TopsegError (one line) when another worker already labels one of `cameras` (its
     token is there; a crashed worker's token goes with its connection)."""
-    from topseg.core.formats import wire
-
     if not cameras:
         return
     if zenoh_session.wait_connected(session, identity.CONNECT_WAIT_S):

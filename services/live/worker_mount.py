@@ -29,8 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from topseg.core.camera import Intrinsics, TopViewMount
+from topseg.core.calibration import estimate_mount
+from topseg.core.calibration import mount_difference as difference
+from topseg.core.camera import Intrinsics, TopViewMount, range_text
+from topseg.core.denoise import smoothing_text
 from topseg.core.errors import TopsegError
+from topseg.core.fattening import thinning_text
+from topseg.core.sensors import nearest_sensor
 
 log = logging.getLogger("topseg.worker")
 
@@ -69,10 +74,6 @@ def mount_text(m: TopViewMount) -> str:
     for a radial camera ', radial distance read as depth', and when the frames are smoothed
     (`core.denoise`) ', depth smoothed (noise 85 mm at the floor)', and when a stereo
     camera's edges are thinned (`core.fattening`) ', edges thinned 1 px (stereo fattening)'."""
-    from topseg.core.camera import range_text
-    from topseg.core.denoise import smoothing_text
-    from topseg.core.fattening import thinning_text
-
     return (
         f"height {m.height_mm / 1000:.2f} m, pitch {m.pitch_deg:+.1f}, "
         f"roll {m.roll_deg:+.1f} deg, {m.sensor} (noise x{m.noise_scale:.2f})"
@@ -81,7 +82,6 @@ def mount_text(m: TopViewMount) -> str:
 
 
 def _estimate(frames: Sequence[np.ndarray], k: Intrinsics, sensor: str) -> Any:
-    from topseg.core.calibration import estimate_mount
 
     return estimate_mount(frames, k, sensor)
 
@@ -90,13 +90,9 @@ def warm_up() -> None:
     """Import the estimator (scikit-learn takes seconds) before the first frame needs it."""
     import sklearn.linear_model  # noqa: F401
 
-    import topseg.core.calibration  # noqa: F401
-
 
 def mount_difference(a: TopViewMount, b: TopViewMount) -> tuple[float, float]:
     """(height difference mm, angle between the floors' normals deg) of two mounts."""
-    from topseg.core.calibration import mount_difference as difference
-
     return difference(a, b)
 
 
@@ -287,7 +283,6 @@ class MountWatch:
             self.next_check = None if every <= 0 else now + every
 
     def _try_estimate(self, depths: list, k: Intrinsics, what: str):
-        from topseg.core.sensors import nearest_sensor
 
         guessed = nearest_sensor(k.width, k.height, k.fx).name
         sensor = self.config.sensor or (self.mount.sensor if self.mount else guessed)

@@ -14,6 +14,8 @@ import socket
 from dataclasses import dataclass
 from typing import Any
 
+from topseg.core.formats import wire
+
 #: How long a service waits, at start, for a first peer before asking who else is there.
 CONNECT_WAIT_S = 1.0
 #: How long it waits for the answers (liveliness tokens, info replies).
@@ -44,8 +46,6 @@ class Identity:
 
 def other_instances(session: Any, key: str, me: str, timeout: float = QUERY_S) -> set[str]:
     """The instance ids, other than `me`, holding a liveliness token under `key`/* now."""
-    from topseg.core.formats import wire
-
     found = set()
     for reply in session.liveliness().get(f"{key}/*", timeout=timeout):
         if reply.ok is None:

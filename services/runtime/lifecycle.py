@@ -46,6 +46,7 @@ clean-ups.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import os
 import signal
@@ -79,8 +80,6 @@ def freeze_loaded_objects() -> int:
     """Collect once, then move every object still tracked into the collector's permanent
     generation (`gc.freeze`), so full collections stop rescanning what a service loaded at
     start-up; returns how many are frozen in all."""
-    import gc
-
     gc.collect()
     gc.freeze()
     return gc.get_freeze_count()

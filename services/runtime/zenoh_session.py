@@ -26,8 +26,12 @@ import json
 import os
 import re
 import socket
+import threading
 import time
 from typing import Any
+
+import psutil
+import zenoh
 
 from topseg.core.errors import TopsegError
 
@@ -110,8 +114,6 @@ def error_line(exc: BaseException) -> str:
 
 def make_config(config_file: str | None = None, port: int | None = None) -> Any:
     """A zenoh.Config: the file as is, or topseg's loopback default."""
-    import zenoh
-
     if config_file:
         if not os.path.isfile(config_file):
             raise TopsegError(f"Zenoh config {config_file} does not exist")
@@ -127,8 +129,6 @@ def make_config(config_file: str | None = None, port: int | None = None) -> Any:
 
 def open_config(config: Any, what: str = "cannot open a Zenoh session") -> Any:
     """An open zenoh.Session for a zenoh.Config; TopsegError("<what>: <Zenoh's reason>")."""
-    import zenoh
-
     try:
         return zenoh.open(config)
     except Exception as exc:
@@ -144,8 +144,6 @@ class OpenTimeout(TopsegError):
 def open_within(config: Any, seconds: float, what: str = "cannot open a Zenoh session") -> Any:
     """`open_config`, but OpenTimeout once `seconds` passed without a session: Zenoh's open
     waits for the handshake with the rendezvous port's holder (10 s for a frozen one)."""
-    import threading
-
     box: list = []
 
     def opener() -> None:
@@ -208,8 +206,6 @@ def wait_settled(session: Any, quiet_s: float = 0.3, timeout: float = 2.0) -> No
 
 def holds_port(port: int) -> bool:
     """Whether this process listens on loopback TCP `port` (its Zenoh session took it)."""
-    import psutil
-
     return any(
         c.status == psutil.CONN_LISTEN and c.laddr and c.laddr.port == port
         for c in psutil.Process().net_connections("tcp")

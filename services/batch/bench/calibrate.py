@@ -17,6 +17,14 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
+
+from topseg.core import labels
+from topseg.core.calibration import CalibrationError, estimate_mount
+from topseg.core.errors import TopsegError
+from topseg.core.metrics import percentile
+from topseg.core.synth.density import DensityConfig
+from topseg.core.synth.synthesis import MountDistribution, SynthesisConfig, Synthesizer
 from topseg.services.cli.options import int_range, non_negative_int
 
 #: a pixel counts as floor in the truth when its true height is below this (mm)
@@ -45,10 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def floor_cover(depth, labels_img, mount) -> float:
     """Share of the floor area in view covered by people and furniture (from the truth)."""
-    import numpy as np
-
-    from topseg.core import labels
-
     fg = np.isin(labels_img, (*labels.HUMAN_IDS, *labels.OBJECT_IDS))
     h = mount.height_map_mm(depth)
     with np.errstate(invalid="ignore"):
@@ -59,14 +63,6 @@ def floor_cover(depth, labels_img, mount) -> float:
 
 def measure(args: argparse.Namespace) -> dict:
     """Errors of the estimated mounts against the true ones, over `--mounts` mounts."""
-    import numpy as np
-
-    from topseg.core.calibration import CalibrationError, estimate_mount
-    from topseg.core.errors import TopsegError
-    from topseg.core.metrics import percentile
-    from topseg.core.synth.density import DensityConfig
-    from topseg.core.synth.synthesis import MountDistribution, SynthesisConfig, Synthesizer
-
     if args.mounts < 1 or args.frames < 1 or args.max_objects < 1:
         raise TopsegError("--mounts, --frames and --max-objects must be at least 1")
     mounts = MountDistribution()  # 2.4-4.5 m, +-10 deg, every supported sensor

@@ -36,6 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
+from topseg.core import forest
+from topseg.core.crf import CRFConfig, Summary, argmax_confidence, potts_energy, segment_crf
+from topseg.core.crf.realtime import band_mask
+from topseg.core.forest import FeatureConfig, fill_posteriors
+from topseg.core.forest.inputs import header_fields
+from topseg.core.resolution import upsample_labels
+from topseg.core.segmenter import Segmenter
+from topseg.core.synth import procedural
 from topseg.services.batch.bench import frames as bench_frames
 from topseg.services.cli.options import (
     add_segmenter_arguments,
@@ -74,9 +82,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _quick_forest(rng: np.random.Generator):
     """A small forest on procedural frames: enough for forest-shaped posteriors."""
-    from topseg.core import forest
-    from topseg.core.synth import procedural
-
     frames = [procedural.procedural_frame(rng) for _ in range(60)]
     depth = np.stack([d for d, _ in frames])
     labels = np.stack([lab for _, lab in frames])
@@ -107,10 +112,6 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
             depth, truth = synthetic_scene(rng)
             out.append((forest_like_posteriors(truth, rng), depth, None, None, depth, 1))
         return out, "stand-in forest-like posteriors on synthetic scenes (bench/crf_standin)"
-    from topseg.core.crf import Summary, argmax_confidence
-    from topseg.core.forest import FeatureConfig, fill_posteriors
-    from topseg.core.forest.inputs import header_fields
-    from topseg.core.segmenter import Segmenter
 
     # the model's camera need not be these frames'; a height model reads them through theirs
     mount = bench_frames.bench_mount(args)
@@ -143,9 +144,6 @@ def _frames(args: argparse.Namespace) -> tuple[list[tuple], str]:
 def _smooth(proba, depth, config, summary, fill, frame, factor):
     """The CRF stage as the Segmenter runs it (less the island rules): `segment_crf` at the
     working resolution, then the labels brought back to the frame's. Returns both labels."""
-    from topseg.core.crf import segment_crf
-    from topseg.core.resolution import upsample_labels
-
     labels = segment_crf(proba, depth, config, summary, fill)
     return labels, labels if factor == 1 else upsample_labels(frame, labels, depth, factor)
 
@@ -156,9 +154,6 @@ def measure(args: argparse.Namespace) -> dict:
     The CRF stage is timed by itself (`segment_crf`, which `Segmenter.smooth` runs), on
     posteriors made once per frame.
     """
-    from topseg.core.crf import CRFConfig, potts_energy, segment_crf
-    from topseg.core.crf.realtime import band_mask
-
     overrides = {
         k: getattr(args, k)
         for k in ("smoothness", "confidence", "ring", "cycles")

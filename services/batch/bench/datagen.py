@@ -19,6 +19,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from topseg.core.errors import TopsegError
+from topseg.core.formats.dataset import DatasetWriter, make_attrs
+from topseg.core.synth.noise import parse_noise
+from topseg.services.batch.datagen import dask_client, default_workers, generate
+from topseg.services.batch.datagen.sources import generator_config, load_factory, resolve
 from topseg.services.cli.options import int_range
 
 
@@ -51,8 +56,6 @@ REPLAY_DISTINCT = 4
 def replay_source(config: dict, seed: int):
     """Render REPLAY_DISTINCT frames once with the generator in `config`, then hand them out
     in turn: a frame source that costs nothing, to time the pipeline alone."""
-    from topseg.services.batch.datagen.sources import load_factory
-
     inner = load_factory(config["factory"])(config["config"], seed)
     frames = [inner(i) for i in range(REPLAY_DISTINCT)]
     if hasattr(inner, "close"):
@@ -61,8 +64,6 @@ def replay_source(config: dict, seed: int):
 
 
 def _run(root: Path, name: str, generator: dict, frames: int, client, chunk: int) -> dict:
-    from topseg.core.formats.dataset import DatasetWriter, make_attrs
-    from topseg.services.batch.datagen import generate
 
     attrs = make_attrs(
         seed=0,
@@ -80,11 +81,6 @@ def _run(root: Path, name: str, generator: dict, frames: int, client, chunk: int
 
 def measure(args: argparse.Namespace) -> dict:
     """Warm up, then time a rendered run and a replayed run; the figures the module doc explains."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.synth.noise import parse_noise
-    from topseg.services.batch.datagen import dask_client, default_workers
-    from topseg.services.batch.datagen.sources import generator_config, load_factory, resolve
-
     if args.frames < 1 or args.warmup < 0 or args.chunk < 1:
         raise TopsegError("--frames and --chunk must be >= 1, --warmup >= 0")
     target = resolve(args.generator)

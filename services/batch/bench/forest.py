@@ -23,6 +23,20 @@ import os
 import tempfile
 import time
 
+import numba
+import numpy as np
+
+from topseg.core import forest as forest_mod
+from topseg.core.bundled_model import bundled_model_path
+from topseg.core.camera import PAPER_MOUNT
+from topseg.core.forest.features import FeatureConfig
+from topseg.core.forest.inputs import header_fields
+from topseg.core.forest.predict import apply, predict_proba
+from topseg.core.forest.tree import node_depths
+from topseg.core.scoring import score
+from topseg.core.segmenter import Segmenter, SegmenterConfig
+from topseg.core.segmenter_config import GridConfig
+from topseg.core.synth import procedural
 from topseg.services.batch.bench import frames as bench_frames
 from topseg.services.cli.options import (
     add_segmenter_arguments,
@@ -68,8 +82,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _forest(args, rng, procedural, forest_mod):
     """(forest, description) for the chosen kind."""
-    from topseg.core.forest.features import FeatureConfig
-
     if args.model or args.forest == "bundled":
         from topseg.core.bundled_model import bundled_model_path
 
@@ -92,15 +104,11 @@ def _forest(args, rng, procedural, forest_mod):
 
 def _mount(procedural):
     """The mount `procedural` renders frames from by default (the paper's)."""
-    from topseg.core.camera import PAPER_MOUNT
-
     return PAPER_MOUNT
 
 
 def _time_frames(predict, frames, repeats):
     """Median wall and CPU ms per frame over `repeats` passes."""
-    import numpy as np
-
     predict(frames[0])  # compile and warm caches outside the timings
     wall, cpu = [], []
     for _ in range(repeats):
@@ -118,11 +126,6 @@ def _node_visits(model, segmenter, frame) -> tuple[int, int, int, float]:
     the trees each pixel walks (none between grid pixels and at the adaptive grid's settled
     pixels, fewer than all where the early exit stops it) times the levels of the leaf it
     reaches in each."""
-    import numpy as np
-
-    from topseg.core.forest.predict import apply, predict_proba
-    from topseg.core.forest.tree import node_depths
-
     prepared = segmenter.prepare(frame)
     inp, stride, factor = prepared.inp, prepared.plan.stride, prepared.plan.downsample
     walked = np.zeros(inp.shape, np.uint8)
@@ -145,17 +148,6 @@ def _node_visits(model, segmenter, frame) -> tuple[int, int, int, float]:
 
 def measure(args: argparse.Namespace) -> dict:
     """Time the forest stage of a Segmenter at full resolution and at --stride; accuracy."""
-    import numba
-    import numpy as np
-
-    from topseg.core import forest as forest_mod
-    from topseg.core.bundled_model import bundled_model_path
-    from topseg.core.forest.inputs import header_fields
-    from topseg.core.scoring import score
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
-    from topseg.core.segmenter_config import GridConfig
-    from topseg.core.synth import procedural
-
     if args.threads:
         numba.set_num_threads(args.threads)
     rng = np.random.default_rng(args.seed)

@@ -13,14 +13,16 @@ import argparse
 
 import numpy as np
 
+from topseg.core.camera import PAPER_MOUNT, TopViewMount
+from topseg.core.sensors import NAMES, get_sensor
+from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
+from topseg.services.cli.options import finite
+
 RENDERED, PROCEDURAL = "rendered", "procedural"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`--frames-from` (rendered or procedural), `--sensor` and `--height` (the camera)."""
-    from topseg.core.sensors import NAMES
-    from topseg.services.cli.options import finite
-
     parser.add_argument(
         "--frames-from",
         choices=(RENDERED, PROCEDURAL),
@@ -47,9 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def bench_mount(args: argparse.Namespace | None = None):
     """The camera bench frames are seen from: the paper's Kinect v1, 640x480, 3.5 m above the
     floor, straight down, unless `args` name another `--sensor` or `--height`."""
-    from topseg.core.camera import PAPER_MOUNT, TopViewMount
-    from topseg.core.sensors import get_sensor
-
     sensor = getattr(args, "sensor", None)
     height = getattr(args, "height", None)
     if sensor is None and height is None:
@@ -64,8 +63,6 @@ def bench_mount(args: argparse.Namespace | None = None):
 
 def rendered_frames(n: int, seed: int, mount=None) -> list[tuple[np.ndarray, np.ndarray]]:
     """[(depth, truth)] of n modeled scenes rendered from `mount` with its sensor's noise."""
-    from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
-
     mount = mount or bench_mount()
     config = SynthesisConfig(noise=SENSOR_NOISE, camera=mount, seed=seed)
     synth = Synthesizer(config)

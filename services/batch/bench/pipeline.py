@@ -16,6 +16,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from topseg.core.bundled_model import MODEL_HELP
+from topseg.services.batch.demo import REPO
+from topseg.services.batch.pipeline import run_pipeline
 from topseg.services.cli.options import (
     add_segmenter_arguments,
     finite,
@@ -26,8 +29,6 @@ from topseg.services.cli.options import (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Duration, rate, source, model (default: the bundled one) and the worker's mode."""
-    from topseg.core.bundled_model import MODEL_HELP
-
     parser.add_argument(
         "--duration",
         type=finite(0.1, 86400),
@@ -38,7 +39,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fps", type=finite(0.1, 1000), default=30.0, help="source rate (default: %(default)s)"
     )
-    from topseg.services.batch.demo import REPO
 
     parser.add_argument(
         "--source",
@@ -60,8 +60,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def measure(args: argparse.Namespace) -> dict:
     """Run the pipeline for --duration seconds; its figures with the mean F1 only."""
-    from topseg.services.batch.pipeline import run_pipeline
-
     figures = run_pipeline(
         args.source,
         args.model,

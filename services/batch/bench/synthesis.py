@@ -13,6 +13,12 @@ from __future__ import annotations
 import argparse
 import time
 
+import numba
+import numpy as np
+
+from topseg.core.errors import TopsegError
+from topseg.core.metrics import percentile
+from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.services.cli.options import int_range
 
 
@@ -31,13 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def measure(args: argparse.Namespace) -> dict:
     """p50 and p90 ms of each stage and of build + raycast + noise; frames/s; pooled bodies."""
-    import numba
-    import numpy as np
-
-    from topseg.core.errors import TopsegError
-    from topseg.core.metrics import percentile
-    from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
-
     if args.frames < 1 or args.warmup < 0:
         raise TopsegError("--frames must be >= 1 and --warmup >= 0")
     if args.threads:

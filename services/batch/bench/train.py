@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -27,6 +28,11 @@ import threading
 import time
 from pathlib import Path
 
+import psutil
+
+from topseg.core.errors import TopsegError
+from topseg.core.forest.model_file import load_model
+from topseg.core.formats.dataset import open_dataset
 from topseg.services.cli.options import finite, int_range, non_negative_int
 
 PAPER = {
@@ -80,7 +86,6 @@ class TreeSampler:
     """Sample the resident memory and CPU time of a process and all its descendants."""
 
     def __init__(self, pid: int, period: float):
-        import psutil
 
         self.root = psutil.Process(pid)
         self.period = period
@@ -101,8 +106,6 @@ class TreeSampler:
 
     def sample(self) -> None:
         """One sample: every process of the tree's RSS and CPU time; updates the peaks."""
-        import psutil
-
         try:
             procs = [self.root, *self.root.children(recursive=True)]
         except psutil.Error:
@@ -141,9 +144,6 @@ def _describe(p) -> str:
 
 def ensure_dataset(frames: int, seed: int, cache: Path) -> Path:
     """A modeled Kinect-noise dataset of `frames` frames under `cache`, generated once."""
-    from topseg.core.errors import TopsegError
-    from topseg.core.formats.dataset import open_dataset
-
     path = cache / f"modeled-kinect-{frames}-seed{seed}.zarr"
     if path.exists():
         try:
@@ -191,11 +191,6 @@ def train_command(data: Path, out: Path, f: int, seed: int, workers: int | None)
 
 def measure(args: argparse.Namespace) -> dict:
     """Run `topseg train` once as a child process and return its figures (see the module doc)."""
-    import resource
-
-    from topseg.core.errors import TopsegError
-    from topseg.core.forest.model_file import load_model
-
     if not args.scale > 0:
         raise TopsegError(f"--scale must be > 0, got {args.scale}")
     f = frames_per_tree(args.scale)

@@ -16,9 +16,17 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 
+import numpy as np
+import zenoh
+
+from topseg.core.camera import KINECT_V1
+from topseg.core.formats import wire
+from topseg.core.metrics import percentile
 from topseg.services.cli.options import finite, int_range
+from topseg.services.runtime.zenoh_session import open_session
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,11 +60,6 @@ def _free_port() -> int:
 
 def _subscriber(port: int, key: str, consumer_ms: float) -> None:
     """Child: receive and decode until 'done', then print counts and latencies as JSON."""
-    import threading
-
-    from topseg.core.formats import wire
-    from topseg.services.runtime.zenoh_session import open_session
-
     latencies, seqs, decode_s = [], [], []
     done = threading.Event()
 
@@ -81,14 +84,6 @@ def _subscriber(port: int, key: str, consumer_ms: float) -> None:
 
 def measure(args: argparse.Namespace) -> dict:
     """Publish to a subscriber process on a free port: loss, rate, encode/put/decode ms, latency."""
-    import numpy as np
-    import zenoh
-
-    from topseg.core.camera import KINECT_V1
-    from topseg.core.formats import wire
-    from topseg.core.metrics import percentile
-    from topseg.services.runtime.zenoh_session import open_session
-
     port = _free_port()
     key = "topseg/bench/cam0/depth"
     child = subprocess.Popen(

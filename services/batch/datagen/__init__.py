@@ -40,6 +40,10 @@ from typing import Any
 import numpy as np
 
 from topseg.core.errors import TopsegError
+from topseg.core.formats.dataset import DatasetWriter, FrameWriter, dataset_os_error, make_attrs
+from topseg.core.synth.noise import parse_noise
+from topseg.core.synth.rooms import ROOMS
+from topseg.core.synth.synthesis import MountDistribution
 from topseg.services.batch.dask_cluster import dask_client, default_workers
 from topseg.services.cli import describe
 from topseg.services.cli.options import int_range, non_negative_int
@@ -53,8 +57,6 @@ MODES = ("modeled", "non-modeled")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg datagen`'s options and its `preview` subcommand."""
-    from topseg.core.synth.rooms import ROOMS  # a light module: the names only
-
     parser.add_argument(
         "--mode", choices=MODES, default="modeled", help="scene model (default: modeled)"
     )
@@ -147,7 +149,6 @@ def render_chunk(path: str, store_key: str, generator: dict, seed: int, indices:
     The frame source (e.g. a Synthesizer with its pybullet client) and the store's writer stay
     cached in the worker process between tasks.
     """
-    from topseg.core.formats.dataset import FrameWriter
     from topseg.services.batch.datagen.sources import load_factory
 
     source_key = json.dumps([generator, seed], sort_keys=True)
@@ -203,8 +204,6 @@ def generate(
     """
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
-
-    from topseg.core.formats.dataset import dataset_os_error
 
     todo = writer.todo()
     generator, seed = writer.attrs["generator"], writer.attrs["seed"]
@@ -298,7 +297,6 @@ def mount_distribution(args: argparse.Namespace, target: str) -> dict | None:
         if sensors:
             raise TopsegError("--sensors needs --mounts random")
         return None
-    from topseg.core.synth.synthesis import MountDistribution
 
     d = MountDistribution()
     if sensors:
@@ -344,8 +342,6 @@ def run(args: argparse.Namespace) -> int:
 
         return datagen_preview.run(args)
 
-    from topseg.core.formats.dataset import DatasetWriter, make_attrs
-    from topseg.core.synth.noise import parse_noise
     from topseg.services.batch.datagen.sources import (
         generator_config,
         load_factory,

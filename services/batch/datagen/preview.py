@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core import labels as label_table
+from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
+from topseg.core.formats.dataset import DatasetError, open_dataset
 from topseg.services.cli.options import int_range
 
 HELP = "write a PNG contact sheet (depth and labels side by side) of a dataset"
@@ -125,8 +127,6 @@ def write_png(rgb: np.ndarray, out: Path) -> None:
     """Write atomically: a temp file beside `out`, then rename."""
     from PIL import Image
 
-    from topseg.core.atomic import atomic_write
-
     with atomic_write(out) as f:
         Image.fromarray(rgb).save(f, format="PNG")
 
@@ -140,8 +140,6 @@ def default_png(path: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """`topseg datagen preview`: draw a contact sheet of the dataset's frames into a PNG."""
-    from topseg.core.formats.dataset import DatasetError, open_dataset
-
     if args.count < 1 or args.cols < 1 or args.scale < 1:
         raise TopsegError("--count, --cols and --scale must be >= 1")
     ds = open_dataset(args.path)

@@ -14,14 +14,20 @@ Built in:
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any, Protocol
 
 import numpy as np
 
+from topseg.core import labels
+from topseg.core.camera import metres_to_mm
 from topseg.core.errors import TopsegError
 from topseg.core.formats.dataset import frame_seed
+from topseg.core.synth import procedural
+from topseg.core.synth.noise import parse_noise
+from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
 Frame = tuple[np.ndarray, np.ndarray, dict]
 
@@ -58,8 +64,6 @@ MOVED_MODULES = {
 
 def load_factory(target: str) -> Callable[[dict, int], FrameSource]:
     """Import the factory named `module:function`."""
-    import importlib
-
     module_name, _, attr = target.partition(":")
     module_name = MOVED_MODULES.get(module_name, module_name)
     try:
@@ -94,7 +98,6 @@ def generator_config(
             raise TopsegError(f"bad synthesis settings: {exc}") from exc
     if mounts is not None:
         raise TopsegError(f"generator {target}: drawn mounts need the synthesis generator")
-    from topseg.core.synth.noise import parse_noise
 
     return {"mode": mode, "noise": parse_noise(noise).spec, "room": room}
 
@@ -104,14 +107,12 @@ def mount_summary(generator: dict) -> dict | None:
     generator; its frames come from the dataset's camera)."""
     if generator.get("factory") != GENERATORS["synthesis"]:
         return None
-    from topseg.core.synth.synthesis import SynthesisConfig
 
     return SynthesisConfig.from_dict(generator["config"]).mount_summary()
 
 
 class _Synthesis:
     def __init__(self, config: dict, seed: int):
-        from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
         self._synth = Synthesizer(SynthesisConfig.from_dict(config))
         self._seed = seed
@@ -131,11 +132,6 @@ def synthesis_source(config: dict, seed: int) -> FrameSource:
 
 def procedural_source(config: dict, seed: int) -> FrameSource:
     """Analytic procedural scenes with the dataset's noise model (room is ignored)."""
-    from topseg.core import labels
-    from topseg.core.camera import metres_to_mm
-    from topseg.core.synth import procedural
-    from topseg.core.synth.noise import parse_noise
-
     noise = parse_noise(config["noise"])
     n_objects = 1 if config["mode"] == "non-modeled" else None
 

@@ -24,8 +24,14 @@ import argparse
 import signal
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+
+from topseg.core.bundled_model import MODEL_HELP
+from topseg.core.errors import TopsegError
+from topseg.core.resolution import MAX_DOWNSAMPLE
+from topseg.core.sensors import get_sensor
+from topseg.services.cli.options import auto_int
 
 EXPERIMENTS = ("noise", "features", "frames", "overlap", "table", "mounts")
 
@@ -68,14 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="(default realtime)",
     )
     parser.add_argument("--test-frames", type=int, help="test set size (default: the scale's)")
-    from topseg.core.bundled_model import MODEL_HELP
 
     parser.add_argument("--model", type=Path, help=f"mounts: the model scored; {MODEL_HELP}")
     parser.add_argument(
         "--baseline", type=Path, help="mounts: a second model scored on the same frames"
     )
-    from topseg.core.resolution import MAX_DOWNSAMPLE
-    from topseg.services.cli.options import auto_int
 
     parser.add_argument(
         "--downsample",
@@ -121,8 +124,6 @@ class Point:
 
 def points_of(experiment: str, scale, seed: int) -> list[Point]:
     """The experiment's points in the order they run (frames: smallest F first)."""
-    from dataclasses import replace
-
     from topseg.services.batch.experiment.runs import DataRecipe, ModelRecipe
 
     base = ModelRecipe(
@@ -171,7 +172,6 @@ def _raise_interrupt(signum, frame):
 
 def run(args: argparse.Namespace) -> int:
     """`topseg experiment`: run (or resume) one experiment's points and write its reports."""
-    from topseg.core.errors import TopsegError
     from topseg.services.batch.experiment import runs as runs
 
     runs.check_positive("--workers", args.workers)
@@ -205,7 +205,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_mounts(args, frames: int, out: Path) -> int:
     """One model (and a baseline) across the issue's mounts and sensors: a table, no training."""
-    from topseg.core.sensors import get_sensor
     from topseg.services.batch.experiment import mounts
 
     if args.report_only:  # the figure and table again from OUT/mounts.json, no cell run

@@ -21,8 +21,20 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+
+import numpy as np
+
+from topseg.core.atomic import atomic_write
+from topseg.core.camera import TopViewMount
+from topseg.core.errors import TopsegError
+from topseg.core.metrics import avg_f1_draws, person_scores
+from topseg.core.scoring import score
+from topseg.core.segmenter import Segmenter, SegmenterConfig
+from topseg.core.segmenter_config import GridConfig
+from topseg.core.sensors import get_sensor
+from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
 
 #: (height m, tilt deg) of the issue's five mounts; the tilt is split over pitch and roll
 MOUNTS: tuple[tuple[float, float], ...] = (
@@ -73,9 +85,6 @@ class Cell:
 def cell_mount(sensor_name: str, height_m: float, tilt_deg: float):
     """The mount of a cell: the sensor's intrinsics, the height, the tilt split 0.8 / 0.6
     over pitch and roll (so it is neither purely about one axis)."""
-    from topseg.core.camera import TopViewMount
-    from topseg.core.sensors import get_sensor
-
     sensor = get_sensor(sensor_name)
     pitch, roll = 0.8 * tilt_deg, 0.6 * tilt_deg
     return TopViewMount(sensor.intrinsics, 1000.0 * height_m, pitch, roll, sensor.name)
@@ -84,8 +93,6 @@ def cell_mount(sensor_name: str, height_m: float, tilt_deg: float):
 def render_cell(mount, frames: int, seed: int = TEST_SEED) -> list[tuple]:
     """(depth, truth, mount) of `frames` held-out modeled scenes seen from `mount`, with the
     mount's sensor noise."""
-    from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
-
     config = SynthesisConfig(mode="modeled", noise=SENSOR_NOISE, seed=seed, camera=mount)
     synth = Synthesizer(config)
     try:
@@ -106,11 +113,6 @@ def score_cell(segmenter, frames: list[tuple], keep_confusions: bool = False) ->
     share, and the person-level figures real frames are judged by (person-pixel F1, head
     precision and recall, furniture on a person, heads as blobs: `metrics.head_detections`);
     with `keep_confusions` also "frame_confusions", each frame's (N, C, C) CRF confusion."""
-    import numpy as np
-
-    from topseg.core.metrics import person_scores
-    from topseg.core.scoring import score
-
     result = score(segmenter, frames, keep_confusions=keep_confusions)
     crf = result.crf.scores()
     head = crf["per_class"]["head"]
@@ -133,9 +135,6 @@ def run_mounts(
 ) -> dict:
     """Score `model` (and `baseline`, when given) on every cell; write and return the report.
     `downsample` is each one's `SegmenterConfig.downsample` (None: from each cell's mount)."""
-    from topseg.core.segmenter import Segmenter, SegmenterConfig
-    from topseg.core.segmenter_config import GridConfig
-
     # no size check: a model that reads raw depth is run on every sensor's frames as they are
     configs = [
         SegmenterConfig(check_camera=False, grid=GridConfig(downsample=d)) for d in downsample
@@ -143,7 +142,6 @@ def run_mounts(
     models = {"model": Segmenter.from_file(model, configs[0], crf="realtime")}
     if baseline is not None:
         models["baseline"] = Segmenter.from_file(baseline, configs[1], crf="realtime")
-    from topseg.core.metrics import avg_f1_draws
 
     cells: dict[str, list[Cell]] = {name: [] for name in models}
     draws: dict[str, list] = {name: [] for name in models}  # each cell's bootstrap avg F1
@@ -200,8 +198,6 @@ def write_report(report: dict, out: Path) -> None:
 def read_report(out: Path) -> dict:
     """OUT/mounts.json as `run_mounts` wrote it, its verdict recomputed from its cells;
     TopsegError in one line when it is missing or unreadable."""
-    from topseg.core.errors import TopsegError
-
     path = out / "mounts.json"
     try:
         report = json.loads(path.read_text())
@@ -228,8 +224,6 @@ def reference_f1(cells: list[Cell]) -> float:
 
 def _interval(differences) -> tuple[float, float]:
     """The central INTERVAL of bootstrap `differences` (NaN draws left out)."""
-    import numpy as np
-
     tail = 100 * (1 - INTERVAL) / 2
     low, high = np.nanpercentile(differences, [tail, 100 - tail])
     return float(low), float(high)
@@ -241,8 +235,6 @@ def with_gap_intervals(cells: list[Cell], draws: list) -> list[Cell]:
     BOOTSTRAP_DRAWS and BOOTSTRAP_SEED, in `cells`' order: a cell of as many frames as the
     reference is resampled in pairs with it); the cells as they are when the reference cell
     is not among them. A cell of another frame count gets no interval."""
-    from dataclasses import replace
-
     keys = [(c.sensor, c.height_m, c.tilt_deg) for c in cells]
     if REFERENCE not in keys:
         return list(cells)
@@ -264,8 +256,6 @@ def mean_difference(
     with its INTERVAL bootstrap interval: each cell's draws (as `with_gap_intervals` takes
     them) resample its frames by the same indices for both models, and each draw
     differences the two means."""
-    import numpy as np
-
     m = float(np.mean([c.avg_f1 for c in model]))
     b = float(np.mean([c.avg_f1 for c in baseline]))
     low, high = _interval(np.mean(model_draws, 0) - np.mean(baseline_draws, 0))
@@ -380,7 +370,6 @@ def figure(report: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
     from matplotlib.patches import Rectangle
 
     names = list(report["cells"])
@@ -427,6 +416,5 @@ def _write(path: Path, text: str) -> None:
 
 
 def _atomic(path: Path):
-    from topseg.core.atomic import atomic_write
 
     return atomic_write(path)

@@ -3,11 +3,16 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from pathlib import Path
 
+import numpy as np
+
+from topseg.core.atomic import atomic_write
 from topseg.services.batch.experiment import paper_results
+from topseg.services.batch.experiment.runs import write_json
 
 X_LABELS = {
     "noise": "training noise sigma (mm)",
@@ -49,8 +54,6 @@ def _paper_pair(experiment: str, curve: str, x) -> tuple[float | None, float | N
 
 def write_all(out: Path, name: str, scale, crf_mode: str, test_frames: int, points, done: dict):
     """Rewrite OUT/<name>.json, .md and .png from the finished points `done` (key -> doc)."""
-    from topseg.services.batch.experiment.runs import write_json
-
     doc = {
         "experiment": name,
         "scale": scale.name,
@@ -190,8 +193,6 @@ def _paper_curves(doc: dict) -> set[str]:
 
 def table_figure(doc: dict, path: Path) -> None:
     """Per-class F1 bars: forest and CRF, modeled and non-modeled, beside the paper's Table I."""
-    import numpy as np
-
     plt = _plt()
     rows = {r["curve"]: r for r in doc["points"]}
     classes = ("avg", *paper_results.TABLE_CLASSES)
@@ -234,10 +235,6 @@ def table_figure(doc: dict, path: Path) -> None:
 
 def _save(fig, path: Path, plt) -> None:
     """Atomic: render to bytes, then replace the file."""
-    import io
-
-    from topseg.core.atomic import atomic_write
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
@@ -246,7 +243,6 @@ def _save(fig, path: Path, plt) -> None:
 
 
 def _write_text(path: Path, text: str) -> None:
-    from topseg.core.atomic import atomic_write
 
     with atomic_write(path) as f:
         f.write(text.encode())

@@ -21,9 +21,22 @@ import logging
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from topseg.core import metrics
+from topseg.core.atomic import atomic_write
 from topseg.core.config import with_options
 from topseg.core.errors import TopsegError
 from topseg.core.forest.train_config import TrainConfig
+from topseg.core.formats.dataset import DatasetWriter, make_attrs, open_dataset
+from topseg.core.scoring import dataset_frames
+from topseg.core.scoring import score as score_frames
+from topseg.core.segmenter import Segmenter
+from topseg.core.synth.noise import parse_noise
+from topseg.core.synth.synthesis import SynthesisConfig
+from topseg.services.batch import train
+from topseg.services.batch.dask_cluster import dask_client
+from topseg.services.batch.datagen import generate, render_chunk
+from topseg.services.batch.datagen.sources import GENERATORS
+from topseg.services.batch.train import TrainJob
 
 log = logging.getLogger("topseg.experiment")
 
@@ -129,7 +142,6 @@ class DataRecipe:
     def normalised(self) -> DataRecipe:
         """The same recipe spelled one way (noise spec normalised, the default theta as None)."""
         theta = None if self.theta is None or abs(self.theta - DEFAULT_THETA) < 1e-9 else self.theta
-        from topseg.core.synth.noise import parse_noise
 
         return replace(self, noise=parse_noise(self.noise).spec, theta=theta)
 
@@ -142,10 +154,6 @@ class DataRecipe:
 
     def attrs(self, frames: int) -> dict:
         """The dataset attributes `topseg datagen` would write for this recipe and size."""
-        from topseg.core.formats.dataset import make_attrs
-        from topseg.core.synth.synthesis import SynthesisConfig
-        from topseg.services.batch.datagen.sources import GENERATORS
-
         r = self.normalised()
         # the paper's fixed mount (mounts=None, camera PAPER_MOUNT), so the experiments stay
         # comparable with the paper's; new training data draws mounts (`topseg datagen`)
@@ -163,10 +171,6 @@ def ensure_dataset(
     """The cached dataset of `recipe` with at least `frames` complete frames (rendered or
     grown on a local Dask cluster when short, or in this process when `serial`); returns it
     opened for reading."""
-    from topseg.core.formats.dataset import DatasetWriter, open_dataset
-    from topseg.services.batch.dask_cluster import dask_client
-    from topseg.services.batch.datagen import generate, render_chunk
-
     path = cache / recipe.name()
     if (path / "zarr.json").exists():
         ds = open_dataset(path)
@@ -235,8 +239,6 @@ class ModelRecipe:
         """The `train.TrainJob` that trains this model into `out` (no validation split); as
         many Dask workers as asked for whose trees' features (int16) fit in `budget_gb`
         together."""
-        from topseg.services.batch.train import TrainJob
-
         per_tree = self.frames * self.pixels_per_frame * self.features * 2
         fit = max(1, int(budget_gb * 1e9 // max(per_tree, 1)))
         return TrainJob(
@@ -257,8 +259,6 @@ def ensure_model(
 ) -> Path:  # fmt: skip
     """The model file of `recipe` under OUT/models/, trained (or its training resumed) when
     missing; the dataset is made or grown first."""
-    from topseg.services.batch import train
-
     path = out / "models" / f"model-{recipe.key()}.npz"
     if path.exists():
         return path
@@ -285,11 +285,6 @@ def test_recipe(seed: int) -> DataRecipe:
 def score(model_path: Path, ds, frames: int, crf_mode: str) -> dict:
     """Forest-only and forest + CRF scores of a model on the first `frames` test frames."""
     from tqdm import tqdm
-
-    from topseg.core import metrics
-    from topseg.core.scoring import dataset_frames
-    from topseg.core.scoring import score as score_frames
-    from topseg.core.segmenter import Segmenter
 
     segmenter = Segmenter.from_file(model_path, crf=crf_mode)
     pairs = tqdm(
@@ -341,8 +336,6 @@ def scored_elsewhere(out: Path, recipe: dict) -> dict | None:
 
 def write_json(path: Path, doc: dict) -> None:
     """Write `doc` as indented JSON to `path` atomically (its folder made when missing)."""
-    from topseg.core.atomic import atomic_write
-
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path) as f:
         f.write((json.dumps(doc, indent=1) + "\n").encode())
