@@ -106,7 +106,7 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         """Raise UsageError(message) instead of printing usage and exiting; a value refused
-        by a `cli_types` check reads `--fps must be in [0.1, 1000], got 1e-300`."""
+        by a `options` check reads `--fps must be in [0.1, 1000], got 1e-300`."""
         m = re.fullmatch(r"argument ([^:/\s]+)(?:/\S+)?: (must .*)", message, re.S)
         raise UsageError(f"{m[1]} {m[2]}" if m else message)
 

@@ -197,7 +197,7 @@ def scalar(action: argparse.Action, value: Any) -> Any:
         if not isinstance(value, str):
             raise ValueError(f"expected a string, got {describe(value)}")
     else:
-        # a `cli_types` number or integer: the TOML value must be one, before its range check
+        # a `options` number or integer: the TOML value must be one, before its range check
         numeric = getattr(kind, "__name__", "")
         if numeric == "number" and not isinstance(value, int | float):
             raise ValueError(f"expected a number, got {describe(value)}")
@@ -205,7 +205,7 @@ def scalar(action: argparse.Action, value: Any) -> Any:
             raise ValueError(f"expected an integer, got {describe(value)}")
         try:
             value = kind(value if isinstance(value, str) else str(value))
-        except argparse.ArgumentTypeError as exc:  # a `cli_types` check: its own words
+        except argparse.ArgumentTypeError as exc:  # a `options` check: its own words
             raise ValueError(str(exc)) from None
         except (TypeError, ValueError) as exc:
             raise ValueError(f"invalid value {value!r} ({exc})") from None
