@@ -12,8 +12,9 @@ edge follows the depth edge between them.
 
 `auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): half
 resolution where a labelled pixel then spans at most `MAX_WORKING_PX_MM` of the floor
-straight below, the frame's own elsewhere. Measured in docs/performance.md (rung 29; a
-third, which the same bound gives a Kinect v1 below 2.74 m, scored lower: `AUTO_MAX_DOWNSAMPLE`).
+straight below, the frame's own elsewhere. Measured in docs/performance.md (a third, which
+the same bound gives a Kinect v1 below 2.74 m, scored lower: `AUTO_MAX_DOWNSAMPLE`,
+docs/results.md).
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ Before any of this, a stereo camera's fattened edges are thinned by the width it
 model expects (`core.fattening`), and a frame from a camera whose depth noise at the floor is
 large (stereo cameras at range) is smoothed by an edge-preserving filter (`core.denoise`).
 
-Models trained before this (no `"input"` in the header) read the legacy input: V = D,
-S = float32(1) / float32(D), no gate: exactly what the kernels computed from depth before.
+Models whose header has no `"input"` read the legacy input they were trained on: V = D,
+S = float32(1) / float32(D), no gate.
 `model_input` and `legacy_input` are the only two builders; training and inference both call
 them (`input_for` picks by header).
 """
