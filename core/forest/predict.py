@@ -1,8 +1,8 @@
 """Forest inference: walk every tree at every pixel with depth, average the leaf posteriors.
 
 The forest reads a model input (`inputs.ModelInput`: probe values, per-pixel offset scale,
-floor gate); a plain depth frame is read as its legacy input, as models trained before
-heights expect.
+floor gate); a plain depth frame is read as its legacy input, as a model whose header names
+no input expects.
 
 One numba kernel body, compiled once per number k of features per node, parallel over rows.
 Within a row the trees are walked level by level for all pixels at once: a pixel's walk is a
