@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 MAX_WORKING_PX_MM = 14.4
 #: the coarsest factor `auto_downsample` picks. The bound above alone would label a Kinect v1
 #: below 2.74 m at a third: on the 60-frame random-mount held-out set (9 such frames) that
-#: scored avg F1 0.6864 against 0.6900 at half (fourteenth session, docs/performance.md)
+#: scored avg F1 0.6864 against 0.6900 at half (docs/results.md)
 AUTO_MAX_DOWNSAMPLE = 2
 #: the largest factor `SegmenterConfig.downsample` takes
 MAX_DOWNSAMPLE = 4

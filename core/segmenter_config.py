@@ -226,7 +226,7 @@ class SegmenterConfig:
     post          the island rules after the CRF (`PostConfig`)
     mount         the camera's mount, for frames labelled without one of their own (a
                   height model needs one or the other)
-    check_camera  a model trained before heights: refuse frames that do not come from the
+    check_camera  a depth model (no heights): refuse frames that do not come from the
                   model's camera (size, focal length); off where frames of other sizes are
                   expected. Height models take any camera.
     """

@@ -772,7 +772,7 @@ def predict_proba(
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
     `frame` is a model input (`inputs.model_input`) or a depth frame, read as its legacy
-    input (what models trained before heights expect). Rows of pixels without depth are all
+    input (what a depth model expects). Rows of pixels without depth are all
     zero, floor-gated pixels are background. `out` may be a preallocated C-contiguous
     (H, W, NUM_CLASSES) float32 array to fill (a worker reuses one per frame).
     `stride` > 1 walks the trees only at every stride-th pixel of every stride-th row and

@@ -53,7 +53,7 @@ INTERVAL = 0.95
 class Cell:
     """One sensor at one mount: its avg F1 (forest + CRF) and forest-alone avg F1, and the
     INTERVAL bootstrap interval of its avg F1 minus the reference's (NaN when the reference
-    cell was not scored, and in reports written before intervals existed)."""
+    cell was not scored, and in reports that hold no intervals)."""
 
     sensor: str
     height_m: float
