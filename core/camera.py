@@ -365,8 +365,8 @@ class TopViewMount:
     def from_dict(cls, d: dict, source: str = "camera mount") -> TopViewMount:
         """The mount in `d` (`to_dict`'s form). `intrinsics` and `height_mm` are required;
         the tilt, sensor, noise scale, `radial` and `edge_thinning` default (straight down,
-        Kinect v1, as modelled, depth, thinned as the sensor model says), so dicts written
-        before they existed still load."""
+        Kinect v1, as modelled, depth, thinned as the sensor model says), so a dict that
+        lacks them still loads."""
         return from_dict(cls, d, source, required=("intrinsics", "height_mm"))
 
 

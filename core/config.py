@@ -4,7 +4,7 @@
 
 `from_dict(cls, data, source)` builds the dataclass `cls` from `data`: a key that is not a
 field of `cls` or a value of the wrong type is a `ConfigError` naming the key and `source`;
-a field that `data` leaves out takes its default (so a file written before a field existed
+a field that `data` leaves out takes its default (so a file that lacks a newer field
 still loads), unless the caller lists it in `required`. Nested config dataclasses are read
 through their own `from_dict`, with `source` extended by the key (`source.key`). A value
 that the dataclass itself rejects (its `__post_init__` raising ValueError or TopsegError)

@@ -13,9 +13,8 @@ of the nearest surface on its border when both hold:
   and a far surface (a person and the floor), with each of them on about half of its
   border, so it stays a hole. Dark hair's dropout often reaches the head's outline, where
   a few of its border pixels are the shoulders or the floor: with a share of 1 (the whole
-  border within the span) such a hole stayed, and on rendered Kinect v2 frames 37 % of the
-  head's pixels were still without depth after the fill (twenty-second session,
-  docs/results.md);
+  border within the span) such a hole stays, and on rendered Kinect v2 frames 37 % of the
+  head's pixels are still without depth after the fill (docs/results.md);
 - it is small: at most `max_cm2` on the surface, its pixels measured at that surface's mean
   depth ((z / fx) x (z / fy) each).
 The border counts each pair of 4-neighbours with one pixel in the hole and the other with

@@ -12,8 +12,9 @@ edge follows the depth edge between them.
 
 `auto_downsample(mount)` is the policy (`SegmenterConfig.downsample` = None): half
 resolution where a labelled pixel then spans at most `MAX_WORKING_PX_MM` of the floor
-straight below, the frame's own elsewhere. Measured in docs/performance.md (rung 29; a
-third, which the same bound gives a Kinect v1 below 2.74 m, scored lower: `AUTO_MAX_DOWNSAMPLE`).
+straight below, the frame's own elsewhere. Measured in docs/performance.md (a third, which
+the same bound gives a Kinect v1 below 2.74 m, scored lower: `AUTO_MAX_DOWNSAMPLE`,
+docs/results.md).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ if TYPE_CHECKING:
 MAX_WORKING_PX_MM = 14.4
 #: the coarsest factor `auto_downsample` picks. The bound above alone would label a Kinect v1
 #: below 2.74 m at a third: on the 60-frame random-mount held-out set (9 such frames) that
-#: scored avg F1 0.6864 against 0.6900 at half (fourteenth session, docs/performance.md)
+#: scored avg F1 0.6864 against 0.6900 at half (docs/results.md)
 AUTO_MAX_DOWNSAMPLE = 2
 #: the largest factor `SegmenterConfig.downsample` takes
 MAX_DOWNSAMPLE = 4

@@ -22,8 +22,8 @@ from topseg.core.resolution import MAX_DOWNSAMPLE
 ADAPTIVE_LEVELS = 1
 #: A walked pixel stops walking trees once its first two (or more) give one class this
 #: average posterior (`GridConfig.early_exit`); measured in docs/performance.md. 0.95
-#: (rung 22) walks 4 % more nodes than 0.9 and keeps the grid's accuracy loss against full
-#: resolution under issue 15's 0.01 on both held-out sets (0.9 lost 0.0106 on one).
+#: walks 4 % more nodes than 0.9 and keeps the grid's accuracy loss against full resolution
+#: under the accuracy budget's 0.01 on both held-out sets (0.9 lost 0.0106 on one).
 EARLY_EXIT = 0.95
 #: After the CRF, blobs labelled head smaller than this on the surface (cm2) take their
 #: border's label: a fifth of a whole head seen from above (200-300 cm2), so that a head cut
@@ -226,7 +226,7 @@ class SegmenterConfig:
     post          the island rules after the CRF (`PostConfig`)
     mount         the camera's mount, for frames labelled without one of their own (a
                   height model needs one or the other)
-    check_camera  a model trained before heights: refuse frames that do not come from the
+    check_camera  a depth model (no heights): refuse frames that do not come from the
                   model's camera (size, focal length); off where frames of other sizes are
                   expected. Height models take any camera.
     """

@@ -716,7 +716,7 @@ def best_split_reference(fm, y, ids, key, node_id, n_cand, n_thr, k, linear, cap
 
 
 def edge_weights_reference(depth, config):
-    """`crf.energy.edge_weights` in numpy, as it was written before the numba pass."""
+    """`crf.energy.edge_weights` in plain numpy, the reference its numba kernel must match."""
     d = np.asarray(depth).astype(np.float32)
     valid = d > 0
     wh = np.full((d.shape[0], d.shape[1] - 1), config.smoothness, np.float32)

@@ -400,9 +400,9 @@ def test_a_silent_camera_leaves_the_ros_graph_and_frees_its_place(run, sessions)
 
 
 def test_depth_on_the_reserved_any_pair_or_a_bad_key_is_rejected_not_bridged(run, sessions):
-    """`topseg/_any/_any/depth` (where a worker serving every camera holds its token) was
-    bridged as a camera `_any/_any`; a key with escape codes went raw to the log. Both are
-    now rejected and counted, the key logged escaped; a real camera is bridged on."""
+    """`topseg/_any/_any/depth` (where a worker serving every camera holds its token) is
+    not bridged as a camera `_any/_any`, nor a key with escape codes logged raw: both are
+    rejected and counted, the key logged escaped; a real camera is bridged on."""
     port, cell, domain = free_port(), "rb4", 9
     ros = RosSide(port, domain)
     sessions.append(ros)

@@ -1,5 +1,5 @@
 """scripts/ceiling_proxy.py: frames from one ceiling, labelled by `topseg segment` with no
-mount, scored as the real frames of issue 14 are."""
+mount, scored as the real judging frames are (docs/results.md)."""
 
 from __future__ import annotations
 

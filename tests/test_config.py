@@ -88,7 +88,7 @@ def test_a_rejected_value_is_a_config_error_with_the_source():
 
 
 def test_missing_keys_take_defaults_and_numbers_are_normalised():
-    """A file written before a field existed still loads; ints become floats where declared."""
+    """A file that lacks a newer field still loads; ints become floats where declared."""
     assert TrainConfig.from_dict({"n_trees": 2}) == TrainConfig(n_trees=2)
     features = FeatureConfig().to_dict()
     del features["absolute_fraction"]  # older model headers lack it

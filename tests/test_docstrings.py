@@ -1,4 +1,4 @@
-"""Every public module, class and function of the package says what it is for (issue 13)."""
+"""Every public module, class and function of the package says what it is for."""
 
 from __future__ import annotations
 

@@ -58,7 +58,7 @@ def test_forest_reaches_95_percent_pixel_accuracy(scenes):
     assert accuracy >= 0.95
     # every class is learnt, not only the floor (which would leave some class at 0): the
     # weakest class's recall is 0.69-0.74 over seeds 0-2 with probes off the image reading
-    # the edge or the background alike (twentieth session), so the bar sits below that spread
+    # the edge or the background alike, so the bar sits below that spread
     assert min(recalls) >= 0.65
     for mode in ("realtime", "exact"):  # the CRF does not lower it
         crf_accuracy, _ = score(forest, test, mode)

@@ -1,5 +1,6 @@
 """Forest training: every numba kernel (criterion, splitter, builder) against a plain
-numpy/Python reference, then whole trees, bit for bit against trees saved before the split."""
+numpy/Python reference, then whole trees, bit for bit against saved trees
+(tests/data/small_trees.npz)."""
 
 import dataclasses
 from pathlib import Path
@@ -300,9 +301,9 @@ FIXTURE = Path(__file__).parent / "data" / "small_trees.npz"
 
 @pytest.mark.parametrize(("split", "seed"), [("linear", 3), ("axis", 5)])
 def test_trees_match_those_trained_before_the_split_into_criterion_splitter_builder(split, seed):
-    """tests/data/small_trees.npz holds trees trained on `small_frames()` with SMALL by the
-    single-module trainer (issue 13, before criterion/splitter/builder): the same bits now,
-    with probes off the image reading the background as they did then."""
+    """tests/data/small_trees.npz holds trees trained on `small_frames()` with SMALL by a
+    single-module trainer (no criterion/splitter/builder kernels): the kernels give the same
+    bits, with probes off the image reading the background as that trainer's did."""
     depth, lab = small_frames()
     then = dataclasses.replace(SMALL.features, off_image="background")
     config = ft.TrainConfig(**{**SMALL.to_dict(), "split": split, "features": then})

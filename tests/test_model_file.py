@@ -204,8 +204,8 @@ def test_a_height_models_header_round_trips(tmp_path):
 
 def test_what_probes_off_the_image_read_round_trips_and_old_files_read_background(tmp_path, forest):
     """`off_image` in the forest's header: "nearest" and "background" round-trip; a file
-    written before the key (none) reads background, as its forest was trained (and so do
-    the edge's gaps of a file written before `edge_gaps`); another
+    without the key reads background, as its forest was trained (and so do the edge's gaps
+    of a file without `edge_gaps`); another
     value, or a header whose features say otherwise than its forest, is refused."""
     from topseg.core.forest import FeatureConfig
     from topseg.core.forest.inputs import header_fields
@@ -227,7 +227,7 @@ def test_what_probes_off_the_image_read_round_trips_and_old_files_read_backgroun
     rewrite(src, dst, lambda name, data: header_npy(bad) if name == "header.npy" else data)
     with pytest.raises(ModelFileError, match="off_image 'mirror'"):
         load_model(dst)
-    # a height model from before the key: neither its features nor its forest say it
+    # a height model whose header lacks the key: neither its features nor its forest say it
     features = header_fields(FeatureConfig(off_image="background"))
     del features["features"]["off_image"], features["features"]["edge_gaps"]
     save_model(src, forest, features)

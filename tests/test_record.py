@@ -145,7 +145,7 @@ def test_count_and_chosen_keys(tmp_path, publisher):
 
 
 def test_a_message_on_a_bad_key_is_dropped_and_logged_escaped(tmp_path, publisher):
-    """A key is whatever its publisher chose: escape codes in it went raw to the log. The
+    """A key is whatever its publisher chose: escape codes in it must not go raw to the log. The
     ROS 2 form drops it (and depth on the reserved `_any/_any`), counted, the key escaped."""
     port, cell = free_port(), "rec3"
     out = tmp_path / "ros.mcap"

@@ -311,8 +311,8 @@ def test_a_foreign_program_on_the_rendezvous_port_is_warned_about(run, recording
 
 
 def test_status_ends_within_its_timeout_when_the_rendezvous_holder_is_frozen(run, recording):
-    """A frozen port holder made status wait for Zenoh's 10 s handshake, then report no
-    services while the driver published: now one line and exit 2 once its time is up."""
+    """A frozen port holder must not make status wait for Zenoh's 10 s handshake and then
+    report no services while the driver publishes: one line and exit 2 once its time is up."""
     port, cell = free_port(), "frozen"
     router = run("router", "--zenoh-port", port)
     router.wait_line("listening on", 60)
@@ -360,9 +360,9 @@ def test_the_worker_that_keeps_a_camera_warns_only_about_a_worker_that_stays(run
 
 
 def test_a_clean_driver_stop_raises_no_alarm_about_the_rendezvous_port(run, recording):
-    """A worker that met the driver holding the rendezvous port warned, once the driver
-    stopped on SIGTERM, that the port "is held by something that does not answer as
-    Zenoh" though nothing listened there. Now it says, once, that nothing holds the port."""
+    """A worker that met the driver holding the rendezvous port does not warn, once the
+    driver stops on SIGTERM, that the port "is held by something that does not answer as
+    Zenoh" when nothing listens there: it says, once, that nothing holds the port."""
     port, cell = free_port(), "calm"
     drv = driver(run, port, cell, recording)
     drv.wait_line("publishing", 60)  # it holds the port: it started first

@@ -1,4 +1,4 @@
-"""Operators' output faults (issue 17, items 1 and 5), with real processes and file systems:
+"""Operators' output faults (docs/reliability.md), with real processes and file systems:
 `topseg segment` never lets two inputs' outputs collide (a recording of several cameras,
 one spanning a driver restart, PNGs of the same name in two folders, and a last guard), and
 a write that fails (a read-only folder, a full tmpfs) gives one line, a count of what was

@@ -18,8 +18,8 @@ DEMO = ROOT / "recordings" / "demo.mcap"
 
 
 def test_ctrl_c_during_segment_says_what_was_written_and_exits_130(tmp_path):
-    """It once ended in numba's `SystemError` (KeyboardInterrupt raised inside compiled
-    code), exit 1: now the frame at hand is finished and the run stops there."""
+    """Not numba's `SystemError` (a KeyboardInterrupt raised inside compiled code) and
+    exit 1: the frame at hand is finished and the run stops there."""
     out = tmp_path / "out"
     proc = start("segment", DEMO, "--out", out, "--crf", "exact")
     with group_reaped(proc):

@@ -295,7 +295,7 @@ def test_topseg_status_works_with_the_viewer_identity(secure):
 
 def test_no_role_sends_anything_for_the_reserved_any_camera(secure):
     """`topseg/*/*/depth` matches `_any/_any`, the chunks of a wildcard worker's token: a
-    driver certificate could publish depth there (and once stopped every such worker). The
+    driver certificate could otherwise publish depth there. The
     router denies every message on `topseg/_any/_any/...` but a worker's own token."""
     driver, worker, viewer = (secure.client(r) for r in ("driver", "worker", "viewer"))
     observer = secure.client("viewer")

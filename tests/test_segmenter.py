@@ -47,7 +47,7 @@ def demo_frames(n):
 
 
 def numpy_argmax(proba, depth):
-    """The argmax the forest-only path used to take (numpy's: first maximum on ties)."""
+    """Forest-only labels in plain numpy (numpy's argmax: first maximum on ties)."""
     out = np.argmax(proba, axis=-1).astype(np.uint8)
     out[np.asarray(depth) == 0] = L.NO_DEPTH
     return out
@@ -342,7 +342,7 @@ def test_the_early_exit_is_a_config_field_checked_up_front():
 def test_warm_up_compiles_what_a_first_large_frame_runs():
     """A worker warms up on a small frame; the lazy grid's fill, the band solved in two
     parts in parallel and the walk with clamped probes must be ready too (loading them on the
-    first real frame cost ~40 ms and dropped frames at a worker's start)."""
+    first real frame costs ~40 ms and drops frames at a worker's start)."""
     from topseg.core.crf import realtime
     from topseg.core.forest import predict
 
@@ -357,11 +357,11 @@ def test_warm_up_compiles_what_a_first_large_frame_runs():
 def test_warm_up_compiles_what_a_frame_off_the_wire_runs():
     """Frames decoded from the wire are read-only arrays, for which numba compiles its own
     kernels: after warm_up, labelling one must compile nothing (with a cold cache, that
-    compile on a worker's first frames dropped 10 of them), at the frame's resolution or at
-    half of it, smoothed or not. In a fresh interpreter: this
-    one's kernels may hold those signatures from earlier tests. (The edge-gap fill was
-    compiled on the first frame with a no-depth band at its edge: `make demo` on a clean
-    clone dropped 73 of 300 frames, twenty-first session.)"""
+    compile on a worker's first frames drops about 10 of them), at the frame's resolution or
+    at half of it, smoothed or not. In a fresh interpreter: this
+    one's kernels may hold those signatures from earlier tests. (The edge-gap fill is among
+    them: left to compile on the first frame with a no-depth band at its edge, it costs
+    `make demo` on a clean clone 73 of 300 frames.)"""
     import subprocess
     import sys
 

@@ -161,8 +161,9 @@ time.sleep(120)
 
 
 def test_status_returns_within_its_timeout_and_lists_300_tokens():
-    """More than 256 tokens once filled the liveliness get's reply channel inside the get call
-    (answered from the session's own table) and status hung forever at 0 % CPU."""
+    """More than 256 tokens fill a liveliness get's default reply channel inside the get call
+    (answered from the session's own table), where a blocking channel would hang status for
+    ever at 0 % CPU: status lists all 300 tokens and returns within its timeout."""
     import time
 
     port = free_port()
@@ -254,8 +255,9 @@ def test_two_workers_of_one_camera_and_a_waiting_wildcard_worker_are_shown():
 
 def test_text_from_the_wire_is_printed_escaped_and_short():
     """A stats message's model id and a driver's info with escape codes, carriage returns
-    and newlines forged rows on the operator's terminal (and a `frames` that is not a number
-    crashed status). Now every such text is printed escaped and cut short."""
+    and newlines, printed raw, would forge rows on the operator's terminal (and a `frames`
+    that is not a number would crash status): every such text is printed escaped and cut
+    short."""
     import threading
     import time
 

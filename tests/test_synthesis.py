@@ -243,7 +243,8 @@ def test_time_of_flight_frames_lose_depth_on_heads_only():
 
 
 def test_a_fixed_mount_keeps_the_papers_frames():
-    """mounts=None draws no mount: scene and noise streams are those of before mounts."""
+    """mounts=None draws no mount: the frame is at the paper's mount, its scene drawn from the
+    frame's scene stream, which the mount's third stream leaves untouched."""
     with Synthesizer(SynthesisConfig(noise="gaussian:15", seed=5), warm=False) as s:
         f = s.render(7)
         scene_rng, _ = s.rngs(7)

@@ -3,9 +3,9 @@
 Many cameras return no depth along part of the image's edge: a time-of-flight camera outside
 its valid circle (`synth.noise.ToFNoise`, `fov_cut`: 30 % of the Kinect v2 frames the model
 is trained on), a stereo camera's invalid band at one side, an undistorted or resampled
-frame's empty border. A probe there used to read `background_mm`, as if the floor dropped
-away into a pit, so a person beside such a region looked cut off there, the same error a
-probe off the image made before it read the image's edge (`FeatureConfig.off_image`).
+frame's empty border. A probe there that read `background_mm` would see the floor drop
+away into a pit, so a person beside such a region would look cut off there, the same error
+a probe off the image makes when it reads `background_mm` (`FeatureConfig.off_image`).
 
 `fill_edge_gaps` gives the forest's probe image (`inputs.ModelInput.probes`) a value in each
 such region: an edge gap is a 4-connected region without depth with a pixel on the image's

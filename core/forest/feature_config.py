@@ -35,10 +35,10 @@ class FeatureConfig:
         down, would see (`inputs.model_input`).
     reference_focal_px: the focal length (px) the offsets are defined at: on a camera of
         focal length fx an offset moves a probe fx / reference_focal_px as far (the default
-        is Kinect v1's, so offsets keep their old meaning there).
+        is Kinect v1's, so on a Kinect v1 offsets are not scaled).
     off_image: what a probe outside the image reads: "nearest", the pixel on the image's
-        edge nearest to it, or "background", `background_mm` (models trained before the
-        twentieth session; their headers lack the key, `model_header.model_features`). On the
+        edge nearest to it, or "background", `background_mm` (what a model whose
+        header lacks the key reads, `model_header.model_features`). On the
         time-of-flight walker stand-ins (2.4-3.6 m), two-tree models trained alike found
         heads at the image's edge with precision 0.82-0.94 reading "nearest" against
         0.52-0.75 reading "background" (docs/results.md).
@@ -46,8 +46,8 @@ class FeatureConfig:
         time-of-flight camera's ring outside its valid circle, a stereo camera's invalid
         band, a resampled frame's empty border): "nearest", the surface nearest to it
         (`edge_gaps.fill_edge_gaps`, as if the region were off the image), or
-        "background", `background_mm` like any pixel without depth (models trained before
-        the twenty-first session; their headers lack the key).
+        "background", `background_mm` like any pixel without depth (what a model whose
+        header lacks the key reads).
     """
 
     @property

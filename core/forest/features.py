@@ -14,7 +14,7 @@ clamped to it, which keeps every response inside int16; so does a v offset of `F
 or more, an absolute feature's, wherever it is applied). A probe outside the image reads
 the pixel on the image's edge nearest to it (`FeatureConfig.off_image` "nearest": a surface
 cut by the image's edge reads as going on beyond it), or `background_mm` ("background",
-models trained before the twentieth session): then a person cut by the edge reads as
+what a model whose header lacks `off_image` reads): then a person cut by the edge reads as
 ending there, and the top of a cut torso looks like a head. Dividing by
 d(s) makes the feature depth invariant and the focal-length ratio sensor invariant: the
 offsets span the same metric distance at any depth and on any camera, `patch_px` pixels at

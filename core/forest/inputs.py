@@ -23,8 +23,8 @@ Before any of this, a stereo camera's fattened edges are thinned by the width it
 model expects (`core.fattening`), and a frame from a camera whose depth noise at the floor is
 large (stereo cameras at range) is smoothed by an edge-preserving filter (`core.denoise`).
 
-Models trained before this (no `"input"` in the header) read the legacy input: V = D,
-S = float32(1) / float32(D), no gate: exactly what the kernels computed from depth before.
+Models whose header has no `"input"` read the legacy input they were trained on: V = D,
+S = float32(1) / float32(D), no gate.
 `model_input` and `legacy_input` are the only two builders; training and inference both call
 them (`input_for` picks by header).
 """
@@ -189,7 +189,7 @@ def _height_input(depth, ray, height, canonical, top, focal_ratio, margin, value
 
 
 def legacy_input(depth: np.ndarray) -> ModelInput:
-    """The input of a model trained before heights: V = D, S = float32(1) / float32(D) (as the
+    """The input of a depth model (no heights): V = D, S = float32(1) / float32(D) (as the
     kernels computed it from depth), 0 where D == 0, and no floor gate."""
     depth = check_depth(depth, "model input")
     d = depth.astype(np.float32)
@@ -253,7 +253,7 @@ def trained_for(mounts: list[TopViewMount]) -> dict[str, Any]:
 
 def dataset_mount(ds: Any, k: int) -> TopViewMount:
     """The mount of the k-th frame of a dataset: `ds.mount(k)` where the dataset stores one
-    per frame, else its `camera` attribute (datasets made before mounts were drawn)."""
+    per frame, else its `camera` attribute (datasets without per-frame mounts)."""
     per_frame = getattr(ds, "mount", None)
     if callable(per_frame):
         return per_frame(k)

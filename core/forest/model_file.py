@@ -258,8 +258,8 @@ def load_model(path: str | os.PathLike) -> tuple[Forest, dict[str, Any]]:
         forest = Forest(
             **arrays,
             background_mm=described["background_mm"],
-            # files written before the twentieth session say nothing: their probes read
-            # background_mm off the image
+            # a header without `off_image`: the forest was trained with probes off the
+            # image reading background_mm
             nearest_off_image=described.get("off_image", "background") == "nearest",
         )
     except ValueError as exc:

@@ -35,7 +35,7 @@ def model_features(header: dict | None, forest: Forest | None = None) -> Feature
         d = (header or {}).get("recipe", {}).get("config", {}).get("features")
     if not isinstance(d, dict):
         raise TopsegError("the model reads heights but its header does not say its features")
-    for key in ("off_image", "edge_gaps"):  # written before the field: probes read background
+    for key in ("off_image", "edge_gaps"):  # a header without the key: its probes read background
         d = d if key in d else {**d, key: "background"}
     try:
         features = FeatureConfig.from_dict(d, source="the model's feature config")

@@ -1,8 +1,8 @@
 """Forest inference: walk every tree at every pixel with depth, average the leaf posteriors.
 
 The forest reads a model input (`inputs.ModelInput`: probe values, per-pixel offset scale,
-floor gate); a plain depth frame is read as its legacy input, as models trained before
-heights expect.
+floor gate); a plain depth frame is read as its legacy input, as a model whose header names
+no input expects.
 
 One numba kernel body, compiled once per number k of features per node, parallel over rows.
 Within a row the trees are walked level by level for all pixels at once: a pixel's walk is a
@@ -773,7 +773,7 @@ def predict_proba(
     """(H, W, NUM_CLASSES) float32 class posteriors averaged over the trees.
 
     `frame` is a model input (`inputs.model_input`) or a depth frame, read as its legacy
-    input (what models trained before heights expect). Rows of pixels without depth are all
+    input (what a depth model expects). Rows of pixels without depth are all
     zero, floor-gated pixels are background. `out` may be a preallocated C-contiguous
     (H, W, NUM_CLASSES) float32 array to fill (a worker reuses one per frame).
     `stride` > 1 walks the trees only at every stride-th pixel of every stride-th row and

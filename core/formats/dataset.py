@@ -11,8 +11,8 @@ Layout (one directory, a Zarr v3 group; DESIGN section 4)::
 Frames may come from cameras of different resolutions (a mount drawn per frame): the arrays
 are FRAME_SHAPE (480 x 640, the largest supported sensor's), and a smaller frame is stored
 top-left with depth 0 and labels NO_DEPTH (255) outside it. Each frame's camera mount is in
-its scene JSON under "mount" (`Dataset.mount(k)`; datasets made before mounts were recorded
-fall back to the `camera` attribute); `mount(k).intrinsics.shape` says how much of the stored
+its scene JSON under "mount" (`Dataset.mount(k)`; a dataset whose scenes hold no mount
+falls back to the `camera` attribute); `mount(k).intrinsics.shape` says how much of the stored
 frame is the frame, and `Dataset.frame(k)` returns it cropped.
 
 `depth`, `labels` and `scene` have one frame per chunk. Image chunks are Blosc-zstd (level 1,

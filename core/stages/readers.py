@@ -3,7 +3,7 @@
 A model trained on heights above the floor (`HeightReader`) reads every frame through its
 camera's mount: range read as depth, holes filled, a working resolution and a grid stride
 from the mount, stereo edges thinned and noisy frames smoothed, and a stronger CRF for a
-noisy camera. A model trained before heights (`DepthReader`) reads raw depth at its own
+noisy camera. A model trained on raw depth (`DepthReader`) reads raw depth at its own
 camera's resolution and nothing else. The Segmenter holds one adapter and never asks which.
 """
 
@@ -165,7 +165,7 @@ class HeightReader:
 
 
 class DepthReader:
-    """The adapter of a model trained before heights: raw depth, its own camera only."""
+    """The adapter of a model that reads raw depth: its own camera only."""
 
     reads_height = False
 

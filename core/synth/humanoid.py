@@ -111,7 +111,7 @@ POSES: tuple[str, ...] = (*PRESETS, *CLIPS)
 
 #: link -> (capsule radius, capsule cylinder length, origin xyz, origin rpy) replacing the
 #: URDF's shape, in model units (x 0.25 m at REFERENCE_SCALING, ~1.6 m tall). Head: 140 x
-#: 182 mm, long axis forward, centre 12 mm above the old ball's; chest: 220 mm deep, 265 mm
+#: 182 mm, long axis forward, centre 12 mm above the URDF's ball's; chest: 220 mm deep, 265 mm
 #: broad (lateral capsule); pelvis: 180 mm deep, 330 mm broad. See docs/explanation/method.md.
 PROPORTION_FIXES: dict[str, tuple[float, float, tuple, tuple]] = {
     "neck": (0.28, 0.167, (0.0, 0.75, 0.0), (0.0, 1.570796, 0.0)),

@@ -254,8 +254,8 @@ class Synthesizer:
             or frame_seed < 0
         ):
             raise TopsegError(f"frame_seed must be a non-negative integer, got {frame_seed!r}")
-        # spawn(3) starts with the same two children as spawn(2): the scene and noise streams
-        # of a fixed-mount frame are what they were before mounts were drawn
+        # spawn(3) starts with the same two children as spawn(2): a fixed-mount frame's scene
+        # and noise streams are spawn(2)'s, untouched by the mount's third stream
         children = np.random.SeedSequence([self.config.seed, int(frame_seed)]).spawn(3)
         return [np.random.default_rng(c) for c in children]
 

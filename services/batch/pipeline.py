@@ -66,8 +66,8 @@ def _drain(col: _Collector, lossless: bool, stop: threading.Event) -> None:
     """Wait for labels still in flight after the driver stopped.
 
     DRAIN_S at least; with `lossless`, also until every depth frame seen is labelled, for as
-    long as labels keep coming (DRAIN_IDLE_S at most between two). A fixed wait lost the
-    tail of a loaded worker's FIFO to the SIGTERM that followed (issue 15).
+    long as labels keep coming (DRAIN_IDLE_S at most between two). A fixed wait loses the
+    tail of a loaded worker's FIFO to the SIGTERM that follows.
     """
     t_end = time.monotonic() + DRAIN_S
     while not stop.is_set():

@@ -20,7 +20,7 @@ labels each frame through its camera's mount: `--mount FILE` (from `topseg calib
 given, else the mount a recording's messages carry, else one estimated from the input's own
 frames (up to `ESTIMATE_FRAMES` spread over each camera: a folder of PNGs is one, and so is
 each depth channel of a recording) and printed. PNGs say no intrinsics: the mount file's are used, else
-those of the supported sensor of that frame size. A model trained before (it reads raw depth)
+those of the supported sensor of that frame size. A depth model (one that reads raw depth)
 takes only frames of its own camera (size and focal length) and needs no mount.
 
 A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a file that is

@@ -11,8 +11,8 @@ scores the forest on a held-out validation split and writes the model with that 
 header.
 
 The model reads heights above the floor (`core.forest.inputs`): every frame is read through
-its own mount (`Dataset.mount`, or the dataset's camera for datasets made before mounts were
-drawn), and the header says so (`"input": "height"`, the feature config) and what it was
+its own mount (`Dataset.mount`, or the dataset's camera for datasets without per-frame
+mounts), and the header says so (`"input": "height"`, the feature config) and what it was
 trained for (`"trained_for"`: heights, tilt, sensors and resolutions of its frames).
 """
 

@@ -2,7 +2,8 @@
 
 Closing a Zenoh session drops what its queues still hold for slower links: a lossless replay
 (`--congestion block`, what `--as-fast-as-possible` and the lossless pipeline use) lost the
-last frame of 8 to its worker under load while another subscriber had it (issue 15). So a
+last frame of 8 to its worker under load while another subscriber had it (docs/reliability.md,
+12e). So a
 driver in block mode follows the labels of its camera (`LabelsSeen`) and, when its source
 ends, keeps its session open until a worker has labelled the last frame it sent, for as long
 as labels keep coming (`--drain-idle` seconds at most between two). It does not wait when no

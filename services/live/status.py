@@ -433,8 +433,8 @@ class Replies:
 
     Not a channel: Zenoh's default reply channel holds 256 replies, and a liveliness `get`
     answered from the session's own table (every token it already knows of) fills it inside
-    the `get` call itself, before anyone can read: with more than 256 tokens `status` hung
-    there forever. A callback never blocks Zenoh, and `wait` gives up at its deadline.
+    the `get` call itself, before anyone can read: with more than 256 tokens `status` would
+    hang there for ever. A callback never blocks Zenoh, and `wait` gives up at its deadline.
     """
 
     #: How long past the query's own timeout `wait` waits for Zenoh to end the query.

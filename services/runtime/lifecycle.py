@@ -18,11 +18,12 @@ short (a sensor read); the `with svc:` block swallows it.
 
 Once a service is ready, what it loaded is frozen out of the garbage collector
 (`gc.freeze()`, after one last collection): a warmed worker holds ~120 000 tracked objects
-(numba, Zenoh, the model's header), and a full collection of them stopped it for 68-84 ms
-(the viewer 42-54, the driver 30-35) in the middle of a run, two or three frames at 30 fps.
-That collection now runs in `ready`, before the first frame, and later full collections
-scan only what came after it. (It did not change the demo path's or `bench pipeline`'s
-figures measurably: in runs of 10-20 s that collection came once, near the end.)
+(numba, Zenoh, the model's header), and a full collection of them would stop it for 68-84 ms
+(the viewer 42-54, the driver 30-35) in the middle of a run, two or three frames at 30 fps
+(docs/explanation/speed.md). That collection runs in `ready`, before the first frame, and
+later full collections scan only what came after it. (Freezing does not change the demo
+path's or `bench pipeline`'s figures measurably: in runs of 10-20 s that collection comes
+once, near the end.)
 
 A session that has been alone (no Zenoh peer or router) for `ISOLATION_WARN_S`, since it
 opened or since its last peer went, though it should not be (it connects to a rendezvous

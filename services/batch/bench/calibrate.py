@@ -8,7 +8,7 @@ compares it with the truth. Reported: height |error| (mm), pitch and roll |error
 max and p95; the share of mounts within 2 cm and within 0.5 deg; how much of the floor the
 scenes covered; and the refusals (CalibrationError), which count as failures.
 
-The issue's bar: height within 2 cm, pitch and roll within 0.5 deg, over at least 50 mounts
+The target (docs/results.md): height within 2 cm, pitch and roll within 0.5 deg, over at least 50 mounts
 with people and furniture covering up to 40 % of the floor.
 """
 

@@ -4,7 +4,7 @@ Renders `--frames` frames with `topseg.core.synth.synthesis.Synthesizer` after `
 (numba compilation and the first loads of pooled pybullet bodies) and reports the median
 and 90th percentile of each stage: sampling the scene from the density function, building
 it in pybullet (pose pooled bodies, read back their primitives), ray casting, noise. The
-issue's budget is build + raycast + noise <= 25 ms per frame; datagen runs one such process
+budget is build + raycast + noise <= 25 ms per frame (docs/performance.md); datagen runs one such process
 per core.
 """
 

@@ -54,8 +54,8 @@ def resolve(name: str) -> str:
     return name
 
 
-#: Datasets written before the services were split into packages name their generator by the
-#: old module; they still load.
+#: Generator module paths that older datasets' headers name, and the module each is at; such
+#: datasets still load.
 MOVED_MODULES = {
     "topseg.services." + "datagen_sources": "topseg.services.batch.datagen.sources",
     "topseg.services." + "bench_datagen": "topseg.services.batch.bench.datagen",

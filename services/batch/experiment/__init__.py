@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_mounts(args, frames: int, out: Path) -> int:
-    """One model (and a baseline) across the issue's mounts and sensors: a table, no training."""
+    """One model (and a baseline) across `mounts.MOUNTS` and every sensor: a table, no training."""
     from topseg.services.batch.experiment import mounts
 
     if args.report_only:  # the figure and table again from OUT/mounts.json, no cell run

@@ -6,7 +6,7 @@ modeled scenes are rendered at five mounts (height / tilt: 2.5 m / 0, 3.0 m / 5,
 intrinsics and noise family, and scored with the realtime CRF. Each cell is avg F1 over the
 ten classes; the reference cell is Kinect v1 at 3.5 m straight down (the paper's setup),
 and the table says how far every other cell is from it. `--baseline MODEL` scores a second
-model on the same frames (a model trained before the mount work reads raw depth and gets
+model on the same frames (a model whose header names no input reads raw depth and gets
 no mount; it is run on every sensor's frames all the same, to show what it does there).
 
 Frames are rendered in this process from seeds no training set uses (TEST_SEED), so every
@@ -36,7 +36,8 @@ from topseg.core.segmenter_config import GridConfig
 from topseg.core.sensors import get_sensor
 from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
 
-#: (height m, tilt deg) of the issue's five mounts; the tilt is split over pitch and roll
+#: (height m, tilt deg) of the five mounts the table scores; the tilt is split over pitch and
+#: roll
 MOUNTS: tuple[tuple[float, float], ...] = (
     (2.5, 0.0),
     (3.0, 5.0),
@@ -48,9 +49,10 @@ MOUNTS: tuple[tuple[float, float], ...] = (
 REFERENCE = ("kinect_v1", 3.5, 0.0)
 #: dataset seed of the held-out scenes (training sets use small seeds)
 TEST_SEED = 424242
-#: largest avg-F1 gap to the reference cell that counts as "the same" (issue 14)
+#: largest avg-F1 gap to the reference cell that counts as "the same" (the mounts table's
+#: target, docs/results.md)
 MAX_GAP = 0.03
-#: the floor under which no cell may fall (issue 14)
+#: the floor under which no cell may fall (the mounts table's target, docs/results.md)
 MIN_F1 = 0.70
 #: bootstrap resamples behind each gap's interval, and their seed
 BOOTSTRAP_DRAWS = 2000
@@ -63,7 +65,7 @@ INTERVAL = 0.95
 class Cell:
     """One sensor at one mount: its avg F1 (forest + CRF) and forest-alone avg F1, and the
     INTERVAL bootstrap interval of its avg F1 minus the reference's (NaN when the reference
-    cell was not scored, and in reports written before intervals existed)."""
+    cell was not scored, and in reports that hold no intervals)."""
 
     sensor: str
     height_m: float
@@ -263,7 +265,7 @@ def mean_difference(
 
 
 def verdict(cells: list[Cell]) -> dict:
-    """The issue's two tests: every cell within MAX_GAP of the reference, none below MIN_F1;
+    """The table's two targets (docs/results.md): every cell within MAX_GAP of the reference, none below MIN_F1;
     how many cells pass each, and how many miss the first by more than sampling explains
     (the whole of their gap's interval beyond MAX_GAP)."""
     ref = reference_f1(cells)
@@ -365,7 +367,7 @@ def _gap_text(cells: list[dict]):
 def figure(report: dict, path: Path) -> None:
     """Heat maps per model, sensors by mounts: each cell's avg F1 (and its gap to the model's
     reference cell) in numbers, coloured by that gap; a red frame round each cell that misses
-    the issue's targets (further than MAX_GAP from the reference, or below MIN_F1)."""
+    the table's targets (further than MAX_GAP from the reference, or below MIN_F1)."""
     import matplotlib
 
     matplotlib.use("Agg")
