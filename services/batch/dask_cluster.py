@@ -21,6 +21,7 @@ them; before, each worker printed a 30-line KeyboardInterrupt traceback.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import os
 import signal
@@ -58,6 +59,9 @@ def dask_client(
         try:
             client = distributed.Client(scheduler, timeout=f"{timeout}s")
         except (OSError, TimeoutError, ValueError) as exc:
+            # finalise the half-built Client now: collected later, inside another cluster's
+            # start-up, its __del__ waits on that cluster's event loop forever
+            gc.collect()
             raise TopsegError(
                 f"cannot reach the Dask scheduler at {scheduler}: {_one_line(exc)}"
             ) from exc
