@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import time
 
+import distributed
 import pytest
 
 from topseg.core.errors import TopsegError
@@ -43,6 +45,16 @@ def test_an_unreachable_scheduler_is_one_clear_error():
     with pytest.raises(TopsegError, match="cannot reach the Dask scheduler at nowhere://x"):
         with dask_client("nowhere://x", timeout=1):
             pass
+
+
+def test_a_refused_client_is_finalised_at_once():
+    """A Client whose connection failed is gone when the error is raised: left to the
+    collector, its __del__ ran inside a later local cluster's start-up and hung it."""
+    with pytest.raises(TopsegError, match="cannot reach"):
+        with dask_client("tcp://127.0.0.1:9", timeout=1):
+            pass
+    alive = [o for o in gc.get_objects() if isinstance(o, distributed.Client)]
+    assert not alive, f"{len(alive)} half-built Client(s) left for the collector"
 
 
 def test_a_bad_worker_count_is_refused():

@@ -56,15 +56,17 @@ def dask_client(
     if quiet:
         logging.getLogger("distributed").setLevel(logging.ERROR)
     if scheduler:
+        refused = None
         try:
             client = distributed.Client(scheduler, timeout=f"{timeout}s")
         except (OSError, TimeoutError, ValueError) as exc:
-            # finalise the half-built Client now: collected later, inside another cluster's
-            # start-up, its __del__ waits on that cluster's event loop forever
+            refused = f"cannot reach the Dask scheduler at {scheduler}: {_one_line(exc)}"
+        if refused is not None:
+            # finalise the half-built Client now, its error and traceback gone: left to the
+            # collector, its __del__ ran inside a later cluster's start-up and waited on that
+            # cluster's event loop forever
             gc.collect()
-            raise TopsegError(
-                f"cannot reach the Dask scheduler at {scheduler}: {_one_line(exc)}"
-            ) from exc
+            raise TopsegError(refused)
         with client:
             yield client
         return
