@@ -54,8 +54,10 @@ class ForestStage(Stage):
         inp, stride = frame.inp, frame.plan.stride
         proba = self.predict(inp, stride, lazy=stride > 1)
         frame.proba, frame.summary, frame.lazy = proba, self._summary, stride > 1
-        frame.fill = self._filler(inp, proba, stride)
-        frame.working_forest_labels = lambda: segment_argmax(frame.fill(None), inp.values > 0)
+        # closures over the frame's parts, never the frame itself: a frame that held itself
+        # would be freed by the cycle collector only, frames later
+        fill = frame.fill = self._filler(inp, proba, stride)
+        frame.working_forest_labels = lambda: segment_argmax(fill(None), inp.values > 0)
 
     def _filler(self, inp: ModelInput, proba: np.ndarray, stride: int):
         """`fill(mask)`: store the posteriors a grid left out at `mask` (None: all), for
