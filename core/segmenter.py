@@ -542,9 +542,11 @@ class Segmenter:
         (`working_frame`); the labels are the frame's size. The forest stage's time
         includes decimating the frame and building the model input, the CRF stage's the
         island rules and bringing the labels back to the frame's resolution."""
+        from topseg.core.camera import without_no_reading
         from topseg.core.resolution import upsample_labels
 
         t0 = time.perf_counter()
+        depth = without_no_reading(depth)  # 65535, "no reading": no depth, as in calibration
         depth, intrinsics, mount = self._as_depth(depth, intrinsics, name, mount)
         depth, filled = self._fill_holes(depth, intrinsics, name, mount)
         small, small_mount, factor = self.working_frame(depth, intrinsics, name, mount)

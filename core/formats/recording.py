@@ -303,7 +303,7 @@ def read_messages(
     """
     from mcap.records import Channel, Header, Message, Metadata, Schema
 
-    from topseg.core.formats.wire import WireError
+    from topseg.core.formats.wire import WireError, shown_key
 
     wanted = None if keys is None else set(keys)
     info = RecordingInfo() if info is None else info
@@ -324,7 +324,9 @@ def read_messages(
                     data = ros.message(record.channel_id, record.data, record.sequence)
                 except WireError as exc:
                     info.rejected += 1
-                    log.warning("%s: skipped a damaged message on %s: %s", path, key, exc)
+                    log.warning(
+                        "%s: skipped a damaged message on %s: %s", path, shown_key(key), exc
+                    )
                     continue
             if key is None or data is None or (wanted is not None and key not in wanted):
                 continue
