@@ -20,8 +20,9 @@ candidate plane with many valid points well beyond it (below the floor) is rejec
 the RANSAC search, so the search settles on the plane nothing lies under.
 
 `CalibrationError` says in one line why no mount came out: no depth in the frames, no plane
-covering enough of the view, frames that disagree (the camera moved), or a tilt beyond what
-the model supports.
+covering enough of the view (also when per-frame floors disagree although the frames
+themselves agree: a still camera that sees too little floor), frames that disagree (the
+camera moved), a tilt beyond what the model supports, or a mount no camera can have.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from topseg.core.camera import (
     Intrinsics,
     TopViewMount,
     check_depth,
+    check_mount,
     range_to_depth,
 )
 from topseg.core.denoise import MIN_SIGMA_MM, floor_sigma_mm, needs_denoise
@@ -79,6 +81,9 @@ class CalibrationConfig:
     max_depth_mm: readings farther than this are left out of the fit, as if they had no
         depth: no top-view camera hangs that high, and some cameras send 65535 for "no
         reading", which would otherwise look like a plane below the floor.
+    min_hidden_floor_share: a flat surface below the plane found, showing in at least this
+        share of the valid pixels, is the floor mostly hidden (a table over most of the
+        view): refused.
     """
 
     points_per_frame: int = 3000
@@ -96,6 +101,7 @@ class CalibrationConfig:
     min_valid_points: int = 500
     max_trials: int = 200
     max_depth_mm: float = 20000.0
+    min_hidden_floor_share: float = 0.02
 
     def __post_init__(self) -> None:
         if self.points_per_frame < 10 or self.max_trials < 1 or self.min_valid_points < 3:
@@ -471,11 +477,21 @@ def _estimate(
     n = mount.up_normal_camera()
     angle_spread = max(_angle_deg(n, m) for m in normals)
     if height_spread > cfg.max_height_spread_mm or angle_spread > cfg.max_angle_spread_deg:
+        spread = (
+            f"{height_spread:.0f} mm in height and {angle_spread:.2f} deg in angle across "
+            f"{len(planes)} frames (at most {cfg.max_height_spread_mm:g} mm, "
+            f"{cfg.max_angle_spread_deg:g} deg)"
+        )
+        if frames_still(frames, thr, cfg.max_depth_mm):
+            raise CalibrationError(
+                f"no one floor fits these frames: the planes found in them differ by {spread}, "
+                "yet the frames themselves agree (the camera is still): too little floor is "
+                "in view (a large surface nearer than the floor, a table, covers most of it); "
+                "clear the floor under the camera or aim it at more floor"
+            )
         raise CalibrationError(
-            f"the frames disagree: the floor's height varies by {height_spread:.0f} mm and its "
-            f"angle by {angle_spread:.2f} deg across {len(planes)} frames (at most "
-            f"{cfg.max_height_spread_mm:g} mm, {cfg.max_angle_spread_deg:g} deg); "
-            f"hold the camera still and calibrate again"
+            f"the frames disagree: the floor found in them differs by {spread}, and so do the "
+            "frames (the camera moved); hold the camera still and calibrate again"
         )
     if mount.tilt_deg() > cfg.max_tilt_deg:
         raise CalibrationError(
@@ -497,9 +513,14 @@ def _estimate(
             f"no plane covers enough of the view: the floor holds {share:.0%} of the valid "
             f"pixels, at least {cfg.min_inlier_share:.0%} needed; clear the floor under the camera"
         )
+    _check_nothing_flat_below(coef, pooled, thr, cfg, mount)
     x_mm = pooled.z_mm[inl, None] * _design(pooled.rays[inl])
     residual = float(np.sqrt(np.mean((mount.height_mm + x_mm @ n) ** 2)))
     mount = replace(mount, noise_scale=noise_scale(residual, pooled.z_mm[inl], sensor))
+    try:
+        check_mount(mount)  # what a mount file or the wire would refuse is no estimate
+    except ValueError as exc:
+        raise CalibrationError(f"the floor found gives no camera's mount: {exc}") from None
     return MountEstimate(
         mount=mount,
         residual_mm=residual,
@@ -510,6 +531,48 @@ def _estimate(
         angle_spread_deg=angle_spread,
         made_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     )
+
+
+def _check_nothing_flat_below(
+    coef: np.ndarray, pooled: _Points, thr: Threshold, cfg: CalibrationConfig, mount
+) -> None:
+    """CalibrationError when a flat surface shows below the plane found, in more than
+    `min_hidden_floor_share` of the view (but less than the `max_beyond_share` that vetoes a
+    candidate): the floor, mostly hidden, and the plane a table top over most of the view.
+    Stray readings beyond the floor (reflections) are not flat."""
+    beyond = pooled.z_mm - _plane_depth(coef, pooled.rays) > cfg.beyond_factor * thr(pooled.z_mm)
+    share = float(np.mean(beyond)) if beyond.size else 0.0
+    if share < cfg.min_hidden_floor_share:
+        return
+    x_mm = pooled.z_mm[beyond, None] * _design(pooled.rays[beyond])
+    heights = mount.height_mm + x_mm @ mount.up_normal_camera()
+    q1, median, q3 = np.percentile(heights, [25, 50, 75])
+    if q3 - q1 > 2 * float(np.median(thr(pooled.z_mm[beyond]))):
+        return
+    raise CalibrationError(
+        f"a flat surface {-median:.0f} mm below the plane found shows in {share:.0%} of the "
+        f"view: that is the floor, mostly hidden (a table over most of the view?); clear "
+        "the floor under the camera or aim it at more floor"
+    )
+
+
+def frames_still(
+    frames: Sequence[np.ndarray], thr: Threshold, max_mm: float, max_changed: float = 0.5
+) -> bool:
+    """Whether `frames` show one still view: in each, at most `max_changed` of the pixels
+    with depth (in it and the first frame, a sampled grid) differ from the first frame's by
+    more than the noise threshold. A camera that moved changes nearly every pixel; people
+    walking by, some."""
+    first = np.asarray(frames[0])[::4, ::4].astype(np.float64)
+    for frame in frames[1:]:
+        other = np.asarray(frame)[::4, ::4].astype(np.float64)
+        both = (first > 0) & (other > 0) & (first <= max_mm) & (other <= max_mm)
+        if not both.any():
+            continue
+        a, b = first[both], other[both]
+        if np.mean(np.abs(a - b) > thr(a)) > max_changed:
+            return False
+    return True
 
 
 def floor_mask(
@@ -529,6 +592,112 @@ def floor_mask(
     with np.errstate(invalid="ignore", divide="ignore"):
         along_ray = np.abs(h) / np.abs(n_dot_r)
     return (depth > 0) & (along_ray <= cfg.threshold(mount.sensor)(depth))
+
+
+@dataclass(frozen=True)
+class FloorCheckConfig:
+    """When a mount's floor and a frame's depth disagree (`check_floor`).
+
+    step: every step-th row and column is looked at (a frame is a few thousand points).
+    min_tolerance_mm, noise_sigmas: a pixel is off the mount's floor by more than the
+        tolerance max(min_tolerance_mm, noise_sigmas x the sensor's depth noise at the
+        frame's median depth x the mount's noise_scale).
+    max_below_share: more than this share of the pixels with depth farther below the
+        mount's floor than the tolerance: the floor lies lower (the mount hangs the camera
+        too low, or tilts it wrongly). Nothing stands below the floor; a few bad readings
+        (reflections) may.
+    low_percentile: the frame's lowest surface is this percentile of its heights; above the
+        tolerance, the floor lies higher (the mount hangs the camera too high). Some floor
+        shows in every view, even under a crowd or a big table.
+    min_valid_points: fewer sampled pixels with depth tell nothing (a check without verdict).
+    max_depth_mm: farther readings are no depth, as in the fit (`CalibrationConfig`).
+    """
+
+    step: int = 4
+    min_tolerance_mm: float = 100.0
+    noise_sigmas: float = 5.0
+    max_below_share: float = 0.2
+    low_percentile: float = 1.0
+    min_valid_points: int = 200
+    max_depth_mm: float = 20000.0
+
+
+@dataclass(frozen=True)
+class FloorCheck:
+    """How a mount's floor agrees with the depth one frame sees (`check_floor`).
+
+    valid: sampled pixels with depth. below_share: share of them farther below the mount's
+    floor than `tolerance_mm`. lowest_mm: the height of the frame's lowest surface under the
+    mount (about 0 when they agree). offset_mm: where the frame's floor lies against the
+    mount's, about (negative: lower). agrees: None when too few pixels have depth to tell.
+    """
+
+    mount_height_mm: float
+    valid: int
+    below_share: float
+    lowest_mm: float
+    offset_mm: float
+    tolerance_mm: float
+    agrees: bool | None
+
+    def reason(self) -> str:
+        """Why the mount and the frame disagree, in one line ('' when they do not)."""
+        if self.agrees is not False:
+            return ""
+        seen = self.mount_height_mm - self.offset_mm
+        if self.offset_mm < 0:
+            why = (
+                f"{100 * self.below_share:.0f} % of the pixels with depth lie more than "
+                f"{self.tolerance_mm:.0f} mm below its floor"
+            )
+        else:
+            why = (
+                f"nothing in view comes within {self.tolerance_mm:.0f} mm of its floor: the "
+                f"lowest surface is {self.lowest_mm:.0f} mm above it"
+            )
+        return (
+            f"the mount puts the camera {self.mount_height_mm / 1000:.2f} m above the floor, "
+            f"the depth about {seen / 1000:.2f} m ({why})"
+        )
+
+
+def check_floor(
+    depth: np.ndarray, mount: TopViewMount, config: FloorCheckConfig | None = None
+) -> FloorCheck:
+    """Whether `mount`'s floor agrees with what `depth` (one frame of its camera) sees: pure
+    and cheap (a sampled grid of pixels), for every consumer of a mount it did not estimate
+    from these frames (a mount file, a mount on the wire or in a recording). A mount that
+    hangs the camera too low leaves much of the view below its floor; one that hangs it too
+    high leaves nothing near its floor. Frames with 0, 65535 or beyond-range readings count
+    those as no depth. ValueError when the frame is not of the mount's camera's size."""
+    from topseg.core.forest.inputs import depth_sigma_mm
+
+    cfg = config or FloorCheckConfig()
+    depth = np.asarray(depth)
+    if depth.shape != mount.intrinsics.shape:
+        raise ValueError(
+            f"a {depth.shape[1] if depth.ndim == 2 else '?'}x{depth.shape[0]} frame does not "
+            f"match the mount's {mount.intrinsics.width}x{mount.intrinsics.height} camera"
+        )
+    step = max(1, int(cfg.step))
+    z = mount.z_depth(depth)[::step, ::step].astype(np.float32)
+    rays = mount.height_rays()[::step, ::step]
+    ok = (z > 0) & (z <= cfg.max_depth_mm)
+    z = z[ok]
+    heights = z * rays[ok] + np.float32(mount.height_mm)
+    valid = int(z.size)
+    if valid < cfg.min_valid_points:
+        return FloorCheck(float(mount.height_mm), valid, 0.0, 0.0, 0.0, 0.0, None)
+    sigma = float(depth_sigma_mm(np.float32(np.median(z)), mount.sensor))
+    tolerance = max(cfg.min_tolerance_mm, cfg.noise_sigmas * sigma * float(mount.noise_scale))
+    below = heights < -tolerance
+    below_share = float(np.count_nonzero(below)) / valid
+    lowest = float(np.percentile(heights, cfg.low_percentile))
+    if below_share > cfg.max_below_share:
+        agrees, offset = False, float(np.median(heights[below]))
+    else:
+        agrees, offset = lowest <= tolerance, lowest
+    return FloorCheck(float(mount.height_mm), valid, below_share, lowest, offset, tolerance, agrees)
 
 
 def noise_scale(residual_mm: float, floor_depth_mm: np.ndarray, sensor: str) -> float:
@@ -560,7 +729,10 @@ from topseg.core.formats.mount_file import (  # noqa: E402  (re-exported for cal
 __all__ = [
     "CalibrationConfig",
     "CalibrationError",
+    "FloorCheck",
+    "FloorCheckConfig",
     "MountEstimate",
+    "check_floor",
     "estimate_mount",
     "floor_mask",
     "mount_difference",

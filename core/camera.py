@@ -88,6 +88,25 @@ def check_depth(depth: np.ndarray, user: str = "depth") -> np.ndarray:
     return np.ascontiguousarray(depth)
 
 
+#: the reading several cameras send for "no measurement" instead of 0
+NO_READING_MM = 65535
+
+
+def without_no_reading(depth: np.ndarray) -> np.ndarray:
+    """`depth` with readings of `NO_READING_MM` (how several cameras say "no reading") set to
+    0, no depth, as calibration reads them: the frame itself when it has none (no copy), a
+    copy otherwise. Anything but a (H, W) uint16 frame is returned as it is, for the caller's
+    own check to refuse."""
+    if not isinstance(depth, np.ndarray) or depth.dtype != np.uint16 or depth.ndim != 2:
+        return depth
+    no_reading = depth == NO_READING_MM
+    if not no_reading.any():
+        return depth
+    out = depth.copy()
+    out[no_reading] = 0
+    return out
+
+
 def backproject(depth_mm: np.ndarray, k: Intrinsics) -> np.ndarray:
     """(H, W) depth in mm -> (H, W, 3) float32 points in metres in the camera frame.
 
@@ -192,8 +211,50 @@ def _rotation(pitch_deg: float, roll_deg: float) -> np.ndarray:
 
 #: the largest tilt (degrees) a mount may have: a top-view camera, not a wall camera
 MAX_MOUNT_TILT_DEG = 60.0
-#: the measured-over-modelled depth noise a mount may have (`TopViewMount.noise_scale`)
-NOISE_SCALE_RANGE = (0.01, 100.0)
+#: the measured-over-modelled depth noise a mount may have (`TopViewMount.noise_scale`): a
+#: camera more than five times noisier than its sensor model needs a model of its own
+NOISE_SCALE_RANGE = (0.05, 5.0)
+#: how high above the floor a mount may hang, mm (0.3 to 20 m; calibration reads no farther)
+MOUNT_HEIGHT_RANGE_MM = (300.0, 20_000.0)
+#: the field of view a mount's camera may have across its width and its height, degrees: the
+#: focal lengths a frame of its size can have (a fisheye is no pinhole camera)
+FIELD_OF_VIEW_RANGE_DEG = (5.0, 160.0)
+
+
+def _check_range(name: str, value: float, bounds: tuple[float, float], unit: str = "") -> None:
+    """ValueError (one line, `value` as %.3g) unless `value` is finite and within `bounds`."""
+    lo, hi = bounds
+    if not (np.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{name} {value:.3g}{unit} is outside {lo:g}..{hi:g}{unit}")
+
+
+def check_mount(mount: TopViewMount) -> TopViewMount:
+    """`mount` when a camera can have it, else ValueError naming the first bad field in one
+    line: the one validation of a mount read from a file or received from the wire. Height
+    within `MOUNT_HEIGHT_RANGE_MM`, pitch and roll within +-`MAX_MOUNT_TILT_DEG`, `noise_scale`
+    within `NOISE_SCALE_RANGE`, focal lengths that give the frame size a field of view within
+    `FIELD_OF_VIEW_RANGE_DEG`, the principal point inside the frame."""
+    _check_range("height_mm", mount.height_mm, MOUNT_HEIGHT_RANGE_MM, " mm")
+    tilt = (-MAX_MOUNT_TILT_DEG, MAX_MOUNT_TILT_DEG)
+    _check_range("pitch_deg", mount.pitch_deg, tilt, " deg")
+    _check_range("roll_deg", mount.roll_deg, tilt, " deg")
+    _check_range("noise_scale", mount.noise_scale, NOISE_SCALE_RANGE)
+    k = mount.intrinsics
+    lo, hi = FIELD_OF_VIEW_RANGE_DEG
+    for name, focal, side in (("fx", k.fx, k.width), ("fy", k.fy, k.height)):
+        fov = float(2 * np.degrees(np.arctan2(side / 2, focal)))
+        if not lo <= fov <= hi:
+            raise ValueError(
+                f"intrinsics {name} {focal:.3g} px gives {side} px a field of view of "
+                f"{fov:.3g} deg, outside {lo:g}..{hi:g} deg: not this frame size's focal length"
+            )
+    for name, centre, side in (("cx", k.cx, k.width), ("cy", k.cy, k.height)):
+        if not -0.5 <= centre <= side - 0.5:
+            raise ValueError(
+                f"intrinsics {name} {centre:.3g} px puts the principal point outside the "
+                f"{k.width}x{k.height} frame"
+            )
+    return mount
 
 
 @dataclass(frozen=True)
@@ -234,19 +295,21 @@ class TopViewMount:
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.height_mm) and self.height_mm > 0):
-            raise ValueError(f"mount height must be a positive number of mm, got {self.height_mm}")
+            raise ValueError(
+                f"mount height_mm must be a positive number of mm, got {self.height_mm:.3g}"
+            )
         for name in ("pitch_deg", "roll_deg"):
             angle = getattr(self, name)
             if not (np.isfinite(angle) and abs(angle) <= MAX_MOUNT_TILT_DEG):
                 raise ValueError(
-                    f"mount {name} must be within +-{MAX_MOUNT_TILT_DEG:g} degrees, got {angle}"
+                    f"mount {name} must be within +-{MAX_MOUNT_TILT_DEG:g} degrees, got {angle:.3g}"
                 )
         if not self.sensor:
             raise ValueError("mount sensor must be a sensor name, got an empty string")
         lo, hi = NOISE_SCALE_RANGE
         if not (np.isfinite(self.noise_scale) and lo <= self.noise_scale <= hi):
             raise ValueError(
-                f"mount noise_scale must be within {lo:g}..{hi:g}, got {self.noise_scale}"
+                f"mount noise_scale must be within {lo:g}..{hi:g}, got {self.noise_scale:.3g}"
             )
 
     # --- geometry ------------------------------------------------------------------------

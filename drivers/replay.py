@@ -117,7 +117,8 @@ class RecordingFrames:
     names it), with the same camera's truth paired by `seq` when it has one.
 
     Messages that do not decode are skipped, logged and counted in `rejected`; other
-    depth channels seen are in `others`. Frames are named `STEM_SEQ` (seq 6 digits), or
+    cameras' depth channels seen are in `others` (channels whose key no camera could have,
+    `wire.depth_key_problem`, are never read). Frames are named `STEM_SEQ` (seq 6 digits), or
     `STEM_TAG_SEQ` with a `tag` (the camera, when a recording holds several); a seq seen
     before in this channel (a driver restarted within the recording) gets `-N` for its Nth
     occurrence, so no two frames share a name. Iterating again reads the file again.
@@ -130,6 +131,7 @@ class RecordingFrames:
         self.depth_key: str | None = key
         self.rejected = 0
         self.others: set[str] = set()
+        self._bad: set[str] = set()  # depth channels whose key no camera could have
 
     def __iter__(self) -> Iterator[ReplayFrame]:
         depth_key = self.key
@@ -163,6 +165,9 @@ class RecordingFrames:
             self.rejected += info.rejected - counted
             counted = info.rejected
             kind = msg.key.rsplit("/", 1)[-1]
+            if depth_key is None and kind == "depth" and wire.depth_key_problem(msg.key):
+                self._other(msg.key, depth_key)  # no camera's key: never read
+                continue
             if depth_key is None and kind == "depth":
                 depth_key, truth_key = msg.key, _truth_of(msg.key)
                 self.depth_key = depth_key
@@ -203,9 +208,8 @@ class RecordingFrames:
                 if waiting is not None:
                     pair(waiting)
                 yield from ready()
-            elif kind == "depth" and msg.key not in self.others:
-                self.others.add(msg.key)
-                log.info("%s: also holds %s; reading %s only", self.path, msg.key, depth_key)
+            elif kind == "depth":
+                self._other(msg.key, depth_key)
         self.rejected += info.rejected - counted
         while pending:
             yield pending.popleft()
@@ -225,9 +229,24 @@ class RecordingFrames:
             truths.popitem(last=False)
         return truth.seq
 
+    def _other(self, key: str, reading: str | None) -> None:
+        """Note (once) a depth channel this reader does not read: a camera's in `others`; one
+        whose key no camera could have is logged, escaped, by a reader that picks its
+        channel itself (a replay; `input_frames` says so for a reader given its key)."""
+        problem = wire.depth_key_problem(key)
+        if problem is not None:
+            if self.key is None and key not in self._bad and len(self._bad) < MAX_EARLY_CAMERAS:
+                self._bad.add(key)
+                log.warning("%s: a depth channel not read: %s", self.path, problem)
+            return
+        if key in self.others or len(self.others) >= MAX_EARLY_CAMERAS:
+            return
+        self.others.add(key)
+        log.info("%s: also holds %s; reading %s only", self.path, key, reading)
+
     def _reject(self, key: str | None, exc: Exception) -> None:
         self.rejected += 1
-        log.warning("%s: skipped a damaged message on %s: %s", self.path, key, exc)
+        log.warning("%s: skipped a damaged message on %s: %s", self.path, wire.shown_key(key), exc)
 
 
 def _truth_of(depth_key: str) -> str:
@@ -243,6 +262,21 @@ def depth_channels(path: Path) -> dict[str, int]:
     return counts
 
 
+def camera_channels(channels: dict[str, int]) -> tuple[dict[str, int], dict[str, str]]:
+    """`depth_channels` split into the channels of cameras (keys a live camera could publish
+    on: `wire.depth_key_problem`, the checks keys on the wire get) and the others, {key:
+    why, in one line with the key escaped}: those are not read."""
+    good: dict[str, int] = {}
+    bad: dict[str, str] = {}
+    for key, count in channels.items():
+        problem = wire.depth_key_problem(key)
+        if problem is None:
+            good[key] = count
+        else:
+            bad[key] = problem
+    return good, bad
+
+
 def camera_tag(depth_key: str) -> str:
     """`topseg/<cell>/<camera>/depth` -> `<cell>-<camera>` (for file names)."""
     parts = depth_key.split("/")
@@ -250,13 +284,16 @@ def camera_tag(depth_key: str) -> str:
 
 
 def input_frames(
-    path: Path, on_recording: Callable[[RecordingFrames], None] | None = None
+    path: Path,
+    on_recording: Callable[[RecordingFrames], None] | None = None,
+    on_bad_channel: Callable[[Path, str], None] | None = None,
 ) -> Iterator[ReplayFrame]:
     """Every frame a file or folder holds, named for output files: a 16-bit PNG, a folder of
-    them, or an MCAP recording (every depth channel in turn; with more than one, names carry
-    `<cell>-<camera>`). SourceError when `path` is none of these or holds no frame.
-    `on_recording` is handed the reader of each channel once it has been read (to report
-    what it skipped)."""
+    them, or an MCAP recording (every camera's depth channel in turn; with more than one,
+    names carry `<cell>-<camera>`). SourceError when `path` is none of these or holds no
+    frame. `on_recording` is handed the reader of each channel once it has been read (to
+    report what it skipped); a channel whose key no camera could have (`camera_channels`) is
+    not read, and `on_bad_channel` is handed the file and why (else it is logged)."""
     if path.is_dir():
         pngs = png_files(path)
         if not pngs:
@@ -265,8 +302,13 @@ def input_frames(
     elif path.suffix.lower() == ".png":
         yield from png_frames([path])
     elif path.suffix.lower() == ".mcap":
-        channels = depth_channels(path)
-        if not channels:
+        channels, bad = camera_channels(depth_channels(path))
+        for why in bad.values():
+            if on_bad_channel is not None:
+                on_bad_channel(path, why)
+            else:
+                log.warning("%s: a depth channel not read: %s", path, why)
+        if not channels and not bad:
             raise SourceError(f"{path} holds no depth channel")
         count = 0
         for key in channels:
@@ -276,7 +318,7 @@ def input_frames(
                 yield frame
             if on_recording is not None:
                 on_recording(reader)
-        if not count:
+        if not count and channels:
             raise SourceError(f"{path}: no readable depth frame in this recording")
     elif not path.exists():
         raise SourceError(f"{path}: no such file or folder")

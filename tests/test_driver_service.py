@@ -23,21 +23,27 @@ N = 6
 K = KINECT_V1.scaled_to(160, 120)
 
 
-def frames_and_truth(n=N):
-    """n labelled procedural top-view frames, the same every call."""
+def frames_and_truth(n=N, mount=None):
+    """n labelled procedural top-view frames seen from `mount` (3.5 m straight down), the
+    same every call."""
     rng = np.random.default_rng(0)
-    return [procedural_frame(rng, TopViewMount(K, PAPER_MOUNT.height_mm)) for _ in range(n)]
+    mount = mount or TopViewMount(K, PAPER_MOUNT.height_mm)
+    return [procedural_frame(rng, mount) for _ in range(n)]
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    path = tmp_path_factory.mktemp("rec") / "scene.mcap"
+def write_recording(path, frames):
+    """A recording of `frames` ((depth, truth) pairs) at 50 fps, as `topseg record` writes."""
     with RecordingWriter(path) as w:
-        for i, (depth, truth) in enumerate(frames_and_truth()):
+        for i, (depth, truth) in enumerate(frames):
             t = 1_000_000_000 + i * 20_000_000  # 50 fps
             w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t)), t)
             w.write(wire.truth_key(), wire.encode_labels(wire.LabelFrame(truth, i, t)), t + 1)
     return path
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    return write_recording(tmp_path_factory.mktemp("rec") / "scene.mcap", frames_and_truth())
 
 
 class Listener:
@@ -262,6 +268,13 @@ def test_default_config_rendezvous_outlives_the_port_holder():
 TILTED = TopViewMount(K, 3120.0, 4.5, -1.25, "kinect_v1")
 
 
+@pytest.fixture(scope="module")
+def tilted_recording(tmp_path_factory):
+    """A recording of a camera hung as TILTED says (its mount file agrees with its frames)."""
+    path = tmp_path_factory.mktemp("rec") / "tilted.mcap"
+    return write_recording(path, frames_and_truth(mount=TILTED))
+
+
 def write_mount_file(path, mount):
     """A mount file as `topseg calibrate --out` writes it (its `mount` is what matters here)."""
     path.write_text(json.dumps({"topseg_mount": 1, "mount": mount.to_dict()}))
@@ -269,7 +282,7 @@ def write_mount_file(path, mount):
 
 
 def test_driver_with_a_mount_file_sends_it_with_every_frame_and_in_info(
-    listen, recording, tmp_path
+    listen, tilted_recording, tmp_path
 ):
     import msgpack
 
@@ -277,7 +290,7 @@ def test_driver_with_a_mount_file_sends_it_with_every_frame_and_in_info(
     port, cell = free_port(), "svc7"
     listener = listen(port, cell)
     proc = start_driver(
-        port, cell, "--source", f"replay:{recording}", "--loop", "--mount", str(mount_file)
+        port, cell, "--source", f"replay:{tilted_recording}", "--loop", "--mount", str(mount_file)
     )
     try:
         wait_for(lambda: len(listener.depth) >= N, what=f"{N} depth frames")
@@ -305,7 +318,9 @@ def test_a_replay_keeps_the_recorded_mounts_and_a_mount_file_overrides_them(list
     rec = tmp_path / "mounted.mcap"
     mounts = [TopViewMount(K, 2900.0 + 10 * i, 1.0, 0.5, "kinect_v1") for i in range(N)]
     with RecordingWriter(rec) as w:
-        for i, ((depth, _), m) in enumerate(zip(frames_and_truth(), mounts, strict=True)):
+        for i, ((depth, _), m) in enumerate(
+            zip(frames_and_truth(mount=TILTED), mounts, strict=True)
+        ):
             t = 1_000_000_000 + i * 20_000_000
             w.write(wire.depth_key(), wire.encode_depth(wire.DepthFrame(depth, K, i, t, "", m)), t)
     port, cell = free_port(), "svc8"

@@ -8,7 +8,8 @@ A small JSON document, versioned:
      "fit": {"residual_mm": ..., "inlier_share": ..., "frames_used": ..., "made_at": "..."}}
 
 Written atomically; read back with one `ConfigError` line for anything wrong (missing,
-unreadable, not JSON, another kind of file, a newer version, a bad mount).
+unreadable, not JSON, another kind of file, a newer version, a bad mount: one a camera cannot
+have, `camera.check_mount`, the same validation as a mount received on the wire).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import os
 from typing import Protocol
 
 from topseg.core.atomic import atomic_write
-from topseg.core.camera import TopViewMount
+from topseg.core.camera import TopViewMount, check_mount
 from topseg.core.errors import ConfigError
 
 
@@ -81,7 +82,12 @@ def read_mount_document(path: str | os.PathLike) -> dict:
     fit = data.get("fit", {})
     if not isinstance(fit, dict):
         raise ConfigError(f"{where}: 'fit' must be a table")
-    return {"mount": TopViewMount.from_dict(data["mount"], source=f"{where} [mount]"), "fit": fit}
+    mount = TopViewMount.from_dict(data["mount"], source=f"{where} [mount]")
+    try:
+        check_mount(mount)
+    except ValueError as exc:
+        raise ConfigError(f"{where} [mount]: {exc}") from None
+    return {"mount": mount, "fit": fit}
 
 
 def read_mount_file(path: str | os.PathLike) -> TopViewMount:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from topseg import __version__
 from topseg.core.errors import TopsegError
-from topseg.core.formats.wire import WireError
+from topseg.core.formats.wire import WireError, shown_key
 
 log = logging.getLogger(__name__)
 
@@ -322,7 +322,9 @@ def read_messages(
                     data = ros.message(record.channel_id, record.data, record.sequence)
                 except WireError as exc:
                     info.rejected += 1
-                    log.warning("%s: skipped a damaged message on %s: %s", path, key, exc)
+                    log.warning(
+                        "%s: skipped a damaged message on %s: %s", path, shown_key(key), exc
+                    )
                     continue
             if key is None or data is None or (wanted is not None and key not in wanted):
                 continue

@@ -49,9 +49,10 @@ from topseg.core import labels as label_table
 from topseg.core.camera import (
     KINECT_V1,
     MAX_MOUNT_TILT_DEG,
-    NOISE_SCALE_RANGE,
+    MOUNT_HEIGHT_RANGE_MM,
     Intrinsics,
     TopViewMount,
+    check_mount,
 )
 from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
@@ -98,8 +99,9 @@ _MOUNT_FIELDS = frozenset(
 )
 _MOUNT_REQUIRED = frozenset(("intrinsics", "height_mm"))
 _INTRINSICS_FIELDS = frozenset(("width", "height", "fx", "fy", "cx", "cy"))
-#: Bounds of a mount on the wire: sanity, not what a model supports (the worker judges that).
-MOUNT_HEIGHT_MM = (100.0, 50_000.0)
+#: Bounds of a mount's height on the wire: a mount file's (`camera.check_mount`), not what a
+#: model supports (the worker judges that).
+MOUNT_HEIGHT_MM = MOUNT_HEIGHT_RANGE_MM
 
 _VALID_LABEL = np.zeros(256, bool)
 _VALID_LABEL[[lab.id for lab in label_table.LABELS]] = True
@@ -332,9 +334,14 @@ def _fields(table: Any, what: str, allowed: frozenset[str], required: frozenset[
     return dict(table)
 
 
-def _intrinsics_in(name: str, msg: Mapping, w: int, h: int) -> Intrinsics:
+def _intrinsics_in(name: str, msg: Mapping, w: int, h: int, bounded: bool = True) -> Intrinsics:
+    """A frame's intrinsics (or, not `bounded`, a mount's: `check_mount` bounds those)."""
     fx, fy = _float(f"{name}fx", msg["fx"]), _float(f"{name}fy", msg["fy"])
     cx, cy = _float(f"{name}cx", msg["cx"]), _float(f"{name}cy", msg["cy"])
+    if not bounded:
+        if not (fx > 0 and fy > 0):
+            raise WireError(f"focal lengths {name}fx={fx:.3g} fy={fy:.3g} must be positive")
+        return Intrinsics(w, h, fx, fy, cx, cy)
     if not (0 < fx <= 100 * MAX_SIDE and 0 < fy <= 100 * MAX_SIDE):
         raise WireError(f"focal lengths {name}fx={fx} fy={fy} must be in (0, {100 * MAX_SIDE}]")
     if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
@@ -349,18 +356,12 @@ def check_mount_map(d: Any) -> dict:
     kd = _fields(d["intrinsics"], "mount.intrinsics", _INTRINSICS_FIELDS, _INTRINSICS_FIELDS)
     w = _int_in("mount.intrinsics.width", kd["width"], 1, MAX_SIDE)
     h = _int_in("mount.intrinsics.height", kd["height"], 1, MAX_SIDE)
-    k = _intrinsics_in("mount.intrinsics.", kd, w, h)
-    lo, hi = MOUNT_HEIGHT_MM
+    k = _intrinsics_in("mount.intrinsics.", kd, w, h, bounded=False)
     height = _float("mount.height_mm", d["height_mm"])
-    if not lo <= height <= hi:
-        raise WireError(f"mount.height_mm={height} is outside {lo:g}..{hi:g} mm")
     out: dict[str, Any] = {"intrinsics": k.to_dict(), "height_mm": height}
     for name in ("pitch_deg", "roll_deg"):
         if name in d:
-            angle = _float(f"mount.{name}", d[name])
-            if not -MAX_MOUNT_TILT_DEG <= angle <= MAX_MOUNT_TILT_DEG:
-                raise WireError(f"mount.{name}={angle} is outside +-{MAX_MOUNT_TILT_DEG:g} degrees")
-            out[name] = angle
+            out[name] = _float(f"mount.{name}", d[name])
     if "sensor" in d:
         if not isinstance(d["sensor"], str) or not _NAME.fullmatch(d["sensor"]):
             raise WireError(
@@ -368,11 +369,7 @@ def check_mount_map(d: Any) -> dict:
             )
         out["sensor"] = d["sensor"]
     if "noise_scale" in d:
-        scale = _float("mount.noise_scale", d["noise_scale"])
-        lo, hi = NOISE_SCALE_RANGE
-        if not lo <= scale <= hi:
-            raise WireError(f"mount.noise_scale={scale} is outside {lo:g}..{hi:g}")
-        out["noise_scale"] = scale
+        out["noise_scale"] = _float("mount.noise_scale", d["noise_scale"])
     if "radial" in d:
         if not isinstance(d["radial"], bool):
             raise WireError(f"mount.radial {_short(d['radial'])} must be true or false")
@@ -385,16 +382,23 @@ def check_mount_map(d: Any) -> dict:
             )
         if not d["edge_thinning"]:
             out["edge_thinning"] = False
+    _mount_of(out)  # the bounds: the one validation of a mount, a mount file's too
     return out
+
+
+def _mount_of(d: dict) -> TopViewMount:
+    """The TopViewMount of a mount map whose fields were type-checked, after `check_mount`
+    (the same bounds as a mount file's); WireError naming the first bad field."""
+    try:
+        mount = from_dict(TopViewMount, d, "mount", required=("intrinsics", "height_mm"))
+        return check_mount(mount)
+    except (TopsegError, ValueError, TypeError) as exc:
+        raise WireError(f"mount: {exc}") from None
 
 
 def mount_from_map(d: Any) -> TopViewMount:
     """A checked mount map -> TopViewMount; WireError when it is not one."""
-    d = check_mount_map(d)
-    try:
-        return from_dict(TopViewMount, d, "mount", required=("intrinsics", "height_mm"))
-    except (TopsegError, ValueError, TypeError) as exc:
-        raise WireError(f"mount: {exc}") from None
+    return _mount_of(check_mount_map(d))
 
 
 def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, int, int, str]:
@@ -637,6 +641,28 @@ def parse_key(key: str) -> KeyParts:
         )
     camera_prefix(parts[1], parts[2])  # plain names, and not the reserved pair
     return KeyParts(parts[1], parts[2], parts[3])
+
+
+_PLAIN_KEY = re.compile(r"[A-Za-z0-9_.*/-]{1,300}")
+
+
+def shown_key(key: Any) -> str:
+    """A key as logs and messages print it: itself when it holds only letters, digits and
+    '_', '.', '-', '/', '*'; else escaped (repr) and cut short, so that a key read from a file
+    or the wire never writes control characters or escape codes to a terminal."""
+    if isinstance(key, str) and _PLAIN_KEY.fullmatch(key):
+        return key
+    return _short(key, 80)
+
+
+def depth_key_problem(key: Any) -> str | None:
+    """Why `key` is no camera's depth key, in one line (the checks of `parse_key`, the key
+    escaped), or None when it is one: what keys read from a recording are held to."""
+    try:
+        parts = parse_key(key)
+    except WireError as exc:
+        return str(exc)
+    return None if parts.kind == "depth" else f"{shown_key(key)} is not a depth key"
 
 
 def instance_attachment(instance: str) -> bytes:

@@ -1,10 +1,10 @@
-"""Pre-processing: range read as depth, small holes filled, decimation, edge thinning and
-smoothing, as the frame's plan says. The CRF and the island rules read the working depth;
+"""Pre-processing: "no reading" (65535) read as no depth, range read as depth, small holes
+filled, decimation, edge thinning and smoothing, as the frame's plan says. The CRF and the island rules read the working depth;
 the model input is built from the thinned and smoothed copy."""
 
 from __future__ import annotations
 
-from topseg.core.camera import check_depth
+from topseg.core.camera import check_depth, without_no_reading
 from topseg.core.denoise import edge_table, smooth_depth
 from topseg.core.fattening import thin_edges
 from topseg.core.holes import fill_holes
@@ -14,7 +14,7 @@ from topseg.core.stages.plan import FrameState
 
 
 class PreStage(Stage):
-    """Range to depth, holes, decimation, thinning, smoothing (`FramePlan`)."""
+    """No reading, range to depth, holes, decimation, thinning, smoothing (`FramePlan`)."""
 
     name = "pre"
     counters = ("filled_holes",)
@@ -22,7 +22,7 @@ class PreStage(Stage):
     def run(self, frame: FrameState) -> None:
         """Leave `full_depth`, the working `depth` and `forest_depth` on the frame."""
         plan = frame.plan
-        depth = frame.depth
+        depth = without_no_reading(frame.depth)  # as calibration reads it: never floor
         if plan.range_mount is not None:
             depth = plan.range_mount.z_depth(depth)
         filled = 0

@@ -24,8 +24,14 @@ those of the supported sensor of that frame size. A depth model (one that reads 
 takes only frames of its own camera (size and focal length) and needs no mount.
 
 A damaged input (an unreadable or non-16-bit PNG, a frame of another camera, a file that is
-not a recording, frames whose floor cannot be found) is skipped with one line on stderr and
-the others are still segmented; the exit status is then 2. A recording cut short or with
+not a recording, frames whose floor cannot be found, a recording channel whose key no camera
+could have: the checks keys on the wire get) is skipped with one line on stderr and the
+others are still segmented; the exit status is then 2. A mount not estimated from the
+frames (`--mount`, or the one a recording carries) is checked against each camera's first
+frame with depth enough to tell (`core.calibration.check_floor`): one that disagrees (its
+floor is not where the depth shows it) labels none of that camera's frames, says so in one
+line and the exit status is 2: calibrate again, or `--estimate-mount` (or no `--mount`)
+estimates the mount from the frames instead. Readings of 65535 ("no reading") are no depth. A recording cut short or with
 damaged messages gives what it holds. The end prints the share of pixels the floor gate sent
 to background without the forest, and how many head and furniture blobs were too small to
 be what they were labelled (`--min-head-cm2`, `--min-furniture-cm2`, `--min-plant-cm2`) and how many head blobs
@@ -47,8 +53,8 @@ import numpy as np
 
 from topseg.core.atomic import atomic_write, atomic_write_all
 from topseg.core.bundled_model import MODEL_HELP
-from topseg.core.calibration import estimate_mount
-from topseg.core.camera import range_text
+from topseg.core.calibration import check_floor, estimate_mount
+from topseg.core.camera import range_text, without_no_reading
 from topseg.core.denoise import smoothing_text
 from topseg.core.errors import TopsegError
 from topseg.core.fattening import thinning_text
@@ -57,6 +63,7 @@ from topseg.core.segmenter import Segmenter
 from topseg.core.sensors import NAMES, get_sensor, sensor_of_frames
 from topseg.drivers.replay import (
     RecordingFrames,
+    camera_channels,
     depth_channels,
     input_frames,
     png_files,
@@ -84,12 +91,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", required=True, type=Path, help="folder for the label PNGs and overlays"
     )
     add_segmenter_arguments(parser)
-    parser.add_argument(
+    mounts = parser.add_mutually_exclusive_group()
+    mounts.add_argument(
         "--mount",
         type=Path,
         default=None,
         help="mount file from `topseg calibrate` (default: the frames' own, else estimated "
-        "from each input's frames)",
+        "from each input's frames); checked against each camera's frames",
+    )
+    mounts.add_argument(
+        "--estimate-mount",
+        action="store_true",
+        help="estimate each camera's mount from its frames even when a recording carries "
+        "one (for a recording whose mount disagrees with its frames)",
     )
     parser.add_argument(
         "--sensor",
@@ -141,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
     inputs = [(arg, _expand(arg)) for arg in args.inputs]
     all_sources = [s for _, sources in inputs for s in sources]
     run_ = _Run(segmenter, args.out, given, _png_names(all_sources), _count_frames(all_sources))
+    run_.estimate_all = getattr(args, "estimate_mount", False)
+    run_.given_path = args.mount
     skipped = 0
     try:
         with stop_between_steps() as run_.stop:  # Ctrl-C: stop after the frame at hand
@@ -184,6 +200,16 @@ def run(args: argparse.Namespace) -> int:
         raise TopsegError(
             f"{run_.refused} frames not written: their output names were taken (see above)"
         )
+    if run_.bad_channels:
+        raise TopsegError(
+            f"{run_.bad_channels} recording channels not read: their keys are no camera's "
+            "(see above)"
+        )
+    if run_.mount_refused:
+        raise TopsegError(
+            f"{run_.mount_refused} frames not labelled: their mount disagrees with their depth "
+            "(see above)"
+        )
     if skipped:
         raise TopsegError(
             f"{skipped} of {len(all_sources)} inputs could not be segmented (see above)"
@@ -200,7 +226,7 @@ def _segment_all(run_: _Run, inputs: list, given, sensor: str | None = None) -> 
         try:
             estimates: dict = {}
             if segmenter.reads_height and given is None:
-                estimates = _estimates(arg, sources, sensor)
+                estimates = _estimates(arg, sources, sensor, run_.estimate_all)
             for key, est in estimates.items():
                 if isinstance(est, TopsegError):  # this camera: no mount, not segmented
                     skipped += 1
@@ -242,6 +268,11 @@ class _Run:
         self.names, self.total = names, total
         self.count = 0
         self.refused = 0
+        self.mount_refused = 0  # frames whose given or carried mount disagreed with them
+        self.estimate_all = False  # --estimate-mount: a recording's own mounts not used
+        self.given_path = None  # the mount file `given` was read from
+        self.bad_channels = 0  # recording channels whose key no camera could have
+        self.verdicts: dict = {}  # (camera, mount) -> whether it agrees with its frames
         self.floor_share = 0.0
         self.counts = dict.fromkeys(segmenter.counter_names, 0)  # every stage's counters
         self._warned: set = set()
@@ -251,17 +282,23 @@ class _Run:
 
     def segment(self, arg: Path, source: Path, estimates: dict) -> None:
         """Label every frame of one source and write its PNGs (both of a frame or neither)."""
-        for frame in input_frames(source, on_recording=_report_skipped):
+        frames = input_frames(source, _report_skipped, self._bad_channel)
+        for frame in frames:
             if self.stop.is_set():
                 raise _Interrupted
             what = f"{source}" if frame.key is None else f"{source} {frame.key} seq {frame.seq}"
+            camera = f"{arg}" if frame.key is None else f"{source} {frame.key}"
             mount = None
             if self.segmenter.reads_height:
-                mount = self.given or frame.mount or estimates.get(frame.key)
+                carried = None if self.estimate_all else frame.mount
+                mount = self.given or carried or estimates.get(frame.key)
                 if isinstance(mount, TopsegError):
                     continue  # said once for the camera
                 if mount is None:
                     mount = _png_mount(frame)
+                if mount is not estimates.get(frame.key) and not self._agrees(camera, frame, mount):
+                    self.mount_refused += 1
+                    continue  # said once for the camera and mount
                 self._warn_outside(mount, frame.name)
             name = self.names.get(source, frame.name)
             if name in self.written:
@@ -273,16 +310,16 @@ class _Run:
                 )
                 continue
             result = self.segmenter.label(frame.depth, frame.intrinsics, frame.name, mount)
+            shown = without_no_reading(frame.depth)  # 65535, "no reading": black, no label
             files = {
                 self.out / f"{name}_labels.png": _png_bytes(result.labels),
-                self.out / f"{name}_overlay.png": _png_bytes(overlay(frame.depth, result.labels)),
+                self.out / f"{name}_overlay.png": _png_bytes(overlay(shown, result.labels)),
             }
             try:
                 atomic_write_all(files)
             except OSError as exc:
                 raise _WriteFailed(exc.filename or self.out, exc.strerror or str(exc)) from None
             self.written[name] = what
-            camera = f"{arg}" if frame.key is None else f"{source} {frame.key}"
             entry = self.where.setdefault(camera, [0, name, name])
             entry[0] += 1
             entry[2] = name
@@ -290,6 +327,44 @@ class _Run:
             self.floor_share += result.floor_share
             for name, n in result.counts.items():
                 self.counts[name] = self.counts.get(name, 0) + n
+
+    def _bad_channel(self, path: Path, why: str) -> None:
+        """One line for a recording channel whose key no camera could have; not read."""
+        self.bad_channels += 1
+        print(f"topseg segment: skipped a channel of {path}: {why}", file=sys.stderr)
+
+    def _agrees(self, camera: str, frame, mount) -> bool:
+        """Whether a mount not estimated from these frames (--mount, or the recording's own)
+        agrees with the camera's depth (`core.calibration.check_floor`), judged on its first
+        frame with depth enough to tell; when not, one line says so and why, and none of the
+        camera's frames is labelled with it (a floor that is not there erases people)."""
+        verdict = self.verdicts.get((camera, mount))
+        if verdict is not None:
+            return verdict
+        checked = mount
+        if frame.intrinsics is not None and frame.intrinsics != mount.intrinsics:
+            checked = replace(mount, intrinsics=frame.intrinsics)  # as the Segmenter reads it
+        try:
+            result = check_floor(frame.depth, checked)
+        except ValueError:  # not the mount's frame size: the Segmenter says so itself
+            return True
+        if result.agrees is None:
+            return True  # too little depth to tell: judged on the next frame
+        self.verdicts[(camera, mount)] = result.agrees
+        if not result.agrees:
+            whose = f"mount file {self.given_path}" if self.given else "the recording's mount"
+            hint = (
+                "calibrate the camera again (topseg calibrate) and give --mount, or leave out "
+                "--mount to estimate it from the frames"
+                if self.given
+                else "give --estimate-mount to estimate it from the frames, or --mount FILE"
+            )
+            print(
+                f"topseg segment: error: {camera}: {whose} disagrees with its frames: "
+                f"{result.reason()}; its frames are not labelled ({hint})",
+                file=sys.stderr,
+            )
+        return result.agrees
 
     def summary(self) -> None:
         """How many frames went where, per camera (a folder of PNGs is one camera)."""
@@ -331,7 +406,7 @@ def _count_frames(sources: list[Path]) -> int:
     for source in sources:
         if source.suffix.lower() == ".mcap":
             try:
-                total += sum(depth_channels(source).values())
+                total += sum(camera_channels(depth_channels(source))[0].values())
             except TopsegError:
                 pass
         elif source.suffix.lower() == ".png":
@@ -368,11 +443,13 @@ def _recording_sample(frames) -> tuple[list, object, bool]:
     return _spread(kept, ESTIMATE_FRAMES), intrinsics, all_mounted
 
 
-def _estimates(arg: Path, sources: list[Path], sensor: str | None = None) -> dict:
+def _estimates(
+    arg: Path, sources: list[Path], sensor: str | None = None, force: bool = False
+) -> dict:
     """{depth key (None for PNGs): the mount estimated from that camera's frames (printed),
-    None when its frames all carry their own, or the TopsegError saying why there is none}.
-    A folder of PNGs is one camera; each depth channel of a recording is one. TopsegError
-    when an input cannot be read at all."""
+    None when its frames all carry their own (and not `force`), or the TopsegError saying
+    why there is none}. A folder of PNGs is one camera; each camera's depth channel of a
+    recording is one. TopsegError when an input cannot be read at all."""
     if all(p.suffix.lower() == ".png" for p in sources):
         frames = [read_depth_png(p) for p in _spread(sources, ESTIMATE_FRAMES)]
         return {None: _estimate(str(arg), frames, None, False, sensor)}
@@ -381,13 +458,12 @@ def _estimates(arg: Path, sources: list[Path], sensor: str | None = None) -> dic
         if source.suffix.lower() != ".mcap":
             next(iter(input_frames(source)))  # says what is wrong with it
             continue
-        channels = depth_channels(source)
+        channels, _ = camera_channels(depth_channels(source))  # the others: said when read
         for key in channels:
             label = f"{arg}" if len(channels) == 1 else f"{arg} {key}"
+            frames, intrinsics, all_mounted = _recording_sample(RecordingFrames(source, key))
             try:
-                out[key] = _estimate(
-                    label, *_recording_sample(RecordingFrames(source, key)), sensor
-                )
+                out[key] = _estimate(label, frames, intrinsics, all_mounted and not force, sensor)
             except TopsegError as exc:
                 out[key] = exc
     return out
@@ -433,11 +509,13 @@ def _report_skipped(reader) -> None:
     if reader.rejected:
         log.warning("%s: %d damaged messages skipped", reader.path, reader.rejected)
     if reader.others:
+        from topseg.core.formats.wire import shown_key
+
         log.warning(
             "%s: segmented %s only; also holds %s",
             reader.path,
-            reader.depth_key,
-            ", ".join(sorted(reader.others)),
+            shown_key(reader.depth_key),
+            ", ".join(sorted(shown_key(key) for key in reader.others)),
         )
 
 

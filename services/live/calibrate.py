@@ -13,8 +13,11 @@ view on the floor, and writes the mount file (`topseg driver --mount FILE` reads
 picture beside it: the depth, the floor inliers over it, and the height above the floor (the
 picture needs matplotlib, which `topseg[train]` installs; without it only the mount file).
 
-It refuses with one line when the source gives no depth, no plane covers enough of the view,
-the frames disagree (the camera moved), or the camera is tilted beyond what is supported.
+It refuses with one line when the source gives no depth, its frames are not all of one
+camera, no plane covers enough of the view (also said when the frames agree but the floors
+found in them do not: a still camera that sees too little floor, or a flat surface shows
+below the plane found: a table over most of the view), the frames disagree (the camera
+moved), or the camera is tilted beyond what is supported.
 A camera that sends range along each pixel's ray instead of depth is recognised, and its
 mount says so (`radial`, docs/howto/calibrate.md). A stereo camera's edges are thinned before
 labelling (`core/fattening.py`); `--no-edge-thinning` writes a mount that says its edges are
@@ -106,6 +109,15 @@ def sensor_name(given: str | None, source: str, frame_mount) -> str:
     return SENSOR_OF_KIND.get(parse_spec(source).kind, "unknown")
 
 
+def camera_text(k, other) -> str:
+    """'640x480' (when `other` is another size), else the optics too, numbers as %.4g:
+    what tells `k` from `other` in a line."""
+    size = f"{k.width}x{k.height}"
+    if k.shape != other.shape:
+        return size
+    return f"{size} with fx {k.fx:.4g} fy {k.fy:.4g} cx {k.cx:.4g} cy {k.cy:.4g}"
+
+
 def grab(source: str, n: int) -> tuple[list, object, object, bool]:
     """Up to `n` depth frames (uint16 arrays) from the source, their intrinsics, the mount
     the first frame carries (None when the source sends none), and whether the source knows
@@ -124,7 +136,10 @@ def grab(source: str, n: int) -> tuple[list, object, object, bool]:
                     mount = getattr(depth, "mount", None)
                 elif depth.intrinsics != intrinsics:
                     raise TopsegError(
-                        f"the source changed camera mid-way ({intrinsics} -> {depth.intrinsics})"
+                        f"the frames are not all of one camera: frame 1 is "
+                        f"{camera_text(intrinsics, depth.intrinsics)}, frame {len(frames) + 1} "
+                        f"{camera_text(depth.intrinsics, intrinsics)}; calibrate from the frames "
+                        "of one camera (a folder of one size, a recording's one channel)"
                     )
                 frames.append(depth.depth)
                 bar.update(1)

@@ -21,8 +21,11 @@ answer (a host gone, until Zenoh's lease ends) is only warned about. The worker 
 `topseg status` report two drivers on one key too.
 
 `--mount FILE` (a mount file from `topseg calibrate`) puts the camera's mount on every
-depth message and in `info`; the mount's intrinsics must be for frames of the source's
-size. Without it, a mount the source knows (a recording made with one) is passed on, and
+depth message and in `info`. Before the driver joins Zenoh, the file is read and validated
+(`camera.check_mount`) and the source's first frame is read and checked against it: its
+size must be the mount's, and its depth must show the floor where the mount puts it
+(`core.calibration.check_floor`); when not, one line and exit 2. A source not there yet is
+checked at its first frame the same way. Without it, a mount the source knows (a recording made with one) is passed on, and
 the worker estimates one itself from frames that carry none.
 
 When the source fails, drops out or stalls, the driver closes it and opens it again with
@@ -50,6 +53,7 @@ import time
 import zenoh
 
 from topseg import __version__
+from topseg.core.calibration import check_floor
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.mount_file import read_mount_file
@@ -192,11 +196,80 @@ def check_mount_fits(mount, intrinsics, path: str) -> None:
         )
     if abs(m.fx - intrinsics.fx) > 0.01 * intrinsics.fx:
         log.warning(
-            "mount file %s was made with focal length %.1f px, the source says %.1f px",
+            "mount file %s was made with focal length %.4g px, the source says %.4g px",
             path,
             m.fx,
             intrinsics.fx,
         )
+
+
+def check_mount_floor(mount, depth, path: str, source: str) -> bool | None:
+    """Whether the mount file's floor agrees with a frame's depth (`check_floor`): True, or
+    None when the frame has too little depth to tell; TopsegError (one line) when they
+    disagree: the worker would label through a floor that is not there."""
+    result = check_floor(depth, mount)
+    if result.agrees is False:
+        raise TopsegError(
+            f"mount file {path} disagrees with the frames of {source}: {result.reason()}; "
+            "calibrate this camera again (topseg calibrate --source ...), or start without "
+            "--mount and the worker estimates the mount from the frames"
+        )
+    return result.agrees
+
+
+class PeekedSource:
+    """A source opened before the driver joins Zenoh, whose first frame was read to check
+    the mount file against it: the same source, with that frame first."""
+
+    def __init__(self, source, first, rest) -> None:
+        self._source, self._first, self._rest = source, first, rest
+
+    def __getattr__(self, name: str):
+        return getattr(self._source, name)
+
+    def frames(self):
+        """The frame read first, then the source's others."""
+        if self._first is not None:
+            first, self._first = self._first, None
+            yield first
+        if self._rest is not None:
+            yield from self._rest
+
+    def close(self) -> None:
+        """Close the frames and the source (once, however often called)."""
+        if self._rest is not None:
+            rest, self._rest = self._rest, None
+            rest.close()
+            self._source.close()
+
+
+def open_checked(spec, options, mount, path: str):
+    """The source opened and its first frame read, before the driver joins Zenoh, with the
+    mount file checked against them (frame size, then floor): TopsegError (one line) when
+    it does not fit. Returns (a PeekedSource or None, whether the floor check had a verdict);
+    None when the source is not there yet: the checks then come with its first frame."""
+    try:
+        source = open_source(spec, options)
+    except SourceUnavailable as exc:
+        log.info("mount file %s is checked at the first frame: %s", path, exc)
+        return None, False
+    try:
+        if source.intrinsics is not None:
+            check_mount_fits(mount, source.intrinsics, path)
+        rest = source.frames()
+        first = next(rest, None)
+        if first is None:
+            return PeekedSource(source, None, rest), False
+        check_mount_fits(mount, first.depth.intrinsics, path)
+        verdict = check_mount_floor(mount, first.depth.depth, path, str(spec))
+        return PeekedSource(source, first, rest), verdict is not None
+    except SourceUnavailable as exc:
+        source.close()
+        log.info("mount file %s is checked at the first frame: %s", path, exc)
+        return None, False
+    except BaseException:
+        source.close()
+        raise
 
 
 class OneDriverPerCamera:
@@ -323,7 +396,9 @@ class OneDriverPerCamera:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Publish the source's frames until it ends or a signal comes; 0 either way."""
+    """Publish the source's frames until it ends or a signal comes; 0 either way. A mount
+    file is read, validated and checked against the source's first frame before the driver
+    joins Zenoh (TopsegError, one line, when it does not fit)."""
     spec = parse_spec(args.source)
     mount = None if args.mount is None else read_mount(args.mount)  # fails before Zenoh
     if args.congestion == "auto":
@@ -331,6 +406,19 @@ def run(args: argparse.Namespace) -> int:
     options = SourceOptions(
         loop=args.loop, realtime=args.realtime, fps=args.fps, frame_timeout_s=args.frame_timeout
     )
+    opened, judged = None, False
+    if mount is not None:  # the mount against the source's frames, before Zenoh too
+        opened, judged = open_checked(spec, options, mount, args.mount)
+    try:
+        return _serve(args, spec, options, mount, opened, judged)
+    finally:
+        if opened is not None:
+            opened.close()
+
+
+def _serve(args, spec, options, mount, opened, judged: bool) -> int:
+    """`run` once the mount file (if any) was checked: join Zenoh and publish; `opened` is
+    the source opened for that check (its first frame not yet sent), or None."""
     keys = {
         "depth": wire.depth_key(args.cell, args.camera),
         "truth": wire.truth_key(args.cell, args.camera),
@@ -392,6 +480,10 @@ def run(args: argparse.Namespace) -> int:
             svc.ready(f"publishing {args.cell}/{args.camera} from {args.source}")
 
         def open_fn():
+            nonlocal opened
+            if opened is not None:  # the source the mount was checked against, once
+                source, opened = opened, None
+                return source
             try:
                 return open_source(spec, options)
             except SourceUnavailable as exc:  # up and retrying: ready, and say what is missing
@@ -426,6 +518,8 @@ def run(args: argparse.Namespace) -> int:
             if mount is not None and frame.depth.depth.shape != fitted:
                 check_mount_fits(mount, frame.depth.intrinsics, args.mount)
                 fitted = frame.depth.depth.shape
+            if mount is not None and not judged:  # no verdict before Zenoh: exit 2 here
+                judged = check_mount_floor(mount, frame.depth.depth, args.mount, args.source)
             frame_mount = mount if mount is not None else frame.depth.mount
             depth = dataclasses.replace(
                 frame.depth, seq=seq, frame_id=args.camera, mount=frame_mount

@@ -1,6 +1,10 @@
 """The worker's view of where each camera hangs: the frames' mount, or its own estimate.
 
-A camera whose frames carry a mount (`topseg driver --mount FILE`) is labelled with it. One
+A camera whose frames carry a mount (`topseg driver --mount FILE`) is labelled with it, once
+it agrees with their depth (`core.calibration.check_floor` on the first frames until one has
+depth enough to tell): a carried mount whose floor is not where the depth shows it (a wrong
+mount file, a recording made with one) is refused with one warning, counted in `refused`, and
+the camera is treated as one whose frames carry none, until the frames carry another. One
 whose frames carry none gets a mount estimated from its first frames
 (`core.calibration.estimate_mount` over `first_frames` of them, or what came in `first_wait_s`):
 those frames wait, unlabelled, for the estimate (labels under a guessed mount would be
@@ -29,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from topseg.core.calibration import estimate_mount
+from topseg.core.calibration import check_floor, estimate_mount
 from topseg.core.calibration import mount_difference as difference
 from topseg.core.camera import Intrinsics, TopViewMount, range_text
 from topseg.core.denoise import smoothing_text
@@ -86,6 +90,11 @@ def _estimate(frames: Sequence[np.ndarray], k: Intrinsics, sensor: str) -> Any:
     return estimate_mount(frames, k, sensor)
 
 
+def _check_floor(depth: np.ndarray, mount: TopViewMount) -> Any:
+
+    return check_floor(depth, mount)
+
+
 def warm_up() -> None:
     """Import the estimator (scikit-learn takes seconds) before the first frame needs it."""
     import sklearn.linear_model  # noqa: F401
@@ -108,12 +117,15 @@ class MountWatch:
     name: str
     config: MountWatchConfig = field(default_factory=MountWatchConfig)
     estimate: Callable[[Sequence[np.ndarray], Intrinsics, str], Any] = _estimate
+    check: Callable[[np.ndarray, TopViewMount], Any] = _check_floor
     mount: TopViewMount | None = None
     source: str | None = None  # "frame" | "estimated" | None
     moved: int = 0
     estimates: int = 0  # successful estimates
     failures: int = 0
     frame_mount: TopViewMount | None = None  # the last mount the frames carried
+    frame_verdict: bool | None = None  # whether it agrees with their depth (None: not known)
+    refused: int = 0  # mounts the frames carried that disagreed with their depth
     waiting: list = field(default_factory=list)  # frames held for the first estimate
     first_at: float | None = None
     tried: bool = False  # the first estimate was tried (later ones are re-checks)
@@ -130,13 +142,14 @@ class MountWatch:
         while len(self.recent) > self.config.recheck_frames:
             self.recent.popleft()
         if frame.mount is not None:
-            self._frame_mount(frame.mount, now)
+            self._frame_mount(frame, now)
         elif self.source == "frame" or self.frame_mount is not None:
             # the frames stopped carrying a mount: keep the last one, re-check sooner
             self.frame_mount, self.source = None, "estimated" if self.mount else None
             log.warning("camera %s: frames no longer carry a mount; estimating one", self.name)
             self.next_check = now
-        if self.mount is None and frame.mount is None and not self.tried:
+        carried = frame.mount is not None and self.frame_verdict is not False
+        if self.mount is None and not carried and not self.tried:
             self.waiting.append(frame)
             self.first_at = now if self.first_at is None else self.first_at
             if len(self.waiting) < self.config.first_frames and not self._waited(now):
@@ -186,13 +199,16 @@ class MountWatch:
 
     # -- the frames' own mount
 
-    def _frame_mount(self, mount: TopViewMount, now: float) -> None:
+    def _frame_mount(self, frame, now: float) -> None:
+        mount = frame.mount
         if mount == self.frame_mount:
-            if self.source is None:
+            if self.frame_verdict is None and self._judge(frame, now) is False:
+                return
+            if self.source is None and self.frame_verdict is not False:
                 self.mount, self.source = mount, "frame"
             return
         previous = self.frame_mount
-        self.frame_mount = mount
+        self.frame_mount, self.frame_verdict = mount, None
         if previous is None:
             log.info("camera %s: mount from the frames: %s", self.name, mount_text(mount))
         else:
@@ -207,10 +223,43 @@ class MountWatch:
             )
             if self._is_move(dh, da):
                 self.moved += 1
+        if self._judge(frame, now) is False:
+            return
         self.mount, self.source = mount, "frame"
         self.waiting, self.first_at = [], None
         if self.next_check is None:
             self._schedule(now, True)
+
+    def _judge(self, frame, now: float) -> bool | None:
+        """Check the frames' mount against this frame's depth (`core.calibration.check_floor`)
+        and note the verdict. A mount that disagrees is refused: said in one warning, counted
+        in `refused`, and the mount estimated from the frames as for frames that carry none
+        (the estimate in use is kept meanwhile, re-checked at once). None: no verdict yet
+        (too little depth), the mount is used and checked again on the next frame."""
+        mount = frame.mount
+        if frame.intrinsics is not None and frame.intrinsics != mount.intrinsics:
+            mount = replace(mount, intrinsics=frame.intrinsics)  # as the Segmenter reads it
+        try:
+            result = self.check(frame.depth, mount)
+        except ValueError:  # not this camera's size: the Segmenter refuses the frame itself
+            return None
+        self.frame_verdict = result.agrees
+        if result.agrees is not False:
+            return result.agrees
+        self.refused += 1
+        log.warning(
+            "camera %s: the frames' mount disagrees with their depth: %s; estimating the mount "
+            "from the frames instead (calibrate the camera again: topseg calibrate)",
+            self.name,
+            result.reason(),
+        )
+        if self.source == "frame":  # a mount in use from earlier frames: not any more
+            self.mount, self.source = None, None
+        if self.mount is None:
+            self.tried = False  # the frames wait for a first estimate, as without a mount
+        else:
+            self.next_check = now
+        return False
 
     # -- re-checks
 
