@@ -13,11 +13,11 @@ $(STAMP): pyproject.toml scripts/install.sh
 	bash scripts/install.sh
 	touch $(STAMP)
 
-## the whole test suite but the slow soaks (< 25 min on 2 cores)
+## the whole test suite but the slow soaks, two processes (~8 min of pytest on 2 cores)
 test: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	$(PYTEST) -m "not slow" -q
+	$(PYTEST) -m "not slow" -q -n 2
 
 ## everything, slow suites included
 test-all: install

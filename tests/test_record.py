@@ -14,7 +14,7 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from netutil import free_port
+from netutil import free_port, wait_for
 from rosbags.highlevel import AnyReader
 
 from topseg.core.camera import KINECT_V1, TopViewMount
@@ -99,8 +99,9 @@ def test_msgpack_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_pa
         pub.wait_matched([k for k, _ in [*msgs, stats]])
         for key, data in [*msgs, stats, junk]:
             pub.pub(key).put(data)
-        time.sleep(0.5)
-        assert not out.exists()  # still recording, under a temporary name
+        # still recording, under a temporary name beside the final one
+        wait_for(lambda: any(p != out for p in tmp_path.iterdir()), 20, "the temporary file")
+        assert not out.exists()
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=20)
     finally:

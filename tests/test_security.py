@@ -20,8 +20,6 @@ from netutil import Service, free_port, wait_for
 ROOT = Path(__file__).resolve().parent.parent
 ZENOH_DIR = ROOT / "deploy" / "zenoh"
 MAKE_CERTS = ROOT / "deploy" / "make-certs.sh"
-#: After the positive control arrived, how long a forbidden message gets to show up anyway.
-SETTLE_S = 0.5
 
 
 class Secure:
@@ -102,6 +100,28 @@ def keep_putting(session, key: str, payload: bytes, until, what: str) -> None:
     wait_for(put_and_check, 10, what)
 
 
+def answered_liveliness(session, selector: str) -> bool:
+    """Whether a liveliness query from `session` is answered at all (an empty answer too):
+    the router has taken what `session` declared before it."""
+    list(session.liveliness().get(selector, timeout=1.0))
+    return True
+
+
+def answered(session, selector: str) -> bool:
+    """Whether a query from `session` gets an answer."""
+    return any(r.ok is not None for r in session.get(selector, timeout=1.0))
+
+
+def flushed(sender, receiver, key: str) -> None:
+    """Return once everything `sender` put or declared before has reached `receiver` (or was
+    dropped by the router): a sentinel from the same session on `key`, which `receiver` may
+    subscribe to, arrives after them, since one session's messages keep their order through
+    the router. A positive signal, instead of a sleep, that a forged message did not come."""
+    sentinel = f"sentinel {time.monotonic_ns()}".encode()
+    arrived = collect(receiver, key)
+    keep_putting(sender, key, sentinel, lambda: sentinel in arrived, f"a sentinel on {key}")
+
+
 # ---------------------------------------------------------------------------- who connects
 
 
@@ -155,10 +175,10 @@ def assert_gets_nothing(secure, outsider, camera: str) -> None:
     driver, viewer = secure.client("driver"), secure.client("viewer")
     token = driver.liveliness().declare_token(f"topseg/c/{camera}/alive/driver/d1")
     seen = collect(viewer, key)
-    keep_putting(driver, key, b"depth", lambda: len(seen) >= 3, "depth at the real viewer")
-    time.sleep(SETTLE_S)
-    assert stolen == []
+    # the outsider reaches no router, so nothing can reach it; the real viewer got depth
     assert not any(True for _ in outsider.info.routers_zid())
+    keep_putting(driver, key, b"depth", lambda: len(seen) >= 3, "depth at the real viewer")
+    assert stolen == []
     assert [r for r in outsider.liveliness().get("topseg/**", timeout=0.5) if r.ok] == []
     token.undeclare()
 
@@ -177,11 +197,11 @@ def test_driver_publishes_depth_and_truth_that_worker_and_viewer_receive(secure)
 def test_driver_cannot_publish_labels(secure):
     driver, worker, viewer = (secure.client(r) for r in ("driver", "worker", "viewer"))
     labels = collect(viewer, "topseg/*/*/labels")
+    keep_putting(worker, "topseg/c/d2/labels", b"real", lambda: b"real" in labels, "labels")
     for _ in range(5):
         driver.put("topseg/c/d2/labels", b"forged by the driver")
         driver.put("topseg/c/d2/stats", b"forged by the driver")
-    keep_putting(worker, "topseg/c/d2/labels", b"real", lambda: b"real" in labels, "labels")
-    time.sleep(SETTLE_S)
+    flushed(driver, viewer, "topseg/c/d2/depth")
     assert set(labels) == {b"real"}
 
 
@@ -194,7 +214,16 @@ def test_driver_cannot_subscribe_to_labels_or_depth(secure):
     other_driver = secure.client("driver")  # another camera's driver
     keep_putting(worker, "topseg/c/d3/labels", b"l", lambda: len(labels) >= 3, "labels")
     keep_putting(other_driver, "topseg/c/d3/depth", b"d", lambda: len(depth) >= 3, "depth")
-    time.sleep(SETTLE_S)
+    # had the router let the spies subscribe, these would have been routed to the driver
+    # too; a token the driver watches, declared after them, arrives after them
+    tokens: list = []
+    driver.liveliness().declare_subscriber(
+        "topseg/c/d3/alive/**", lambda sample: tokens.append(str(sample.key_expr))
+    )
+    wait_for(lambda: answered_liveliness(driver, "topseg/c/d3/alive/**"), 10, "its watch")
+    token = worker.liveliness().declare_token("topseg/c/d3/alive/worker/w3")
+    wait_for(lambda: "topseg/c/d3/alive/worker/w3" in tokens, 10, "the worker's token")
+    token.undeclare()
     assert spied_labels == [] and spied_depth == []
 
 
@@ -202,24 +231,39 @@ def test_worker_publishes_labels_and_stats_but_not_depth(secure):
     worker, viewer, other_worker = (secure.client(r) for r in ("worker", "viewer", "worker"))
     labels, stats = collect(viewer, "topseg/*/*/labels"), collect(viewer, "topseg/*/*/stats")
     depth = collect(other_worker, "topseg/*/*/depth")
+    flushed(secure.client("driver"), other_worker, "topseg/c/w0/depth")  # its depth route is up
     for _ in range(5):
         worker.put("topseg/c/w1/depth", b"forged by a worker")
     keep_putting(worker, "topseg/c/w1/labels", b"l", lambda: len(labels) >= 3, "labels")
     keep_putting(worker, "topseg/c/w1/stats", b"s", lambda: len(stats) >= 3, "stats")
-    time.sleep(SETTLE_S)
-    assert depth == []
+    flushed(worker, viewer, "topseg/c/w1/labels")  # the router has taken the forged puts
+    flushed(secure.client("driver"), other_worker, "topseg/c/w2/depth")  # and delivered them
+    assert [d for d in depth if d.startswith(b"forged")] == []
 
 
 def test_viewer_can_only_listen(secure):
     viewer, worker, viewer2 = (secure.client(r) for r in ("viewer", "worker", "viewer"))
     depth = collect(worker, "topseg/*/*/depth")
     labels = collect(viewer2, "topseg/*/*/labels")
+    flushed(secure.client("driver"), worker, "topseg/c/v0/depth")  # the worker's depth route
+    keep_putting(worker, "topseg/c/v1/labels", b"real", lambda: b"real" in labels, "labels")
     for _ in range(5):
         viewer.put("topseg/c/v1/depth", b"forged by a viewer")
         viewer.put("topseg/c/v1/labels", b"forged by a viewer")
-    keep_putting(worker, "topseg/c/v1/labels", b"real", lambda: b"real" in labels, "labels")
-    time.sleep(SETTLE_S)
-    assert depth == [] and set(labels) == {b"real"}
+    # a viewer may put nothing, but may ask a driver's info: the answer proves the router has
+    # taken the forged puts before the question; a driver's sentinel, routed after them,
+    # then proves that whatever they were routed to has arrived
+    driver = secure.client("driver")
+    info = driver.declare_queryable("topseg/c/v1/info", lambda q: q.reply(q.key_expr, b"{}"))
+    wait_for(lambda: answered(viewer, "topseg/c/v1/info"), 10, "the driver's info")
+    info.undeclare()
+    depth_at_viewer2 = collect(viewer2, "topseg/c/v1/depth")
+    sentinel = b"sentinel"
+    keep_putting(
+        driver, "topseg/c/v1/depth", sentinel,
+        lambda: sentinel in depth and sentinel in depth_at_viewer2, "the driver's sentinel",
+    )  # fmt: skip
+    assert [d for d in depth if d.startswith(b"forged")] == [] and set(labels) == {b"real"}
 
 
 def test_roles_hold_only_their_own_liveliness_tokens(secure):
@@ -244,7 +288,8 @@ def test_roles_hold_only_their_own_liveliness_tokens(secure):
         "topseg/_any/_any/alive/worker/w1",
     }
     wait_for(lambda: expected <= alive(), 10, "the real tokens")
-    time.sleep(SETTLE_S)
+    for session in (driver, worker, viewer):  # the router has taken every token declared
+        answered_liveliness(session, "topseg/**")
     assert {k for k in alive() if "/t" in k or "/_any/" in k} == expected
     # a driver and a worker see the tokens too: one camera, one driver, one worker
     for role in ("driver", "worker"):
@@ -319,7 +364,9 @@ def test_no_role_sends_anything_for_the_reserved_any_camera(secure):
         return {str(r.ok.key_expr) for r in replies if r.ok is not None}
 
     wait_for(lambda: "topseg/_any/_any/alive/worker/w9" in alive(), 10, "the worker's token")
-    time.sleep(SETTLE_S)
+    answered_liveliness(driver, "topseg/**")  # the router has taken the driver's forged token
+    # each real message came from the forging session to the same receiver after the forged
+    # ones: had the router let one through, it would have arrived first
     assert forged not in depth + truth + labels + stats
     assert alive() == {"topseg/_any/_any/alive/worker/w9"}
     token.undeclare()
