@@ -131,6 +131,8 @@ class Segmenter:
         else:
             self.reader = DepthReader(self.camera, self.header)
         self.stages = build_stages(StageModel(forest, self.reader, config))
+        # the stages whose time is the CRF's headline share; the rest (and the plan) the forest's
+        self._crf_share = {stage.name for stage in self.stages if stage.share == CRFS_SHARE}
 
     @property
     def reads_height(self) -> bool:
@@ -210,9 +212,8 @@ class Segmenter:
         frame = FrameState(self.plan(depth, intrinsics, name, mount), depth)
         stages_ms = {"plan": 1000.0 * (time.perf_counter() - t0)}
         stages_ms.update(self.run(frame))
-        shares = {stage.name: stage.share for stage in self.stages}
-        forest_ms = sum(ms for s, ms in stages_ms.items() if shares.get(s) != CRFS_SHARE)
-        crf_ms = sum(ms for s, ms in stages_ms.items() if shares.get(s) == CRFS_SHARE)
+        crf_ms = sum(ms for s, ms in stages_ms.items() if s in self._crf_share)
+        forest_ms = sum(stages_ms.values()) - crf_ms
         return Segmentation(
             frame.labels,
             Timings(forest_ms, crf_ms, forest_ms + crf_ms, stages_ms),
