@@ -84,7 +84,6 @@ class SyntheticSource(Source):
     finite = False
 
     def __init__(self, arg: str | None, options: SourceOptions) -> None:
-
         try:
             config = synthesis_config(parse_options(arg))
         except SourceError:

@@ -428,7 +428,6 @@ class FrameWriter:
     """
 
     def __init__(self, path: str | os.PathLike):
-
         self.path = Path(path)
         group, attrs = _open_group(self.path, "r+")
         arrays = _open_arrays(group, self.path, attrs)

@@ -53,7 +53,6 @@ SENSOR_NOISE = "sensor"
 
 
 def _all_sensors() -> tuple[str, ...]:
-
     return tuple(NAMES)
 
 
@@ -68,7 +67,6 @@ class MountDistribution:
     sensors: tuple[str, ...] = field(default_factory=_all_sensors)
 
     def __post_init__(self) -> None:
-
         self.height_m = tuple(float(v) for v in self.height_m)
         self.sensors = tuple(str(v) for v in self.sensors)
         lo, hi = self.height_m

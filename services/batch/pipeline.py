@@ -103,7 +103,6 @@ class _Collector:
             self.frames_sent += 1
 
     def on_truth(self, sample) -> None:
-
         try:
             frame = wire.decode_labels(sample.payload.to_bytes())
         except wire.WireError:
@@ -114,7 +113,6 @@ class _Collector:
                 self.truth[_camera_of(sample), frame.seq] = frame.labels
 
     def on_labels(self, sample) -> None:
-
         now_ns, now_s = time.time_ns(), time.monotonic()
         try:
             frame = wire.decode_labels(sample.payload.to_bytes())
@@ -132,7 +130,6 @@ class _Collector:
                 self.labels[_camera_of(sample), frame.seq] = frame.labels
 
     def on_stats(self, sample) -> None:
-
         try:
             stats = wire.decode_stats(sample.payload.to_bytes())
         except wire.WireError:

@@ -118,7 +118,6 @@ class TrainJob:
     serial: bool = False
 
     def __post_init__(self) -> None:
-
         if not 0.0 <= self.validation < 1.0:
             raise ConfigError(f"--validation must be in [0, 1), got {self.validation}")
         if self.max_validation_frames < 0:

@@ -132,7 +132,6 @@ class Ros2Publisher:
     sequence numbers."""
 
     def __init__(self, session: Any, node, entity_id: int, topic: str, typename: str, qos) -> None:
-
         self.topic = topic
         self.key = rz.topic_key(node.domain, topic, typename)
         self.token_key = node.publisher_token(entity_id, topic, typename, qos)

@@ -128,7 +128,6 @@ class DriverState:
     """What the `info` queryable reports; updated by the publishing loop."""
 
     def __init__(self, args: argparse.Namespace, keys: dict[str, str]) -> None:
-
         self.lock = threading.Lock()
         self.info = {
             "role": "driver",
@@ -290,7 +289,6 @@ class OneDriverPerCamera:
     RECHECK_MAX_S = 30.0
 
     def __init__(self, session, args: argparse.Namespace, me, state: DriverState) -> None:
-
         self.session, self.args, self.me, self.state = session, args, me, state
         self.token = wire.alive_key(args.cell, args.camera, "driver")
         self.lock = threading.Lock()
@@ -304,7 +302,6 @@ class OneDriverPerCamera:
         )
 
     def _on_token(self, sample) -> None:
-
         try:
             parts = wire.parse_key(str(sample.key_expr))
         except wire.WireError:

@@ -76,7 +76,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> list[str]:
-
     if args.duration is not None and args.duration <= 0:
         raise TopsegError(f"--duration must be positive, got {args.duration}")
     if args.count is not None and args.count <= 0:

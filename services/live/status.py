@@ -420,7 +420,6 @@ def format_table(rep: dict) -> str:
 
 
 def _camera_of(key: str) -> tuple[str, str] | None:
-
     try:
         parts = wire.parse_key(key)
     except wire.WireError:
@@ -441,7 +440,6 @@ class Replies:
     GRACE_S = 0.5
 
     def __init__(self, get, key: str, timeout: float) -> None:
-
         self.lock = threading.Lock()
         self.items: list = []  # (monotonic, reply) of the ok replies
         self.done = threading.Event()
@@ -487,7 +485,6 @@ class Listener:
         self._subs.append(session.declare_subscriber(f"topseg/{cell}/*/stats", self._on_stats))
 
     def _on_token(self, sample) -> None:
-
         try:
             parts = wire.parse_key(str(sample.key_expr))
         except wire.WireError:
@@ -501,7 +498,6 @@ class Listener:
                 self.tokens.add(entry)
 
     def _on_stats(self, sample) -> None:
-
         camera = _camera_of(str(sample.key_expr))
         if camera is None:
             return
@@ -602,7 +598,6 @@ class Listener:
 
 
 def _expected(entries: list[str]) -> list[tuple[str, str]]:
-
     return [parse_camera(e) for e in entries]
 
 

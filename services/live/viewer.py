@@ -198,7 +198,6 @@ class Viewer:
     """Decodes topseg messages, pairs depth with labels and hands both to the sinks."""
 
     def __init__(self, sinks: list, stride: int) -> None:
-
         self.sinks, self.stride = sinks, stride
         #: the kinds the viewer subscribes to, and their decoders
         self.decoders = {

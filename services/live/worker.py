@@ -301,7 +301,6 @@ class Worker:
     """
 
     def __init__(self, args: argparse.Namespace, session, segmenter: Segmenter) -> None:
-
         self.args, self.session, self.segmenter = args, session, segmenter
         self.me = identity.Identity.of(session)
         self.attachment = wire.instance_attachment(self.me.instance)

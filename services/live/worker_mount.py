@@ -86,12 +86,10 @@ def mount_text(m: TopViewMount) -> str:
 
 
 def _estimate(frames: Sequence[np.ndarray], k: Intrinsics, sensor: str) -> Any:
-
     return estimate_mount(frames, k, sensor)
 
 
 def _check_floor(depth: np.ndarray, mount: TopViewMount) -> Any:
-
     return check_floor(depth, mount)
 
 
@@ -332,7 +330,6 @@ class MountWatch:
             self.next_check = None if every <= 0 else now + every
 
     def _try_estimate(self, depths: list, k: Intrinsics, what: str):
-
         guessed = nearest_sensor(k.width, k.height, k.fx).name
         sensor = self.config.sensor or (self.mount.sensor if self.mount else guessed)
         t0 = time.perf_counter()

@@ -64,7 +64,6 @@ def replay_source(config: dict, seed: int):
 
 
 def _run(root: Path, name: str, generator: dict, frames: int, client, chunk: int) -> dict:
-
     attrs = make_attrs(
         seed=0,
         mode=generator["config"].get("mode", "modeled"),

@@ -86,7 +86,6 @@ class TreeSampler:
     """Sample the resident memory and CPU time of a process and all its descendants."""
 
     def __init__(self, pid: int, period: float):
-
         self.root = psutil.Process(pid)
         self.period = period
         self.peak_total = 0  # bytes

@@ -113,7 +113,6 @@ def mount_summary(generator: dict) -> dict | None:
 
 class _Synthesis:
     def __init__(self, config: dict, seed: int):
-
         self._synth = Synthesizer(SynthesisConfig.from_dict(config))
         self._seed = seed
 

@@ -418,5 +418,4 @@ def _write(path: Path, text: str) -> None:
 
 
 def _atomic(path: Path):
-
     return atomic_write(path)

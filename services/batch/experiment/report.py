@@ -243,7 +243,6 @@ def _save(fig, path: Path, plt) -> None:
 
 
 def _write_text(path: Path, text: str) -> None:
-
     with atomic_write(path) as f:
         f.write(text.encode())
 
