@@ -387,6 +387,8 @@ def test_a_silent_camera_leaves_the_ros_graph_and_frees_its_place(run, sessions)
     wait_for(lambda: topics() == {"/tf_static"}, 30, "camera a released")
     put("b", 2)  # the one place under --max-cameras 1 is free again
     wait_for(lambda: ros2.ros2_topic(cell, "b", "depth") in topics(), 60, "camera b's topics")
+    # its transform comes on /tf_static, which may arrive after its topics' tokens
+    wait_for(lambda: len(ros.on("/tf_static", ros2.TF_MESSAGE)) >= 3, 30, "b's transform")
     tf = [decode(ros2.TF_MESSAGE, p) for p, _ in ros.on("/tf_static", ros2.TF_MESSAGE)]
     assert [[t.child_frame_id for t in m.transforms] for m in tf[:3]] == [
         [ros2.optical_frame(cell, "a")],
