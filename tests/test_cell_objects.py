@@ -13,10 +13,10 @@ import pytest
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, Intrinsics, TopViewMount
 from topseg.core.synth import cell_objects, furniture
-from topseg.core.synth.geometry import BOX, aabb, quat_to_matrix
+from topseg.core.synth.geometry import BOX, MAX_PARTS, Part, aabb, quat_to_matrix
 from topseg.core.synth.render import Primitives, raycast_m
 from topseg.core.synth.scene import PlacedObject, Scene
-from topseg.core.synth.scene_builder import SceneBuilder
+from topseg.core.synth.scene_builder import SceneBuilder, _create_compound
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
 OBJECT = 12  # labels.OBJECT once the label table has it
@@ -90,6 +90,7 @@ def test_every_variant_renders_with_its_top_at_its_height(kind):
         # nothing above the height; round tops are met within a pixel of their apex
         assert z.min() >= cam_m - m.height - 1e-9, (kind, m.variant, m.height)
         assert z.min() <= cam_m - m.height + 2e-3, (kind, m.variant, m.height)
+        assert len(m.parts) <= MAX_PARTS, (kind, m.variant, m.height)
         lows = [aabb(p.kind, p.size, np.asarray(p.pos), quat_to_matrix(p.quat))[0] for p in m.parts]
         assert min(lo[2] for lo in lows) >= -1e-9  # nothing under the floor
 
@@ -227,5 +228,41 @@ def test_warming_up_skips_a_class_given_no_height_range():
         builder.warm(paper, (1.7, 1.7))
         pooled = {kind for kind, _, _ in builder._furniture}
         assert pooled == set(PAPER_KINDS)
+    finally:
+        p.disconnect(client)
+
+
+def test_the_pooled_pybullet_bodies_carry_every_part_of_every_kind():
+    """What the renderer reads back from pybullet is the model, part for part."""
+    import pybullet as p
+
+    client = p.connect(p.DIRECT)
+    try:
+        builder = SceneBuilder(client)
+        for kind in cell_objects.KINDS:
+            for m in _models(kind):
+                variant = m.variant
+                o = PlacedObject(0, kind, variant, m.height, 0, 0)
+                body = builder.build(Scene("modeled", "industrial_workspace", (-9, -9), (9, 9), 0, 0, [o]))[-1]  # fmt: skip
+                read = builder.primitives([body])
+                want = _primitives(m)
+                assert len(read) == len(m.parts), (kind, variant)
+                assert np.array_equal(read.kind, want.kind[1:]) and np.all(read.label == OBJECT)
+                np.testing.assert_allclose(read.size, want.size[1:], atol=1e-6)
+                np.testing.assert_allclose(read.center, want.center[1:], atol=1e-6)
+                np.testing.assert_allclose(read.rot, want.rot[1:], atol=1e-6)
+    finally:
+        p.disconnect(client)
+
+
+def test_an_item_with_more_parts_than_pybullet_keeps_is_refused():
+    import pybullet as p
+
+    client = p.connect(p.DIRECT)
+    try:
+        cubes = [Part(BOX, (0.05, 0.05, 0.05), (0.2 * i, 0.0, 0.05)) for i in range(MAX_PARTS + 1)]
+        assert len(_create_compound(client, cubes[:MAX_PARTS], OBJECT).kind) == MAX_PARTS
+        with pytest.raises(ValueError, match=f"at most {MAX_PARTS} parts"):
+            _create_compound(client, cubes, OBJECT)
     finally:
         p.disconnect(client)

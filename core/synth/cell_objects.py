@@ -25,6 +25,7 @@ import numpy as np
 from topseg.core.synth.geometry import (
     BOX,
     CYLINDER,
+    MAX_PARTS,
     SPHERE,
     Part,
     aabb,
@@ -118,8 +119,8 @@ def _open_box(cx, cy, z0, z1, sx, sy, wall: float, floor: float) -> list[Part]:
     return parts
 
 
-def _ring(cx, cy, z0, z1, r_out: float, thickness: float, n: int = 24) -> list[Part]:
-    """A vertical ring (a drum's rim, a valve guard) of `n` boxes inside radius `r_out`."""
+def _ring(cx, cy, z0, z1, r_out: float, thickness: float, n: int) -> list[Part]:
+    """A vertical ring (a valve guard) of `n` boxes, a polygon inside radius `r_out`."""
     half_len = r_out * np.tan(np.pi / n)
     rc = float(np.sqrt(r_out**2 - half_len**2)) - thickness / 2.0
     parts = []
@@ -271,17 +272,20 @@ _DRUM_RADII = (0.286, 0.29, 0.28, 0.30)
 
 
 def _drum_parts(cx: float, cy: float, z0: float, h: float, r: float, style: int) -> list[Part]:
-    """A drum of radius `r` standing at height z0, its top at `h`: 0 steel with a rim and
-    hoops, 1 plastic with a domed top, 2 open-head with a clamp ring, 3 steel with a funnel."""
+    """A drum of radius `r` standing at height z0, its top at `h`: 0 steel with a chime and
+    hoops and a bung on its lid, 1 plastic with a domed top, 2 open-head with a clamp ring,
+    3 steel with a funnel in its bung."""
     body_top = h - 0.16 if style == 3 else h
     parts: list[Part] = []
     if style in (0, 3):
-        parts.append(_cyl(cx, cy, z0, body_top - 0.015, r - 0.004))
-        parts += _ring(cx, cy, body_top - 0.03, body_top, r, 0.012)
+        lid = body_top - 0.005 if style == 0 else body_top
+        parts.append(_cyl(cx, cy, z0, lid - 0.02, r - 0.004))
+        parts.append(_cyl(cx, cy, lid - 0.02, lid, r))  # the chime round the lid
         for f in (1 / 3, 2 / 3):
-            zf = z0 + f * (body_top - z0)
+            zf = z0 + f * (lid - z0)
             parts.append(_cyl(cx, cy, zf - 0.01, zf + 0.01, r))
-        parts.append(_cyl(cx + 0.6 * r, cy, body_top - 0.015, body_top - 0.005, 0.03))
+    if style == 0:
+        parts.append(_cyl(cx + 0.6 * r, cy, h - 0.005, h, 0.03))
     if style == 1:
         dome = r - 0.03
         parts.append(_cyl(cx, cy, z0, h - 0.08, r))
@@ -330,7 +334,7 @@ def _gas_cylinder(v: int, h: float) -> CellShape:
     elif v == 2:
         parts.append(_cyl(0, 0, 0, 0.08, r))  # foot ring
         parts.append(_block(0, 0, apex - 0.01, h - 0.04, 0.05, 0.04))
-        parts += _ring(0, 0, apex - 0.03, h, 0.085, 0.008, n=16)
+        parts += _ring(0, 0, apex - 0.03, h, 0.085, 0.008, n=8)
     else:
         parts.append(_cyl(0, 0, apex - 0.01, apex + 0.03, 0.035))
         parts.append(_cyl(0, 0, apex + 0.03, h - 0.06, 0.06))
@@ -386,7 +390,7 @@ _SHELF_CARTS = ((0.80, 0.50), (1.00, 0.60), (0.70, 0.45), (1.20, 0.70))
 
 def _shelf_cart(v: int, h: float) -> CellShape:
     """Transport cart on casters with two or three shelves: with a push handle (and a box on
-    its top shelf), or with corner posts up to a flat top shelf or to a tray's lip."""
+    its top shelf), or with corner posts up to a flat top shelf or to the top tray's lip."""
     sx, sy = _SHELF_CARTS[v]
     n = 2 + v % 2
     handle = v in (0, 1)
@@ -396,22 +400,13 @@ def _shelf_cart(v: int, h: float) -> CellShape:
     for ix in (-1, 1):
         for iy in (-1, 1):
             x, y = ix * (sx / 2 - 0.06), iy * (sy / 2 - 0.06)
-            parts.append(_rod((x - 0.015, y, 0.05), (x + 0.015, y, 0.05), 0.05))
-            parts.append(_block(x, y, 0.09, 0.13, 0.04, 0.04))
-            parts.append(
-                _block(
-                    ix * (sx / 2 - 0.0125),
-                    iy * (sy / 2 - 0.0125),
-                    0.13,
-                    top_shelf + lip,
-                    0.025,
-                    0.025,
-                )
-            )
+            parts.append(_rod((x - 0.015, y, 0.05), (x + 0.015, y, 0.05), 0.05))  # caster
+            x, y = ix * (sx / 2 - 0.0125), iy * (sy / 2 - 0.0125)
+            parts.append(_block(x, y, 0.1, top_shelf + lip, 0.025, 0.025))
     for z in np.linspace(0.2, top_shelf, n):
         parts.append(_block(0, 0, z - 0.025, z, sx, sy))
-        if lip:
-            parts += _open_box(0, 0, z, z + lip, sx, sy, 0.01, 0.0)
+    if lip:  # a tray's lip round the top shelf
+        parts += _open_box(0, 0, top_shelf, h, sx, sy, 0.01, 0.0)
     if handle:
         parts += _push_handle(-sx / 2 + 0.015, sy / 2 - 0.05, top_shelf, h)
     if v == 1:
@@ -425,20 +420,16 @@ _BOARD = 0.022
 
 
 def _pallet_parts(sx: float, sy: float, h: float, plastic: bool, deck_boards: int) -> list[Part]:
-    """A pallet `sx` by `sy`, `h` tall: wooden (bottom boards, nine blocks, stringers, deck
-    boards) or plastic (a solid deck on nine feet and three runners)."""
+    """A pallet `sx` by `sy`, `h` tall: wooden (three bottom boards, three rows of blocks
+    under `deck_boards` deck boards, or one solid deck when that is 0) or plastic (a solid
+    deck on three rows of feet and three runners)."""
     cols_x = (-sx / 2 + 0.0725, 0.0, sx / 2 - 0.0725)
     rows_y = (-sy / 2 + 0.0725, 0.0, sy / 2 - 0.0725)
-    parts: list[Part] = []
-    if plastic:
-        parts.append(_block(0, 0, h - 0.035, h, sx, sy))
-        parts += [_block(0, y, 0, 0.02, sx, 0.145) for y in rows_y]
-        parts += [_block(x, y, 0.02, h - 0.035, 0.145, 0.145) for x in cols_x for y in rows_y]
-        return parts
-    t = _BOARD
-    parts += [_block(0, y, 0, t, sx, 0.145) for y in rows_y]
-    parts += [_block(x, y, t, h - 2 * t, 0.145, 0.12) for x in cols_x for y in rows_y]
-    parts += [_block(x, 0, h - 2 * t, h - t, 0.145, sy) for x in cols_x]
+    t = 0.035 if plastic else _BOARD
+    parts = [_block(0, y, 0, 0.02 if plastic else t, sx, 0.145) for y in rows_y]
+    parts += [_block(x, 0, parts[0].top_z(), h - t, 0.145, sy) for x in cols_x]
+    if plastic or deck_boards == 0:
+        return [*parts, _block(0, 0, h - t, h, sx, sy)]
     ys = np.linspace(-sy / 2 + 0.0725, sy / 2 - 0.0725, deck_boards)
     for k, y in enumerate(ys):
         w = 0.145 if k in (0, deck_boards - 1, deck_boards // 2) else 0.10
@@ -455,54 +446,61 @@ def _pallet(v: int, h: float) -> CellShape:
 _LOADED_PALLET_H = 0.144
 
 
+def _cartons(hp: float, h: float) -> list[Part]:
+    """Layers of 0.4 m cartons on a Euro pallet (a full layer reads as one block); the top
+    layer is two cartons only."""
+    layers = max(1, round((h - hp) / 0.25))
+    lh = (h - hp) / layers
+    parts = [_block(0, 0, hp + k * lh, hp + (k + 1) * lh, 1.19, 0.79) for k in range(layers - 1)]
+    top = hp + (layers - 1) * lh
+    parts += [_block(x, -0.2, top, h, 0.395, 0.395) for x in (-0.4, 0.0)]
+    return parts
+
+
+def _ibc(sx: float, sy: float, hp: float, h: float) -> list[Part]:
+    """An IBC: the tank in its cage (corner posts, top bars), the filler cap on top."""
+    top = h - 0.06
+    hx, hy = sx / 2 - 0.015, sy / 2 - 0.015
+    parts = [_block(0, 0, hp, top, sx - 0.06, sy - 0.06), _cyl(0, 0, top, h, 0.075)]
+    for ix in (-1, 1):
+        for iy in (-1, 1):
+            parts.append(_rod((ix * hx, iy * hy, hp), (ix * hx, iy * hy, top + 0.01), 0.012))
+    parts += [_rod((-hx, y, top + 0.01), (hx, y, top + 0.01), 0.01) for y in (-hy, hy)]
+    parts.append(_rod((0, -hy, top + 0.01), (0, hy, top + 0.01), 0.01))
+    return parts
+
+
+def _drums_2x2(sx: float, sy: float, hp: float, h: float) -> list[Part]:
+    """Four drums with clamp rings, or two layers of four kegs with a board between when
+    that is taller than a drum."""
+    r, c = 0.28, 0.285
+    spots = [(ix * c, iy * c) for ix in (-1, 1) for iy in (-1, 1)]
+    if h - hp <= 0.95:
+        return [_cyl(x, y, hp, h, r - 0.005) for x, y in spots] + [
+            _cyl(x, y, h - 0.045, h - 0.015, r) for x, y in spots
+        ]
+    each = (h - hp - 0.02) / 2
+    parts = [_cyl(x, y, hp, hp + each, r) for x, y in spots]
+    parts.append(_block(0, 0, hp + each, hp + each + 0.02, sx, sy))
+    parts += [_cyl(x, y, h - each, h, r) for x, y in spots]
+    return parts
+
+
 def _pallet_loaded(v: int, h: float) -> CellShape:
     """Pallet with a load: a wrapped block (flat), carton layers with a part layer on top, an
-    IBC tank in its cage with the filler cap on top, or four drums (two layers of kegs when
+    IBC tank in its cage with the filler cap on top, or drums (kegs in two layers when
     taller than a drum)."""
     hp = _LOADED_PALLET_H
     sx, sy = ((1.20, 0.80), (1.20, 0.80), (1.20, 1.00), (1.14, 1.14))[v]
-    parts = _pallet_parts(sx, sy, hp, plastic=False, deck_boards=5)
+    parts = _pallet_parts(sx, sy, hp, plastic=False, deck_boards=0)
     if v == 0:
         parts.append(_block(0, 0, hp, h, sx - 0.02, sy - 0.02))
-    elif v == 1:  # 3 x 2 cartons a layer; the top layer has two of them
-        layers = max(1, round((h - hp) / 0.25))
-        lh = (h - hp) / layers
-        for k in range(layers):
-            cells = (
-                ((0, 0), (1, 0))
-                if k == layers - 1
-                else [(i, j) for i in range(3) for j in range(2)]
-            )
-            for i, j in cells:
-                parts.append(
-                    _block(
-                        -0.4 + 0.4 * i, -0.2 + 0.4 * j, hp + k * lh, hp + (k + 1) * lh, 0.395, 0.395
-                    )
-                )
-    elif v == 2:  # IBC: tank, cage, filler cap
-        top = h - 0.06
-        parts.append(_block(0, 0, hp, top, sx - 0.06, sy - 0.06))
-        hx, hy = sx / 2 - 0.015, sy / 2 - 0.015
-        for ix in (-1, 1):
-            for iy in (-1, 1):
-                parts.append(_rod((ix * hx, iy * hy, hp), (ix * hx, iy * hy, top + 0.01), 0.012))
-        for y in (-hy, -hy / 3, hy / 3, hy):
-            parts.append(_rod((-hx, y, top + 0.01), (hx, y, top + 0.01), 0.01))
-        for x in (-hx, hx):
-            parts.append(_rod((x, -hy, top + 0.01), (x, hy, top + 0.01), 0.01))
-        parts.append(_cyl(0, 0, top, h, 0.075))
-    else:  # four drums, 2 x 2; kegs in two layers with a board between when that is taller
-        r = 0.28
-        layers = 1 if h - hp <= 0.95 else 2
-        board = 0.02
-        each = (h - hp - (layers - 1) * board) / layers
-        for k in range(layers):
-            z0 = hp + k * (each + board)
-            if k:
-                parts.append(_block(0, 0, z0 - board, z0, sx, sy))
-            for ix in (-1, 1):
-                for iy in (-1, 1):
-                    parts += _drum_parts(ix * 0.285, iy * 0.285, z0, z0 + each, r, 2)
+    elif v == 1:
+        parts += _cartons(hp, h)
+    elif v == 2:
+        parts += _ibc(sx, sy, hp, h)
+    else:
+        parts += _drums_2x2(sx, sy, hp, h)
     return _rect(parts)
 
 
@@ -529,27 +527,29 @@ def _rack(v: int, h: float) -> CellShape:
     rng = np.random.default_rng(3000 + v)
     posts_top = h - 0.3 if v == 1 else h
     top_level = {0: h, 1: h - 0.3, 2: h - 0.28, 3: h}[v]
-    levels = np.linspace(0.15, top_level, 4 + v % 2)
+    levels = np.linspace(0.15, top_level, 5 if v == 1 else 4)
+    shelf_t = 0.08 if v == 3 else 0.025
     parts = [
         _block(ix * (sx / 2 - 0.02), iy * (sy / 2 - 0.02), 0, posts_top, 0.04, 0.04)
         for ix in (-1, 1)
         for iy in (-1, 1)
     ]
-    for k, z in enumerate(levels):
+    for z in levels:
         if v == 3:  # beams front and back
             parts += [_block(s * (sx / 2 - 0.03), 0, z - 0.08, z, 0.05, sy) for s in (-1, 1)]
         else:
             parts.append(_block(0, 0, z - 0.025, z, sx, sy))
-        if k < len(levels) - 1:
-            gap = levels[k + 1] - z - (0.08 if v == 3 else 0.025)
-            if v == 3:  # a load on the beams
-                parts.append(_block(0, 0, z, z + 0.75 * gap, sx - 0.1, 0.8 * sy))
-            else:
-                parts += _rack_boxes(rng, z, gap, sx, sy, rng.uniform(0.4, 0.85, 3))
     if v == 1:  # on top: boxes, the tallest 0.3 m
         parts += _rack_boxes(rng, h - 0.3, 0.3, sx, sy, (1.0, 0.6, 0.8))
     if v == 2:
         parts += _rack_boxes(rng, h - 0.28, 0.28, sx, sy, (0.5, 0.8))
+    # the lower shelves' loads, from the top one down, as far as a pooled body has room
+    for z, above in zip(levels[-2::-1], levels[:0:-1], strict=True):
+        gap = above - z - shelf_t
+        if v == 3 and len(parts) < MAX_PARTS:
+            parts.append(_block(0, 0, z, z + 0.75 * gap, sx - 0.1, 0.8 * sy))
+        elif v != 3 and len(parts) + 2 <= MAX_PARTS:
+            parts += _rack_boxes(rng, z, gap, sx, sy, rng.uniform(0.4, 0.85, 2))
     return _rect(parts)
 
 
@@ -690,12 +690,10 @@ def _coat_stand(v: int, h: float) -> CellShape:
         parts.append(_ball(0, 0, h - 0.035, 0.035))
     parts.append(_cyl(0, 0, 0.0, pole_top, rp))
     hook_z = h - 0.18
-    n_hooks = 6 if v == 1 else 4
-    for k in range(n_hooks):
-        a = 2 * np.pi * k / n_hooks + 0.3
+    for k in range(4):
+        a = np.pi * k / 2 + 0.3
         end = (0.15 * np.cos(a), 0.15 * np.sin(a), hook_z + 0.05)
-        parts.append(_rod((0.0, 0.0, hook_z), end, 0.008))
-        parts.append(_ball(*end, 0.012))
+        parts.append(_rod((0.0, 0.0, hook_z), end, 0.01))
     coats = {0: (0.3,), 1: (0.3, 0.3 + np.pi), 2: (), 3: (0.3,)}[v]
     for a in coats:
         parts += _coat(a, hook_z, 0.14)

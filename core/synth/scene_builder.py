@@ -27,6 +27,7 @@ from topseg.core.synth.geometry import (
     BOX,
     CAPSULE,
     CYLINDER,
+    MAX_PARTS,
     SPHERE,
     Part,
     quat_to_matrix,
@@ -141,6 +142,10 @@ def _create_compound(client: int, parts, label: int) -> Body:
     """One static body whose base carries all `parts` (geometry.Part) as visual shapes."""
     import pybullet as p
 
+    if len(parts) > MAX_PARTS:
+        raise ValueError(
+            f"an item has at most {MAX_PARTS} parts (pybullet's limit), got {len(parts)}"
+        )
     types, half, radii, lengths, pos, orn = [], [], [], [], [], []
     geom = {
         SPHERE: p.GEOM_SPHERE,
