@@ -252,7 +252,7 @@ def test_leaves_hold_the_distribution_of_their_training_samples(split):
         assert np.all(match.sum(axis=1) >= 1)
         leaf_of[sel] = match.argmax(axis=1)
     for leaf_row in np.unique(leaf_of):
-        counts = np.bincount(y[leaf_of == leaf_row], minlength=labels.NUM_CLASSES)
+        counts = np.bincount(y[leaf_of == leaf_row], minlength=tree.n_classes)
         np.testing.assert_allclose(
             tree.posteriors[leaf_row], counts / counts.sum(), rtol=1e-6, atol=1e-7
         )
