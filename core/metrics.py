@@ -154,7 +154,7 @@ def person_scores(confusion: np.ndarray) -> dict:
     person = np.zeros(c.shape[0], bool)
     person[list(L.HUMAN_IDS)] = True
     furniture = np.zeros(c.shape[0], bool)
-    furniture[list(L.OBJECT_IDS)] = True
+    furniture[list(L.FURNITURE_IDS)] = True
     tp = c[np.ix_(person, person)].sum()
     fp = c[np.ix_(~person, person)].sum()
     fn = c[np.ix_(person, ~person)].sum()

@@ -103,13 +103,13 @@ def test_no_depth_conventions():
 
 def test_bad_input_is_refused():
     good = np.zeros((2, 2), np.uint8)
-    with pytest.raises(TopsegError, match="id 11"):
-        confusion_matrix(good, np.full((2, 2), 11, np.uint8))
+    with pytest.raises(TopsegError, match="id 13"):
+        confusion_matrix(good, np.full((2, 2), 13, np.uint8))
     with pytest.raises(TopsegError, match="shape"):
         confusion_matrix(good, np.zeros((2, 3), np.uint8))
     with pytest.raises(TopsegError, match="integers"):
         confusion_matrix(good.astype(float), good)
-    with pytest.raises(TopsegError, match="11x11"):
+    with pytest.raises(TopsegError, match="13x13"):
         scores(np.zeros((3, 3)))
 
 
@@ -168,11 +168,11 @@ def test_bootstrap_of_one_frame_is_its_own_score_and_bad_input_is_refused():
     frame = confusion_matrix(*random_maps(rng))
     draws = avg_f1_draws(frame[None], draws=5)
     np.testing.assert_allclose(draws, scores(frame)["avg_f1"])
-    assert np.isnan(avg_f1_draws(np.zeros((3, 11, 11), np.int64), 2)).all()  # nothing scored
+    assert np.isnan(avg_f1_draws(np.zeros((3, C, C), np.int64), 2)).all()  # nothing scored
     with pytest.raises(TopsegError, match="frame confusions"):
-        avg_f1_draws(np.zeros((11, 11)), 2)
+        avg_f1_draws(np.zeros((C, C)), 2)
     with pytest.raises(TopsegError, match="frame confusions"):
-        avg_f1_draws(np.zeros((0, 11, 11)), 2)
+        avg_f1_draws(np.zeros((0, C, C)), 2)
     with pytest.raises(TopsegError, match="draws"):
         avg_f1_draws(frame[None], 0)
 
