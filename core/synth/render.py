@@ -336,37 +336,78 @@ def _raycast_kernel(
 # --- triangles ------------------------------------------------------------------------------
 
 
-def triangle_screen_boxes(vert_c: np.ndarray, mount: TopViewMount) -> np.ndarray:
-    """(n, 4) int32 pixel bounds (u0, u1, v0, v1), inclusive, of camera-frame triangles.
+@numba.njit(cache=True, inline="always")
+def _finite9(t):
+    """Whether a triangle's nine coordinates are all finite."""
+    for j in range(3):
+        for r in range(3):
+            if not np.isfinite(t[j, r]):
+                return False
+    return True
 
-    A triangle in front of the near plane projects to the triangle of its projected corners,
-    so their bounds hold every pixel centre it covers. One wholly behind the near plane is
-    dropped (u0 > u1); one that straddles it gets the whole image, as primitives do.
+
+@numba.njit(cache=True)
+def _prepare_triangles(vertices, rot, centre, fx, fy, cx, cy, width, height, near):
+    """Camera-frame triangles sorted front to back (stable), with what the kernel needs.
+
+    Returns (order, zmin, coef, proj, boxes): `order` the sort, and per sorted triangle its
+    nearest depth, Moller-Trumbore's per-triangle vectors (see `_triangle_kernel`), its
+    corners projected to pixels (u, v) and its screen box (u0, u1, v0, v1) inclusive. The
+    projection of a triangle in front of the near plane is the triangle of its projected
+    corners, so the box holds every pixel centre it covers; one wholly behind the near plane
+    gets an empty box (u0 > u1); one that straddles it, the whole image (and proj NaN).
     """
-    k = mount.intrinsics
-    n = len(vert_c)
-    out = np.empty((n, 4), np.int32)
-    out[:] = (1, 0, 1, 0)
-    if n == 0:
-        return out
-    z = vert_c[:, :, 2]
-    finite = np.all(np.isfinite(vert_c), axis=(1, 2))
-    ok = (z.min(1) > NEAR_M) & finite
-    straddle = (z.min(1) <= NEAR_M) & (z.max(1) > NEAR_M) & finite
-    with np.errstate(divide="ignore", invalid="ignore"):
-        us = vert_c[:, :, 0] / z * k.fx + k.cx
-        vs = vert_c[:, :, 1] / z * k.fy + k.cy
-    with np.errstate(invalid="ignore"):
-        u0 = np.clip(np.floor(us.min(1)), 0, k.width)  # past the right edge -> u0 > u1: empty
-        u1 = np.clip(np.ceil(us.max(1)), -1, k.width - 1)
-        v0 = np.clip(np.floor(vs.min(1)), 0, k.height)
-        v1 = np.clip(np.ceil(vs.max(1)), -1, k.height - 1)
-    out[ok, 0] = u0[ok]
-    out[ok, 1] = u1[ok]
-    out[ok, 2] = v0[ok]
-    out[ok, 3] = v1[ok]
-    out[straddle] = (0, k.width - 1, 0, k.height - 1)
-    return out
+    n = vertices.shape[0]
+    cam = np.empty((n, 3, 3))
+    zmin = np.empty(n)
+    for i in range(n):
+        for j in range(3):
+            px = vertices[i, j, 0] - centre[0]
+            py = vertices[i, j, 1] - centre[1]
+            pz = vertices[i, j, 2] - centre[2]
+            for r in range(3):
+                cam[i, j, r] = rot[r, 0] * px + rot[r, 1] * py + rot[r, 2] * pz
+        zmin[i] = min(cam[i, 0, 2], cam[i, 1, 2], cam[i, 2, 2])
+    order = np.argsort(zmin, kind="mergesort")
+    coef = np.empty((n, 10))
+    proj = np.full((n, 3, 2), np.nan)
+    boxes = np.empty((n, 4), np.int32)
+    zs = np.empty(n)
+    for k in range(n):
+        t = cam[order[k]]
+        zs[k] = zmin[order[k]]
+        # e1 = t1 - t0, e2 = t2 - t0, s = -t0 (the camera centre is the origin)
+        e1x, e1y, e1z = t[1, 0] - t[0, 0], t[1, 1] - t[0, 1], t[1, 2] - t[0, 2]
+        e2x, e2y, e2z = t[2, 0] - t[0, 0], t[2, 1] - t[0, 1], t[2, 2] - t[0, 2]
+        sx, sy, sz = -t[0, 0], -t[0, 1], -t[0, 2]
+        coef[k, 0] = e1y * e2z - e1z * e2y  # n = e1 x e2
+        coef[k, 1] = e1z * e2x - e1x * e2z
+        coef[k, 2] = e1x * e2y - e1y * e2x
+        coef[k, 3] = e2y * sz - e2z * sy  # a = e2 x s
+        coef[k, 4] = e2z * sx - e2x * sz
+        coef[k, 5] = e2x * sy - e2y * sx
+        qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x  # q = s x e1
+        coef[k, 6], coef[k, 7], coef[k, 8] = qx, qy, qz
+        coef[k, 9] = e2x * qx + e2y * qy + e2z * qz
+        zmax = max(t[0, 2], t[1, 2], t[2, 2])
+        boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3] = 1, 0, 1, 0
+        if not _finite9(t) or zmax <= near:
+            continue  # wholly behind the near plane (or not a number): no pixel
+        if zs[k] <= near:
+            boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3] = 0, width - 1, 0, height - 1
+            continue
+        ulo, uhi, vlo, vhi = np.inf, -np.inf, np.inf, -np.inf
+        for j in range(3):
+            u = t[j, 0] / t[j, 2] * fx + cx
+            v = t[j, 1] / t[j, 2] * fy + cy
+            proj[k, j, 0] = u
+            proj[k, j, 1] = v
+            ulo, uhi, vlo, vhi = min(ulo, u), max(uhi, u), min(vlo, v), max(vhi, v)
+        boxes[k, 0] = int(min(max(np.floor(ulo), 0.0), width))  # past the right: u0 > u1
+        boxes[k, 1] = int(min(max(np.ceil(uhi), -1.0), width - 1))
+        boxes[k, 2] = int(min(max(np.floor(vlo), 0.0), height))
+        boxes[k, 3] = int(min(max(np.ceil(vhi), -1.0), height - 1))
+    return order, zs, coef, proj, boxes
 
 
 @numba.njit(cache=True)
@@ -391,11 +432,34 @@ def _bin_rows(boxes, height):
     return start, index
 
 
+@numba.njit(cache=True, inline="always")
+def _row_span(proj, i, v, u0, u1):
+    """The pixels (lo, hi) of row v that triangle i's projection may cover, within [u0, u1]
+    and a pixel wider each side than the projection's chord along the row (rounding never
+    loses a pixel: Moller-Trumbore decides each one); lo > hi when it misses the row."""
+    lo, hi = np.inf, -np.inf
+    for a in range(3):
+        b = (a + 1) % 3
+        ua, va, ub, vb = proj[i, a, 0], proj[i, a, 1], proj[i, b, 0], proj[i, b, 1]
+        if v < min(va, vb) - 1e-6 or v > max(va, vb) + 1e-6:
+            continue
+        if abs(vb - va) < 1e-12:
+            lo, hi = min(lo, ua, ub), max(hi, ua, ub)
+            continue
+        s = min(max((v - va) / (vb - va), 0.0), 1.0)
+        x = ua + s * (ub - ua)
+        lo, hi = min(lo, x), max(hi, x)
+    if lo > hi:
+        return 1, 0
+    return max(u0, int(np.floor(lo)) - 1), min(u1, int(np.ceil(hi)) + 1)
+
+
 @numba.njit(parallel=True, cache=True)
 def _triangle_kernel(
-    coef, boxes, zmin, lab, start, index, fx, fy, cx, cy, depth_m, depth_mm, out_lab, no_hit
+    coef, proj, boxes, zmin, lab, start, index, fx, fy, cx, cy, depth_m, depth_mm, out_lab, no_hit
 ):
-    """Rows in parallel; per row, each triangle binned to it, per pixel Moller-Trumbore.
+    """Rows in parallel; per row, each triangle binned to it over the pixels its projection
+    crosses (the whole box row for one straddling the near plane), per pixel Moller-Trumbore.
 
     The ray of pixel (u, v) leaves the camera centre along d = ((u - cx) / fx, (v - cy) / fy, 1),
     so the distance t along d is the depth. With the origin fixed, Moller-Trumbore's
@@ -412,14 +476,16 @@ def _triangle_kernel(
         dy = (v - cy) / fy
         for j in range(lo, hi):
             i = index[j]
-            if v < boxes[i, 2] or v > boxes[i, 3]:
-                continue
+            if np.isnan(proj[i, 0, 0]):
+                u0, u1 = boxes[i, 0], boxes[i, 1]
+            else:
+                u0, u1 = _row_span(proj, i, float(v), boxes[i, 0], boxes[i, 1])
             near = zmin[i]
             nx, ny, nz = coef[i, 0], coef[i, 1], coef[i, 2]
             ax, ay, az = coef[i, 3], coef[i, 4], coef[i, 5]
             qx, qy, qz = coef[i, 6], coef[i, 7], coef[i, 8]
             tdet = coef[i, 9]
-            for u in range(boxes[i, 0], boxes[i, 1] + 1):
+            for u in range(u0, u1 + 1):
                 if depth_m[v, u] <= near:
                     continue  # something nearer already covers this pixel
                 dx = (u - cx) / fx
@@ -444,34 +510,18 @@ def _triangle_kernel(
                 out_lab[v, u] = no_hit
 
 
-def _triangle_coefficients(vert_c: np.ndarray) -> np.ndarray:
-    """(n, 10) per-triangle vectors of `_triangle_kernel`'s Moller-Trumbore (camera frame)."""
-    v0 = vert_c[:, 0]
-    e1 = vert_c[:, 1] - v0
-    e2 = vert_c[:, 2] - v0
-    s = -v0
-    q = np.cross(s, e1)
-    coef = np.empty((len(vert_c), 10))
-    coef[:, 0:3] = np.cross(e1, e2)
-    coef[:, 3:6] = np.cross(e2, s)
-    coef[:, 6:9] = q
-    coef[:, 9] = np.einsum("ni,ni->n", e2, q)
-    return coef
-
-
 def _cast_triangles(tris: Triangles, mount: TopViewMount, depth, depth_mm, lab) -> None:
     """Add the triangles to images the primitives were cast into (in place)."""
     k = mount.intrinsics
     r, c = camera_pose(mount)
-    vert_c = (np.asarray(tris.vertices, np.float64).reshape(-1, 3, 3) - c) @ r.T
-    zmin = vert_c[:, :, 2].min(1)
-    order = np.argsort(zmin, kind="stable")  # front to back: far ones get skipped
-    vert_c, zmin = np.ascontiguousarray(vert_c[order]), np.ascontiguousarray(zmin[order])
-    boxes = triangle_screen_boxes(vert_c, mount)
+    vertices = np.ascontiguousarray(tris.vertices, np.float64).reshape(-1, 3, 3)
+    order, zmin, coef, proj, boxes = _prepare_triangles(
+        vertices, r, c, k.fx, k.fy, k.cx, k.cy, k.width, k.height, NEAR_M
+    )
     start, index = _bin_rows(boxes, k.height)
     _triangle_kernel(
-        _triangle_coefficients(vert_c), boxes, zmin, np.asarray(tris.label, np.uint8)[order],
-        start, index, k.fx, k.fy, k.cx, k.cy, depth, depth_mm, lab, labels.NO_DEPTH,
+        coef, proj, boxes, zmin, np.asarray(tris.label, np.uint8)[order], start, index,
+        k.fx, k.fy, k.cx, k.cy, depth, depth_mm, lab, labels.NO_DEPTH,
     )  # fmt: skip
 
 
