@@ -5,6 +5,8 @@ every pixel, no culling or early exits. The tests compare the kernels against th
 bit (as stumpy keeps its naive versions in one test module).
 
 - `raycast_reference`: `render.raycast` (the ray caster) in numpy.
+- `raycast_triangles_reference`: the ray caster with triangles (`render.raycast(prims, mount,
+  triangles)`), textbook Moller-Trumbore in the world frame.
 - `render_tiny`: pybullet's own TinyRenderer, against which the ray caster was matched.
 - `hash_uniform_np`, `kinect_reference`: the Kinect v1 noise model (`noise.KinectNoise`).
 - `field_at_reference`, `concavity_reference`, `tof_reference`, `stereo_reference`: the
@@ -43,7 +45,7 @@ from topseg.core.crf.realtime import SETTLED_MARGIN
 from topseg.core.forest.tree import Forest
 from topseg.core.synth import noise
 from topseg.core.synth.geometry import BOX, CAPSULE, SPHERE
-from topseg.core.synth.render import Primitives, front_to_back, to_camera
+from topseg.core.synth.render import Primitives, Triangles, front_to_back, to_camera
 
 # --- the ray caster (render.raycast) in plain numpy ----------------------------------------
 
@@ -1012,6 +1014,42 @@ def raycast_world_reference(
         closer = z < depth
         depth[closer] = z[closer]
         lab[closer] = prims.label[i]
+    return depth, lab
+
+
+def raycast_triangles_reference(
+    prims: Primitives, triangles: Triangles, mount: TopViewMount
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ray caster over primitives and triangles: the primitives as
+    `raycast_world_reference` casts them, then every triangle against every pixel by textbook
+    Moller-Trumbore (two-sided) in the world frame, along the world direction of
+    ((u - cx) / fx, (v - cy) / fy, 1) so the distance along it is the depth; a triangle takes a
+    pixel only when strictly nearer."""
+    from scipy.spatial.transform import Rotation
+
+    k = mount.intrinsics
+    depth, lab = raycast_world_reference(prims, mount)
+    tilt = Rotation.from_euler("XY", [mount.pitch_deg, mount.roll_deg], degrees=True)
+    r = tilt.as_matrix() @ np.diag([1.0, -1.0, -1.0])  # world -> camera
+    origin = np.array([0.0, 0.0, mount.height_mm / 1000.0])
+    v, u = np.indices(k.shape, dtype=np.float64)
+    ray = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)
+    d = ray @ r  # R^T ray per pixel
+    for tri, tri_label in zip(triangles.vertices, triangles.label, strict=True):
+        e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
+        p = np.cross(d, e2)
+        det = p @ e1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / det
+            s = origin - tri[0]
+            bu = (p @ s) * inv
+            q = np.cross(s, e1)
+            bv = (d @ q) * inv
+            t = (e2 @ q) * inv
+        hit = (det != 0) & (bu >= 0) & (bu <= 1) & (bv >= 0) & (bu + bv <= 1) & (t > 0)
+        closer = hit & (t < depth)
+        depth[closer] = t[closer]
+        lab[closer] = tri_label
     return depth, lab
 
 
