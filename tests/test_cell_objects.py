@@ -19,7 +19,6 @@ from topseg.core.synth.scene import PlacedObject, Scene
 from topseg.core.synth.scene_builder import SceneBuilder, _create_compound
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 
-OBJECT = 12  # labels.OBJECT once the label table has it
 PAPER_KINDS = (
     "chair_plain",
     "chair_armrest",
@@ -138,9 +137,9 @@ def test_the_catalogue_is_listed_in_furnitures_tables():
     assert furniture.KINDS_OF["object"] == kinds
     assert cell_objects.N_VARIANTS == furniture.N_VARIANTS
     for kind in kinds:
-        assert furniture.KINDS[kind] == OBJECT and furniture.CLASS_OF_KIND[kind] == "object"
+        assert furniture.KINDS[kind] == labels.OBJECT and furniture.CLASS_OF_KIND[kind] == "object"
         m = furniture.model(kind, 1, cell_objects.HEIGHT_RANGE_M[kind][0])
-        assert (m.kind, m.variant, m.label, m.cls) == (kind, 1, OBJECT, "object")
+        assert (m.kind, m.variant, m.label, m.cls) == (kind, 1, labels.OBJECT, "object")
     assert set(cell_objects.HEIGHT_RANGE_M) == set(kinds) == set(cell_objects.DESCRIPTIONS)
     for lo, hi in cell_objects.HEIGHT_RANGE_M.values():
         assert 0.05 <= lo < hi <= 3.0
@@ -162,7 +161,7 @@ def test_a_placed_cell_object_round_trips_through_the_scene_description():
     d = json.loads(json.dumps(o.to_dict()))
     assert d["class"] == "object" and d["size"][0] == pytest.approx(0.24)
     back = PlacedObject.from_dict(d)
-    assert back == o and back.label == OBJECT and back.cls == "object"
+    assert back == o and back.label == labels.OBJECT and back.cls == "object"
     assert np.array_equal(back.footprint(), o.footprint())
 
 
@@ -211,8 +210,8 @@ def test_a_cell_object_is_pooled_posed_and_rendered_like_furniture():
     z = 3.5 - 0.85
     u = round(0.5 / z * k.fx + k.cx)
     v = round(0.4 / z * k.fy + k.cy)  # world y = -0.4 is below the image centre
-    assert f.labels[v, u] == OBJECT and f.depth[v, u] == 2650
-    lid = (f.labels == OBJECT) & (f.depth == 2650)
+    assert f.labels[v, u] == labels.OBJECT and f.depth[v, u] == 2650
+    lid = (f.labels == labels.OBJECT) & (f.depth == 2650)
     r = 0.28 - 0.005  # the lid's radius (the clamp ring below it is 0.28)
     assert lid.sum() == pytest.approx(np.pi * (r * k.fx / z) ** 2, rel=0.03)
     assert f.scene["objects"][0]["class"] == "object"
@@ -247,7 +246,9 @@ def test_the_pooled_pybullet_bodies_carry_every_part_of_every_kind():
                 read = builder.primitives([body])
                 want = _primitives(m)
                 assert len(read) == len(m.parts), (kind, variant)
-                assert np.array_equal(read.kind, want.kind[1:]) and np.all(read.label == OBJECT)
+                assert np.array_equal(read.kind, want.kind[1:]) and np.all(
+                    read.label == labels.OBJECT
+                )
                 np.testing.assert_allclose(read.size, want.size[1:], atol=1e-6)
                 np.testing.assert_allclose(read.center, want.center[1:], atol=1e-6)
                 np.testing.assert_allclose(read.rot, want.rot[1:], atol=1e-6)
@@ -261,8 +262,8 @@ def test_an_item_with_more_parts_than_pybullet_keeps_is_refused():
     client = p.connect(p.DIRECT)
     try:
         cubes = [Part(BOX, (0.05, 0.05, 0.05), (0.2 * i, 0.0, 0.05)) for i in range(MAX_PARTS + 1)]
-        assert len(_create_compound(client, cubes[:MAX_PARTS], OBJECT).kind) == MAX_PARTS
+        assert len(_create_compound(client, cubes[:MAX_PARTS], labels.OBJECT).kind) == MAX_PARTS
         with pytest.raises(ValueError, match=f"at most {MAX_PARTS} parts"):
-            _create_compound(client, cubes, OBJECT)
+            _create_compound(client, cubes, labels.OBJECT)
     finally:
         p.disconnect(client)

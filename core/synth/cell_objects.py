@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from topseg.core import labels
 from topseg.core.synth.geometry import (
     BOX,
     CYLINDER,
@@ -35,8 +36,8 @@ from topseg.core.synth.geometry import (
     yaw_quat,
 )
 
-#: label id of every cell object (`labels.OBJECT` once the label table has it)
-LABEL = 12
+#: label id of every cell object
+LABEL = labels.OBJECT
 #: the class name cell objects go by in furniture's tables and scene descriptions
 CLASS = "object"
 N_VARIANTS = 4
