@@ -21,6 +21,7 @@ PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
 #: what a cell install leaves out: the training stack and the sensor SDKs
 NOT_ON_A_CELL = (
     "pybullet", "pybullet_data", "dask", "distributed", "zarr", "matplotlib",
+    "yourdfpy", "trimesh", "fast_simplification", "xacrodoc", "xacro", "rtbdata",
     "depthai", "openni", "freenect",
 )  # fmt: skip
 
