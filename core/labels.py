@@ -101,6 +101,16 @@ def colorize(labels: np.ndarray) -> np.ndarray:
     return palette()[np.asarray(labels, np.uint8)]
 
 
+def table_classes(table: object) -> int | None:
+    """How many classes a label table as `as_json` writes it (a model header's, a dataset's)
+    names, when it is the first rows of today's table plus no-depth: a table written before
+    the table grew is such a prefix. None for anything else."""
+    if not isinstance(table, list) or not 3 <= len(table) <= NUM_CLASSES + 1:
+        return None
+    n_classes = len(table) - 1
+    return n_classes if table == as_json(n_classes) else None
+
+
 def as_json(n_classes: int = NUM_CLASSES) -> list[dict]:
     """The table as plain data, for model headers and the `info` queryable: the first
     `n_classes` classes (what a model knows) and no-depth."""

@@ -177,7 +177,7 @@ def _read_header(npz: Any, path: Path) -> dict[str, Any]:
             f"{path} has model format version {version!r}; this topseg reads version "
             f"{FORMAT_VERSION} (retrain or convert the model)"
         )
-    if header_classes(header) is None:
+    if labels.table_classes(header.get("labels")) is None:
         raise ModelFileError(f"{path} was trained for a different label table than this topseg's")
     forest = header.get("forest")
     if not isinstance(forest, dict) or not _is_int(forest.get("background_mm")):
@@ -194,18 +194,6 @@ def _read_header(npz: Any, path: Path) -> dict[str, Any]:
             f"{', '.join(OFF_IMAGE_READS)}"
         )
     return header
-
-
-def header_classes(header: dict[str, Any]) -> int | None:
-    """The number of classes a model header's `labels` table names, when that table is the
-    first rows of today's label table (same ids, names, colours) plus no-depth; else None."""
-    table = header.get("labels")
-    if not isinstance(table, list) or len(table) < 3:
-        return None
-    n_classes = len(table) - 1
-    if n_classes > labels.NUM_CLASSES or table != labels.as_json(n_classes):
-        return None
-    return n_classes
 
 
 def _is_int(value: Any) -> bool:
@@ -232,7 +220,7 @@ def check_header(forest: Forest, header: dict[str, Any], path: str | os.PathLike
     for key in ("n_trees", "n_nodes"):
         if key not in described:
             raise ModelFileError(f"{path}: the header's forest description lacks {key!r}")
-    if header_classes(header) != forest.n_classes:
+    if labels.table_classes(header.get("labels")) != forest.n_classes:
         raise ModelFileError(
             f"{path}: the header names {len(header.get('labels', [])) - 1} classes but the "
             f"posteriors hold {forest.n_classes}"
