@@ -112,7 +112,7 @@ def table_classes(table: object) -> int | None:
 
 
 def as_json(n_classes: int = NUM_CLASSES) -> list[dict]:
-    """The table as plain data, for model headers and the `info` queryable: the first
+    """The table as plain data, for model headers and dataset attributes: the first
     `n_classes` classes (what a model knows) and no-depth."""
     if not 2 <= n_classes <= NUM_CLASSES:
         raise ValueError(f"n_classes must be in [2, {NUM_CLASSES}], got {n_classes}")

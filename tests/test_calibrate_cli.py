@@ -179,3 +179,17 @@ def test_edge_thinning_is_the_flag_else_the_frames_mount_else_on():
     assert with_edge_thinning(est, None, recorded).mount.edge_thinning is False
     assert with_edge_thinning(est, True, recorded).mount.edge_thinning is True
     assert with_edge_thinning(est, False, None).mount == replace(fitted, edge_thinning=False)
+
+
+def test_the_calibration_bench_counts_robots_and_objects_as_covering_the_floor():
+    from topseg.core import labels
+    from topseg.services.batch.bench.calibrate import floor_cover
+
+    mount = TopViewMount(K, 3000.0)
+    depth = np.full(K.shape, 3000, np.uint16)  # a level camera 3 m above the floor
+    lab = np.zeros(K.shape, np.uint8)
+    half = K.width // 2
+    depth[:, :half], lab[:, :half] = 2000, labels.ROBOT  # a robot 1 m tall on half of it
+    assert floor_cover(depth, lab, mount) == pytest.approx(0.5)
+    lab[:, :half] = labels.OBJECT
+    assert floor_cover(depth, lab, mount) == pytest.approx(0.5)

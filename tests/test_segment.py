@@ -14,6 +14,7 @@ from topseg.core.forest.inputs import header_fields, model_input, trained_for
 from topseg.core.forest.predict import grid_stride
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import recording, wire
+from topseg.core.labels import NUM_CLASSES
 from topseg.core.segmenter_config import ADAPTIVE_LEVELS
 from topseg.core.synth import procedural
 
@@ -294,7 +295,7 @@ def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     cleaned = segment(folder, "--out", tmp_path / "cleaned", "--downsample", "1")
     assert kept.returncode == 0 == cleaned.returncode, kept.stderr + cleaned.stderr
     assert "relabelled" not in kept.stdout
-    relabelled, satellites = np.zeros(11, np.int64), 0
+    relabelled, satellites = np.zeros(NUM_CLASSES, np.int64), 0
     for i, depth in enumerate(depths, 1):
         want = np.array(Image.open(tmp_path / "kept" / f"f{i}_labels.png"))
         depth, _ = fill_holes(depth, KINECT_V1)  # the rules measure the frame as labelled

@@ -52,8 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def floor_cover(depth, labels_img, mount) -> float:
-    """Share of the floor area in view covered by people and furniture (from the truth)."""
-    fg = np.isin(labels_img, (*labels.HUMAN_IDS, *labels.FURNITURE_IDS))
+    """Share of the floor area in view covered by people, furniture, robots and other objects
+    (from the truth)."""
+    fg = np.isin(labels_img, (*labels.HUMAN_IDS, *labels.FURNITURE_IDS, *labels.OPEN_WORLD_IDS))
     h = mount.height_map_mm(depth)
     with np.errstate(invalid="ignore"):
         floor = (labels_img == labels.BACKGROUND) & (np.abs(h) < FLOOR_BAND_MM)
