@@ -31,6 +31,8 @@ CHAIR = 7
 PLANT = 8
 STORAGE = 9
 TABLE = 10
+ROBOT = 11
+OBJECT = 12
 NO_DEPTH = 255
 
 LABELS: tuple[Label, ...] = (
@@ -45,15 +47,24 @@ LABELS: tuple[Label, ...] = (
     Label(PLANT, "plant", (145, 30, 180)),
     Label(STORAGE, "storage", (240, 50, 230)),
     Label(TABLE, "table", (170, 110, 40)),
+    Label(ROBOT, "robot", (140, 140, 255)),
+    Label(OBJECT, "object", (120, 160, 150)),
 )
 NO_DEPTH_LABEL = Label(NO_DEPTH, "no-depth", (0, 0, 0))
 
-#: Number of trainable classes (ids 0..NUM_CLASSES-1); NO_DEPTH is never a class.
+#: The most classes a model can know (ids 0..NUM_CLASSES-1); NO_DEPTH is never a class.
+#: A model knows its own `n_classes` <= NUM_CLASSES, the first rows of the table.
 NUM_CLASSES = len(LABELS)
+#: The classes of the paper's experiments (ids 0..10), all a model trained on them knows.
+PAPER_NUM_CLASSES = TABLE + 1
 #: Ids the means (mAP, mAR, avg F1) run over: everything but background.
 SCORED_IDS: tuple[int, ...] = tuple(lab.id for lab in LABELS if lab.id != BACKGROUND)
+#: Ids the paper's ten-class means run over (1..10).
+PAPER_SCORED_IDS: tuple[int, ...] = tuple(i for i in SCORED_IDS if i < PAPER_NUM_CLASSES)
 HUMAN_IDS: tuple[int, ...] = (HEAD, BODY, UPPER_ARM, LOWER_ARM, HAND, LEGS)
-OBJECT_IDS: tuple[int, ...] = (CHAIR, PLANT, STORAGE, TABLE)
+FURNITURE_IDS: tuple[int, ...] = (CHAIR, PLANT, STORAGE, TABLE)
+#: The classes beyond the paper's closed world: a robot arm, and anything else in the cell.
+OPEN_WORLD_IDS: tuple[int, ...] = (ROBOT, OBJECT)
 
 NAMES: tuple[str, ...] = tuple(lab.name for lab in LABELS)
 _BY_NAME = {lab.name: lab for lab in (*LABELS, NO_DEPTH_LABEL)}
@@ -90,9 +101,22 @@ def colorize(labels: np.ndarray) -> np.ndarray:
     return palette()[np.asarray(labels, np.uint8)]
 
 
-def as_json() -> list[dict]:
-    """The table as plain data, for model headers and the `info` queryable."""
+def table_classes(table: object) -> int | None:
+    """How many classes a label table as `as_json` writes it (a model header's, a dataset's)
+    names, when it is the first rows of today's table plus no-depth: a table written before
+    the table grew is such a prefix. None for anything else."""
+    if not isinstance(table, list) or not 3 <= len(table) <= NUM_CLASSES + 1:
+        return None
+    n_classes = len(table) - 1
+    return n_classes if table == as_json(n_classes) else None
+
+
+def as_json(n_classes: int = NUM_CLASSES) -> list[dict]:
+    """The table as plain data, for model headers and the `info` queryable: the first
+    `n_classes` classes (what a model knows) and no-depth."""
+    if not 2 <= n_classes <= NUM_CLASSES:
+        raise ValueError(f"n_classes must be in [2, {NUM_CLASSES}], got {n_classes}")
     return [
         {"id": lab.id, "name": lab.name, "color": list(lab.color)}
-        for lab in (*LABELS, NO_DEPTH_LABEL)
+        for lab in (*LABELS[:n_classes], NO_DEPTH_LABEL)
     ]

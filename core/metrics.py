@@ -1,5 +1,7 @@
 """Segmentation scores as in the paper: a confusion matrix, per-class precision, recall and
-F1, and their means over the ten scored labels (mAP, mAR, avg F1), background apart.
+F1, and their means (mAP, mAR, avg F1) over the scored labels, background apart: over all
+twelve (robot and object included), and over the paper's ten (ids 1..10, suffix `_10`).
+On data without robots or objects, and with a model that never predicts them, both agree.
 
 Conventions (the same everywhere scores are printed):
 
@@ -61,11 +63,22 @@ def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     return out
 
 
+def pad_confusion(confusion: np.ndarray) -> np.ndarray:
+    """A (k, k) confusion of the first k classes (one counted before the label table grew)
+    as (NUM_CLASSES, NUM_CLASSES), the later classes' rows and columns zero."""
+    cm = np.asarray(confusion, np.int64)
+    if cm.ndim != 2 or cm.shape[0] != cm.shape[1] or not 2 <= cm.shape[0] <= C:
+        raise TopsegError(f"a confusion matrix must be kxk with 2 <= k <= {C}, got {cm.shape}")
+    missing = C - cm.shape[0]
+    return np.pad(cm, ((0, missing), (0, missing)))
+
+
 def scores(confusion: np.ndarray) -> dict:
     """Per-class and mean scores of a confusion matrix.
 
-    Returns {"per_class": {name: {precision, recall, f1, support}} for ids 1..10,
-    "background": {...} likewise, "mAP", "mAR", "avg_f1" (means over ids 1..10 where
+    Returns {"per_class": {name: {precision, recall, f1, support}} for ids 1..12,
+    "background": {...} likewise, "mAP", "mAR", "avg_f1" (means over ids 1..12 where
+    defined), "mAP_10", "mAR_10", "avg_f1_10" (means over the paper's ids 1..10 where
     defined), "accuracy" (all pixels), "pixels"}.
     """
     cm = np.asarray(confusion, np.int64)
@@ -86,26 +99,48 @@ def scores(confusion: np.ndarray) -> dict:
             "support": int(support[i]),
         }
 
-    ids = list(L.SCORED_IDS)
     total = int(cm.sum())
 
-    def mean(values: np.ndarray) -> float:
-        v = values[ids]
+    def mean(values: np.ndarray, ids: tuple[int, ...]) -> float:
+        v = values[list(ids)]
         return float(np.mean(v[~np.isnan(v)])) if (~np.isnan(v)).any() else math.nan
 
     return {
-        "per_class": {L.NAMES[i]: row(i) for i in ids},
+        "per_class": {L.NAMES[i]: row(i) for i in L.SCORED_IDS},
         "background": row(L.BACKGROUND),
-        "mAP": mean(precision),
-        "mAR": mean(recall),
-        "avg_f1": mean(f1),
+        "mAP": mean(precision, L.SCORED_IDS),
+        "mAR": mean(recall, L.SCORED_IDS),
+        "avg_f1": mean(f1, L.SCORED_IDS),
+        "mAP_10": mean(precision, L.PAPER_SCORED_IDS),
+        "mAR_10": mean(recall, L.PAPER_SCORED_IDS),
+        "avg_f1_10": mean(f1, L.PAPER_SCORED_IDS),
         "accuracy": float(tp.sum() / total) if total else math.nan,
         "pixels": total,
     }
 
 
-def avg_f1_draws(frame_confusions: np.ndarray, draws: int = 1000, seed: int = 0) -> np.ndarray:
-    """(draws,) avg F1 (as `scores`) of bootstrap resamples of frames: each draw sums the
+#: the keys of `scores` whose ten-class means `ten_class_scores` puts in their place
+_TEN_CLASS_MEANS = ("mAP", "mAR", "avg_f1")
+
+
+def ten_class_scores(s: dict) -> dict:
+    """`scores` as the paper's ten-class tables read them: per-class rows for ids 1..10 only
+    and "mAP", "mAR", "avg_f1" the means over them (no `_10` keys)."""
+    out = {k: v for k, v in s.items() if not k.endswith("_10")}
+    out["per_class"] = {L.NAMES[i]: s["per_class"][L.NAMES[i]] for i in L.PAPER_SCORED_IDS}
+    for key in _TEN_CLASS_MEANS:
+        out[key] = s[f"{key}_10"]
+    return out
+
+
+def avg_f1_draws(
+    frame_confusions: np.ndarray,
+    draws: int = 1000,
+    seed: int = 0,
+    ids: tuple[int, ...] = L.SCORED_IDS,
+) -> np.ndarray:
+    """(draws,) avg F1 over the classes `ids` (as `scores`; `L.PAPER_SCORED_IDS`: its
+    "avg_f1_10") of bootstrap resamples of frames: each draw sums the
     confusions of N frames drawn with replacement from the (N, C, C) `frame_confusions`.
     The draws depend only on (N, draws, seed), so two sets of N frames scored with the same
     seed are resampled by the same frame indices: the difference of their draws is a paired
@@ -122,7 +157,7 @@ def avg_f1_draws(frame_confusions: np.ndarray, draws: int = 1000, seed: int = 0)
     summed = (counts @ cm.reshape(n, C * C)).reshape(draws, C, C)
     tp = np.diagonal(summed, axis1=1, axis2=2).astype(np.float64)
     den = (summed.sum(axis=1) + summed.sum(axis=2)).astype(np.float64)
-    f1 = _ratio(2 * tp, den)[:, list(L.SCORED_IDS)]
+    f1 = _ratio(2 * tp, den)[:, list(ids)]
     defined = ~np.isnan(f1)
     with np.errstate(invalid="ignore"):
         return np.where(defined, f1, 0.0).sum(axis=1) / defined.sum(axis=1)
@@ -154,7 +189,7 @@ def person_scores(confusion: np.ndarray) -> dict:
     person = np.zeros(c.shape[0], bool)
     person[list(L.HUMAN_IDS)] = True
     furniture = np.zeros(c.shape[0], bool)
-    furniture[list(L.OBJECT_IDS)] = True
+    furniture[list(L.FURNITURE_IDS)] = True
     tp = c[np.ix_(person, person)].sum()
     fp = c[np.ix_(~person, person)].sum()
     fn = c[np.ix_(person, ~person)].sum()
@@ -308,19 +343,47 @@ def _fmt(x: float) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.3f}"
 
 
+def _shown(name: str, r: dict) -> bool:
+    """Whether `format_table` shows a class's row: always for the paper's ten, for robot and
+    object when the truth holds them or the model predicted them."""
+    paper = L.by_name(name).id in L.PAPER_SCORED_IDS
+    return paper or r["support"] > 0 or not _missing(r["precision"])
+
+
+def _missing(x) -> bool:
+    """A score that is undefined (NaN, or None as JSON holds it)."""
+    return x is None or (isinstance(x, float) and math.isnan(x))
+
+
+def _means_differ(s: dict) -> bool:
+    """Whether the means over all scored classes differ from the ten-class ones (scores
+    without `_10` keys, read back from before the table grew, have the ten only)."""
+    for key in _TEN_CLASS_MEANS:
+        a, b = s[key], s.get(f"{key}_10", s[key])
+        if not (a == b or (_missing(a) and _missing(b))):
+            return True
+    return False
+
+
 def format_table(s: dict, title: str = "") -> str:
-    """A plain-text table laid out like the paper's Table I: one row per class, P / R / F1."""
-    name_w = max(len(n) for n in (*s["per_class"], "background", "mean (1-10)"))
+    """A plain-text table laid out like the paper's Table I: one row per class, P / R / F1,
+    the ten-class means, and the means over all twelve classes where they differ."""
+    rows = {name: r for name, r in s["per_class"].items() if _shown(name, r)}
+    name_w = max(len(n) for n in (*rows, "background", "mean (1-10)"))
     head = f"{'class':<{name_w}}  {'P':>6} {'R':>6} {'F1':>6} {'pixels':>10}"
     rule = "-" * len(head)
     lines = [title] if title else []
     lines += [head, rule]
-    for name, r in s["per_class"].items():
+    for name, r in rows.items():
         p, rc, f = (_fmt(r[k]) for k in ("precision", "recall", "f1"))
         lines.append(f"{name:<{name_w}}  {p:>6} {rc:>6} {f:>6} {r['support']:>10}")
     lines.append(rule)
-    means = (_fmt(s["mAP"]), _fmt(s["mAR"]), _fmt(s["avg_f1"]))
-    lines.append(f"{'mean (1-10)':<{name_w}}  {means[0]:>6} {means[1]:>6} {means[2]:>6}")
+    ten = [_fmt(s.get(f"{key}_10", s[key])) for key in _TEN_CLASS_MEANS]
+    lines.append(f"{'mean (1-10)':<{name_w}}  {ten[0]:>6} {ten[1]:>6} {ten[2]:>6}")
+    if _means_differ(s):
+        last = max(L.SCORED_IDS)
+        means = [_fmt(s[key]) for key in _TEN_CLASS_MEANS]
+        lines.append(f"{f'mean (1-{last})':<{name_w}}  {means[0]:>6} {means[1]:>6} {means[2]:>6}")
     b = s["background"]
     p, rc, f = (_fmt(b[k]) for k in ("precision", "recall", "f1"))
     lines.append(f"{'background':<{name_w}}  {p:>6} {rc:>6} {f:>6} {b['support']:>10}")
@@ -373,8 +436,12 @@ class ConfusionAccumulator:
         """Counts saved by `to_dict`; TopsegError when they are not a valid matrix."""
         acc = cls()
         cm = np.asarray(d["confusion"], np.int64)
-        if cm.shape != (C, C) or (cm < 0).any():
-            raise TopsegError(f"a saved confusion matrix must be {C}x{C} non-negative counts")
-        acc.confusion = cm
+        square = cm.ndim == 2 and cm.shape[0] == cm.shape[1] and 2 <= cm.shape[0] <= C
+        if not square or (cm < 0).any():
+            raise TopsegError(
+                f"a saved confusion matrix must be kxk non-negative counts, 2 <= k <= {C} "
+                "(one saved before the label table grew is padded)"
+            )
+        acc.confusion = pad_confusion(cm)
         acc.frames = int(d["frames"])
         return acc

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from topseg.core import labels as L
 from topseg.core.bundled_model import bundled_model_path
 from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.crf import CRFConfig, realtime, segment_crf
@@ -138,6 +137,11 @@ class Segmenter:
     def reads_height(self) -> bool:
         """Whether the model reads heights above the floor (and so needs a mount)."""
         return self.reader.reads_height
+
+    @property
+    def n_classes(self) -> int:
+        """The number of classes the model knows (label ids 0..n_classes-1)."""
+        return self.forest.n_classes
 
     @property
     def counter_names(self) -> tuple[str, ...]:
@@ -280,4 +284,4 @@ class Segmenter:
                 smooth_depth(frame_depth, edge_table(mount.sensor, 1.0))
                 thin_edges(frame_depth, 1, 100.0)
         if self.config.crf.mode == "realtime":
-            realtime.warm_up(L.NUM_CLASSES)  # the solve of a large band, in parallel
+            realtime.warm_up(self.n_classes)  # the solve of a large band, in parallel

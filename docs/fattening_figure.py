@@ -42,7 +42,7 @@ def main() -> None:
     fatten_only = StereoNoise(**{**full.to_dict(), "speckle": 0.0, "disparity_sigma_px": 0.0})
     radius, jump = thinning_of(mount)
 
-    near = np.isin(lab, labels.HUMAN_IDS + labels.OBJECT_IDS)
+    near = np.isin(lab, labels.HUMAN_IDS + labels.FURNITURE_IDS)
     inside = ndimage.distance_transform_cdt(near, metric="chessboard")
     outside = ndimage.distance_transform_cdt(~near, metric="chessboard")
     signed = np.where(near, 1 - inside, outside)  # 0: the nearer surface's outermost pixel

@@ -416,7 +416,7 @@ def sensor_figures(plt) -> None:
 
     ax = axes[1, 2]
     cl, lb, _ = views["realsense_d435"]
-    fg = np.isin(lb, labels.HUMAN_IDS + labels.OBJECT_IDS)
+    fg = np.isin(lb, labels.HUMAN_IDS + labels.FURNITURE_IDS)
     dist = ndimage.distance_transform_cdt(~fg, metric="chessboard")
     m = StereoNoise(**{**d435.noise().to_dict(), "speckle": 0.0, "disparity_sigma_px": 0.0})
     share = {r: [] for r in (1, 2, 3)}

@@ -29,7 +29,7 @@ def toy_frame(
     for _ in range(int(rng.integers(1, 5))):
         y0, x0 = int(rng.integers(0, 400)), int(rng.integers(0, 560))
         h, w = int(rng.integers(20, 80)), int(rng.integers(20, 80))
-        cls = int(rng.integers(1, labels.NUM_CLASSES))
+        cls = int(rng.integers(1, labels.PAPER_NUM_CLASSES))  # the paper's classes
         top = int(rng.integers(1700, 3300))
         depth[y0 : y0 + h, x0 : x0 + w] = top
         label[y0 : y0 + h, x0 : x0 + w] = cls

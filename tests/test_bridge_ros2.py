@@ -23,6 +23,7 @@ from mcap_ros2.decoder import DecoderFactory
 from netutil import free_port, wait_for
 from zenoh import ext
 
+from topseg.core import labels as label_table
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import ros2_messages as ros2
 from topseg.core.formats import wire
@@ -188,8 +189,10 @@ def test_driver_frames_reach_a_ros2_reader_bit_exact_with_camera_info_tf_and_tok
     np.testing.assert_allclose(infos[0].k, [k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1])
     assert infos[0].header.frame_id == ros2.optical_frame(cell, camera)
 
-    # labels: the test plays the worker for one frame; mono8, bit-exact, same stamp
-    labels = (np.arange(k.height * k.width) % 11).astype(np.uint8).reshape(k.height, k.width)
+    # labels: the test plays the worker for one frame; mono8, bit-exact, same stamp; every
+    # class id, robot and object included
+    ids = np.arange(k.height * k.width) % label_table.NUM_CLASSES
+    labels = ids.astype(np.uint8).reshape(k.height, k.width)
     pub = ros.session.declare_publisher(
         wire.labels_key(cell, camera), congestion_control=zenoh.CongestionControl.BLOCK
     )

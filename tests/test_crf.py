@@ -19,7 +19,7 @@ from topseg.core.crf import (
 from topseg.core.errors import TopsegError
 from topseg.services.batch.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
-C = L.NUM_CLASSES
+C = L.PAPER_NUM_CLASSES  # a paper model's posteriors, as the stand-in forest's
 EXACT = CRFConfig(mode="exact")
 REALTIME = CRFConfig(mode="realtime")
 NONE = CRFConfig(mode="none")
@@ -141,8 +141,13 @@ def test_energy_refuses_bad_input():
         potts_energy(labels, proba, depth, REALTIME)
     with pytest.raises(TopsegError, match="shape"):
         potts_energy(labels[:3], proba, depth, REALTIME)
-    with pytest.raises(TopsegError, match="posteriors"):
-        segment_crf(proba[..., :5], depth, REALTIME)
+    too_many = np.zeros((4, 4, L.NUM_CLASSES + 1), np.float32)
+    for classes in (proba[..., :1], too_many):
+        with pytest.raises(TopsegError, match="posteriors"):
+            segment_crf(classes, depth, REALTIME)
+    labels[1, 1] = L.ROBOT  # the posteriors' model knows ids 0..10 only
+    with pytest.raises(TopsegError, match="class ids below the 11 classes"):
+        potts_energy(labels, proba, depth, REALTIME)
     with pytest.raises(TopsegError, match="depth shape"):
         segment_crf(proba, depth[:3], REALTIME)
 

@@ -27,7 +27,7 @@ from topseg.core.crf.realtime import (
 )
 from topseg.services.batch.bench.crf_standin import forest_like_posteriors, synthetic_scene
 
-C = L.NUM_CLASSES
+C = L.PAPER_NUM_CLASSES  # a paper model's posteriors, as the stand-in forest's
 CROSS = ndimage.generate_binary_structure(2, 1)
 
 

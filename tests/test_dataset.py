@@ -126,6 +126,41 @@ def test_resume_can_grow_a_dataset(tmp_path):
     np.testing.assert_array_equal(ds.depth[1], toy_frame(7, 1, "none")[0])
 
 
+def test_frames_may_hold_robots_and_objects(tmp_path):
+    path = tmp_path / "ds.zarr"
+    depth, lab, scene = toy_frame(7, 0, "none")
+    lab = np.where(lab == labels.BACKGROUND, labels.ROBOT, lab).astype(np.uint8)
+    lab[:10][depth[:10] > 0] = labels.OBJECT
+    with D.DatasetWriter.open(path, attrs(1)) as w:
+        D.FrameWriter(path).write(0, depth, lab, scene)
+        w.mark_complete([0])
+    assert set(np.unique(D.open_dataset(path).labels[0])) >= {labels.ROBOT, labels.OBJECT}
+    with pytest.raises(D.DatasetError, match=r"unknown label ids \[13\]"):
+        D.FrameWriter(path).write(0, depth, np.where(lab == labels.ROBOT, 13, lab), scene)
+
+
+def test_a_dataset_made_before_the_label_table_grew_resumes_with_its_classes(tmp_path):
+    path = tmp_path / "ds.zarr"
+    old = attrs(3)
+    old["labels"] = labels.as_json(labels.PAPER_NUM_CLASSES)
+    with D.DatasetWriter.open(path, old) as w:
+        D.FrameWriter(path).write(0, *toy_frame(7, 0, "none"))
+        w.mark_complete([0])
+    with D.DatasetWriter.open(path, attrs(3)) as w:  # today's table: it resumes
+        assert w.todo().tolist() == [1, 2]
+        fw = D.FrameWriter(path)
+        depth, lab, scene = toy_frame(7, 1, "none")
+        fw.write(1, depth, lab, scene)
+        robot = np.where(lab == labels.BACKGROUND, labels.ROBOT, lab).astype(np.uint8)
+        with pytest.raises(D.DatasetError, match=r"unknown label ids \[11\]"):
+            fw.write(2, depth, robot, scene)  # a class the dataset's table does not name
+    assert D.open_dataset(path).attrs["labels"] == labels.as_json(labels.PAPER_NUM_CLASSES)
+    foreign = attrs(3)
+    foreign["labels"] = [{**row, "name": "x"} for row in labels.as_json()]
+    with pytest.raises(D.DatasetError, match="labels: stored"):
+        D.DatasetWriter.open(path, foreign)
+
+
 def test_one_writer_at_a_time(tmp_path):
     path = tmp_path / "ds.zarr"
     with D.DatasetWriter.open(path, attrs(2)):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from topseg.core import forest
+from topseg.core import labels as L
 from topseg.core.forest.train import TrainConfig
 from topseg.core.formats import dataset as D
 from topseg.core.labels import LABELS, NO_DEPTH, NUM_CLASSES
@@ -190,3 +191,42 @@ def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
     assert docs["5"]["smoothness"] == 5.0
     np.testing.assert_array_equal(np.array(docs["5"]["confusion"]), want)
     assert docs["5"]["confusion"] != docs["0"]["confusion"]
+
+
+def test_robots_and_objects_get_their_rows_and_the_twelve_class_means(tmp_path):
+    from topseg.core.synth import procedural
+
+    path = tmp_path / "open.zarr"
+    attrs = D.make_attrs(
+        seed=6, mode="procedural", noise="none", room=None, generator={"name": "t"}, frames=4
+    )
+    rng = np.random.default_rng(6)
+    with D.DatasetWriter.open(path, attrs) as w:
+        fw = D.FrameWriter(path)
+        for i in range(4):
+            depth, labels = procedural.procedural_frame(rng)
+            labels[labels == L.TABLE] = L.ROBOT  # tables become robots, other furniture objects
+            labels[np.isin(labels, L.FURNITURE_IDS)] = L.OBJECT
+            fw.write(i, depth, labels, {"index": i})
+        w.mark_complete(range(4))
+    ds = D.open_dataset(path)
+    config = TrainConfig(
+        n_trees=1, max_depth=6, frames_per_tree=4, pixels_per_frame=300, n_candidates=10,
+        n_thresholds=10,
+    )  # fmt: skip
+    model = forest.train_forest(ds.depth, ds.labels, config, seed=1)
+    assert model.n_classes == L.NUM_CLASSES
+    forest.save_model(tmp_path / "m.npz", model, {})
+    r = subprocess.run(
+        [sys.executable, "-m", "topseg.services.cli", "evaluate", "--model",
+         str(tmp_path / "m.npz"), "--data", str(path), "--crf", "none", "--json",
+         str(tmp_path / "s.json")],
+        capture_output=True, text=True, timeout=300, check=True,
+    )  # fmt: skip
+    doc = json.loads((tmp_path / "s.json").read_text())
+    rows = [line.split()[0] for line in r.stdout.splitlines() if line.strip()]
+    assert "robot" in rows and "object" in rows
+    assert doc["per_class"]["robot"]["support"] > 0
+    assert doc["mAP"] != pytest.approx(doc["mAP_10"])
+    assert "mean (1-10)" in r.stdout and "mean (1-12)" in r.stdout
+    assert f"{doc['mAP']:.3f}" in r.stdout and f"{doc['mAP_10']:.3f}" in r.stdout

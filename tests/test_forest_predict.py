@@ -204,7 +204,7 @@ def test_labels_and_no_depth():
 def test_reused_output_and_bad_input():
     forest = random_forest(13, 2)
     depth = random_depth(14)
-    out = np.full((*depth.shape, labels.NUM_CLASSES), 7.0, np.float32)
+    out = np.full((*depth.shape, forest.n_classes), 7.0, np.float32)
     assert predict_proba(forest, depth, out=out) is out
     np.testing.assert_array_equal(out, predict_reference(forest, depth))
     with pytest.raises(ValueError, match="uint16"):

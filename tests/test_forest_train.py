@@ -231,6 +231,31 @@ def test_forest_trees_use_derived_seeds():
             np.testing.assert_array_equal(arr, forest.tree(t).arrays()[name])
 
 
+def test_a_tree_knows_the_papers_classes_and_any_higher_id_it_trained_on():
+    depth, lab = small_frames()
+    assert ft.train_tree(depth, lab, SMALL, seed=3).n_classes == labels.PAPER_NUM_CLASSES
+    for new, n_classes in ((labels.ROBOT, 12), (labels.OBJECT, 13)):
+        relabelled = np.where(lab == labels.PLANT, new, lab).astype(np.uint8)
+        tree = ft.train_tree(depth, relabelled, SMALL, seed=3)
+        assert tree.n_classes == n_classes
+        assert tree.posteriors[:, new].max() > 0.5
+        assert tree.posteriors[:, labels.PLANT].max() == 0
+
+
+def test_a_forest_of_trees_that_know_different_classes_knows_them_all():
+    depth, lab = small_frames()
+    robots = np.where(lab == labels.PLANT, labels.OBJECT, lab).astype(np.uint8)
+    paper, wide = ft.train_tree(depth, lab, SMALL, seed=3), ft.train_tree(depth, robots, SMALL, 4)
+    forest = Forest.from_trees([paper, wide])
+    assert forest.n_classes == labels.NUM_CLASSES
+    assert forest.tree(0).posteriors.shape == (paper.n_leaves, labels.NUM_CLASSES)
+    np.testing.assert_array_equal(forest.tree(0).posteriors[:, : paper.n_classes], paper.posteriors)
+    got = predict_proba(forest, depth[0])
+    alone = [predict_proba(Forest.from_trees([t]), depth[0]) for t in (paper, wide)]
+    padded = np.pad(alone[0], ((0, 0), (0, 0), (0, 2)))
+    np.testing.assert_allclose(got, (padded + alone[1]) / 2, atol=1e-6)
+
+
 @pytest.mark.parametrize("split", ["linear", "axis"])
 def test_leaves_hold_the_distribution_of_their_training_samples(split):
     """Inference routes each training pixel to the leaf training put it in."""
@@ -252,7 +277,7 @@ def test_leaves_hold_the_distribution_of_their_training_samples(split):
         assert np.all(match.sum(axis=1) >= 1)
         leaf_of[sel] = match.argmax(axis=1)
     for leaf_row in np.unique(leaf_of):
-        counts = np.bincount(y[leaf_of == leaf_row], minlength=labels.NUM_CLASSES)
+        counts = np.bincount(y[leaf_of == leaf_row], minlength=tree.n_classes)
         np.testing.assert_allclose(
             tree.posteriors[leaf_row], counts / counts.sum(), rtol=1e-6, atol=1e-7
         )

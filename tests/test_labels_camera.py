@@ -25,9 +25,15 @@ def test_label_table_matches_design():
         "plant",
         "storage",
         "table",
+        "robot",
+        "object",
     )
-    assert labels.NUM_CLASSES == 11
-    assert labels.SCORED_IDS == tuple(range(1, 11))
+    assert labels.NUM_CLASSES == 13
+    assert labels.SCORED_IDS == tuple(range(1, 13))
+    assert labels.PAPER_NUM_CLASSES == 11
+    assert labels.PAPER_SCORED_IDS == tuple(range(1, 11))
+    assert labels.OPEN_WORLD_IDS == (labels.ROBOT, labels.OBJECT) == (11, 12)
+    assert labels.FURNITURE_IDS == (7, 8, 9, 10)
     assert labels.NO_DEPTH == 255
     assert labels.by_name("table").id == 10
     with pytest.raises(KeyError, match="known"):
@@ -37,6 +43,9 @@ def test_label_table_matches_design():
 def test_colours_are_distinct_and_colorize_uses_them():
     colours = {lab.color for lab in labels.LABELS}
     assert len(colours) == labels.NUM_CLASSES
+    lut = labels.palette()
+    assert tuple(lut[labels.ROBOT]) != tuple(lut[200])  # not the colour of an unknown id
+    assert labels.NO_DEPTH_LABEL.color not in colours
     img = np.array([[0, 1], [10, 255]], np.uint8)
     rgb = labels.colorize(img)
     assert rgb.shape == (2, 2, 3)

@@ -19,6 +19,7 @@ from topseg.core.metrics import (
     head_blobs,
     head_detections,
     scores,
+    ten_class_scores,
     to_json,
 )
 
@@ -88,6 +89,90 @@ def test_scores_match_sklearn_including_absent_classes(seed):
     assert s["accuracy"] == pytest.approx(skm.accuracy_score(t, p))
 
 
+PAPER_IDS = list(L.PAPER_SCORED_IDS)
+
+
+def paper_maps(rng):
+    """Truth without robots or objects, and a prediction that never says robot or object
+    (a model trained on the paper's classes)."""
+    truth, pred = random_maps(rng, absent=L.OPEN_WORLD_IDS)
+    pred[np.isin(pred, L.OPEN_WORLD_IDS)] = L.TABLE
+    return truth, pred
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_twelve_and_ten_class_means_match_sklearn(seed):
+    rng = np.random.default_rng(seed)
+    truth, pred = random_maps(rng)
+    t, p = sklearn_view(truth, pred)
+    s = scores(confusion_matrix(truth, pred))
+    assert [L.NAMES[i] for i in IDS][-2:] == ["robot", "object"] == list(s["per_class"])[-2:]
+    for key, fn in (
+        ("mAP", skm.precision_score),
+        ("mAR", skm.recall_score),
+        ("avg_f1", skm.f1_score),
+    ):
+        every = fn(t, p, labels=IDS, average="macro", zero_division=np.nan)
+        ten = fn(t, p, labels=PAPER_IDS, average="macro", zero_division=np.nan)
+        assert s[key] == pytest.approx(every) and s[f"{key}_10"] == pytest.approx(ten)
+        assert s[key] != pytest.approx(s[f"{key}_10"])
+
+
+def test_without_robots_or_objects_both_means_agree_and_tables_read_as_before():
+    rng = np.random.default_rng(11)
+    s = scores(confusion_matrix(*paper_maps(rng)))
+    for key in ("mAP", "mAR", "avg_f1"):
+        assert s[key] == s[f"{key}_10"]
+    for name in ("robot", "object"):
+        assert s["per_class"][name]["support"] == 0 and np.isnan(s["per_class"][name]["f1"])
+    table = format_table(s)
+    assert "robot" not in table and "object" not in table
+    assert [line.split()[0] for line in table.splitlines()].count("mean") == 1
+    ten = ten_class_scores(s)
+    assert list(ten["per_class"]) == [L.NAMES[i] for i in PAPER_IDS]
+    assert not any(key.endswith("_10") for key in ten)
+    assert (ten["mAP"], ten["mAR"], ten["avg_f1"]) == (s["mAP_10"], s["mAR_10"], s["avg_f1_10"])
+
+
+def test_a_table_shows_robot_and_object_rows_and_both_means_where_they_differ():
+    rng = np.random.default_rng(12)
+    truth, pred = random_maps(rng, absent=(L.OBJECT,))  # robots in the truth, objects predicted
+    s = scores(confusion_matrix(truth, pred))
+    lines = format_table(s).splitlines()
+    rows = {line.split()[0]: line.split()[1:] for line in lines[2:] if line[0] != "-"}
+    assert rows["robot"][3] == str(s["per_class"]["robot"]["support"]) != "0"
+    assert rows["object"][1] == "-" and rows["object"][0] == "0.000"  # predicted, never there
+    ten = next(line for line in lines if line.startswith("mean (1-10)")).split()[2:]
+    every = next(line for line in lines if line.startswith("mean (1-12)")).split()[2:]
+    assert ten == [f"{s[k]:.3f}" for k in ("mAP_10", "mAR_10", "avg_f1_10")]
+    assert every == [f"{s[k]:.3f}" for k in ("mAP", "mAR", "avg_f1")]
+    # scores read back from JSON written before the table grew: the ten-class means only
+    old = json.loads(to_json(ten_class_scores(s)))
+    assert "mean (1-12)" not in format_table(old) and "robot" not in format_table(old)
+
+
+def test_a_confusion_saved_before_the_table_grew_is_read_padded():
+    rng = np.random.default_rng(13)
+    truth, pred = paper_maps(rng)
+    whole = confusion_matrix(truth, pred)
+    old = {"confusion": whole[: L.PAPER_NUM_CLASSES, : L.PAPER_NUM_CLASSES].tolist(), "frames": 3}
+    acc = ConfusionAccumulator.from_dict(old)
+    assert acc.frames == 3 and acc.confusion.shape == (C, C)
+    np.testing.assert_array_equal(acc.confusion, whole)
+    assert to_json(acc.scores()) == to_json({**scores(whole), "frames": 3})
+    for bad in (np.zeros((C + 1, C + 1), int), np.zeros((11, 10), int), -np.ones((11, 11), int)):
+        with pytest.raises(TopsegError, match="kxk non-negative"):
+            ConfusionAccumulator.from_dict({"confusion": bad.tolist(), "frames": 1})
+
+
+def test_bootstrap_draws_over_the_ten_classes_are_the_ten_class_avg_f1():
+    rng = np.random.default_rng(14)
+    frame = confusion_matrix(*random_maps(rng))
+    draws = avg_f1_draws(frame[None], 3, ids=L.PAPER_SCORED_IDS)
+    np.testing.assert_allclose(draws, scores(frame)["avg_f1_10"])
+    assert scores(frame)["avg_f1_10"] != pytest.approx(scores(frame)["avg_f1"])
+
+
 def test_no_depth_conventions():
     truth = np.array([[L.NO_DEPTH, L.HEAD, L.BACKGROUND, L.HEAD]], np.uint8)
     pred = np.array([[L.HEAD, L.NO_DEPTH, L.NO_DEPTH, L.HEAD]], np.uint8)
@@ -103,13 +188,13 @@ def test_no_depth_conventions():
 
 def test_bad_input_is_refused():
     good = np.zeros((2, 2), np.uint8)
-    with pytest.raises(TopsegError, match="id 11"):
-        confusion_matrix(good, np.full((2, 2), 11, np.uint8))
+    with pytest.raises(TopsegError, match="id 13"):
+        confusion_matrix(good, np.full((2, 2), 13, np.uint8))
     with pytest.raises(TopsegError, match="shape"):
         confusion_matrix(good, np.zeros((2, 3), np.uint8))
     with pytest.raises(TopsegError, match="integers"):
         confusion_matrix(good.astype(float), good)
-    with pytest.raises(TopsegError, match="11x11"):
+    with pytest.raises(TopsegError, match="13x13"):
         scores(np.zeros((3, 3)))
 
 
@@ -168,11 +253,11 @@ def test_bootstrap_of_one_frame_is_its_own_score_and_bad_input_is_refused():
     frame = confusion_matrix(*random_maps(rng))
     draws = avg_f1_draws(frame[None], draws=5)
     np.testing.assert_allclose(draws, scores(frame)["avg_f1"])
-    assert np.isnan(avg_f1_draws(np.zeros((3, 11, 11), np.int64), 2)).all()  # nothing scored
+    assert np.isnan(avg_f1_draws(np.zeros((3, C, C), np.int64), 2)).all()  # nothing scored
     with pytest.raises(TopsegError, match="frame confusions"):
-        avg_f1_draws(np.zeros((11, 11)), 2)
+        avg_f1_draws(np.zeros((C, C)), 2)
     with pytest.raises(TopsegError, match="frame confusions"):
-        avg_f1_draws(np.zeros((0, 11, 11)), 2)
+        avg_f1_draws(np.zeros((0, C, C)), 2)
     with pytest.raises(TopsegError, match="draws"):
         avg_f1_draws(frame[None], 0)
 

@@ -54,7 +54,8 @@ def test_round_trip_is_exact(tmp_path, forest):
         np.testing.assert_array_equal(got, arr)
     assert loaded.background_mm == forest.background_mm
     assert header["magic"] == MAGIC and header["format_version"] == FORMAT_VERSION
-    assert header["labels"] == labels.as_json()
+    assert header["labels"] == labels.as_json(labels.PAPER_NUM_CLASSES)
+    assert loaded.n_classes == labels.PAPER_NUM_CLASSES
     assert header["camera"] == {"fx": 570.3} and header["note"] == "test"
     assert header["forest"]["n_trees"] == 3 and header["forest"]["max_depth"] == 6
     depth = np.random.default_rng(1).integers(500, 4000, (12, 16)).astype(np.uint16)
@@ -126,6 +127,43 @@ def test_wrong_version_and_magic_are_refused(tmp_path, forest):
     ):
         dst = tmp_path / "bad.npz"
         patched = header_npy({**header, **change})
+        rewrite(src, dst, lambda name, data, p=patched: p if name == "header.npy" else data)
+        with pytest.raises(ModelFileError, match=message):
+            load_model(dst)
+
+
+def test_a_model_of_every_class_round_trips_with_the_whole_table(tmp_path):
+    rng = np.random.default_rng(3)
+    trees = [random_tree(rng, 4, 2, 80000.0, n_classes=labels.NUM_CLASSES) for _ in range(2)]
+    forest = Forest.from_trees(trees)
+    save_model(tmp_path / "m.npz", forest)
+    loaded, header = load_model(tmp_path / "m.npz")
+    assert loaded.n_classes == labels.NUM_CLASSES
+    assert [row["name"] for row in header["labels"]][-3:] == ["robot", "object", "no-depth"]
+    depth = rng.integers(500, 4000, (12, 16)).astype(np.uint16)
+    assert predict_proba(loaded, depth).shape == (12, 16, labels.NUM_CLASSES)
+
+
+def test_a_header_table_that_is_not_a_prefix_of_todays_is_refused(tmp_path, forest):
+    src = tmp_path / "m.npz"
+    save_model(src, forest)
+    with zipfile.ZipFile(src) as z:
+        header = json.loads(np.load(z.open("header.npy")).tobytes())
+    table = header["labels"]
+    renamed = [*table[:-2], {**table[-2], "name": "desk"}, table[-1]]
+    recoloured = [*table[:-2], {**table[-2], "color": [1, 2, 3]}, table[-1]]
+    gap = [*table[:-2], table[-1]]  # 10 classes: the posteriors hold 11
+    longer = labels.as_json()  # 13 classes: the posteriors hold 11
+    for change, message in (
+        (renamed, "label table"),
+        (recoloured, "label table"),
+        ([table[-1]], "label table"),
+        ("labels", "label table"),
+        (gap, "names 10 classes but the posteriors hold 11"),
+        (longer, "names 13 classes but the posteriors hold 11"),
+    ):
+        dst = tmp_path / "bad.npz"
+        patched = header_npy({**header, "labels": change})
         rewrite(src, dst, lambda name, data, p=patched: p if name == "header.npy" else data)
         with pytest.raises(ModelFileError, match=message):
             load_model(dst)

@@ -41,7 +41,7 @@ def wire_messages(cell="c1", camera="cam0", n=6):
     for i, mount in enumerate(mounts):
         stamp = STAMP + i * 33_000_000
         depth = rng.integers(0, 65536, K.shape, dtype=np.uint16)
-        truth = rng.integers(0, 11, K.shape, dtype=np.uint8)
+        truth = rng.integers(0, label_table.NUM_CLASSES, K.shape, dtype=np.uint8)
         truth[0, :3] = label_table.NO_DEPTH
         out.append(
             (
@@ -117,6 +117,7 @@ def test_the_file_follows_the_mcap_ros2_profile(written):
         }
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     table = {int(k): json.loads(v) for k, v in metadata["topseg.labels"].items()}
+    assert table[11]["name"] == "robot" and table[12]["name"] == "object"
     assert table == {
         lab.id: {"name": lab.name, "color": list(lab.color)}
         for lab in (*label_table.LABELS, label_table.NO_DEPTH_LABEL)

@@ -223,6 +223,29 @@ def test_score_equals_the_confusion_computed_by_hand():
         score(Segmenter(model, crf="none"), frames)  # Kinect v1 expected: 640x480
 
 
+def test_a_model_that_knows_robots_and_objects_labels_them_through_every_stage():
+    rng = np.random.default_rng(5)
+    trees = [forest.random_tree(rng, 5, 2, 40 * 2500.0, 300.0, L.NUM_CLASSES) for _ in range(2)]
+    model = forest.Forest.from_trees(trees)
+    header = {
+        "dataset": {"attrs": {"camera": TopViewMount(SMALL, PAPER_MOUNT.height_mm).to_dict()}}
+    }
+    config = crf.CRFConfig(mode="realtime", smoothness=2.0)
+    seg = Segmenter(model, header, crf=config)
+    assert seg.n_classes == L.NUM_CLASSES
+    seg.warm_up()
+    depth = rng.integers(1500, 4000, size=SMALL.shape).astype(np.uint16)
+    got = seg.label(depth)
+    proba = forest.predict_proba(model, depth)
+    assert got.proba.shape == (*SMALL.shape, L.NUM_CLASSES)
+    np.testing.assert_array_equal(got.forest_labels(), numpy_argmax(proba, depth))
+    want = crf.segment_crf(proba, depth, config)
+    relabel_as_the_segmenter(want, depth, SMALL)
+    np.testing.assert_array_equal(got.labels, want)
+    assert {L.ROBOT, L.OBJECT} <= set(np.unique(got.forest_labels()).tolist())
+    assert set(L.OPEN_WORLD_IDS) & set(np.unique(got.labels).tolist())
+
+
 def height_segmenter(**config):
     from topseg.core.forest.inputs import header_fields, trained_for
 
@@ -490,7 +513,7 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
     np.testing.assert_array_equal(got.labels, upsample_labels(depth, want.labels, small, 2))
     forest_labels = upsample_labels(depth, want.forest_labels(), small, 2)
     np.testing.assert_array_equal(got.forest_labels(), forest_labels)
-    assert got.proba.shape == (*small.shape, L.NUM_CLASSES)
+    assert got.proba.shape == (*small.shape, auto.n_classes) == (*small.shape, 11)
     np.testing.assert_array_equal(got.proba, want.proba)
     assert got.floor_share == want.floor_share > 0
     t = got.timings

@@ -14,6 +14,7 @@ import pytest
 import zenoh
 from netutil import free_port, wait_for
 
+from topseg.core import labels
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
@@ -146,6 +147,18 @@ def test_viewer_stops_after_duration_and_writes_a_valid_rrd(tmp_path):
     assert proc.returncode == 0, proc.stderr
     text = rrd_print(rrd)
     assert "/@AnnotationContext" in text and "/legend@Points2D" in text
+
+
+def test_the_annotation_context_names_and_colours_every_label():
+    from topseg.services.live.viewer import annotation_context
+
+    rows = annotation_context().context.as_arrow_array().to_pylist()[0]
+    got = {r["class_id"]: r["class_description"]["info"] for r in rows}
+    table = (*labels.LABELS, labels.NO_DEPTH_LABEL)
+    assert [got[lab.id]["label"] for lab in table] == [lab.name for lab in table]
+    for lab in table:  # colours are packed 0xRRGGBBAA
+        assert got[lab.id]["color"] >> 8 == int.from_bytes(bytes(lab.color), "big")
+    assert got[labels.ROBOT]["label"] == "robot" and got[labels.OBJECT]["label"] == "object"
 
 
 @pytest.mark.parametrize(

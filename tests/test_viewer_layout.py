@@ -50,3 +50,4 @@ def test_the_legend_shows_every_label_with_its_id_and_name():
     np.testing.assert_array_equal(ids, [lab.id for lab in table])
     names = legend.labels.as_arrow_array().to_pylist()
     assert names == [lab.name for lab in table]
+    assert names[-3:] == ["robot", "object", "no-depth"]

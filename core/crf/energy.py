@@ -110,10 +110,14 @@ class CRFConfig:
 
 
 def check_proba(proba: np.ndarray) -> np.ndarray:
-    """(H, W, NUM_CLASSES) floating posteriors, or a TopsegError that says what is wrong."""
+    """(H, W, C) floating posteriors over a model's C classes (2 <= C <= NUM_CLASSES), or a
+    TopsegError that says what is wrong."""
     proba = np.asarray(proba)
-    if proba.ndim != 3 or proba.shape[2] != L.NUM_CLASSES:
-        raise TopsegError(f"posteriors must be (H, W, {L.NUM_CLASSES}), got shape {proba.shape}")
+    if proba.ndim != 3 or not 2 <= proba.shape[2] <= L.NUM_CLASSES:
+        raise TopsegError(
+            f"posteriors must be (H, W, C) with 2 <= C <= {L.NUM_CLASSES} classes, "
+            f"got shape {proba.shape}"
+        )
     if not np.issubdtype(proba.dtype, np.floating):
         raise TopsegError(f"posteriors must be floating point, got {proba.dtype}")
     return proba
@@ -208,7 +212,7 @@ def potts_energy(
 
     `proba_or_unaries` is (H, W, C) posteriors (`kind="proba"`, turned into unaries with
     `config.eps`) or ready unaries (`kind="unary"`). Pixels with depth == 0 are left out;
-    every other pixel must carry a class id below NUM_CLASSES.
+    every other pixel must carry a class id below C.
     """
     arr = check_proba(proba_or_unaries)
     depth = check_depth_shape(depth, arr.shape[:2])
@@ -216,8 +220,10 @@ def potts_energy(
     if labels.shape != arr.shape[:2]:
         raise TopsegError(f"labels shape {labels.shape} does not match posteriors {arr.shape[:2]}")
     valid = depth > 0
-    if np.any(labels[valid] >= L.NUM_CLASSES):
-        raise TopsegError("labels of pixels with depth must be class ids below NUM_CLASSES")
+    if np.any(labels[valid] >= arr.shape[2]):
+        raise TopsegError(
+            f"labels of pixels with depth must be class ids below the {arr.shape[2]} classes"
+        )
     if kind == "proba":
         unary = unaries_from_posteriors(arr, config.eps)
     elif kind == "unary":

@@ -92,7 +92,7 @@ def grow_tree(
     `offsets` are the pool's probe offsets (a node stores its features' offsets); `key`
     seeds every node's stream; `progress(level, nodes)` is called after each level.
     """
-    n_classes = label_table.NUM_CLASSES
+    n_classes = max(label_table.PAPER_NUM_CLASSES, int(y.max(initial=0)) + 1)
     k = config.features_per_node
     idx = np.arange(y.shape[0], dtype=np.int64)
     y = y.astype(np.int64)

@@ -3,7 +3,9 @@
 Layout: a deflate-compressed numpy `.npz` zip archive holding
 
 - `header`: uint8 bytes of a UTF-8 JSON object with `magic` ("topseg-model"),
-  `format_version`, `labels` (the label table the forest predicts), `forest` (its shape,
+  `format_version`, `labels` (the classes the forest predicts: the first n_classes rows of
+  the label table, then no-depth; a model trained before the table grew holds a shorter
+  prefix of today's table and still loads), `forest` (its shape,
   `background_mm` and `off_image`), and whatever the caller adds (camera, feature and
   training config, dataset fingerprint, validation metrics...);
 - one `.npy` member per array of `Forest.arrays()`.
@@ -85,7 +87,7 @@ def save_model(
     full = {
         "magic": MAGIC,
         "format_version": FORMAT_VERSION,
-        "labels": labels.as_json(),
+        "labels": labels.as_json(forest.n_classes),
         "forest": _forest_header(forest),
         **extra,
     }
@@ -175,7 +177,7 @@ def _read_header(npz: Any, path: Path) -> dict[str, Any]:
             f"{path} has model format version {version!r}; this topseg reads version "
             f"{FORMAT_VERSION} (retrain or convert the model)"
         )
-    if header.get("labels") != labels.as_json():
+    if labels.table_classes(header.get("labels")) is None:
         raise ModelFileError(f"{path} was trained for a different label table than this topseg's")
     forest = header.get("forest")
     if not isinstance(forest, dict) or not _is_int(forest.get("background_mm")):
@@ -218,6 +220,11 @@ def check_header(forest: Forest, header: dict[str, Any], path: str | os.PathLike
     for key in ("n_trees", "n_nodes"):
         if key not in described:
             raise ModelFileError(f"{path}: the header's forest description lacks {key!r}")
+    if labels.table_classes(header.get("labels")) != forest.n_classes:
+        raise ModelFileError(
+            f"{path}: the header names {len(header.get('labels', [])) - 1} classes but the "
+            f"posteriors hold {forest.n_classes}"
+        )
     try:
         model_camera(header)
         features = model_features(header, forest)

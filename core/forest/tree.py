@@ -9,8 +9,10 @@ Node i of a tree is described by row i of each array:
 - `left[i]`     int32: index of the left child; the right child is `left[i] + 1`; -1 marks
   a leaf. Children always come after their parent (`left[i] > i`), which makes every walk
   from the root finite;
-- `leaf[i]`     int32: for a leaf, its row in `posteriors` (n_leaves, NUM_CLASSES) float32,
+- `leaf[i]`     int32: for a leaf, its row in `posteriors` (n_leaves, n_classes) float32,
   the class distribution of the training samples that reached it; -1 for split nodes.
+  A model knows `n_classes` classes: ids 0..n_classes-1 of the label table, 2 to
+  NUM_CLASSES of them (a model trained on the paper's classes knows PAPER_NUM_CLASSES).
 
 A `Forest` is the concatenation of T trees with child and leaf indices shifted, plus
 `roots` (T,) int32, so inference over all trees is one numba call.
@@ -27,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from topseg.core.labels import NUM_CLASSES
+from topseg.core.labels import NUM_CLASSES, PAPER_NUM_CLASSES
 
 #: array name -> dtype, for every node/leaf array of a tree or forest
 ARRAY_DTYPES: dict[str, np.dtype] = {
@@ -66,8 +68,11 @@ def validate_arrays(arrays: dict[str, np.ndarray], roots: np.ndarray) -> None:
     ):
         if arr.shape != shape:
             raise ValueError(f"array {name!r} must have shape {shape}, got {arr.shape}")
-    if posteriors.ndim != 2 or posteriors.shape[1] != NUM_CLASSES:
-        raise ValueError(f"posteriors must be (n_leaves, {NUM_CLASSES}), got {posteriors.shape}")
+    if posteriors.ndim != 2 or not 2 <= posteriors.shape[1] <= NUM_CLASSES:
+        raise ValueError(
+            f"posteriors must be (n_leaves, n_classes) with 2 <= n_classes <= {NUM_CLASSES}, "
+            f"got {posteriors.shape}"
+        )
     if n == 0:
         raise ValueError("a forest needs at least one node")
     if roots.dtype != np.int32 or roots.ndim != 1 or roots.size == 0:
@@ -126,6 +131,11 @@ class Tree:
         return int(self.posteriors.shape[0])
 
     @property
+    def n_classes(self) -> int:
+        """Number of classes the tree knows (columns of `posteriors`, ids 0..n_classes-1)."""
+        return int(self.posteriors.shape[1])
+
+    @property
     def depth(self) -> int:
         """Length of the longest root-to-leaf path (0 for a lone leaf)."""
         return int(node_depths(self.left, np.zeros(1, np.int32)).max())
@@ -156,7 +166,10 @@ class Forest:
 
     @classmethod
     def from_trees(cls, trees: list[Tree]) -> Forest:
-        """Concatenate trees; they must share k (the number of features per node)."""
+        """Concatenate trees; they must share k (the number of features per node).
+
+        The forest knows the most classes any tree knows: a tree that saw fewer (its bag
+        held no pixel of a later class) gets zero posterior columns for them."""
         if not trees:
             raise ValueError("a forest needs at least one tree")
         ks = {t.offsets.shape[1] for t in trees}
@@ -169,10 +182,12 @@ class Forest:
             raise ValueError("trees mix what a probe off the image reads")
         node_base = np.cumsum([0] + [t.n_nodes for t in trees])
         leaf_base = np.cumsum([0] + [t.n_leaves for t in trees])
+        n_classes = max(t.n_classes for t in trees)
         parts: dict[str, list[np.ndarray]] = {name: [] for name in ARRAY_DTYPES}
         for t, nb, lb in zip(trees, node_base, leaf_base, strict=False):
-            for name in ("offsets", "weights", "threshold", "posteriors"):
+            for name in ("offsets", "weights", "threshold"):
                 parts[name].append(getattr(t, name))
+            parts["posteriors"].append(_widen(t.posteriors, n_classes))
             parts["left"].append(np.where(t.left >= 0, t.left + nb, -1).astype(np.int32))
             parts["leaf"].append(np.where(t.leaf >= 0, t.leaf + lb, -1).astype(np.int32))
         arrays = {name: np.concatenate(p) for name, p in parts.items()}
@@ -218,9 +233,20 @@ class Forest:
         return int(self.offsets.shape[1])
 
     @property
+    def n_classes(self) -> int:
+        """Number of classes the forest knows (columns of `posteriors`, ids 0..n_classes-1)."""
+        return int(self.posteriors.shape[1])
+
+    @property
     def depth(self) -> int:
         """The deepest leaf's depth (the root is depth 0)."""
         return int(node_depths(self.left, self.roots).max())
+
+
+def _widen(posteriors: np.ndarray, n_classes: int) -> np.ndarray:
+    """`posteriors` with zero columns appended up to `n_classes`."""
+    missing = n_classes - posteriors.shape[1]
+    return np.pad(posteriors, ((0, 0), (0, missing))) if missing else posteriors
 
 
 def node_depths(left: np.ndarray, roots: np.ndarray) -> np.ndarray:
@@ -241,8 +267,10 @@ def random_tree(
     features_per_node: int,
     max_offset: float,
     threshold_scale: float = 300.0,
+    n_classes: int = PAPER_NUM_CLASSES,
 ) -> Tree:
-    """A full binary tree of `depth` with random splits and random leaf posteriors.
+    """A full binary tree of `depth` with random splits and random leaf posteriors over
+    `n_classes` classes.
 
     Stands in for a trained tree where only the shape matters: kernel tests and the
     inference benchmark (every pixel walks all `depth` levels, the worst case).
@@ -258,5 +286,5 @@ def random_tree(
     ids = np.arange(n)
     left = np.where(ids < n_split, 2 * ids + 1, -1).astype(np.int32)
     leaf = np.where(ids < n_split, -1, ids - n_split).astype(np.int32)
-    posteriors = rng.dirichlet(np.full(NUM_CLASSES, 0.3), size=n - n_split).astype(np.float32)
+    posteriors = rng.dirichlet(np.full(n_classes, 0.3), size=n - n_split).astype(np.float32)
     return Tree(offsets, w.astype(np.float32), threshold, left, leaf, posteriors)

@@ -34,7 +34,9 @@ Root attributes: `topseg_dataset` (format name and version), `frames`, `height`,
 fallback of frames without their own), `mounts` (what the frames' mounts span: height_mm
 [lo, hi], tilt_deg, sensors, resolutions; what a model header's `trained_for` records),
 `labels` (the label table), `topseg_version`, `created`. The identity of a dataset (what must match to resume into it) is
-everything but `frames`, `topseg_version` and `created`; `frames` may grow.
+everything but `frames`, `topseg_version` and `created`; `frames` may grow. A dataset made
+before the label table grew holds a prefix of today's table: it resumes, and its frames
+keep to the classes it names.
 """
 
 from __future__ import annotations
@@ -67,10 +69,6 @@ COMPLETE_CHUNK = 4096
 FRAME_SEED_RULE = (
     "numpy.random.SeedSequence([seed, index]).generate_state(2, uint32) read as one uint64"
 )
-
-_VALID_LABEL = np.zeros(256, bool)
-_VALID_LABEL[: label_table.NUM_CLASSES] = True
-_VALID_LABEL[label_table.NO_DEPTH] = True
 
 
 class DatasetError(TopsegError):
@@ -379,6 +377,9 @@ def _ensure_arrays(group, path: Path, attrs: dict) -> dict:
 def _resume(path: Path, attrs: dict):
     group, stored = _open_group(path, "r+")
     old, new = _identity(stored), _identity(attrs)
+    grown = new.get("labels") == label_table.as_json()
+    if grown and label_table.table_classes(old.get("labels")) is not None:
+        new["labels"] = old["labels"]  # made before the table grew: it keeps its classes
     if old != new:
         diffs = [
             f"{k}: stored {json.dumps(old.get(k))}, asked {json.dumps(new.get(k))}"
@@ -437,12 +438,14 @@ class FrameWriter:
         }
         self.shape = (attrs["height"], attrs["width"])
         self.frames = attrs["frames"]
+        # the classes the dataset's own table names (fewer in one made before it grew)
+        self.n_classes = label_table.table_classes(attrs.get("labels")) or label_table.NUM_CLASSES
 
     def write(self, index: int, depth: np.ndarray, labels: np.ndarray, scene: dict) -> None:
         """Validate one frame and write its depth, labels and scene chunks."""
         if not 0 <= index < self.frames:
             raise DatasetError(f"frame index {index} outside 0..{self.frames - 1}")
-        depth, labels = check_frame(depth, labels, self.shape, index)
+        depth, labels = check_frame(depth, labels, self.shape, index, self.n_classes)
         try:
             text = json.dumps(scene, separators=(",", ":"), allow_nan=False)
         except (TypeError, ValueError) as exc:
@@ -464,9 +467,14 @@ class FrameWriter:
 
 
 def check_frame(
-    depth: np.ndarray, labels: np.ndarray, shape: tuple[int, int], index: int = -1
+    depth: np.ndarray,
+    labels: np.ndarray,
+    shape: tuple[int, int],
+    index: int = -1,
+    n_classes: int = label_table.NUM_CLASSES,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Refuse a frame that breaks the dataset's contract (shape, dtype, label ids, no-depth).
+    """Refuse a frame that breaks the dataset's contract (shape, dtype, label ids below
+    `n_classes` or NO_DEPTH, no-depth exactly where depth is 0).
 
     A frame smaller than `shape` (a sensor of lower resolution) is accepted and returned padded
     top-left to `shape` with depth 0 and NO_DEPTH labels; a larger one is refused.
@@ -487,9 +495,9 @@ def check_frame(
         raise DatasetError(
             f"{what}: labels are {labels.dtype}{labels.shape}, expected uint8{shape}"
         )
-    if not _VALID_LABEL[labels].all():
-        bad = np.unique(labels[~_VALID_LABEL[labels]])
-        raise DatasetError(f"{what}: unknown label ids {bad.tolist()}")
+    invalid = (labels >= n_classes) & (labels != label_table.NO_DEPTH)
+    if invalid.any():
+        raise DatasetError(f"{what}: unknown label ids {np.unique(labels[invalid]).tolist()}")
     if not np.array_equal(labels == label_table.NO_DEPTH, depth == 0):
         raise DatasetError(f"{what}: labels must be NO_DEPTH exactly where depth is 0")
     return depth, labels

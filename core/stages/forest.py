@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from topseg.core import labels as L
 from topseg.core.crf import segment_argmax
 from topseg.core.crf.argmax import Summary
 from topseg.core.errors import TopsegError
@@ -32,7 +31,7 @@ class ForestStage(Stage):
 
     def predict(self, inp: ModelInput, stride: int, lazy: bool = False) -> np.ndarray:
         """The posteriors of `inp` into the reused buffer (on the grid `stride`)."""
-        shape = (*inp.shape, L.NUM_CLASSES)
+        shape = (*inp.shape, self.model.forest.n_classes)
         if self._out is None or self._out.shape != shape:
             self._out = np.empty(shape, np.float32)
             self._summary = Summary.empty(inp.shape)  # filled with _out, read by the CRF

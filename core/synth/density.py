@@ -57,7 +57,7 @@ FACTORS = (
     "OO_rel",
 )
 #: object classes by label name, in the label table's order (the draw order of `rng.choice`)
-CLASSES: tuple[str, ...] = tuple(labels.name_of(i) for i in labels.OBJECT_IDS)
+CLASSES: tuple[str, ...] = tuple(labels.name_of(i) for i in labels.FURNITURE_IDS)
 REST_TOL_M = 1e-3
 #: half width (m) of the band across an open edge of the view where edge humans stand
 HUMAN_EDGE_M = 0.4

@@ -10,6 +10,9 @@ it, the renderer shows it.
 Variants are a small catalogue of footprints and styles (as in a furniture catalogue), so
 the scene builder can keep one pybullet body per (kind, variant, height on a 1 cm grid) alive
 between frames instead of creating shapes per frame.
+
+The tables also list the cell objects of `cell_objects` (class "object": boxes, drums, racks,
+...), and `model` builds them too, so they are placed, pooled and rendered like furniture.
 """
 
 from __future__ import annotations
@@ -20,9 +23,10 @@ from functools import lru_cache
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.synth import cell_objects
 from topseg.core.synth.geometry import BOX, CYLINDER, SPHERE, Part, rect_footprint
 
-#: kind -> label class, the paper's two instances per class
+#: kind -> label class, the paper's two instances per class, then the cell objects
 KINDS: dict[str, int] = {
     "chair_plain": labels.CHAIR,
     "chair_armrest": labels.CHAIR,
@@ -32,6 +36,7 @@ KINDS: dict[str, int] = {
     "plant_flowers": labels.PLANT,
     "storage_shelf": labels.STORAGE,
     "storage_wardrobe": labels.STORAGE,
+    **dict.fromkeys(cell_objects.KINDS, cell_objects.LABEL),
 }
 #: class name -> its kinds
 KINDS_OF: dict[str, tuple[str, ...]] = {
@@ -39,6 +44,7 @@ KINDS_OF: dict[str, tuple[str, ...]] = {
     "table": ("table_rect", "table_round"),
     "plant": ("plant_potted", "plant_flowers"),
     "storage": ("storage_shelf", "storage_wardrobe"),
+    cell_objects.CLASS: cell_objects.KINDS,
 }
 CLASS_OF_KIND: dict[str, str] = {k: c for c, ks in KINDS_OF.items() for k in ks}
 N_VARIANTS = 4
@@ -73,12 +79,12 @@ class FurnitureModel:
 
     @property
     def label(self) -> int:
-        """The label id of the item's class (every kind is one of the paper's four classes)."""
+        """The label id of the item's class (one of the paper's four, or `object`)."""
         return KINDS[self.kind]
 
     @property
     def cls(self) -> str:
-        """The class name ("chair", "table", "plant" or "storage") of this kind."""
+        """The class name ("chair", "table", "plant", "storage" or "object") of this kind."""
         return CLASS_OF_KIND[self.kind]
 
     def footprint(self, x: float, y: float, yaw: float) -> np.ndarray:
@@ -315,6 +321,11 @@ def model(kind: str, variant: int, height: float) -> FurnitureModel:
         raise ValueError(f"variant must be in 0..{N_VARIANTS - 1}, got {variant}")
     if not 0.05 <= height <= 3.0:
         raise ValueError(f"furniture height {height} m is out of range")
+    if kind in cell_objects.KINDS:
+        c = cell_objects.build(kind, variant, height)
+        return FurnitureModel(
+            kind, variant, height, c.size_x, c.size_y, c.shape, c.parts, c.features
+        )
     if kind.startswith("chair"):
         return _chair(variant, height, kind == "chair_armrest")
     if kind == "table_rect":

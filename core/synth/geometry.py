@@ -20,6 +20,10 @@ KIND_NAMES = ("sphere", "capsule", "box", "cylinder")
 
 IDENTITY_QUAT = (0.0, 0.0, 0.0, 1.0)
 
+#: the most parts one item (a pooled pybullet body) can have: pybullet keeps at most 16
+#: shapes of a visual shape array and drops the rest without a word
+MAX_PARTS = 16
+
 
 @dataclass(frozen=True)
 class Part:

@@ -27,6 +27,7 @@ from topseg.core.synth.geometry import (
     BOX,
     CAPSULE,
     CYLINDER,
+    MAX_PARTS,
     SPHERE,
     Part,
     quat_to_matrix,
@@ -141,6 +142,10 @@ def _create_compound(client: int, parts, label: int) -> Body:
     """One static body whose base carries all `parts` (geometry.Part) as visual shapes."""
     import pybullet as p
 
+    if len(parts) > MAX_PARTS:
+        raise ValueError(
+            f"an item has at most {MAX_PARTS} parts (pybullet's limit), got {len(parts)}"
+        )
     types, half, radii, lengths, pos, orn = [], [], [], [], [], []
     geom = {
         SPHERE: p.GEOM_SPHERE,
@@ -273,8 +278,11 @@ class SceneBuilder:
     def warm(self, object_heights: dict, human_heights: tuple[float, float]) -> None:
         """Create one body per furniture (kind, variant, height) and one humanoid per height in
         these ranges (metres, per class), so frames never wait for pybullet to create shapes
-        (~1.5 s for the paper's ranges)."""
+        (~1.5 s for the paper's ranges). A class with no range here gets its bodies when first
+        drawn."""
         for kind, cls in furniture.CLASS_OF_KIND.items():
+            if cls not in object_heights:
+                continue
             lo, hi = object_heights[cls]
             for variant in range(furniture.N_VARIANTS):
                 for h in _grid(lo, hi, furniture.HEIGHT_STEP_M):

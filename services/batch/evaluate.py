@@ -1,14 +1,16 @@
 """Score a model on a dataset from `topseg datagen`: the forest and the CRF label every
 complete frame through its own mount, and it prints the per-class precision / recall / F1
-table in the paper's Table I layout, with mAP, mAR and avg F1 over the ten classes and heads
-counted as blobs. `--json FILE` writes the scores, `--plots DIR` the confusion matrix and
-example frames.
+table in the paper's Table I layout, with mAP, mAR and avg F1 over the paper's ten classes
+(and over all twelve, robot and object included, where they differ) and heads counted as
+blobs. `--json FILE` writes the scores, `--plots DIR` the confusion matrix and example frames.
 
 The forest runs on every complete frame of the dataset, each read through its own mount
 (`Dataset.mount`; cropped to its camera); the CRF mode (`none`, `exact`,
 `realtime`) smooths its posteriors. Prints the per-class precision / recall / F1 table
-(Table I's layout) with mAP, mAR and avg F1 over ids 1..10, and with `--plots DIR` draws the
-confusion matrix and a few frames (depth, truth, forest, CRF) side by side.
+(Table I's layout) with mAP, mAR and avg F1 over ids 1..10, and over ids 1..12 where those
+differ; robot and object get their rows when the truth holds them or the model predicts them.
+With `--plots DIR` it draws the confusion matrix and a few frames (depth, truth, forest, CRF)
+side by side.
 """
 
 from __future__ import annotations

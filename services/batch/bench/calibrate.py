@@ -53,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def floor_cover(depth, labels_img, mount) -> float:
     """Share of the floor area in view covered by people and furniture (from the truth)."""
-    fg = np.isin(labels_img, (*labels.HUMAN_IDS, *labels.OBJECT_IDS))
+    fg = np.isin(labels_img, (*labels.HUMAN_IDS, *labels.FURNITURE_IDS))
     h = mount.height_map_mm(depth)
     with np.errstate(invalid="ignore"):
         floor = (labels_img == labels.BACKGROUND) & (np.abs(h) < FLOOR_BAND_MM)

@@ -135,8 +135,10 @@ def forest_like_posteriors(
     boundary_px: float = 4.0,
     blur_px: float = 3.0,
     sharpness: float = 3.0,
+    n_classes: int = L.PAPER_NUM_CLASSES,
 ) -> np.ndarray:
-    """(H, W, NUM_CLASSES) float32 posteriors that look like a forest's on `labels`.
+    """(H, W, n_classes) float32 posteriors that look like a forest's on `labels` (class ids
+    below `n_classes`: a paper model's eleven by default).
 
     p = (1 - m) * onehot(truth) + m * D, where D = softmax(`sharpness` * G) of a Gaussian
     field G blurred by `blur_px` and rescaled to unit variance (so mistakes come in
@@ -145,7 +147,7 @@ def forest_like_posteriors(
     of a label change. Pixels without depth get a uniform posterior.
     """
     h, w = labels.shape
-    c = L.NUM_CLASSES
+    c = n_classes
     field = ndimage.gaussian_filter(
         rng.standard_normal((h, w, c), dtype=np.float32), sigma=(blur_px, blur_px, 0)
     )

@@ -29,6 +29,7 @@ import numpy as np
 from topseg.core.atomic import atomic_write
 from topseg.core.camera import TopViewMount
 from topseg.core.errors import TopsegError
+from topseg.core.labels import PAPER_SCORED_IDS
 from topseg.core.metrics import avg_f1_draws, person_scores
 from topseg.core.scoring import score
 from topseg.core.segmenter import Segmenter, SegmenterConfig
@@ -120,8 +121,8 @@ def score_cell(segmenter, frames: list[tuple], keep_confusions: bool = False) ->
     head = crf["per_class"]["head"]
     person = person_scores(result.crf.confusion)
     return {
-        "avg_f1": float(crf["avg_f1"]),
-        "forest_f1": float(result.forest.scores()["avg_f1"]),
+        "avg_f1": float(crf["avg_f1_10"]),  # the paper's ten classes
+        "forest_f1": float(result.forest.scores()["avg_f1_10"]),
         "floor_share": float(result.floor_share) / max(result.frames, 1),
         "person_f1": person["person_f1"],
         "head_precision": float(head["precision"]),
@@ -154,7 +155,9 @@ def run_mounts(
             for name, seg in models.items():
                 got = score_cell(seg, data if seg.reads_height else _no_mount(data), True)
                 frames_cm = got.pop("frame_confusions")
-                draws[name].append(avg_f1_draws(frames_cm, BOOTSTRAP_DRAWS, BOOTSTRAP_SEED))
+                draws[name].append(
+                    avg_f1_draws(frames_cm, BOOTSTRAP_DRAWS, BOOTSTRAP_SEED, PAPER_SCORED_IDS)
+                )
                 cells[name].append(Cell(sensor, height, tilt, frames=len(data), **got))
                 progress(
                     f"  {name:8s} {sensor:15s} {height:.1f} m {tilt:3.0f} deg: "

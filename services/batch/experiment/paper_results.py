@@ -108,7 +108,7 @@ CURVES = {"noise": NOISE, "features": FEATURES, "frames": FRAMES, "overlap": OVE
 # Table I: F1 with the CRF, per class in topseg's label names, and the average. The paper's
 # columns are the scored classes in the label table's order (tests/test_experiment.py checks
 # them against the .tex by name).
-TABLE_CLASSES: tuple[str, ...] = tuple(labels.name_of(i) for i in labels.SCORED_IDS)
+TABLE_CLASSES: tuple[str, ...] = tuple(labels.name_of(i) for i in labels.PAPER_SCORED_IDS)
 TABLE_I: dict[str, dict[str, float]] = {
     "non-modeled": dict(
         zip(
