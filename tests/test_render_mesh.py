@@ -19,7 +19,6 @@ MOUNTS = [
     TopViewMount(Intrinsics(160, 100, 110.3, 110.3, 79.5, 49.5), 4500.0, -7.5, 4.0),
 ]
 MOUNT_IDS = ["straight-3.5m", "tilted-2.4m", "tilted-4.5m"]
-ROBOT = 11  # labels.ROBOT, until the label table has it
 
 
 def floor_and_boxes(rng: np.random.Generator, n: int) -> render.Primitives:
@@ -119,14 +118,14 @@ def test_a_box_as_12_triangles_renders_as_the_box_primitive(mount):
             floor,
             render.Primitives(
                 np.array([BOX], np.int32), half[None], center[None], rot[None],
-                np.array([ROBOT], np.uint8),
+                np.array([labels.ROBOT], np.uint8),
             ),
         ]
     )  # fmt: skip
     box_depth, box_lab = render.raycast(as_box, mount)
-    tris = box_triangles(half, center, rot, ROBOT)
+    tris = box_triangles(half, center, rot, labels.ROBOT)
     tri_depth, tri_lab = render.raycast(floor, mount, tris)
-    assert (box_lab == ROBOT).sum() > 100
+    assert (box_lab == labels.ROBOT).sum() > 100
     assert np.array_equal(tri_lab, box_lab)
     assert np.array_equal(tri_depth, box_depth)
 
