@@ -19,7 +19,6 @@ MOUNTS = [
     TopViewMount(Intrinsics(160, 100, 110.3, 110.3, 79.5, 49.5), 4500.0, -7.5, 4.0),
 ]
 MOUNT_IDS = ["straight-3.5m", "tilted-2.4m", "tilted-4.5m"]
-ROBOT = 11  # labels.ROBOT, until the label table has it
 
 
 def floor_and_boxes(rng: np.random.Generator, n: int) -> render.Primitives:
@@ -66,6 +65,24 @@ def test_triangles_match_the_moller_trumbore_reference(mount, seed):
     assert np.mean(lab != prims_lab) > 0.1 and len(np.unique(lab)) > 6
 
 
+@pytest.mark.parametrize("mount", MOUNTS, ids=MOUNT_IDS)
+def test_long_thin_triangles_match_the_reference(mount):
+    """Slivers across many rows and columns: each row tests only its chord of the triangle,
+    so a chord cut short would lose pixels the reference keeps."""
+    rng = np.random.default_rng(7)
+    n = 80
+    a = np.stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.1, 1.1, n), rng.uniform(0, 1.5, n)], 1)
+    b = a + rng.normal(size=(n, 3)) * 1.2
+    c = a + (b - a) * rng.uniform(0.2, 0.8, (n, 1)) + rng.normal(size=(n, 3)) * 0.01
+    tris = render.Triangles(np.stack([a, b, c], 1), rng.integers(1, 13, n).astype(np.uint8))
+    prims = floor_and_boxes(rng, 0)
+    depth, lab = render.raycast_m(prims, mount, tris)
+    ref_depth, ref_lab = reference.raycast_triangles_reference(prims, tris, mount)
+    np.testing.assert_allclose(depth, ref_depth, rtol=0, atol=1e-9)
+    assert np.array_equal(lab, ref_lab)
+    assert np.mean(lab != labels.BACKGROUND) > 0.01  # the slivers cover many pixels
+
+
 def test_triangles_that_reach_behind_the_camera_match_the_reference():
     rng = np.random.default_rng(3)
     tris = random_triangles(rng, 20)
@@ -101,14 +118,14 @@ def test_a_box_as_12_triangles_renders_as_the_box_primitive(mount):
             floor,
             render.Primitives(
                 np.array([BOX], np.int32), half[None], center[None], rot[None],
-                np.array([ROBOT], np.uint8),
+                np.array([labels.ROBOT], np.uint8),
             ),
         ]
     )  # fmt: skip
     box_depth, box_lab = render.raycast(as_box, mount)
-    tris = box_triangles(half, center, rot, ROBOT)
+    tris = box_triangles(half, center, rot, labels.ROBOT)
     tri_depth, tri_lab = render.raycast(floor, mount, tris)
-    assert (box_lab == ROBOT).sum() > 100
+    assert (box_lab == labels.ROBOT).sum() > 100
     assert np.array_equal(tri_lab, box_lab)
     assert np.array_equal(tri_depth, box_depth)
 

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from topseg.core import labels
 from topseg.core.camera import PAPER_MOUNT
 from topseg.core.errors import TopsegError
 from topseg.core.synth import render, robots
@@ -19,7 +20,6 @@ from topseg.core.synth.geometry import BOX, CYLINDER, polygon_area, quat_to_matr
 trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("yourdfpy")
 
-ROBOT = 11  # labels.ROBOT, until the label table has it
 FLOOR = render.Primitives(
     np.array([BOX], np.int32),
     np.array([[10.0, 10.0, 0.05]]),
@@ -61,7 +61,7 @@ def test_every_catalogue_robot_loads_and_poses_within_its_limits_and_reach(name)
         )  # fmt: skip
         prims, tris = model.link_geometry(joints, placed.base_pos(), placed.base_quat())
         assert len(prims) + len(tris) > 0
-        assert np.all(prims.label == ROBOT) and np.all(tris.label == ROBOT)
+        assert np.all(prims.label == labels.ROBOT) and np.all(tris.label == labels.ROBOT)
         assert np.all(np.isfinite(tris.vertices))
         tool = placed.tool_position()
         assert np.linalg.norm(tool - placed.base_pos()) <= model.reach_m + 1e-9
@@ -80,7 +80,7 @@ def test_a_posed_panda_renders_as_robot_from_the_ceiling():
     placed = robots.PlacedRobot(1, "panda", 0.2, -0.3, 0.4, "floor", 0.0, {})
     prims, tris = placed.geometry()
     depth, lab = render.raycast(render.Primitives.concat([FLOOR, prims]), PAPER_MOUNT, tris)
-    robot = lab == ROBOT
+    robot = lab == labels.ROBOT
     assert robot.sum() > 500
     # the panda's top at its rest pose is ~1.1 m above the floor: 3.5 m - 1.1 m from the camera
     assert 2300 < depth[robot].min() < 2500
@@ -124,7 +124,7 @@ def test_a_pedestal_stands_from_the_floor_to_the_base_and_a_table_adds_nothing()
     ):
         prims, _ = placed.geometry()
         assert len(prims) == len(arm_prims) + 1
-        assert prims.kind[-1] == kind and prims.label[-1] == ROBOT
+        assert prims.kind[-1] == kind and prims.label[-1] == labels.ROBOT
         np.testing.assert_allclose(prims.size[-1], size)
         np.testing.assert_allclose(prims.center[-1], (1.0, 0.5, 0.3))
         assert placed.z_range()[0] == pytest.approx(0.0, abs=1e-12)  # the pedestal's foot
@@ -223,7 +223,7 @@ def test_a_user_urdf_with_a_box_and_a_cylinder_loads_poses_and_renders(tmp_path)
     prims, tris = model.link_geometry(joints, base, (0.0, 0.0, 0.0, 1.0))
     assert len(tris) == 0 and sorted(prims.kind.tolist()) == [BOX, BOX, CYLINDER]
     depth, lab = render.raycast(render.Primitives.concat([FLOOR, prims]), PAPER_MOUNT, tris)
-    robot = lab == ROBOT
+    robot = lab == labels.ROBOT
     assert robot.sum() > 300
     assert depth[robot].min() == 3500 - 150  # the forearm box's top, 0.15 m above the floor
 

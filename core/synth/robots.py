@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from topseg.core import labels
 from topseg.core.errors import TopsegError
 from topseg.core.extras import import_failure
 from topseg.core.synth.geometry import (
@@ -59,8 +60,6 @@ from topseg.core.synth.geometry import (
     yaw_quat,
 )
 from topseg.core.synth.render import Primitives, Triangles
-
-ROBOT = 11  # labels.ROBOT, until the label table has it
 
 #: most triangles one link keeps; denser links are decimated
 MAX_LINK_FACES = 1500
@@ -462,14 +461,14 @@ class RobotModel:
         for i, (lo, hi) in enumerate(self._tri_blocks):
             block = self._tris[lo:hi].reshape(-1, 3) @ world_rot[i].T + world_pos[i]
             vertices[lo:hi] = block.reshape(-1, 3, 3)
-        triangles = Triangles(vertices, np.full(len(vertices), ROBOT, np.uint8))
+        triangles = Triangles(vertices, np.full(len(vertices), labels.ROBOT, np.uint8))
         frame = poses[self._prim_link] @ self._prim_pose  # (m, 4, 4) base frame
         prims = Primitives(
             self._prim_kind.copy(),
             self._scale * self._prim_size,
             (pos + self._scale * frame[:, :3, 3] @ rot.T).reshape(-1, 3),
             np.einsum("ij,njk->nik", rot, frame[:, :3, :3]).reshape(-1, 3, 3),
-            np.full(len(self._prim_kind), ROBOT, np.uint8),
+            np.full(len(self._prim_kind), labels.ROBOT, np.uint8),
         )
         return prims, triangles
 
@@ -659,7 +658,7 @@ def _boxes(kinds, sizes, centres, yaw: float) -> Primitives:
         np.array(sizes, np.float64).reshape(n, 3),
         np.array(centres, np.float64).reshape(n, 3),
         np.repeat(rot[None], n, 0),
-        np.full(n, ROBOT, np.uint8),
+        np.full(n, labels.ROBOT, np.uint8),
     )
 
 

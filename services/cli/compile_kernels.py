@@ -33,6 +33,7 @@ from topseg.core.forest.train import TrainConfig, train_forest
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 from topseg.core.sensors import SENSORS
 from topseg.core.synth.procedural import procedural_frames
+from topseg.core.synth.render import Primitives, Triangles, raycast
 from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.services.cli.options import int_range
 
@@ -58,12 +59,14 @@ def compile_crf() -> None:
 
 def compile_synthesis() -> None:
     """Rendering and each supported sensor's noise model (structured light, time of flight,
-    stereo), on one small frame each."""
+    stereo), on one small frame each; and the ray caster's triangles (robot arms' meshes)."""
     for sensor in SENSORS:
         k = sensor.intrinsics
         small = k.scaled_to(k.width // 4, k.height // 4)
         mount = TopViewMount(small, 3000.0, 1.0, 0.5, sensor.name)
         Synthesizer(SynthesisConfig(noise="sensor", camera=mount)).render(frame_seed=0)
+    corners = np.array([[[-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.0, 0.5, 1.0]]])
+    raycast(Primitives.empty(), mount, Triangles(corners, np.ones(1, np.uint8)))
 
 
 def compile_training() -> None:
