@@ -135,7 +135,7 @@ class DensityConfig:
     )
     theta_max_ho: float = 0.30
     theta_max_oo: float = 0.30
-    pose_weights: dict = field(default_factory=lambda: _uniform_weights(humanoid.POSES))
+    pose_weights: dict = field(default_factory=lambda: _uniform_weights(humanoid.PAPER_POSES))
     #: H-O relation given a pose that allows it ("free" = no relation)
     ho_relation_weights: dict = field(
         default_factory=lambda: {

@@ -9,8 +9,11 @@ then applies the same pose to the pybullet body, and a test checks both agree.
 Poses come from the motion-capture clips pybullet_data ships (`data/motions/humanoid3d_*.txt`,
 read like DeepMimic's `humanoid_pose_interpolator.py`) and from presets for the paper's poses
 that no clip covers (sitting, standing, stretching, working, bending, bowing, tilting,
-swinging). The model is y-up (x forward, z to its right); `base_quat` turns it upright in the
-z-up world and faces it along +x rotated by the human's yaw.
+swinging). Those are `PAPER_POSES`, what the density function draws by default; `CELL_POSES`
+(kneeling, crouching, lying on the floor, reaching into a machine) are what people in a robot
+cell do besides, drawn when a density config weights them. The model is y-up (x forward, z to
+its right); `base_quat` turns it upright in the z-up world and faces it along +x rotated by the
+human's yaw.
 
 Seen from above, three of the URDF's shapes are far from people (docs/explanation/method.md measures
 the body against ANSUR II): its head is a 205 mm ball (heads are ~150 mm broad and ~195 mm
@@ -26,7 +29,7 @@ import json
 import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +42,8 @@ from topseg.core.synth.geometry import (
     CYLINDER,
     SPHERE,
     half_extents,
+    matrix_to_quat,
+    quat_conj,
     quat_from_axis_angle,
     quat_mul,
     quat_normalize,
@@ -97,7 +102,7 @@ CLIPS: dict[str, tuple[str, ...]] = {
     "spinning": ("spin",),
     "jumping": ("jump",),
 }
-PRESETS = (
+PAPER_PRESETS = (
     "sitting",
     "standing",
     "stretching",
@@ -107,7 +112,13 @@ PRESETS = (
     "tilting",
     "swinging",
 )
-POSES: tuple[str, ...] = (*PRESETS, *CLIPS)
+#: what people in a robot cell do besides the paper's poses: work low, reach into a machine, fall
+CELL_PRESETS = ("kneeling", "crouching", "lying", "reaching")
+PRESETS = (*PAPER_PRESETS, *CELL_PRESETS)
+#: the paper's poses, what the density function draws by default
+PAPER_POSES: tuple[str, ...] = (*PAPER_PRESETS, *CLIPS)
+CELL_POSES: tuple[str, ...] = CELL_PRESETS
+POSES: tuple[str, ...] = (*PAPER_POSES, *CELL_POSES)
 
 #: link -> (capsule radius, capsule cylinder length, origin xyz, origin rpy) replacing the
 #: URDF's shape, in model units (x 0.25 m at REFERENCE_SCALING, ~1.6 m tall). Head: 140 x
@@ -531,7 +542,9 @@ def _set_arm(p: Pose, side: str, flex: float, abd: float, twist: float, elbow: f
 
 
 def preset_pose(name: str, rng: np.random.Generator) -> Pose:
-    """One of the paper's poses with its free angles drawn uniformly from natural ranges."""
+    """A preset pose (PRESETS) with its free angles drawn uniformly from natural ranges."""
+    if name in CELL_PRESETS:
+        return _CELL_BUILDERS[name](rng)
     u = rng.uniform
     p = identity_pose()
     if name == "sitting":  # legs are set against the seat by sitting_legs()
@@ -753,3 +766,577 @@ def top_view_dimensions(height_m: float) -> dict[str, float]:
         "hand_breadth": thick("right_wrist"),
         "stature": 1000.0 * height_m,
     }
+
+
+# --- the poses of a robot cell --------------------------------------------------------------
+#
+# Kneeling, crouching, lying and reaching people: a cell's camera sees them at maintenance,
+# loading, teaching the robot, or after a fall. Their contacts with the floor are solved in model
+# units (scale 1) for the base at the origin, facing +x, z up, y to the human's left: a pose's
+# shape does not depend on its scale, so a contact solved here holds at every height, and
+# `relations.stand_z` then puts the lowest point on the floor.
+
+_ORIGIN = (0.0, 0.0, 0.0)
+#: world axis about which a positive turn pitches +x (the facing direction) down
+_LATERAL = np.array([0.0, 1.0, 0.0])
+_UP = np.array([0.0, 0.0, 1.0])
+#: a foot with its toes pointing back and its sole up (a kneeling leg's foot), in the world
+_FOOT_BACK = matrix_to_quat(np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]))
+#: wrist height (share of stature) and reach ahead of the pelvis (share of stature) of a
+#: `reaching` hand: 0.64-1.56 m high and at least 0.48 m ahead for people 1.6-1.9 m tall
+REACH_HEIGHT_SHARE = (0.40, 0.82)
+REACH_AHEAD_SHARE = 0.30
+#: top of the head above the floor, as a share of standing height, when kneeling or crouching
+KNEEL_HEAD_SHARE = (0.57, 0.78)
+CROUCH_HEAD_SHARE = (0.47, 0.68)
+
+
+def _stature() -> float:
+    """Standing height of the identity pose in model units."""
+    return reference_height() / REFERENCE_SCALING
+
+
+def _index(name: str) -> int:
+    return load_model().index[name]
+
+
+def _unit_frames(p: Pose) -> tuple[np.ndarray, np.ndarray]:
+    return link_frames(p, 1.0, _ORIGIN, base_quat(p.tilt, 0.0))
+
+
+def _link_bottoms(p: Pose) -> np.ndarray:
+    """Lowest point (model units) of each link's shape."""
+    prims = posed_primitives(p, 1.0, _ORIGIN, base_quat(p.tilt, 0.0))
+    return prims.center[:, 2] - half_extents(prims.kind, prims.size, prims.rot)[:, 2]
+
+
+@cache
+def _subtree(name: str) -> tuple[int, ...]:
+    """Indices of link `name` and of every link below it (parents come before children)."""
+    links = load_model().links
+    out = [_index(name)]
+    for i, lk in enumerate(links):
+        if lk.parent in out:
+            out.append(i)
+    return tuple(out)
+
+
+def _lowest(p: Pose, *names: str) -> float:
+    """Lowest point (model units) of the named links and everything below them."""
+    idx = [i for n in names for i in _subtree(n)]
+    return float(_link_bottoms(p)[idx].min())
+
+
+def _highest(p: Pose, *names: str) -> float:
+    """Highest point (model units) of the named links alone (not the links below them)."""
+    prims = posed_primitives(p, 1.0, _ORIGIN, base_quat(p.tilt, 0.0))
+    idx = [_index(n) for n in names]
+    ext = half_extents(prims.kind[idx], prims.size[idx], prims.rot[idx])
+    return float((prims.center[idx, 2] + ext[:, 2]).max())
+
+
+def _world_quat(p: Pose, name: str) -> np.ndarray:
+    """World orientation of link `name` ("base" for the base)."""
+    if name == "base":
+        return base_quat(p.tilt, 0.0)
+    return matrix_to_quat(_unit_frames(p)[1][_index(name)])
+
+
+def _parent_quat(p: Pose, name: str) -> np.ndarray:
+    """World orientation of the link that joint `name` hangs from."""
+    parent = load_model().link(name).parent
+    return base_quat(p.tilt, 0.0) if parent < 0 else matrix_to_quat(_unit_frames(p)[1][parent])
+
+
+def _set_world(p: Pose, name: str, q_world, q_parent=None) -> None:
+    """Turn the spherical joint `name` so that its link has world orientation `q_world`
+    (`q_parent`: its parent's, when already known)."""
+    q_parent = _parent_quat(p, name) if q_parent is None else q_parent
+    p.joints[name] = list(quat_normalize(quat_mul(quat_conj(q_parent), q_world)))
+
+
+def _turn(p: Pose, name: str, axis, angle: float) -> None:
+    """Turn link `name` (a spherical joint, or "base") by `angle` (rad) about world `axis`."""
+    r = quat_from_axis_angle(axis, angle)
+    if name == "base":
+        up_inv = quat_conj(Y_UP_TO_Z_UP)
+        p.tilt = tuple(quat_normalize(quat_mul(up_inv, quat_mul(r, base_quat(p.tilt, 0.0)))))
+    else:
+        _set_world(p, name, quat_mul(r, _world_quat(p, name)))
+
+
+def _bisect(f, lo: float, hi: float, iters: int = 26) -> float | None:
+    """x in [lo, hi] where f changes sign; None when f has the same sign at both ends."""
+    f_lo, f_hi = f(lo), f(hi)
+    if f_lo == 0.0:
+        return lo
+    if f_hi == 0.0:
+        return hi
+    if (f_lo > 0) == (f_hi > 0):
+        return None
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        if (f_mid > 0) == (f_lo > 0):
+            lo, f_lo = mid, f_mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def _nearest_root(f, span: float, steps: int = 8) -> float | None:
+    """The root of f in [-span, span] nearest 0 (a grid scan, then bisection), or None."""
+    xs = np.linspace(-span, span, 2 * steps + 1)
+    vals = [f(x) for x in xs]
+    brackets = [
+        (a, b)
+        for a, b, fa, fb in zip(xs[:-1], xs[1:], vals[:-1], vals[1:], strict=True)
+        if (fa > 0) != (fb > 0) or fa == 0.0
+    ]
+    if not brackets:
+        return None
+    a, b = min(brackets, key=lambda ab: min(abs(ab[0]), abs(ab[1])))
+    return _bisect(f, a, b)
+
+
+def _shapes(p: Pose, idx) -> tuple[np.ndarray, ...]:
+    """(kind, size, centre, rotation) of the shapes of links `idx`, in model units."""
+    prims = posed_primitives(p, 1.0, _ORIGIN, base_quat(p.tilt, 0.0))
+    return prims.kind[idx], prims.size[idx], prims.center[idx], prims.rot[idx]
+
+
+def _turned_bottoms(shapes, pivot, axis, angle: float) -> np.ndarray:
+    """Lowest point of each of `shapes` once all are turned by `angle` about `axis` at `pivot`."""
+    kind, size, center, rot = shapes
+    turn = quat_to_matrix(quat_from_axis_angle(axis, angle))
+    c = pivot + (center - pivot) @ turn.T
+    return c[:, 2] - half_extents(kind, size, turn @ rot)[:, 2]
+
+
+def _settle(
+    p: Pose, name: str, floor_z: float, span_deg: float = 50.0, axis=None, touching=None
+) -> bool:
+    """Turn limb `name` by the least angle that puts its lowest point on `floor_z`, as gravity
+    would: about the horizontal axis across the limb, or `axis` (world); `touching` names the
+    sub-limb that must touch (default: all of it). False (limb unchanged) when no turn does."""
+    pivot = _unit_frames(p)[0][_index(name)]
+    shapes = _shapes(p, list(_subtree(touching or name)))
+    if axis is None:
+        axis = np.cross(shapes[2].mean(0) - pivot, _UP)
+        if np.linalg.norm(axis) < 0.1:  # (nearly) vertical: no horizontal axis across it
+            return False
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+
+    def gap(angle: float) -> float:
+        return float(_turned_bottoms(shapes, pivot, axis, angle).min()) - floor_z
+
+    angle = _nearest_root(gap, np.radians(span_deg))
+    if angle is None:
+        return False
+    _turn(p, name, axis, angle)
+    return True
+
+
+def _foot_flat(side: str, toe_out: float = 0.0, heel_up: float = 0.0) -> np.ndarray:
+    """World orientation of a foot on the floor, toes turned out by `toe_out` degrees and the
+    heel raised by `heel_up` degrees (then only the toes touch)."""
+    toe = -toe_out if side == "right" else toe_out  # the human's right is -y
+    pitch = quat_from_axis_angle(_LATERAL, np.radians(heel_up))
+    return quat_mul(yaw_quat(np.radians(toe)), quat_mul(pitch, Y_UP_TO_Z_UP))
+
+
+def _set_knee(p: Pose, side: str, bend_deg: float) -> None:
+    p.joints[f"{side}_knee"] = [float(np.radians(-bend_deg))]
+
+
+def _shin_quat(p: Pose, side: str, bend_deg: float, thigh_q=None) -> np.ndarray:
+    """World orientation of the shin for a knee bent `bend_deg` (`thigh_q`: the thigh's)."""
+    thigh_q = _world_quat(p, f"{side}_hip") if thigh_q is None else thigh_q
+    axis = load_model().link(f"{side}_knee").axis
+    return quat_mul(thigh_q, quat_from_axis_angle(axis, np.radians(-bend_deg)))
+
+
+def _drop_below_joint(link: str, q_world) -> float:
+    """How far (model units) the shape of `link` reaches below its joint at orientation q_world."""
+    a, i = _model_arrays(), _index(link)
+    r = quat_to_matrix(q_world)
+    center_z = (r @ a["shape_xyz"][i])[2]
+    ext = half_extents(a["kind"][i : i + 1], a["size"][i : i + 1], (r @ a["shape_rot"][i])[None])
+    return float(ext[0, 2] - center_z)
+
+
+def _plant_foot(p: Pose, side: str, floor_z: float, foot_q, knee_ahead: bool = True) -> bool:
+    """Bend the knee until the foot, held at world orientation `foot_q`, rests on `floor_z`.
+
+    Of the two bends that reach, `knee_ahead` takes the one with the knee ahead of the ankle.
+    False (knee straight) when the foot cannot reach the floor.
+    """
+    ankle = f"{side}_ankle"
+    thigh_q = _world_quat(p, f"{side}_hip")
+    knee_z = _unit_frames(p)[0][_index(f"{side}_knee")][2]
+    shin = np.array(load_model().link(ankle).joint_xyz)
+    drop = _drop_below_joint(ankle, foot_q)
+
+    def gap(bend: float) -> float:
+        ankle_z = knee_z + (quat_to_matrix(_shin_quat(p, side, bend, thigh_q)) @ shin)[2]
+        return ankle_z - drop - floor_z
+
+    grid = np.arange(0.0, 165.1, 7.5)
+    deepest = float(grid[int(np.argmin([gap(b) for b in grid]))])
+    bend = _bisect(gap, deepest, 165.0) if knee_ahead else _bisect(gap, 0.0, deepest)
+    ok = bend is not None
+    bend = bend if ok else 0.0
+    _set_knee(p, side, bend)
+    _set_world(p, ankle, foot_q, _shin_quat(p, side, bend, thigh_q))
+    return ok
+
+
+def _kneel_leg(p: Pose, side: str) -> None:
+    """The shin flat on the floor behind the knee, the foot pointing back, toes down on the
+    floor (the hip set beforehand)."""
+    knee = _index(f"{side}_knee")
+    thigh_q = _world_quat(p, f"{side}_hip")
+
+    def shin_rise(bend: float) -> float:
+        shin = quat_to_matrix(_shin_quat(p, side, bend, thigh_q))
+        return float(-shin[2, 1])  # z of the shin's downward axis
+
+    _set_knee(p, side, _bisect(shin_rise, 0.0, 178.0) or 90.0)
+    _set_world(p, f"{side}_ankle", _FOOT_BACK)
+    _settle(p, f"{side}_ankle", float(_link_bottoms(p)[knee]))
+
+
+def _hands_off_floor(p: Pose, floor_z: float) -> None:
+    """Lift any arm that reaches below the floor until it just rests on it."""
+    for side in ("right", "left"):
+        if _lowest(p, f"{side}_shoulder") < floor_z:
+            _settle(p, f"{side}_shoulder", floor_z, span_deg=90.0)
+
+
+def _hand_to(p: Pose, side: str, target) -> bool:
+    """Inverse kinematics of one arm to a wrist target (world, model units); False when out of
+    reach."""
+    return reach(p, 1.0, _ORIGIN, base_quat(p.tilt, 0.0), side, np.asarray(target, np.float64))
+
+
+def _lean(p: Pose, pelvis: float, chest: float, side_tilt: float, twist: float) -> None:
+    """Hinge the pelvis forward `pelvis` degrees and bend the chest `chest` more."""
+    p.tilt = tuple(trunk_quat(pelvis))
+    p.joints["chest"] = list(trunk_quat(chest, side_tilt, twist))
+
+
+def _head_share(p: Pose, floor_z: float) -> float:
+    """Height of the top of the head above `floor_z`, as a share of standing height."""
+    return (_highest(p, "neck") - floor_z) / _stature()
+
+
+def _keep_head_within(p: Pose, floor_z: float, lo: float, hi: float) -> None:
+    """Bend the chest further forward (or less) until the head's top is within `lo`-`hi` of
+    standing height above `floor_z`."""
+    share = _head_share(p, floor_z)
+    if lo <= share <= hi:
+        return
+    goal = hi if share > hi else lo
+    chest0 = p.joints["chest"]
+
+    def above_goal(extra: float) -> float:
+        p.joints["chest"] = list(quat_mul(trunk_quat(extra), chest0))
+        return _head_share(p, floor_z) - goal
+
+    extra = _bisect(above_goal, -30.0, 60.0)
+    p.joints["chest"] = list(quat_mul(trunk_quat(extra or 0.0), chest0))
+
+
+def _relaxed_arm(p: Pose, side: str, rng, trunk_lean: float) -> None:
+    """An arm hanging, a little forward and bent, whatever the trunk's lean."""
+    u = rng.uniform
+    _set_arm(p, side, trunk_lean + u(-5, 30), u(3, 15), 0.0, u(5, 60))
+
+
+def _kneeling(rng: np.random.Generator) -> Pose:
+    """Both knees, or one knee with the other foot in front, on the floor; trunk upright to
+    leaning forward; hands working low, on a knee, on the floor, or at rest."""
+    u = rng.uniform
+    p = identity_pose()
+    pelvis, chest = u(-5, 15), u(0, 30)
+    _lean(p, pelvis, chest, u(-6, 6), u(-15, 15))
+    p.joints["neck"] = list(trunk_quat(u(0, 30), 0.0, u(-20, 20)))
+    front = str(rng.choice(["right", "left"])) if rng.random() < 0.5 else None
+    down = tuple(s for s in ("right", "left") if s != front)
+    thigh = u(-5, 12) if front else u(-5, 35)  # forward of vertical; 35: sitting back a little
+    abd = u(2, 10)
+    for s in down:
+        _set_leg_hip(p, s, thigh + pelvis, abd)
+        _kneel_leg(p, s)
+    floor = min(float(_link_bottoms(p)[_index(f"{s}_knee")]) for s in down)
+    if front:
+        for hip_flex in (u(70, 86), 65.0, 55.0):
+            _set_leg_hip(p, front, hip_flex + pelvis, u(0, 10))
+            if _plant_foot(p, front, floor, _foot_flat(front, u(0, 15))):
+                break
+    _keep_head_within(p, floor, *KNEEL_HEAD_SHARE)
+    _kneeling_arms(p, rng, floor, front, pelvis + chest)
+    _hands_off_floor(p, floor)
+    return p
+
+
+def _set_leg_hip(p: Pose, side: str, flex: float, abd: float, twist: float = 0.0) -> None:
+    p.joints[f"{side}_hip"] = list(limb_quat(flex, abd, twist, side))
+
+
+def _kneeling_arms(p: Pose, rng, floor: float, front: str | None, lean: float) -> None:
+    """Hands on a low work piece, on the front knee, on the floor, or at rest."""
+    u = rng.uniform
+    stature, hand_r = _stature(), limb_lengths(1.0)["hand_radius"]
+    pos, _ = _unit_frames(p)
+    mode = rng.choice(["low_work", "knee", "floor", "rest"], p=[0.4, 0.2, 0.2, 0.2])
+    if mode == "knee" and front is None:
+        mode = "low_work"
+    for side in ("right", "left"):
+        sh = pos[_index(f"{side}_shoulder")]
+        if mode == "low_work":
+            target = (u(0.12, 0.30) * stature, sh[1] * u(0.2, 0.9), floor + u(0.1, 0.3) * stature)
+        elif mode == "floor":
+            target = (u(0.10, 0.30) * stature, sh[1] * u(0.6, 1.4), floor + hand_r)
+        elif mode == "knee" and side == front:
+            knee = pos[_index(f"{front}_knee")]
+            shin_r = load_model().link(f"{front}_knee").shape_size[0]
+            target = knee + np.array([u(-0.1, 0.3), 0.0, shin_r + hand_r])
+        else:
+            target = None
+        if target is None or not _hand_to(p, side, target):
+            _relaxed_arm(p, side, rng, lean)
+
+
+def _crouching(rng: np.random.Generator) -> Pose:
+    """A deep squat, feet flat or on the toes, knees apart, trunk forward, hands in front, on
+    the knees or on the floor."""
+    u = rng.uniform
+    p = identity_pose()
+    pelvis, chest = u(15, 35), u(5, 25)
+    _lean(p, pelvis, chest, u(-6, 6), u(-15, 15))
+    p.joints["neck"] = list(trunk_quat(u(-15, 20), 0.0, u(-20, 20)))
+    heel_up = u(15, 40) if rng.random() < 0.35 else 0.0
+    first = str(rng.choice(["right", "left"]))
+    second = "left" if first == "right" else "right"
+    thigh, abd, shin = u(90, 120), u(8, 30), u(15, 40)
+    _set_leg_hip(p, first, thigh + pelvis, abd)
+    _set_knee(p, first, thigh + shin)
+    _set_world(p, f"{first}_ankle", _foot_flat(first, u(5, 25), heel_up))
+    floor = _lowest(p, f"{first}_ankle")
+    for dthigh in (u(-8, 8), 0.0):
+        _set_leg_hip(p, second, thigh + dthigh + pelvis, abd + u(-5, 5))
+        if _plant_foot(p, second, floor, _foot_flat(second, u(5, 25), heel_up)):
+            break
+    _keep_head_within(p, floor, *CROUCH_HEAD_SHARE)
+    _crouching_arms(p, rng, floor, pelvis + chest)
+    _hands_off_floor(p, floor)
+    return p
+
+
+def _crouching_arms(p: Pose, rng, floor: float, lean: float) -> None:
+    """Forearms on the knees, hands on the floor ahead, or hands together in front."""
+    u = rng.uniform
+    stature, hand_r = _stature(), limb_lengths(1.0)["hand_radius"]
+    pos, _ = _unit_frames(p)
+    mode = rng.choice(["knees", "floor", "front"], p=[0.35, 0.35, 0.3])
+    for side in ("right", "left"):
+        knee = pos[_index(f"{side}_knee")]
+        if mode == "knees":
+            target = knee + np.array([u(0.2, 0.6), -0.3 * np.sign(knee[1]), u(-0.4, 0.0)])
+        elif mode == "floor":
+            target = (knee[0] + u(0.1, 0.8), knee[1] * u(0.2, 1.0), floor + hand_r)
+        else:
+            target = (
+                knee[0] + u(0.2, 0.6),
+                knee[1] * u(0.0, 0.5),
+                knee[2] + u(-0.2, 0.3) * stature,
+            )
+        if not _hand_to(p, side, target):
+            _relaxed_arm(p, side, rng, lean)
+
+
+def _reaching(rng: np.random.Generator) -> Pose:
+    """Standing, trunk bent 10-60 degrees forward, one or both hands reaching ahead at 0.40-0.82
+    of stature (into a machine, over a conveyor, to a robot's tool)."""
+    u = rng.uniform
+    stature = _stature()
+    p = identity_pose()
+    lead = str(rng.choice(["right", "left"]))
+    other = "left" if lead == "right" else "right"
+    stride = u(0, 15)
+    target = None
+    for _ in range(60):
+        bend = u(10, 60)
+        pelvis = bend * u(0.35, 0.65)
+        _lean(p, pelvis, bend - pelvis, u(-5, 5), u(-10, 10))
+        abd = u(0, 8)  # the same for both legs, so the leading foot can always reach down
+        _set_leg_hip(p, other, pelvis - stride, abd)
+        _set_knee(p, other, u(0, 8))
+        _set_world(p, f"{other}_ankle", _foot_flat(other, u(0, 15)))
+        floor = _lowest(p, f"{other}_ankle")
+        _set_leg_hip(p, lead, pelvis + stride, abd)
+        _plant_foot(p, lead, floor, _foot_flat(lead, u(0, 15)))
+        hand = str(rng.choice(["right", "left"]))
+        target = _reach_target(p, rng, hand, floor, stature)
+        if target is not None and _hand_to(p, hand, target):
+            break
+        target = None
+    if target is None:  # never seen: straight ahead of the shoulder, which is always in reach
+        sh = _unit_frames(p)[0][_index(f"{hand}_shoulder")]
+        arm = limb_lengths(1.0)
+        target = sh + np.array([0.9 * (arm["upper_arm"] + arm["forearm"]), 0.0, 0.0])
+        _hand_to(p, hand, target)
+    p.joints["neck"] = list(trunk_quat(u(-35, 0), 0.0, u(-15, 15)))  # eyes on the target
+    second = "left" if hand == "right" else "right"
+    if rng.random() < 0.45:  # both hands: the second near the first
+        pos, _ = _unit_frames(p)
+        sh = pos[_index(f"{second}_shoulder")]
+        t2 = np.array([target[0] + u(-0.3, 0.3), sh[1] * u(0.3, 1.0), target[2] + u(-0.3, 0.3)])
+        if not _hand_to(p, second, t2):
+            _relaxed_arm(p, second, rng, bend)
+    else:
+        _relaxed_arm(p, second, rng, bend)
+    _hands_off_floor(p, floor)
+    return p
+
+
+def _reach_target(p: Pose, rng, side: str, floor: float, stature: float) -> np.ndarray | None:
+    """A wrist target ahead of the `side` shoulder within REACH_HEIGHT_SHARE and at least
+    REACH_AHEAD_SHARE ahead of the pelvis, nearly at arm's length; None when none is drawn."""
+    u = rng.uniform
+    arm = limb_lengths(1.0)
+    arm_len = arm["upper_arm"] + arm["forearm"]
+    sh = _unit_frames(p)[0][_index(f"{side}_shoulder")]
+    inward = 1.0 if side == "right" else -1.0  # the right arm reaches across towards +y
+    lo, hi = REACH_HEIGHT_SHARE
+    for _ in range(20):
+        el, az = np.radians(u(-45, 30)), np.radians(inward * u(-15, 25))
+        d = u(0.85, 0.97) * arm_len
+        t = sh + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        if lo <= (t[2] - floor) / stature <= hi and t[0] / stature >= REACH_AHEAD_SHARE:
+            return t
+    return None
+
+
+def _lying(rng: np.random.Generator) -> Pose:
+    """On the floor on the back, the front or three-quarters on a side (the recovery
+    position), limbs spread, bent or alongside; trunk, head and limbs resting on the floor."""
+    u = rng.uniform
+    p = identity_pose()
+    kind = str(rng.choice(["back", "front", "side"], p=[0.4, 0.3, 0.3]))
+    sign = float(rng.choice([-1.0, 1.0]))
+    roll = {"back": 180.0 + u(-12, 12), "front": u(-12, 12), "side": sign * u(40, 56)}[kind]
+    # head towards +x: the body's axis (model y) pitched forward, rolled about itself
+    roll_q = quat_from_axis_angle((0.0, 1.0, 0.0), np.radians(roll))
+    p.tilt = tuple(quat_normalize(quat_mul(trunk_quat(90.0), roll_q)))
+    p.joints["chest"] = list(trunk_quat(u(-8, 8), u(-12, 12), u(-10, 10)))
+    knees_up = _lying_limbs(p, rng, kind)
+    _settle_lying(p, knees_up)
+    return p
+
+
+def _lying_limbs(p: Pose, rng, kind: str) -> tuple[str, ...]:
+    """Arms laid out on the floor around a lying body, legs set relative to it; returns the
+    legs with a knee up."""
+    u = rng.uniform
+    knees_up: list[str] = []
+    pos, _ = _unit_frames(p)
+    hips_z = {s: pos[_index(f"{s}_hip")][2] for s in ("right", "left")}
+    upper = max(hips_z, key=hips_z.get) if kind == "side" else None
+    for side in ("right", "left"):
+        # on the floor: beside the head, out to the side or along the body; then bent
+        az, elbow = {
+            "overhead": (u(15, 45), u(0, 60)),
+            "out": (u(60, 120), u(0, 100)),
+            "alongside": (u(145, 175), u(0, 40)),
+        }[str(rng.choice(["overhead", "out", "alongside"]))]
+        _point_limb(p, f"{side}_shoulder", _floor_direction(p, side, az))
+        p.joints[f"{side}_elbow"] = [float(np.radians(elbow))]
+        if kind == "back" and rng.random() < 0.3:
+            _set_leg_hip(p, side, u(25, 40), u(0, 10))
+            knees_up.append(side)
+        elif side == upper:  # on a side, the upper leg is drawn up
+            _set_leg_hip(p, side, u(40, 90), u(0, 10))
+            _set_knee(p, side, u(40, 100))
+        else:
+            _set_leg_hip(p, side, u(-5, 15), u(0, 20))
+            _set_knee(p, side, u(0, 20))
+        if kind == "front":
+            p.joints[f"{side}_ankle"] = list(limb_quat(u(-50, -20), 0.0, 0.0, side))
+    if kind == "front":  # the face turned to one side
+        p.joints["neck"] = list(trunk_quat(u(-20, 0), 0.0, float(rng.choice([-1, 1])) * u(50, 80)))
+    return tuple(knees_up)
+
+
+def _point_limb(p: Pose, name: str, direction) -> None:
+    """Turn limb `name` the least way that points it (its link's -y axis) along `direction`."""
+    q = _world_quat(p, name)
+    along = quat_to_matrix(q) @ np.array([0.0, -1.0, 0.0])
+    _set_world(p, name, quat_mul(rotation_between(along, direction), q))
+
+
+def _floor_direction(p: Pose, side: str, azimuth: float) -> np.ndarray:
+    """A horizontal direction `azimuth` degrees from the head's (+x) towards the `side` arm's
+    side of a lying body (towards its front when the shoulders are stacked)."""
+    pos, rot = _unit_frames(p)
+    offset = pos[_index(f"{side}_shoulder")][1] - pos[_index("root")][1]
+    if abs(offset) > 0.2:
+        away = np.array([0.0, np.sign(offset), 0.0])
+    else:
+        front = rot[_index("root")] @ np.array([1.0, 0.0, 0.0])
+        away = np.array([0.0, np.sign(front[1]) or 1.0, 0.0])
+    a = np.radians(azimuth)
+    return np.array([np.cos(a), 0.0, 0.0]) + np.sin(a) * away
+
+
+def _settle_lying(p: Pose, knees_up: tuple[str, ...]) -> None:
+    """Pitch the body until shoulders and hips both rest, then lower head, arms and legs."""
+    upper = ("chest", "right_shoulder", "left_shoulder")
+    lower = ("root", "right_hip", "left_hip")
+
+    groups = [[_index(n) for n in upper], [_index(n) for n in lower]]
+    shapes = _shapes(p, groups[0] + groups[1])
+    k = len(groups[0])
+
+    def head_low(angle: float) -> float:
+        b = _turned_bottoms(shapes, np.zeros(3), _LATERAL, angle)
+        return float(b[:k].min() - b[k:].min())
+
+    angle = _bisect(head_low, np.radians(-25.0), np.radians(25.0))
+    if angle is not None:
+        _turn(p, "base", _LATERAL, angle)
+    bottoms = _link_bottoms(p)
+    floor = float(bottoms[groups[0] + groups[1]].min())
+    _settle(p, "neck", floor, span_deg=30.0)
+    trunk_top = _highest(p, "chest", "root")
+    for side in ("right", "left"):
+        _settle(p, f"{side}_shoulder", floor, span_deg=60.0)
+        _rest_lower_limb(p, f"{side}_shoulder", f"{side}_elbow", floor, 180.0)
+        if _highest(p, f"{side}_elbow", f"{side}_wrist") > trunk_top:  # propped up: straighten
+            p.joints[f"{side}_elbow"] = [0.0]
+            _settle(p, f"{side}_shoulder", floor, span_deg=90.0)
+        if side in knees_up:
+            foot = quat_mul(_world_quat(p, "base"), quat_from_axis_angle((0, 0, 1), -np.pi / 2))
+            _plant_foot(p, side, floor, foot, knee_ahead=False)
+        else:
+            _settle(p, f"{side}_hip", floor, span_deg=40.0)
+            _rest_lower_limb(p, f"{side}_hip", f"{side}_knee", floor, 60.0)
+    _hands_off_floor(p, floor)
+
+
+def _rest_lower_limb(p: Pose, root: str, lower: str, floor_z: float, span_deg: float) -> None:
+    """Roll a limb about its upper segment until the bent lower segment (forearm or shin)
+    rests on the floor, when the roll needed is within `span_deg`."""
+    pos, _ = _unit_frames(p)
+    along = pos[_index(lower)] - pos[_index(root)]
+    if _lowest(p, lower) > floor_z:
+        _settle(p, root, floor_z, span_deg, axis=along, touching=lower)
+
+
+_CELL_BUILDERS = {
+    "kneeling": _kneeling,
+    "crouching": _crouching,
+    "lying": _lying,
+    "reaching": _reaching,
+}
