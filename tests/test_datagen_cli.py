@@ -212,3 +212,50 @@ def test_preview_of_an_empty_dataset_is_an_error(tmp_path):
         [TOPSEG, "datagen", "preview", str(path)], capture_output=True, text=True
     )
     assert result.returncode == 2 and "no complete frames" in result.stderr
+
+
+ARM_URDF = """<?xml version="1.0"?>
+<robot name="two_link">
+  <link name="base"><collision><geometry><cylinder radius="0.12" length="0.3"/></geometry>
+    <origin xyz="0 0 0.15"/></collision></link>
+  <link name="upper"><collision><geometry><box size="0.1 0.1 0.6"/></geometry>
+    <origin xyz="0 0 0.3"/></collision></link>
+  <link name="tool"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="upper"/>
+    <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>
+    <limit lower="-1.5" upper="1.5" effort="1" velocity="1"/></joint>
+  <joint name="j2" type="fixed"><parent link="upper"/><child link="tool"/>
+    <origin xyz="0 0 0.6"/></joint>
+</robot>
+"""
+
+
+def test_cells_with_a_users_own_robot_render_it_as_robot(tmp_path):
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(ARM_URDF)
+    out = tmp_path / "cell.zarr"
+    run = subprocess.run(
+        [TOPSEG, "-q", "datagen", "--mode", "cell", "--frames", "6", "--out", str(out), "--seed", "2",
+         "--robot-urdf", str(urdf), "--robots", "none", "--workers", "1", "--no-progress"],
+        env=env(), capture_output=True, text=True,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    ds = D.open_dataset(out)
+    robots = [r for k in range(len(ds)) for r in ds.scene(k).get("robots", [])]
+    assert robots and all(r["name"] == str(urdf) for r in robots)
+    assert any((ds.labels[k] == label_table.ROBOT).any() for k in range(len(ds)))
+
+
+def test_a_bad_robot_urdf_is_one_clear_line_before_any_frame(tmp_path):
+    out = tmp_path / "cell.zarr"
+    run = subprocess.run(
+        [TOPSEG, "datagen", "--mode", "cell", "--frames", "2", "--out", str(out),
+         "--robot-urdf", str(tmp_path / "missing.urdf")],
+        env=env(), capture_output=True, text=True,
+    )  # fmt: skip
+    assert "missing.urdf" in one_error_line(run) and not out.exists()
+    run = subprocess.run(
+        [TOPSEG, "datagen", "--frames", "2", "--out", str(out), "--robots", "panda"],
+        env=env(), capture_output=True, text=True,
+    )  # fmt: skip
+    assert "need --mode cell" in one_error_line(run)

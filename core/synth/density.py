@@ -39,10 +39,11 @@ from topseg.core.camera import PAPER_MOUNT, TopViewMount
 from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
 from topseg.core.synth import furniture, humanoid, relations, rooms
+from topseg.core.synth.cell_scenes import CellConfig, CellSampler
 from topseg.core.synth.geometry import inside_rect, overlap_fraction
 from topseg.core.synth.scene import HUMAN, PlacedHuman, PlacedObject, Relation, Scene
 
-MODES = ("modeled", "non-modeled")
+MODES = ("modeled", "non-modeled", "cell")
 FACTORS = (
     "H_h",
     "H_p",
@@ -151,6 +152,8 @@ class DensityConfig:
     max_tries: int = 40
     #: share of freely placed humans centred on the band across the view's open edges
     human_edge_share: float = 0.0
+    #: robot cells: robots, cell objects, people and their relations (the "cell" mode)
+    cell: CellConfig = field(default_factory=CellConfig)
 
     def __post_init__(self) -> None:
         self.human_height_m = tuple(float(v) for v in self.human_height_m)
@@ -205,6 +208,7 @@ class DensityConfig:
         d["human_height_m"] = list(self.human_height_m)
         d["object_height_m"] = {k: list(v) for k, v in self.object_height_m.items()}
         d["n_objects"] = None if self.n_objects is None else list(self.n_objects)
+        d["cell"] = self.cell.to_dict()
         return d
 
     @classmethod
@@ -246,6 +250,7 @@ class DensityFunction:
         self.rooms = Categorical(
             "room", tuple((r, 1.0 if room in (None, r) else 0.0) for r in rooms.ROOMS)
         )
+        self.cell = CellSampler(self, c.cell)
 
     # --- factors ------------------------------------------------------------------------
 
@@ -287,8 +292,12 @@ class DensityFunction:
         got = np.array((*scene.floor_lo, *scene.floor_hi, *scene.bounds[0], *scene.bounds[1]))
         if np.max(np.abs(expect - got)) > 1e-6:
             return bad
-        ids = [o.id for o in scene.objects]
+        ids = [o.id for o in scene.objects] + [r.id for r in scene.robots]
         if len(set(ids)) != len(ids):
+            return bad
+        if self.mode == "cell":
+            return {**self.cell.log_factors(scene), "room": 0.0}
+        if scene.robots or scene.extra_humans:
             return bad
         objects = {o.id: o for o in scene.objects}
 
@@ -504,12 +513,19 @@ class DensityFunction:
 
     def _sample_once(self, rng, mount: TopViewMount) -> Scene | None:
         scene = self._new_scene(rng, mount)
-        p_human = self.config.human_probability.get(self.mode, 1.0)
+        if self.mode == "cell":
+            return self.cell.sample_into(rng, scene)
         if self.mode == "non-modeled":
-            if rng.random() < p_human:
+            if rng.random() < self.config.human_probability.get(self.mode, 1.0):
                 return scene if self._add_human(rng, scene, free_only=True) else None
             cls = str(rng.choice(CLASSES))
             return scene if self._add_free_object(rng, scene, cls) is not None else None
+        return self._fill_modeled(rng, scene)
+
+    def _fill_modeled(self, rng, scene: Scene) -> Scene | None:
+        """Fill the empty `scene` as the paper's modeled scenes are: objects by the room's
+        template and relations, then the human; None when the human does not fit."""
+        p_human = self.config.human_probability.get("modeled", 1.0)
         tmpl = rooms.get(scene.room)
         n_lo, n_hi = self.config.n_objects or tmpl.n_objects
         n = int(rng.integers(n_lo, n_hi + 1))
@@ -544,7 +560,7 @@ class DensityFunction:
         kind = str(rng.choice(kinds or furniture.KINDS_OF[cls]))
         lo, hi = scene.floor_lo, scene.floor_hi
         return PlacedObject(
-            len(scene.objects),
+            scene.next_id(),
             kind,
             int(rng.integers(furniture.N_VARIANTS)),
             furniture.quantize_height(self.object_height[cls].sample(rng)),
@@ -582,7 +598,7 @@ class DensityFunction:
             )
             if anchor is None:
                 return
-            new_id = len(scene.objects)
+            new_id = scene.next_id()
             if kind == "tables_joined":
                 res = relations.place_tables_joined(rng, anchor, new_id)
             elif kind == "storage_under_table":

@@ -332,7 +332,7 @@ MAX_TRUNK_TILT_DEG = 75.0
 GAP_SCALES = (1.0, 0.4, 0.0)
 
 
-def _lean_to_reach(pose, scale, top_z, hands, target_of):
+def lean_to_reach(pose, scale, top_z, hands, target_of):
     """Step closer, then lean the trunk forward, until every hand in `hands` reaches its target.
 
     `target_of(front, shoulder, side, k)` gives a hand's target in the human's frame from the
@@ -424,7 +424,7 @@ def place_hand_on_table(
             [front + k * gap + inset[side], shoulder[1] * (1 - side_off[side]), table.height + hr]
         )
 
-    res = _lean_to_reach(pose, scale, table.height, hands, target_of)
+    res = lean_to_reach(pose, scale, table.height, hands, target_of)
     if res is None:
         return None
     p, z0, front, k = res
@@ -465,7 +465,7 @@ def place_holding_chair_back(
     def target_of(front, shoulder, side, k):
         return np.array([front + k * gap + back_t / 2, ys[side], chair.height + hr])
 
-    res = _lean_to_reach(pose, scale, chair.height, hands, target_of)
+    res = lean_to_reach(pose, scale, chair.height, hands, target_of)
     if res is None:
         return None
     p, z0, front, k = res
@@ -509,7 +509,7 @@ def place_standing_by_storage(
         return np.array([front + k * gap + inset, shoulder[1] * 0.8, storage.height + hr])
 
     if hands:
-        res = _lean_to_reach(pose, scale, storage.height, hands, target_of)
+        res = lean_to_reach(pose, scale, storage.height, hands, target_of)
         if res is None:
             return None
         p, z0, front, k = res

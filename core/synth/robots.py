@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from topseg.core import labels
 from topseg.core.errors import TopsegError
@@ -384,6 +384,7 @@ class RobotModel:
         self._prim_link, self._prim_kind, self._prim_size, self._prim_pose = prims
         if not len(self._tris) and not len(self._prim_kind):
             raise TopsegError(f"robot {label}: the URDF has no geometry")
+        self._hull_points = [_hull_vertices(self._tris[lo:hi]) for lo, hi in self._tri_blocks]
 
     def _chain_length(self) -> float:
         """Sum of the joint offsets (and prismatic travel) from the base to the tool."""
@@ -471,6 +472,20 @@ class RobotModel:
             np.full(len(self._prim_kind), labels.ROBOT, np.uint8),
         )
         return prims, triangles
+
+    def hull_points(self, joints, base_pos, base_quat) -> np.ndarray:
+        """(n, 3) world points: the corners of each posed link mesh's convex hull. Their
+        hull and their lowest and highest points are the meshes' own, at a few percent of
+        the cost of posing every triangle (placing a scene asks for them often)."""
+        if not self._hull_points:
+            return np.zeros((0, 3))
+        poses = self._poses(joints, self._links)
+        rot, pos = self._to_world(base_pos, base_quat)
+        world_rot = rot @ poses[:, :3, :3] * self._scale
+        world_pos = pos + self._scale * poses[:, :3, 3] @ rot.T
+        return np.concatenate(
+            [pts @ world_rot[i].T + world_pos[i] for i, pts in enumerate(self._hull_points)]
+        )
 
     def tool_position(self, joints, base_pos, base_quat) -> np.ndarray:
         """The tool link's origin in the world frame."""
@@ -628,10 +643,12 @@ class PlacedRobot:
     def footprint(self) -> np.ndarray:
         """(k, 2) convex polygon (CCW) on the floor under the posed arm and its pedestal; a
         gantry's beam and posts are left out (people and furniture pass under the beam)."""
-        prims, tris = self.model().link_geometry(self.joints, self.base_pos(), self.base_quat())
+        model = self.model()
+        prims, _ = model.link_geometry(self.joints, self.base_pos(), self.base_quat())
         if self.mount == "pedestal":
             prims = Primitives.concat([prims, self._structure()])
-        points = np.concatenate([tris.vertices.reshape(-1, 3)[:, :2], _outline_xy(prims)])
+        hull = model.hull_points(self.joints, self.base_pos(), self.base_quat())
+        points = np.concatenate([hull[:, :2], _outline_xy(prims)])
         hull = ConvexHull(points)
         return points[hull.vertices]  # counter-clockwise in 2-D
 
@@ -647,6 +664,18 @@ class PlacedRobot:
             lo.append(a[2])
             hi.append(b[2])
         return float(min(lo)), float(max(hi))
+
+
+def _hull_vertices(triangles: np.ndarray) -> np.ndarray:
+    """The corners of the convex hull of a link's triangles (all its distinct corners when
+    they are flat or too few for a hull)."""
+    points = np.unique(triangles.reshape(-1, 3), axis=0)
+    if len(points) < 5:
+        return points
+    try:
+        return points[ConvexHull(points).vertices]
+    except QhullError:  # a flat or degenerate link
+        return points
 
 
 def _boxes(kinds, sizes, centres, yaw: float) -> Primitives:

@@ -17,8 +17,14 @@ import numpy as np
 from topseg.core.camera import TopViewMount
 from topseg.core.synth import furniture, humanoid
 from topseg.core.synth.geometry import rect_footprint
+from topseg.core.synth.robots import PlacedRobot
 
 HUMAN = "human"  # the id relations use for the human
+
+
+def human_id(index: int) -> str:
+    """The id relations use for person `index` of `Scene.humans` (0: HUMAN, the paper's)."""
+    return HUMAN if index == 0 else f"{HUMAN}:{index}"
 
 
 @dataclass
@@ -205,6 +211,23 @@ class Scene:
     bounds_hi: tuple[float, float] | None = None
     #: the camera the scene is seen from (its floor and bounds follow it); None = unrecorded
     mount: TopViewMount | None = None
+    #: robot arms in the cell (their ids share the objects' id space)
+    robots: list[PlacedRobot] = field(default_factory=list)
+    #: people besides `human` (a robot cell may hold several); relations name them
+    #: `human_id(i + 1)`
+    extra_humans: list[PlacedHuman] = field(default_factory=list)
+
+    @property
+    def humans(self) -> list[PlacedHuman]:
+        """Every person in the scene: `human` first, then `extra_humans`."""
+        return ([] if self.human is None else [self.human]) + list(self.extra_humans)
+
+    def robot(self, rid: int) -> PlacedRobot:
+        """The robot with id `rid`; KeyError when there is none."""
+        for r in self.robots:
+            if r.id == rid:
+                return r
+        raise KeyError(f"scene has no robot {rid}")
 
     @property
     def floor_area(self) -> float:
@@ -225,6 +248,11 @@ class Scene:
                 return o
         raise KeyError(f"scene has no object {oid}")
 
+    def next_id(self) -> int:
+        """The id a new object or robot takes: one past the highest in use (0 in an empty
+        scene; the paper's scenes number their objects 0, 1, 2, ...)."""
+        return 1 + max([o.id for o in self.objects] + [r.id for r in self.robots], default=-1)
+
     def related(self, a, b) -> list[Relation]:
         """Relations between items `a` and `b`, in either direction (ids, or HUMAN)."""
         return [r for r in self.relations if {r.subject, r.object} == {a, b}]
@@ -244,6 +272,13 @@ class Scene:
             "human": None if self.human is None else self.human.to_dict(),
             "relations": [r.to_dict() for r in self.relations],
             "mount": None if self.mount is None else self.mount.to_dict(),
+            # only cells have these: the paper's scenes keep their records as they were
+            **({"robots": [r.to_dict() for r in self.robots]} if self.robots else {}),
+            **(
+                {"extra_humans": [h.to_dict() for h in self.extra_humans]}
+                if self.extra_humans
+                else {}
+            ),
         }
 
     @classmethod
@@ -262,4 +297,6 @@ class Scene:
             tuple(d["bounds_lo"]) if d.get("bounds_lo") is not None else None,
             tuple(d["bounds_hi"]) if d.get("bounds_hi") is not None else None,
             None if d.get("mount") is None else TopViewMount.from_dict(d["mount"], "scene mount"),
+            [PlacedRobot.from_dict(r) for r in d.get("robots", [])],
+            [PlacedHuman.from_dict(h) for h in d.get("extra_humans", [])],
         )

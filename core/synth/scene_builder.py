@@ -188,7 +188,7 @@ class SceneBuilder:
         self.mount = mount
         self._urdf = humanoid.urdf_path()  # pybullet_data's humanoid, proportions fixed
         self._furniture: dict[tuple[str, int, float], list[Body]] = {}
-        self._humans: dict[float, Body] = {}
+        self._humans: dict[tuple[float, int], Body] = {}
         self._walls: dict[tuple[str, int], Body] = {}
         self._labels: dict[tuple[int, int], int] = {}
         self.floor = self._make_floor()
@@ -241,14 +241,14 @@ class SceneBuilder:
             pool.append(self._remember(_create_compound(self.client, m.parts, m.label)))
         return pool[copy]
 
-    def _human_body(self, height: float) -> Body:
+    def _human_body(self, height: float, copy: int = 0) -> Body:
         import pybullet as p
 
-        key = humanoid.quantize_height(height)
+        key = (humanoid.quantize_height(height), copy)
         if key not in self._humans:
             with quiet_stdio():
                 uid = p.loadURDF(
-                    self._urdf, [0, 0, 2 * PARK_Z], globalScaling=humanoid.scale_for_height(key),
+                    self._urdf, [0, 0, 2 * PARK_Z], globalScaling=humanoid.scale_for_height(key[0]),
                     useFixedBase=True, flags=p.URDF_MAINTAIN_LINK_ORDER, physicsClientId=self.client,
                 )  # fmt: skip
             names = [
@@ -321,9 +321,11 @@ class SceneBuilder:
             body = self._furniture_body(o.kind, o.variant, o.height, n)
             placements.append((body, (o.x, o.y, o.z), yaw_quat(o.yaw)))
             wanted.append(body)
-        if scene.human is not None:
-            h = scene.human
-            body = self._human_body(h.height)
+        for h in scene.humans:
+            key = humanoid.quantize_height(h.height)
+            n = copies.get(key, 0)
+            copies[key] = n + 1
+            body = self._human_body(h.height, n)
             wanted.append(body)
             placements.append((body, h.base_pos, h.base_quat))
             model = humanoid.load_model()

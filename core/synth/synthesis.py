@@ -32,7 +32,7 @@ from topseg.core.synth import rooms
 from topseg.core.synth.density import MODES, DensityConfig, DensityFunction
 from topseg.core.synth.humanoid import POSES
 from topseg.core.synth.noise import parse_noise
-from topseg.core.synth.render import raycast
+from topseg.core.synth.render import Primitives, Triangles, raycast
 from topseg.core.synth.scene import Scene
 from topseg.core.synth.scene_builder import SceneBuilder
 
@@ -192,6 +192,15 @@ class SynthesisConfig:
         return from_dict(cls, d, source)
 
 
+def scene_geometry(built: Primitives, scene: Scene) -> tuple[Primitives, Triangles | None]:
+    """The scene's pybullet-built primitives with its robots' shapes added (robots are posed
+    from their URDFs, not through pybullet); triangles None when no robot brings a mesh."""
+    if not scene.robots:
+        return built, None
+    prims, tris = zip(*(r.geometry() for r in scene.robots), strict=True)
+    return Primitives.concat([built, *prims]), Triangles.concat(list(tris))
+
+
 @dataclass
 class SyntheticFrame:
     """One frame: `depth` (H, W) uint16 mm (0 = no depth), `labels` (H, W) uint8 with NO_DEPTH
@@ -284,9 +293,9 @@ class Synthesizer:
             scene.mount = mount
         t0 = time.perf_counter()
         self.builder.build(scene)
-        prims = self.builder.primitives()
+        prims, triangles = scene_geometry(self.builder.primitives(), scene)
         t1 = time.perf_counter()
-        clean, lab = raycast(prims, mount)
+        clean, lab = raycast(prims, mount, triangles)
         t2 = time.perf_counter()
         depth = self.noise_for(mount).apply(
             clean, noise_rng if noise_rng is not None else np.random.default_rng(0), labels=lab

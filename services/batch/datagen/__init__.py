@@ -52,13 +52,33 @@ __all__ = ["add_arguments", "dask_client", "default_workers", "generate", "rende
 
 log = logging.getLogger("topseg.datagen")
 
-MODES = ("modeled", "non-modeled")
+MODES = ("modeled", "non-modeled", "cell")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """`topseg datagen`'s options and its `preview` subcommand."""
     parser.add_argument(
-        "--mode", choices=MODES, default="modeled", help="scene model (default: modeled)"
+        "--mode",
+        choices=MODES,
+        default="modeled",
+        help="scene model: the paper's modeled or non-modeled scenes, or cell (robot cells: "
+        "robots, cell objects, people working at them, and a share of the paper's scenes) "
+        "(default: modeled)",
+    )
+    parser.add_argument(
+        "--robot-urdf",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="with --mode cell: your own robot's URDF (its meshes beside it or under "
+        "package:// paths it resolves), drawn for half of the robots; repeatable",
+    )
+    parser.add_argument(
+        "--robots",
+        default=None,
+        metavar="NAMES",
+        help="with --mode cell: comma-separated catalogue robots to draw from, or none to "
+        "draw only --robot-urdf robots (default: the whole catalogue)",
     )
     parser.add_argument(
         "--frames", type=int_range(1, 10**8), help="number of frames in the dataset"
@@ -123,6 +143,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         formatter_class=describe.ParagraphFormatter,
     )
     datagen_preview.add_arguments(p)
+
+
+def cell_config(args: argparse.Namespace) -> dict | None:
+    """The cell settings `--robot-urdf` and `--robots` ask for (None: the defaults); every
+    URDF is loaded here, so a bad file fails before a store or a cluster exists."""
+    if args.mode != "cell":
+        if args.robot_urdf or args.robots is not None:
+            raise TopsegError("--robot-urdf and --robots need --mode cell")
+        return None
+    from topseg.core.synth import robots
+
+    urdfs = [str(Path(f).resolve()) for f in args.robot_urdf]
+    for f in urdfs:
+        robots.robot_model(f)
+    names: list[str] = []
+    if args.robots is not None:
+        names = (
+            []
+            if args.robots.strip() == "none"
+            else [n.strip() for n in args.robots.split(",") if n.strip()]
+        )
+        unknown = [n for n in names if n not in robots.ROBOTS]
+        if unknown:
+            raise TopsegError(f"--robots: unknown {unknown}; known: {', '.join(robots.ROBOTS)}")
+        if not names and not urdfs:
+            raise TopsegError("--robots none needs at least one --robot-urdf")
+    cell: dict = {"robot_urdfs": urdfs, "robot_names": names}
+    if args.robots is not None and not names:
+        cell["user_robot_share"] = 1.0
+    return cell
 
 
 # ---------------------------------------------------------------- worker side
@@ -362,7 +412,7 @@ def run(args: argparse.Namespace) -> int:
     noise = noise if noise == "sensor" else parse_noise(noise).spec
     generator = {
         "factory": target,
-        "config": generator_config(target, args.mode, noise, args.room, mounts),
+        "config": generator_config(target, args.mode, noise, args.room, mounts, cell_config(args)),
     }
     attrs = make_attrs(
         seed=args.seed,

@@ -78,19 +78,29 @@ EDGE_SHARE = 0.3
 
 
 def generator_config(
-    target: str, mode: str, noise: str, room: str | None, mounts: dict | None = None
+    target: str,
+    mode: str,
+    noise: str,
+    room: str | None,
+    mounts: dict | None = None,
+    cell: dict | None = None,
 ) -> dict:
     """The full, validated config a generator will get, as recorded in the dataset.
 
     `mounts` (a `MountDistribution.to_dict()`) draws each frame's camera mount, and people
-    then walk in and out of view (EDGE_SHARE); None keeps the paper's fixed mount.
+    then walk in and out of view (EDGE_SHARE); None keeps the paper's fixed mount. `cell`
+    (a partial `CellConfig` mapping) sets what `--mode cell` draws.
     """
     if target == GENERATORS["synthesis"]:
+        from topseg.core.synth.cell_scenes import CellConfig
         from topseg.core.synth.density import DensityConfig
         from topseg.core.synth.synthesis import SynthesisConfig
 
         try:
-            density = DensityConfig(human_edge_share=EDGE_SHARE if mounts is not None else 0.0)
+            density = DensityConfig(
+                human_edge_share=EDGE_SHARE if mounts is not None else 0.0,
+                cell=CellConfig.from_dict(cell or {}),
+            )
             return SynthesisConfig(
                 mode=mode, noise=noise, room=room, mounts=mounts, density=density
             ).to_dict()
@@ -98,6 +108,8 @@ def generator_config(
             raise TopsegError(f"bad synthesis settings: {exc}") from exc
     if mounts is not None:
         raise TopsegError(f"generator {target}: drawn mounts need the synthesis generator")
+    if mode == "cell" or cell:
+        raise TopsegError(f"generator {target}: --mode cell needs the synthesis generator")
 
     return {"mode": mode, "noise": parse_noise(noise).spec, "room": room}
 

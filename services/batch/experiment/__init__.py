@@ -5,6 +5,7 @@ heights, tilts and sensors. Each writes OUT/<experiment>.md, .json and .png; a r
 
     topseg experiment noise|features|frames|overlap|table [--scale tiny|quick|paper] --out DIR
     topseg experiment mounts [--model M] [--baseline OLD] --out DIR   (experiment/mounts.py)
+    topseg experiment open-world [--model M] --out DIR   (experiment/open_world.py)
 
 Every point trains a forest on a synthetic training set and scores it on one held-out test
 set: modeled scenes from other seeds, with the Kinect noise model. Training sets are modeled
@@ -33,7 +34,7 @@ from topseg.core.resolution import MAX_DOWNSAMPLE
 from topseg.core.sensors import get_sensor
 from topseg.services.cli.options import auto_int
 
-EXPERIMENTS = ("noise", "features", "frames", "overlap", "table", "mounts")
+EXPERIMENTS = ("noise", "features", "frames", "overlap", "table", "mounts", "open-world")
 
 # the paper's x values
 NOISE_SIGMAS = (0, 5, 10, 15, 30, 50, 100)
@@ -75,7 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--test-frames", type=int, help="test set size (default: the scale's)")
 
-    parser.add_argument("--model", type=Path, help=f"mounts: the model scored; {MODEL_HELP}")
+    parser.add_argument(
+        "--model", type=Path, help=f"mounts, open-world: the model scored; {MODEL_HELP}"
+    )
     parser.add_argument(
         "--baseline", type=Path, help="mounts: a second model scored on the same frames"
     )
@@ -99,7 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--sensors",
         default="kinect_v1,kinect_v2,oak_d,realsense_d435",
-        help="mounts: comma-separated sensors (default: every supported one)",
+        help="mounts, open-world: comma-separated sensors (default: every supported one)",
     )
     parser.add_argument(
         "--report-only",
@@ -187,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.out.absolute()
     if args.experiment == "mounts":
         return _run_mounts(args, test_frames, out)
+    if args.experiment == "open-world":
+        return _run_open_world(args, args.test_frames or OPEN_WORLD_FRAMES, out)
     cache = (args.data_cache or out.parent / "data-cache").absolute()
     out.mkdir(parents=True, exist_ok=True)
     points = points_of(args.experiment, scale, args.seed)
@@ -231,6 +236,26 @@ def _run_mounts(args, frames: int, out: Path) -> int:
         f"(<= {mounts.MAX_GAP}: {v['all_within_gap']}); lowest cell {v['lowest_f1']:.3f} "
         f"(>= {mounts.MIN_F1}: {v['none_below_floor']}); wrote {out / 'mounts.md'}"
     )
+    return 0
+
+
+#: held-out cells per mount and sensor of `open-world` (5 mounts x 4 sensors: 600 frames)
+OPEN_WORLD_FRAMES = 30
+
+
+def _run_open_world(args, frames: int, out: Path) -> int:
+    """One model on held-out robot cells across `mounts.MOUNTS` and every sensor."""
+    from topseg.services.batch.experiment import open_world
+
+    sensors = [get_sensor(s.strip()).name for s in args.sensors.split(",") if s.strip()]
+    print(
+        f"topseg experiment open-world: {len(sensors)} sensors x 5 mounts, {frames} held-out "
+        f"cells a mount; results {out}",
+        flush=True,
+    )
+    report = open_world.run_open_world(args.model, sensors, frames, out)
+    missed = [k for k, ok in report["verdict"].items() if ok is False]
+    print(f"targets missed: {', '.join(missed) or 'none'}; wrote {out / 'open-world.md'}")
     return 0
 
 
