@@ -5,7 +5,10 @@ In a robot cell most of the view never changes: floor, fences, tables, cabinets,
 housings. `topseg calibrate --background` records a few seconds of the empty cell and
 `fit_background` turns them into a `BackgroundModel`: for every pixel the median depth of
 what does not move and its noise (the MAD of its readings, never below the sensor's noise
-model at that depth, `sensors.depth_sigma_mm`). A pixel is *not background* (never gated)
+model at that depth, `sensors.depth_sigma_mm`). Each pixel's own MAD
+is a rough estimate (60 readings of a quantised sensor), so its noise is never taken above
+the median of its neighbours' (`NOISE_WINDOW`): an odd pixel does not widen the gate. A
+pixel is *not background* (never gated)
 when it had a reading in too few frames, or when its readings were unstable: too many far
 from the median (a robot moving through it while recording), or a spread far beyond the
 camera's own noise (an edge flickering between two surfaces).
@@ -71,6 +74,8 @@ MAD_TO_SIGMA = 1.4826
 MAX_GATE_MM = 150.0
 #: rows of frames a fit reads at a time (bounds its memory: N frames x rows x width floats)
 FIT_ROWS = 32
+#: the side (px) of the neighbourhood whose median MAD noise caps a pixel's own
+NOISE_WINDOW = 5
 #: the smallest number of frames a background is fitted from (its noise needs several)
 MIN_FRAMES = 5
 #: relative difference of focal lengths, and of the principal point in share of the frame's
@@ -208,7 +213,7 @@ def fit_background(
     enough = count >= max(1, math.ceil(config.min_valid_share * n))
     floor = depth_sigma_mm(median, sensor).astype(np.float32)
     scale = _noise_ratio(mad_sigma, floor, enough)
-    sigma = np.maximum(mad_sigma, floor)
+    sigma = np.maximum(np.minimum(mad_sigma, _local_median(mad_sigma, enough)), floor)
     outliers = _outlier_counts(stack, median, sigma, config.outlier_sigmas)
     stable = (outliers <= config.max_outlier_share * count) & (
         mad_sigma <= config.max_sigma_ratio * scale * floor
@@ -261,6 +266,21 @@ def _robust_rows(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         mad = np.nanmedian(np.abs(x - median), axis=0)
     median = np.nan_to_num(median, nan=0.0).astype(np.float32)
     return median, np.nan_to_num(MAD_TO_SIGMA * mad, nan=0.0).astype(np.float32), count
+
+
+def _local_median(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Per pixel, the median of `values` over the valid pixels of its NOISE_WINDOW square
+    (+inf where it has none)."""
+    r = NOISE_WINDOW // 2
+    padded = np.pad(np.where(valid, values, np.nan).astype(np.float32), r, constant_values=np.nan)
+    h, w = values.shape
+    shifted = [
+        padded[i : i + h, j : j + w] for i in range(NOISE_WINDOW) for j in range(NOISE_WINDOW)
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a window without a valid pixel
+        median = np.nanmedian(np.stack(shifted), axis=0)
+    return np.nan_to_num(median, nan=np.inf).astype(np.float32)
 
 
 def _noise_ratio(mad_sigma: np.ndarray, floor: np.ndarray, enough: np.ndarray) -> float:

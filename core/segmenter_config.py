@@ -53,7 +53,7 @@ FILL_HOLES_CM2 = 100.0
 #: BACKGROUND_MARGIN_MM) is background without the forest (`BackgroundConfig`)
 BACKGROUND_SIGMAS = 3.0
 #: ... plus this margin (mm): depth quantisation and a slow drift of the sensor
-BACKGROUND_MARGIN_MM = 10.0
+BACKGROUND_MARGIN_MM = 5.0
 #: The worker reports a background that no longer matches when more than this share of its
 #: pixels read farther than it (something static went: a fixture or the camera moved)
 BACKGROUND_MISMATCH_SHARE = 0.02

@@ -84,6 +84,17 @@ def test_the_fit_recovers_depth_and_noise():
     np.testing.assert_allclose(quiet.sigma_mm, depth_sigma_mm(truth, "kinect_v1"), rtol=1e-6)
 
 
+def test_one_pixel_noisier_than_its_neighbours_does_not_widen_the_gate():
+    rng = np.random.default_rng(10)
+    truth = cell_depth()
+    frames = [noisy(truth, rng) for _ in range(60)]
+    for f in frames:  # one floor pixel reads 2.5 times as noisy (still not unstable)
+        f[90, 30] = np.uint16(round(3000 + 2.5 * (float(f[90, 30]) - 3000)))
+    bg = fit_background(frames, K, "kinect_v1")
+    assert bg.valid[90, 30]
+    assert bg.sigma_mm[90, 30] < 1.3 * np.median(bg.sigma_mm[85:95, 25:35])
+
+
 def test_pixels_that_moved_or_had_no_reading_are_not_background():
     rng = np.random.default_rng(3)
     frames = []

@@ -158,7 +158,7 @@ def test_the_worker_reports_a_background_that_no_longer_matches(tmp_path):
         phase(cell_depth(), 3)
         assert peer.stats[-1]["background"] == {
             "id": bg.id, "state": "match", "missing_share": pytest.approx(0, abs=0.002),
-            "mismatch_share": 0.02, "sigmas": 3.0, "margin_mm": 10.0, "mismatches": 0,
+            "mismatch_share": 0.02, "sigmas": 3.0, "margin_mm": 5.0, "mismatches": 0,
         }  # fmt: skip
         phase(moved, MISMATCH_FRAMES + 2)
         assert peer.stats[-1]["background"]["state"] == "mismatch"
