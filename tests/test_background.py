@@ -203,6 +203,11 @@ def test_a_damaged_or_foreign_file_is_one_line_naming_it(background_file, tmp_pa
         rezip(background_file, path, changed(what))
         with pytest.raises(BackgroundFileError, match=why):
             load_background(path)
+    newer = tmp_path / "newer.npz"
+    header = b'{"magic": "topseg-background", "format_version": 2}'
+    rezip(background_file, newer, lambda n, d: npy(np.frombuffer(header, np.uint8)) if n == "header.npy" else d)  # fmt: skip
+    with pytest.raises(BackgroundFileError, match="format version 2; this topseg reads version 1"):
+        load_background(newer)
     model = tmp_path / "model.npz"
     rezip(background_file, model, lambda n, d: npy(np.frombuffer(b'{"magic": "x"}', np.uint8)) if n == "header.npy" else d)  # fmt: skip
     with pytest.raises(BackgroundFileError, match="not a background file"):

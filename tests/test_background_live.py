@@ -140,6 +140,13 @@ def test_the_worker_reports_a_background_that_no_longer_matches(tmp_path):
     port, cell = free_port(), "bgw"
     r = topseg("worker", "--background", path, "--zenoh-port", port, timeout=60)
     assert r.returncode == 2 and "exactly one --cameras" in r.stderr  # one camera's background
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(path.read_bytes()[:1000])
+    r = topseg("worker", "--background", bad, "--cameras", f"{cell}/cam0", "--zenoh-port", port, timeout=60)  # fmt: skip
+    last = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 2 and last.startswith(
+        f"topseg worker: error: background file {bad}: damaged or truncated"
+    ), r.stderr
 
     peer = Peer(port, cell)
     cmd = [sys.executable, "-m", "topseg.services.cli", "-v", "worker", "--lossless",
