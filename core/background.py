@@ -164,8 +164,10 @@ class BackgroundModel:
         return "\n".join(
             [
                 f"background {100 * self.valid_share:6.1f} % of the pixels",
-                f"unstable   {100 * self.unstable_share:6.1f} % (readings that moved: not background)",
-                f"no reading {100 * max(0.0, no_reading):6.1f} % (too few readings: not background)",
+                f"unstable   {100 * self.unstable_share:6.1f} % (readings that moved: not "
+                "background)",
+                f"no reading {100 * max(0.0, no_reading):6.1f} % (too few readings: not "
+                "background)",
                 f"sigma      {self.median_sigma_mm:6.1f} mm median noise of the background pixels",
                 f"frames     {self.frames}",
                 f"camera     {k.width}x{k.height} fx {k.fx:.4g} fy {k.fy:.4g} cx {k.cx:.4g} "

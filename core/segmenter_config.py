@@ -1,8 +1,8 @@
 """How a Segmenter runs: one nested configuration, `SegmenterConfig` = pre / grid / crf / post
-/ background (plus the mount and the camera check), with every setting's default, bounds, command-line
-flag and help declared once on its field (`core.config.setting`). The command-line options
-and the services' TOML keys are generated from it (`services.cli.options`), and
-`SegmenterConfig.from_dict` reads it from a nested table."""
+/ background (plus the mount and the camera check), with every setting's default, bounds,
+command-line flag and help declared once on its field (`core.config.setting`). The
+command-line options and the services' TOML keys are generated from it
+(`services.cli.options`), and `SegmenterConfig.from_dict` reads it from a nested table."""
 
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ bridge's names):
     /topseg/<cell>/<camera>/camera_info  sensor_msgs/msg/CameraInfo  one before each depth frame
     /topseg/<cell>/<camera>/stats        std_msgs/msg/String         the stats map as JSON
     /topseg/<cell>/<camera>/mount        std_msgs/msg/String         the wire's mount map as JSON
-    /topseg/<cell>/<camera>/background   std_msgs/msg/String         {"id": the labels' background id or null}
+    /topseg/<cell>/<camera>/background   std_msgs/msg/String         {"id": background id or null}
     /tf_static                           tf2_msgs/msg/TFMessage      <cell>_<camera>_floor -> optical frame
 
 Depth images hold depth along the optical axis, as REP 118 says: a radial camera's frames
