@@ -206,12 +206,7 @@ def fit_background(
     config = config or BackgroundFitConfig()
     stack = _stacked(frames, intrinsics)
     n = stack.shape[0]
-    median = np.zeros(intrinsics.shape, np.float32)
-    mad_sigma = np.zeros(intrinsics.shape, np.float32)
-    count = np.zeros(intrinsics.shape, np.int32)
-    for r0 in range(0, stack.shape[1], FIT_ROWS):
-        rows = slice(r0, r0 + FIT_ROWS)
-        median[rows], mad_sigma[rows], count[rows] = _robust_rows(stack[:, rows])
+    median, mad_sigma, count = _pixel_statistics(stack)
     enough = count >= max(1, math.ceil(config.min_valid_share * n))
     floor = depth_sigma_mm(median, sensor).astype(np.float32)
     scale = _noise_ratio(mad_sigma, floor, enough)
@@ -254,6 +249,18 @@ def _stacked(frames, intrinsics: Intrinsics) -> np.ndarray:
                 f"{intrinsics.shape}"
             )
     return np.stack(frames)
+
+
+def _pixel_statistics(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_robust_rows` of (N, H, W) readings, FIT_ROWS rows at a time (bounded memory)."""
+    shape = stack.shape[1:]
+    median = np.zeros(shape, np.float32)
+    mad_sigma = np.zeros(shape, np.float32)
+    count = np.zeros(shape, np.int32)
+    for r0 in range(0, shape[0], FIT_ROWS):
+        rows = slice(r0, r0 + FIT_ROWS)
+        median[rows], mad_sigma[rows], count[rows] = _robust_rows(stack[:, rows])
+    return median, mad_sigma, count
 
 
 def _robust_rows(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -46,7 +46,7 @@ ODD = SegmenterConfig(
     post=PostConfig(min_head_cm2=10.0, min_furniture_cm2=0.0, min_plant_cm2=20.0,
                     satellite_head_cm2=30.0),
     background=BackgroundConfig(path="/etc/topseg/cell1-background.npz", sigmas=4.0,
-                                margin_mm=5.0, mismatch_share=0.1),
+                                margin_mm=12.5, mismatch_share=0.1),
 )  # fmt: skip
 
 

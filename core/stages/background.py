@@ -63,8 +63,8 @@ class BackgroundStage(Stage):
         key = (camera, plan.downsample, radial)
         grid = self._grids.get(key)
         if grid is None:
-            check_camera(self.background, camera, self.model.config.background.path or "given")
             cfg = self.model.config.background
+            check_camera(self.background, camera, cfg.path or f"of id {self.background.id[:12]}")
             grid = gate_grid(self.background, plan.downsample, cfg.sigmas, cfg.margin_mm, radial)
             if len(self._grids) >= MAX_GRIDS:
                 self._grids.clear()
