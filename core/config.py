@@ -180,7 +180,8 @@ class Option:
     (`services.cli.options`), so a setting is declared once, beside its default.
 
     kind     float | int | auto_int (`auto` or an int: None is auto) | share_or_off (a share
-             in (0, 1] or `off`: None is off) | choice
+             in (0, 1] or `off`: None is off) | choice | path (a file name or `off`: None
+             is off)
     lo, hi   the bounds a value must lie in (inclusive; None: unbounded)
     choices  the values of a `choice`
     """

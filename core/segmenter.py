@@ -5,8 +5,9 @@ A `Segmenter` holds a loaded forest, its model header, the model's input adapter
 settings that shape a run (`SegmenterConfig`). Every caller that labels frames (the worker,
 `segment`, `evaluate`, experiments, the demo, training's validation split, the benches) goes
 through `Segmenter.label`, which resolves the frame's `FramePlan` once and runs the stages:
-pre-processing, model input, forest, CRF, post-processing. Each stage is timed and counts
-what it changed; `Segmentation` carries both, by name.
+pre-processing, model input, the static cell's background, forest, CRF, post-processing.
+Each stage is timed and counts what it changed; `Segmentation` carries both, by name.
+A background file in the settings (`BackgroundConfig.path`) is loaded once, with the model.
 `bundled_model_path` finds the model shipped with topseg, used when no `--model` is named.
 """
 
@@ -19,6 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from topseg.core.background import (
+    BackgroundModel,
+    check_camera,
+    load_background,
+    warm_up_gate,
+)
 from topseg.core.bundled_model import bundled_model_path
 from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.crf import CRFConfig, realtime, segment_crf
@@ -65,9 +72,12 @@ class Segmentation:
     floor_share  share of the pixels with depth the floor gate sent to background without
                  the forest (0 for a model that reads depth)
     counts       every stage's counters for this frame, by name (`Segmenter.counter_names`):
-                 filled_holes (holes filled before labelling), small_heads / small_furniture
-                 (blobs too small to be a head / a piece of furniture or a plant, relabelled),
-                 satellite_heads (head blobs beside a larger head, relabelled)
+                 filled_holes (holes filled before labelling), background_px (pixels that
+                 matched the recorded background and went to background without the forest),
+                 background_missing_px (pixels farther than the background: something
+                 static went), small_heads / small_furniture (blobs too small to be a head /
+                 a piece of furniture or a plant, relabelled), satellite_heads (head blobs
+                 beside a larger head, relabelled)
     downsample   the factor the frame was labelled at; the labels are the frame's size
     """
 
@@ -86,6 +96,19 @@ class Segmentation:
         the first read of `proba` stores the rest (~1.5 ms a 640x480 frame)."""
         return self._frame.posteriors()
 
+    @property
+    def background_missing_share(self) -> float:
+        """Share of the recorded background's pixels (on the working grid) that this frame
+        saw farther than the background; 0 without a background."""
+        valid = self._frame.background_valid_px
+        return self.counts.get("background_missing_px", 0) / valid if valid else 0.0
+
+    @property
+    def background_gated(self) -> bool:
+        """Whether the recorded background gated this frame (False without one, or when
+        the caller asked it only to be measured)."""
+        return self._frame.plan.background == "gate"
+
     def forest_labels(self) -> np.ndarray:
         """(H, W) uint8: the forest's own argmax (no CRF, no island rules) at the frame's
         resolution, NO_DEPTH without depth; like `proba`, only until the next frame."""
@@ -97,7 +120,10 @@ class Segmenter:
 
     Build it from arrays (`Segmenter(forest, header, crf="realtime")`) or from a model file
     (`Segmenter.from_file(path)`, None = the bundled model). The posterior buffer is reused
-    across frames of one size, so one Segmenter serves one thread.
+    across frames of one size, so one Segmenter serves one thread. `background` (else the
+    file `config.background.path` names, loaded here) is the static cell's recorded
+    background; a `BackgroundFileError` says what is wrong with it (and, when the config
+    has a mount, that it is another camera's).
     """
 
     def __init__(
@@ -109,6 +135,7 @@ class Segmenter:
         crf: CRFConfig | str | None = None,
         model_id: str | None = None,
         path: Path | None = None,
+        background: BackgroundModel | None = None,
     ) -> None:
         config = config or SegmenterConfig()
         if crf is not None:
@@ -129,9 +156,27 @@ class Segmenter:
             self.reader = HeightReader(self.features, self.trained_for)
         else:
             self.reader = DepthReader(self.camera, self.header)
-        self.stages = build_stages(StageModel(forest, self.reader, config))
+        self.background = background or self._load_background(config)
+        self.stages = build_stages(StageModel(forest, self.reader, config, self.background))
         # the stages whose time is the CRF's headline share; the rest (and the plan) the forest's
         self._crf_share = {stage.name for stage in self.stages if stage.share == CRFS_SHARE}
+
+    @staticmethod
+    def _load_background(config: SegmenterConfig) -> BackgroundModel | None:
+        """The background file the config names (checked against its mount's camera when it
+        has one), or None."""
+        path = config.background.path
+        if path is None:
+            return None
+        background = load_background(path)
+        if config.mount is not None:
+            check_camera(background, config.mount.intrinsics, path)
+        return background
+
+    @property
+    def background_id(self) -> str | None:
+        """The sha256 id of the recorded background in use (None: none)."""
+        return None if self.background is None else self.background.id
 
     @property
     def reads_height(self) -> bool:
@@ -187,10 +232,16 @@ class Segmenter:
         intrinsics: Intrinsics | None = None,
         name: str = "frame",
         mount: TopViewMount | None = None,
+        gate_background: bool = True,
     ) -> FramePlan:
         """The frame's plan: `mount` (the config's when None) with the frame's `intrinsics`
-        when given, for a height model; TopsegError naming the frame when it cannot be read."""
-        return self.reader.plan(depth, intrinsics, mount, name, self.config)
+        when given, for a height model; TopsegError naming the frame when it cannot be read.
+        With a recorded background the plan gates with it (`gate_background`) or only
+        measures it."""
+        plan = self.reader.plan(depth, intrinsics, mount, name, self.config)
+        if self.background is None:
+            return plan
+        return replace(plan, background="gate" if gate_background else "measure")
 
     def run(self, frame: FrameState, upto: str | None = None) -> dict[str, float]:
         """Run the stages over `frame` (up to and with the stage named `upto`); the
@@ -209,11 +260,14 @@ class Segmenter:
         intrinsics: Intrinsics | None = None,
         name: str = "frame",
         mount: TopViewMount | None = None,
+        gate_background: bool = True,
     ) -> Segmentation:
         """Labels, posteriors and timings of one uint16 depth frame: its plan (`plan`), then
-        every stage. The labels are the frame's size whatever the working resolution."""
+        every stage. The labels are the frame's size whatever the working resolution.
+        `gate_background` False only measures the recorded background (the worker, while it
+        no longer matches the frames)."""
         t0 = time.perf_counter()
-        frame = FrameState(self.plan(depth, intrinsics, name, mount), depth)
+        frame = FrameState(self.plan(depth, intrinsics, name, mount, gate_background), depth)
         stages_ms = {"plan": 1000.0 * (time.perf_counter() - t0)}
         stages_ms.update(self.run(frame))
         crf_ms = sum(ms for s, ms in stages_ms.items() if s in self._crf_share)
@@ -221,7 +275,7 @@ class Segmenter:
         return Segmentation(
             frame.labels,
             Timings(forest_ms, crf_ms, forest_ms + crf_ms, stages_ms),
-            frame.inp.floor_share(),
+            frame.inp.floor_share() if frame.floor_share is None else frame.floor_share,
             dict(frame.counts),
             frame.plan.downsample,
             frame,
@@ -285,3 +339,5 @@ class Segmenter:
                 thin_edges(frame_depth, 1, 100.0)
         if self.config.crf.mode == "realtime":
             realtime.warm_up(self.n_classes)  # the solve of a large band, in parallel
+        if self.background is not None:
+            warm_up_gate(depth)

@@ -1,8 +1,8 @@
 """How a Segmenter runs: one nested configuration, `SegmenterConfig` = pre / grid / crf / post
-(plus the mount and the camera check), with every setting's default, bounds, command-line
-flag and help declared once on its field (`core.config.setting`). The command-line options
-and the services' TOML keys are generated from it (`services.cli.options`), and
-`SegmenterConfig.from_dict` reads it from a nested table."""
+/ background (plus the mount and the camera check), with every setting's default, bounds,
+command-line flag and help declared once on its field (`core.config.setting`). The
+command-line options and the services' TOML keys are generated from it
+(`services.cli.options`), and `SegmenterConfig.from_dict` reads it from a nested table."""
 
 from __future__ import annotations
 
@@ -49,6 +49,14 @@ SATELLITE_HEAD_CM2 = 150.0
 #: rendered walker frames with hair dropout it took the bundled model's head blobs found
 #: from 0.23 to 0.90 at 3.3 m (docs/results.md).
 FILL_HOLES_CM2 = 100.0
+#: A pixel within this many sigma of the recorded background's noise (plus
+#: BACKGROUND_MARGIN_MM) is background without the forest (`BackgroundConfig`)
+BACKGROUND_SIGMAS = 3.0
+#: ... plus this margin (mm): depth quantisation and a slow drift of the sensor
+BACKGROUND_MARGIN_MM = 5.0
+#: The worker reports a background that no longer matches when more than this share of its
+#: pixels read farther than it (something static went: a fixture or the camera moved)
+BACKGROUND_MISMATCH_SHARE = 0.02
 
 
 def crf_config(mode: str = "realtime") -> CRFConfig:
@@ -217,6 +225,67 @@ class PostConfig:
 
 
 @dataclass(frozen=True)
+class BackgroundConfig:
+    """The recorded background of a static cell (`core.background`, `stages.background`).
+
+    path            the background file of `topseg calibrate --background`; None: off
+    sigmas          a pixel whose depth lies within this many sigma of the background's
+                    noise, plus `margin_mm`, is background without walking the forest
+    margin_mm       see `sigmas`
+    mismatch_share  the worker reports the background as no longer matching when more than
+                    this share of its pixels read farther than it for several frames
+    """
+
+    path: str | None = setting(
+        None,
+        flag="background",
+        metavar="FILE|off",
+        kind="path",
+        help="the static cell's background from `topseg calibrate --background`: pixels "
+        "within its noise are background without walking the forest; off (default): none",
+    )
+    sigmas: float = setting(
+        BACKGROUND_SIGMAS,
+        flag="background-sigmas",
+        metavar="K",
+        lo=0.5,
+        hi=20.0,
+        help="a pixel within K sigma of the background's noise (plus the margin, at most "
+        "150 mm) is background (default: %(default)s)",
+    )
+    margin_mm: float = setting(
+        BACKGROUND_MARGIN_MM,
+        flag="background-margin-mm",
+        metavar="MM",
+        lo=0.0,
+        hi=100.0,
+        help="added to the background's tolerance (default: %(default)s)",
+    )
+    mismatch_share: float = setting(
+        BACKGROUND_MISMATCH_SHARE,
+        flag="background-mismatch",
+        metavar="P",
+        lo=0.001,
+        hi=1.0,
+        help="the worker reports the background as no longer matching (a fixture or the "
+        "camera moved) when more than this share of its pixels read farther than it for "
+        "several frames, and labels without it until it matches (default: %(default)s)",
+    )
+
+    def __post_init__(self) -> None:
+        if self.path is not None and (not isinstance(self.path, str) or not self.path):
+            raise TopsegError(f"background must be a file name (or None: off), got {self.path!r}")
+        if not (np.isfinite(self.sigmas) and self.sigmas > 0):
+            raise TopsegError(f"background sigmas must be > 0, got {self.sigmas}")
+        if not (np.isfinite(self.margin_mm) and self.margin_mm >= 0):
+            raise TopsegError(f"background margin_mm must be >= 0, got {self.margin_mm}")
+        if not 0.0 < self.mismatch_share <= 1.0:
+            raise TopsegError(
+                f"background mismatch_share must be in (0, 1], got {self.mismatch_share}"
+            )
+
+
+@dataclass(frozen=True)
 class SegmenterConfig:
     """How a Segmenter runs: one nested configuration.
 
@@ -224,6 +293,7 @@ class SegmenterConfig:
     grid          working resolution and where the forest walks (`GridConfig`)
     crf           the CRF (`crf.CRFConfig`; mode `none` is the forest's argmax)
     post          the island rules after the CRF (`PostConfig`)
+    background    the static cell's recorded background (`BackgroundConfig`; off by default)
     mount         the camera's mount, for frames labelled without one of their own (a
                   height model needs one or the other)
     check_camera  a depth model (no heights): refuse frames that do not come from the
@@ -235,6 +305,7 @@ class SegmenterConfig:
     grid: GridConfig = field(default_factory=GridConfig)
     crf: CRFConfig = field(default_factory=crf_config)
     post: PostConfig = field(default_factory=PostConfig)
+    background: BackgroundConfig = field(default_factory=BackgroundConfig)
     mount: TopViewMount | None = None
     check_camera: bool = True
 
@@ -246,6 +317,7 @@ class SegmenterConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "segmenter config") -> SegmenterConfig:
-        """The configuration from a nested table (`pre`, `grid`, `crf`, `post`); unknown or
+        """The configuration from a nested table (`pre`, `grid`, `crf`, `post`,
+        `background`); unknown or
         mistyped keys are a ConfigError naming them. The mount is not read from a table."""
         return from_dict(cls, d, source)

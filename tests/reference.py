@@ -32,6 +32,8 @@ bit (as stumpy keeps its naive versions in one test module).
   (`denoise.smooth_depth`).
 - `thin_edges_reference`: a stereo camera's fattened edges thinned
   (`fattening.thin_edges`).
+- `gate_background_reference`: the static cell's background gate
+  (`background.gate_background`).
 """
 
 from __future__ import annotations
@@ -1233,3 +1235,19 @@ def thin_edges_reference(depth, radius, jump_mm, min_farther):
             offers += offer
             best = np.where(offer, np.maximum(best, nb), best)
     return np.where(offers >= min_farther, best, d).astype(np.uint16)
+
+
+# --- the static cell's background gate (background.gate_background) ------------------------
+
+
+def gate_background_reference(depth, values, background, tolerance, gate, apply=True):
+    """`background.gate_background` in whole-array numpy: (the gate after it, pixels that
+    match the background, pixels farther than it by more than the tolerance). A pixel is
+    compared where the background is valid (tolerance >= 0) and the frame has depth and a
+    model value; float32 differences, as the kernel takes them."""
+    seen = (tolerance >= 0) & (depth > 0) & (values > 0)
+    diff = depth.astype(np.float32) - background.astype(np.float32)
+    match = seen & (np.abs(diff) <= tolerance)
+    missing = seen & ~match & (diff > tolerance)
+    out = gate | match if apply else gate.copy()
+    return out, int(match.sum()), int(missing.sum())

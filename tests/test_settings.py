@@ -12,7 +12,13 @@ from topseg.core.config import options_of, with_options
 from topseg.core.crf import CRFConfig
 from topseg.core.errors import ConfigError, TopsegError
 from topseg.core.forest.train_config import TrainConfig
-from topseg.core.segmenter_config import GridConfig, PostConfig, PreConfig, SegmenterConfig
+from topseg.core.segmenter_config import (
+    BackgroundConfig,
+    GridConfig,
+    PostConfig,
+    PreConfig,
+    SegmenterConfig,
+)
 from topseg.services import cli
 from topseg.services.batch.train import TrainJob
 from topseg.services.cli.options import SEGMENTER_GROUPS, segmenter_config, setting_argv
@@ -39,13 +45,15 @@ ODD = SegmenterConfig(
     crf=CRFConfig(mode="exact", smoothness=2.5, noisy_smoothness=4.0),
     post=PostConfig(min_head_cm2=10.0, min_furniture_cm2=0.0, min_plant_cm2=20.0,
                     satellite_head_cm2=30.0),
+    background=BackgroundConfig(path="/etc/topseg/cell1-background.npz", sigmas=4.0,
+                                margin_mm=12.5, mismatch_share=0.1),
 )  # fmt: skip
 
 
 def test_every_setting_has_a_unique_flag_in_its_group():
     paths = [p for p, _, _ in options_of(SegmenterConfig)]
     flags = [o.flag for _, _, o in options_of(SegmenterConfig)]
-    assert len(set(flags)) == len(flags) == 12
+    assert len(set(flags)) == len(flags) == 16
     assert {p.split(".")[0] for p in paths} == set(SEGMENTER_GROUPS)
     for _, f, option in options_of(SegmenterConfig):
         assert option.help and f.name  # every option says what it does
@@ -69,8 +77,8 @@ def test_the_worker_toml_takes_every_setting_by_its_flag(tmp_path):
     lines = ["[worker]"]
     argv = setting_argv(ODD)
     for flag, value in zip(argv[::2], argv[1::2], strict=True):
-        lines.append(f'{flag[2:]} = "{value}"' if value in ("auto", "off", "exact") else
-                     f"{flag[2:]} = {value}")  # fmt: skip
+        number = value.replace(".", "", 1).isdigit()
+        lines.append(f"{flag[2:]} = {value}" if number else f'{flag[2:]} = "{value}"')
     path = tmp_path / "worker.toml"
     path.write_text("\n".join(lines) + "\n")
     assert segmenter_config(parse("worker", "--config", str(path))) == ODD
@@ -91,6 +99,7 @@ def test_a_nested_table_reads_the_same_configuration():
         "grid": dataclasses.asdict(ODD.grid),
         "crf": ODD.crf.to_dict(),
         "post": dataclasses.asdict(ODD.post),
+        "background": dataclasses.asdict(ODD.background),
     }
     assert SegmenterConfig.from_dict(table) == ODD
     with pytest.raises(ConfigError, match="unknown key 'strid'"):

@@ -50,7 +50,7 @@ def test_full_size_depth_round_trip_and_layout():
     # the raw layout is the documented one: little-endian, row-major
     msg = msgpack.unpackb(data)
     assert msg["data"] == depth.astype("<u2").tobytes()
-    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 5)
+    assert (msg["width"], msg["height"], msg["encoding"], msg["v"]) == (640, 480, "16UC1", 6)
     assert "mount" not in msg  # no mount known, none sent
     assert not back.depth.flags.writeable  # a view of the message, not a copy
 
@@ -374,7 +374,7 @@ def test_depth_with_a_mount_round_trips_and_shows_on_the_wire():
     framed = DepthFrame(f.depth, f.intrinsics, 5, 6, "cam0", m)
     data = wire.encode_depth(framed)
     msg = msgpack.unpackb(data)
-    assert msg["v"] == 5 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
+    assert msg["v"] == 6 and msg["mount"] == m.to_dict()  # the documented form, decoded apart
     assert msg["mount"]["noise_scale"] == 0.37
     back = wire.decode_depth(data)
     assert_same_depth(framed, back)
@@ -431,18 +431,18 @@ def test_an_old_reader_refuses_a_new_message_and_a_new_reader_says_upgrade(monke
     f = small_depth(rng)
     data = wire.encode_depth(DepthFrame(f.depth, f.intrinsics, mount=a_mount(f.intrinsics)))
     stats = wire.encode_stats({"stamp_ns": 1, "timings_ms": {}, "counts": {}, "floor_share": 0.5})
-    # what a version-4 topseg is: versions 1 to 4; it names the version and refuses
-    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2, 3, 4))
+    # what a version-5 topseg is: versions 1 to 5; it names the version and refuses
+    monkeypatch.setattr(wire, "READABLE_VERSIONS", (1, 2, 3, 4, 5))
     for decode, payload in ((wire.decode_depth, data), (wire.decode_stats, stats)):
-        with pytest.raises(WireError, match=r"schema version 5 is newer .*upgrade topseg"):
+        with pytest.raises(WireError, match=r"schema version 6 is newer .*upgrade topseg"):
             decode(payload)
     monkeypatch.undo()
     msg = msgpack.unpackb(data)
-    msg["v"] = 6
+    msg["v"] = 7
     with pytest.raises(WireError) as err:
         wire.decode_depth(msgpack.packb(msg))
     assert str(err.value) == (
-        "schema version 6 is newer than this topseg reads (1, 2, 3, 4, 5): "
+        "schema version 7 is newer than this topseg reads (1, 2, 3, 4, 5, 6): "
         "upgrade topseg on this host"
     )
 

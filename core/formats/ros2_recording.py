@@ -15,6 +15,7 @@ bridge's names):
     /topseg/<cell>/<camera>/camera_info  sensor_msgs/msg/CameraInfo  one before each depth frame
     /topseg/<cell>/<camera>/stats        std_msgs/msg/String         the stats map as JSON
     /topseg/<cell>/<camera>/mount        std_msgs/msg/String         the wire's mount map as JSON
+    /topseg/<cell>/<camera>/background   std_msgs/msg/String         {"id": background id or null}
     /tf_static                           tf2_msgs/msg/TFMessage      <cell>_<camera>_floor -> optical frame
 
 Depth images hold depth along the optical axis, as REP 118 says: a radial camera's frames
@@ -26,7 +27,10 @@ MCAP `sequence` of depth, labels, truth and camera info is the wire `seq` (modul
 which pairs a frame's depth, labels and truth; log time is when the recorder received it.
 `/tf_static` and `/mount` (latched QoS: transient local, depth 1) are written before the
 first depth frame of a camera and again whenever its mount changes; `/mount` holds `null`
-when a camera stops sending one. JSON rides in `std_msgs/String` because the ROS 2 profile
+when a camera stops sending one. `/background` (latched too) is written before the first labels a
+camera's recorded background gated (the static cell's, `core/background.py`) and again
+whenever that changes (`{"id": null}`: labels made without one); labels before any
+`/background`, as in a recording made before it existed, read as made without one. JSON rides in `std_msgs/String` because the ROS 2 profile
 allows only CDR channels: a `json` channel makes rosbags' reader refuse the whole file and
 mcap-ros2-support's stop at it.
 
@@ -37,8 +41,8 @@ and the versions (metadata record `topseg`: `format` `ros2`, `wire_version`,
 `topseg_version`, `created_ns`, plus what the writer was given).
 
 Writing is `ros2_recording_writer.Ros2RecordingWriter`'s. Reading (`recording.read_messages`, through `Ros2Channels`) rebuilds wire messages from
-depth, labels, truth and stats with the latest camera info and mount of their camera (wire
-`frame_id` = the camera name), so replay, segment and every other reader treat both forms
+depth, labels, truth and stats with the latest camera info, mount and background of their
+camera (wire `frame_id` = the camera name), so replay, segment and every other reader treat both forms
 alike. A message that does not decode is skipped and counted (`RecordingInfo.rejected`).
 """
 
@@ -80,9 +84,12 @@ STREAM_TYPES = {
     "camera_info": CAMERA_INFO,
     "stats": STRING,
     "mount": STRING,
+    "background": STRING,
 }
 #: Streams with latched QoS (a late subscriber of a replay still gets them).
-LATCHED = frozenset(("mount",))
+LATCHED = frozenset(("mount", "background"))
+#: Streams that only update their camera's state (no wire message of their own).
+STATE_STREAMS = ("camera_info", "mount", "background")
 _TOPIC = re.compile(r"/topseg/([^/]+)/([^/]+)/([^/]+)")
 
 
@@ -106,6 +113,7 @@ def parse_topic(topic: str) -> tuple[str, str, str] | None:
 class _Camera:
     intrinsics: Intrinsics | None = None
     mount: TopViewMount | None = None
+    background: str | None = None
 
 
 @dataclass(frozen=True)
@@ -155,13 +163,14 @@ class Ros2Channels:
         return channel_id in self._channels
 
     def key(self, channel_id: int) -> str | None:
-        """The wire key a channel's messages are rebuilt for; None for camera info and mount."""
+        """The wire key a channel's messages are rebuilt for; None for camera info, mount and
+        background."""
         ch = self._channels.get(channel_id)
-        return None if ch is None or ch.stream in ("camera_info", "mount") else ch.key
+        return None if ch is None or ch.stream in STATE_STREAMS else ch.key
 
     def message(self, channel_id: int, data: bytes, sequence: int) -> bytes | None:
-        """A wire message rebuilt from one CDR message (None for camera info and mount,
-        which only update their camera); WireError when it does not decode."""
+        """A wire message rebuilt from one CDR message (None for camera info, mount and
+        background, which only update their camera); WireError when it does not decode."""
         ch = self._channels[channel_id]
         cam = self._cameras[ch.cell, ch.camera]
         try:
@@ -176,6 +185,10 @@ class Ros2Channels:
             cam.mount = None
             state = _json(msg.data)
             cam.mount = None if state is None else wire.mount_from_map(state)
+            return None
+        if ch.stream == "background":
+            cam.background = None
+            cam.background = _background_id(_json(msg.data))
             return None
         if ch.stream == "stats":
             stats = _json(msg.data)
@@ -193,7 +206,15 @@ class Ros2Channels:
             frame = DepthFrame(depth, cam.intrinsics, sequence, stamp, ch.camera, mount)
             return wire.encode_depth(frame)
         labels = _image(msg, LABEL_ENCODING, np.uint8)
-        return wire.encode_labels(LabelFrame(labels, sequence, stamp, ch.camera))
+        background = cam.background if ch.stream == "labels" else None
+        return wire.encode_labels(LabelFrame(labels, sequence, stamp, ch.camera, background))
+
+
+def _background_id(state: Any) -> str | None:
+    """The id in a `/background` message ({"id": id or null}); WireError when it is not one."""
+    if not isinstance(state, dict) or set(state) != {"id"}:
+        raise WireError('a background message must be {"id": ...}')
+    return None if state["id"] is None else wire.check_background_id(state["id"])
 
 
 def _json(text: str) -> Any:

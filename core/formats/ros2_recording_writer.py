@@ -112,6 +112,7 @@ class Ros2RecordingWriter:
         self._channels: dict[str, int] = {}
         self._counts: dict[str, int] = {}
         self._mounts: dict[tuple[str, str], dict | None] = {}
+        self._backgrounds: dict[tuple[str, str], str | None] = {}
 
     @property
     def messages(self) -> int:
@@ -127,9 +128,7 @@ class Ros2RecordingWriter:
             if isinstance(message, DepthFrame):
                 out = self._depth(cell, camera, message)
             elif isinstance(message, LabelFrame):
-                frame = optical_frame(cell, camera)
-                cdr = image_message(message.labels, message.stamp_ns, frame)
-                out = [(ros2_topic(cell, camera, parts.kind), cdr, message.seq)]
+                out = self._labels(cell, camera, parts.kind, message)
             else:
                 text = _string_message(json.dumps(message))
                 out = [(ros2_topic(cell, camera, "stats"), text, None)]
@@ -139,6 +138,19 @@ class Ros2RecordingWriter:
             self._write(topic, cdr, log_time_ns, seq)
         if isinstance(message, DepthFrame):
             self._mounts[cell, camera] = _mount_state(message)
+        elif parts.kind == "labels":
+            self._backgrounds[cell, camera] = message.background
+
+    def _labels(self, cell: str, camera: str, kind: str, frame: LabelFrame) -> list:
+        """A labels (or truth) frame's messages: labels made with another background than
+        the camera's last ones (none before its first) get `/background` first."""
+        out = []
+        if kind == "labels" and frame.background != self._backgrounds.get((cell, camera)):
+            state = json.dumps({"id": frame.background})
+            out.append((ros2_topic(cell, camera, "background"), _string_message(state), None))
+        cdr = image_message(frame.labels, frame.stamp_ns, optical_frame(cell, camera))
+        out.append((ros2_topic(cell, camera, kind), cdr, frame.seq))
+        return out
 
     def _depth(self, cell: str, camera: str, frame: DepthFrame) -> list:
         """A depth frame's messages: tf and mount when the mount changed, camera info, depth."""

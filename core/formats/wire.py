@@ -15,15 +15,18 @@ A depth or label message is one msgpack map::
               height_mm, pitch_deg, roll_deg, sensor, noise_scale (version 3 on),
               radial (version 4 on, only when true), edge_thinning (version 5 on, only
               when false)}; its size is the frame's
+    background  optional (labels only, version 6 on): the sha256 id (64 hex digits) of the
+              static cell's recorded background the labels were gated with; absent: none
 
 Version 2 added `mount` and the worker's `floor_share` and `mount` stats; version 3 the
 mount's measured `noise_scale` (the floor gate's scale); version 4 the mount's `radial` (a
 camera that sends range along each ray, read as depth by whoever back-projects it); version 5
 the mount's `edge_thinning` (false: a stereo camera whose edges are not fattened, so not
-thinned before labelling). A reader
+thinned before labelling); version 6 the labels' `background` and the worker's `background`
+stats. A reader
 accepts every version in `READABLE_VERSIONS` and refuses a newer one with a line that says
 to upgrade; a version-1 reader refuses version-2 messages ("schema version 2 is not 1"), a
-version-4 reader version-5 ones.
+version-5 reader version-6 ones.
 
 Labels carry the `seq` and `stamp_ns` of the depth frame they were computed from, and only
 valid label ids (`topseg.core.labels`). A stats message (`encode_stats`) is a small
@@ -58,10 +61,10 @@ from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
 
 #: The version every message is written with.
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 #: The versions this reader decodes (1: no mount, no mount stats; 2: no mount noise scale;
-#: 3: no radial mounts; 4: no edge_thinning).
-READABLE_VERSIONS = (1, 2, 3, 4, 5)
+#: 3: no radial mounts; 4: no edge_thinning; 5: no background on labels and stats).
+READABLE_VERSIONS = (1, 2, 3, 4, 5, 6)
 MAX_SIDE = 4096
 MAX_FRAME_ID = 256
 DEPTH_ENCODING = "16UC1"
@@ -82,6 +85,11 @@ _FRAME_FIELDS = ("v", "seq", "stamp_ns", "frame_id", "width", "height", "encodin
 _DEPTH_FIELDS = frozenset((*_FRAME_FIELDS, "fx", "fy", "cx", "cy"))
 _DEPTH_OPTIONAL = frozenset(("mount",))
 _LABEL_FIELDS = frozenset(_FRAME_FIELDS)
+#: Labels' optional fields and the version they came with.
+_LABEL_OPTIONAL = frozenset(("background",))
+_LABEL_OPTIONAL_SINCE = 6
+#: A background id: a sha256 in lowercase hex (`core.background.background_id`).
+_BACKGROUND_ID = re.compile(r"[0-9a-f]{64}")
 #: The fields of a mount map (`TopViewMount.to_dict()`); all but the first two default.
 #: `radial` is sent only when true and `edge_thinning` only when false, so a depth camera's
 #: mount with its edges thinned as modelled reads as before.
@@ -155,16 +163,27 @@ def check_mount_size(mount: TopViewMount, shape: tuple[int, int]) -> None:
 
 @dataclass(frozen=True, eq=False)
 class LabelFrame:
-    """A label image (uint8 label ids, 255 = no depth) for the depth frame `seq`/`stamp_ns`."""
+    """A label image (uint8 label ids, 255 = no depth) for the depth frame `seq`/`stamp_ns`,
+    and the id of the recorded background it was gated with (`background`, None: none)."""
 
     labels: np.ndarray
     seq: int = 0
     stamp_ns: int = 0
     frame_id: str = ""
+    background: str | None = None
 
     def __post_init__(self) -> None:
         _check_image(self.labels, np.uint8, "labels")
         _check_header(self.seq, self.stamp_ns, self.frame_id)
+        if self.background is not None:
+            check_background_id(self.background)
+
+
+def check_background_id(value: Any, name: str = "background") -> str:
+    """A background id (64 lowercase hex digits), else WireError naming `name`."""
+    if not isinstance(value, str) or not _BACKGROUND_ID.fullmatch(value):
+        raise WireError(f"{name} {_short(value)} is not a background id (64 hex digits)")
+    return value
 
 
 def _check_image(arr: Any, dtype: type, what: str) -> None:
@@ -251,9 +270,10 @@ def encode_labels(frame: LabelFrame) -> bytes:
     if not isinstance(frame, LabelFrame):
         raise WireError(f"encode_labels takes a LabelFrame, got {type(frame).__name__}")
     _check_label_values(frame.labels)
-    return _pack(
-        _frame_map(frame.seq, frame.stamp_ns, frame.frame_id, frame.labels, LABELS_ENCODING)
-    )
+    msg = _frame_map(frame.seq, frame.stamp_ns, frame.frame_id, frame.labels, LABELS_ENCODING)
+    if frame.background is not None:
+        msg["background"] = frame.background
+    return _pack(msg)
 
 
 def _check_label_values(img: np.ndarray) -> None:
@@ -308,12 +328,16 @@ def _check_version(v: Any) -> int:
 
 
 def _check_fields(
-    msg: dict, expected: frozenset[str], what: str, optional: frozenset[str] = frozenset()
+    msg: dict,
+    expected: frozenset[str],
+    what: str,
+    optional: frozenset[str] = frozenset(),
+    optional_since: int = 2,
 ) -> int:
     keys, v = set(msg), 0
     if "v" in keys:  # the version first: a newer message's new fields are not "unknown"
         v = _check_version(msg["v"])
-        if v < 2:
+        if v < optional_since:
             optional = frozenset()
     if not expected <= keys or not keys <= expected | optional:
         missing = sorted(expected - keys)
@@ -422,7 +446,7 @@ def _frame_from_map(msg: dict, encoding: str, dtype: type) -> tuple[np.ndarray, 
 
 
 def decode_depth(data: bytes) -> DepthFrame:
-    """Bytes -> DepthFrame (versions 1-4; `mount` None when the message has none), or
+    """Bytes -> DepthFrame (versions 1-6; `mount` None when the message has none), or
     WireError naming what is wrong."""
     msg = _unpack(data)
     _check_fields(msg, _DEPTH_FIELDS, "depth", _DEPTH_OPTIONAL)
@@ -439,10 +463,13 @@ def decode_depth(data: bytes) -> DepthFrame:
 def decode_labels(data: bytes) -> LabelFrame:
     """Bytes -> LabelFrame, or WireError naming what is wrong."""
     msg = _unpack(data)
-    _check_fields(msg, _LABEL_FIELDS, "labels")
+    _check_fields(msg, _LABEL_FIELDS, "labels", _LABEL_OPTIONAL, _LABEL_OPTIONAL_SINCE)
     img, seq, stamp, frame_id = _frame_from_map(msg, LABELS_ENCODING, np.uint8)
     _check_label_values(img)
-    return LabelFrame(img, seq, stamp, frame_id)
+    background = msg.get("background")
+    if background is not None:
+        check_background_id(background)
+    return LabelFrame(img, seq, stamp, frame_id, background)
 
 
 # ---------------------------------------------------------------------------- stats
@@ -451,6 +478,13 @@ _STATS_REQUIRED = frozenset(("v", "stamp_ns", "timings_ms", "counts"))
 _STATS_OPTIONAL = frozenset(("seq", "role", "model_id", "fps", "frame_id"))
 #: Stats fields from version 2 on: the share of pixels skipped as floor, the mount in use.
 _STATS_OPTIONAL_V2 = frozenset(("floor_share", "mount"))
+#: Stats fields from version 6 on: the recorded background in use and whether it matches.
+_STATS_OPTIONAL_V6 = frozenset(("background",))
+#: Whether the frames still match the recorded background (`worker_background`).
+BACKGROUND_STATES = ("match", "mismatch")
+_STATS_BACKGROUND_FIELDS = frozenset(
+    ("id", "state", "missing_share", "mismatch_share", "sigmas", "margin_mm", "mismatches")
+)
 #: Where the mount in use came from: the frames, or the worker's own estimate.
 MOUNT_SOURCES = ("frame", "estimated")
 _STATS_MOUNT_FIELDS = frozenset(("height_mm", "pitch_deg", "roll_deg", "sensor", "source", "moved"))
@@ -460,8 +494,11 @@ _MAX_ENTRIES = 64
 def _check_stats(msg: Mapping) -> dict:
     keys = set(msg)
     optional = _STATS_OPTIONAL
-    if "v" in keys and _check_version(msg["v"]) >= 2:
+    version = _check_version(msg["v"]) if "v" in keys else 0
+    if version >= 2:
         optional = optional | _STATS_OPTIONAL_V2
+    if version >= 6:
+        optional = optional | _STATS_OPTIONAL_V6
     if not _STATS_REQUIRED <= keys or not keys <= _STATS_REQUIRED | optional:
         missing = sorted(_STATS_REQUIRED - keys)
         extra = sorted(map(_short, keys - _STATS_REQUIRED - optional))
@@ -487,6 +524,26 @@ def _check_stats(msg: Mapping) -> dict:
             raise WireError(f"floor_share must be in 0..1, got {out['floor_share']}")
     if "mount" in msg:
         out["mount"] = _check_stats_mount(msg["mount"])
+    if "background" in msg:
+        out["background"] = _check_stats_background(msg["background"])
+    return out
+
+
+def _check_stats_background(table: Any) -> dict:
+    """The worker's recorded background: its id, whether the frames match it, the share of
+    its pixels they saw farther than it, its settings and how often it stopped matching."""
+    d = _fields(table, "stats background", _STATS_BACKGROUND_FIELDS, _STATS_BACKGROUND_FIELDS)
+    out: dict[str, Any] = {"id": check_background_id(d["id"], "background.id")}
+    if d["state"] not in BACKGROUND_STATES:
+        raise WireError(f"background.state {_short(d['state'])} is not one of {BACKGROUND_STATES}")
+    out["state"] = d["state"]
+    for name in ("missing_share", "mismatch_share"):
+        out[name] = _float(f"background.{name}", d[name])
+        if not 0.0 <= out[name] <= 1.0:
+            raise WireError(f"background.{name} must be in 0..1, got {out[name]}")
+    for name in ("sigmas", "margin_mm"):
+        out[name] = _nonneg_float(f"background.{name}", d[name])
+    out["mismatches"] = _count("background.mismatches", d["mismatches"])
     return out
 
 
@@ -539,15 +596,17 @@ def encode_stats(stats: Mapping[str, Any]) -> bytes:
 
     Required: `stamp_ns`, `timings_ms` ({stage: ms}), `counts` ({name: int}, e.g. processed,
     dropped, rejected). Optional: `seq`, `role`, `model_id`, `fps`, `frame_id`, `floor_share`
-    (share of the frame's pixels skipped as floor, 0..1) and `mount` (the mount in use:
+    (share of the frame's pixels skipped as floor, 0..1), `mount` (the mount in use:
     height_mm, pitch_deg, roll_deg, sensor, source "frame" | "estimated", and `moved`: how
-    often the camera was seen to move). `v` is added.
+    often the camera was seen to move) and `background` (the recorded background: id, state
+    "match" | "mismatch", missing_share, mismatch_share, sigmas, margin_mm, mismatches).
+    `v` is added.
     """
     return _pack(_check_stats({"v": SCHEMA_VERSION, **stats}))
 
 
 def decode_stats(data: bytes) -> dict:
-    """Bytes -> a validated, JSON-able stats dict (versions 1-4), or WireError."""
+    """Bytes -> a validated, JSON-able stats dict (versions 1-6), or WireError."""
     return _check_stats(_unpack(data))
 
 

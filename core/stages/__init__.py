@@ -5,6 +5,7 @@ adapter in `readers.py`), then runs `STAGES` in order over one `FrameState`:
 
   pre          range to depth, holes filled, decimation, edge thinning, smoothing
   model_input  heights, offset scales and the floor gate (or a depth model's raw depth)
+  background   pixels that match the static cell's recorded background join the floor gate
   forest       the forest's posteriors (lazy on a grid)
   crf          the Potts CRF
   post         island rules, labels brought back to the frame's resolution
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import time
 
+from topseg.core.stages.background import BackgroundStage
 from topseg.core.stages.base import FORESTS_SHARE, Stage, StageModel
 from topseg.core.stages.crf import CRFStage
 from topseg.core.stages.forest import ForestStage
@@ -27,7 +29,14 @@ from topseg.core.stages.post import PostStage
 from topseg.core.stages.pre import PreStage
 
 #: the stages, in the order a frame goes through them
-STAGES: tuple[type[Stage], ...] = (PreStage, ModelInputStage, ForestStage, CRFStage, PostStage)
+STAGES: tuple[type[Stage], ...] = (
+    PreStage,
+    ModelInputStage,
+    BackgroundStage,
+    ForestStage,
+    CRFStage,
+    PostStage,
+)
 
 __all__ = [
     "FORESTS_SHARE",

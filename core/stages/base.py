@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, ClassVar
 from topseg.core.segmenter_config import SegmenterConfig
 
 if TYPE_CHECKING:
+    from topseg.core.background import BackgroundModel
     from topseg.core.forest.tree import Forest
     from topseg.core.stages.plan import FrameState
     from topseg.core.stages.readers import ModelReader
@@ -20,11 +21,13 @@ CRFS_SHARE = "crf"
 
 @dataclass(frozen=True)
 class StageModel:
-    """What stages are built from: the loaded forest, its input adapter and the run settings."""
+    """What stages are built from: the loaded forest, its input adapter, the run settings
+    and the recorded background of a static cell (None: none)."""
 
     forest: Forest
     reader: ModelReader
     config: SegmenterConfig
+    background: BackgroundModel | None = None
 
 
 class Stage:

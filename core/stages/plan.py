@@ -32,6 +32,9 @@ class FramePlan:
     stride         the forest walks every stride-th pixel of every stride-th row
     crf            the CRF settings, its Potts weight chosen for the camera's noise
     island_intrinsics  the optics blob areas are measured with, at the working resolution
+    background     what the background stage does with the Segmenter's recorded background:
+                   `off` (nothing), `measure` (count what matches it and what went missing)
+                   or `gate` (count, and send the pixels that match it to background)
     """
 
     name: str
@@ -45,6 +48,7 @@ class FramePlan:
     stride: int
     crf: CRFConfig
     island_intrinsics: Intrinsics
+    background: str = "off"
 
 
 @dataclass
@@ -62,6 +66,10 @@ class FrameState:
     summary        after `forest`: the posteriors' argmax and top two, for the CRF
     labels         after `crf`: labels at the working resolution; after `post`, the frame's
     counts         every stage's counters for this frame
+    floor_share    set by a stage that widens the floor gate (`background`): the floor gate's
+                   own share before it did; None: `inp.floor_share()`
+    background_valid_px  after `background`: the background's pixels on the working grid
+                   (0 without one)
     """
 
     plan: FramePlan
@@ -76,6 +84,8 @@ class FrameState:
     labels: np.ndarray | None = None
     working_forest_labels: Callable[[], np.ndarray] | None = None
     counts: dict[str, int] = field(default_factory=dict)
+    floor_share: float | None = None
+    background_valid_px: int = 0
 
     def posteriors(self) -> np.ndarray:
         """Every posterior of this frame, the ones a grid left out stored first."""

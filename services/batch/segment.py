@@ -36,6 +36,12 @@ damaged messages gives what it holds. The end prints the share of pixels the flo
 to background without the forest, and how many head and furniture blobs were too small to
 be what they were labelled (`--min-head-cm2`, `--min-furniture-cm2`, `--min-plant-cm2`) and how many head blobs
 lay beside a larger head (`--satellite-head-cm2`), and took their border's label.
+
+`--background FILE` (from `topseg calibrate --background`) gates the static cell's recorded
+background: pixels within its noise go to background without the forest. The end then says
+how many pixels matched it and how many frames read more than `--background-mismatch` of it
+farther than recorded (a fixture or the camera moved since it was recorded: record it
+again). Frames of another camera than the background's are skipped with one line (exit 2).
 """
 
 from __future__ import annotations
@@ -187,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
             f"{segmenter.config.pre.fill_holes_cm2:g} cm2) took that surface's depth and label in "
             f"{run_.count} frames"
         )
+    if segmenter.background is not None and run_.count:
+        print(background_summary(segmenter, run_))
     if segmenter.config.relabels_islands and run_.count:
         cfg = segmenter.config
         print(
@@ -215,6 +223,23 @@ def run(args: argparse.Namespace) -> int:
             f"{skipped} of {len(all_sources)} inputs could not be segmented (see above)"
         )
     return 0
+
+
+def background_summary(segmenter: Segmenter, run_: _Run) -> str:
+    """What the recorded background did over the run, and whether frames saw it gone."""
+    cfg = segmenter.config.background
+    line = (
+        f"background {cfg.path} ({segmenter.background_id[:12]}): "
+        f"{run_.counts['background_px']} pixels matched it and went to background without "
+        f"the forest in {run_.count} frames"
+    )
+    if run_.background_mismatched:
+        line += (
+            f"; {run_.background_mismatched} frames read over {100 * cfg.mismatch_share:g} % "
+            "of it farther than recorded: a fixture or the camera moved since it was recorded "
+            "(record it again: topseg calibrate --background)"
+        )
+    return line
 
 
 def _segment_all(run_: _Run, inputs: list, given, sensor: str | None = None) -> int:
@@ -275,6 +300,7 @@ class _Run:
         self.verdicts: dict = {}  # (camera, mount) -> whether it agrees with its frames
         self.floor_share = 0.0
         self.counts = dict.fromkeys(segmenter.counter_names, 0)  # every stage's counters
+        self.background_mismatched = 0  # frames that saw too much of the background gone
         self._warned: set = set()
         self.written: dict[str, str] = {}  # output name -> the input it was written from
         self.where: dict[str, list] = {}  # camera -> [frames, first name, last name]
@@ -325,6 +351,8 @@ class _Run:
             entry[2] = name
             self.count += 1
             self.floor_share += result.floor_share
+            limit = self.segmenter.config.background.mismatch_share
+            self.background_mismatched += result.background_missing_share > limit
             for name, n in result.counts.items():
                 self.counts[name] = self.counts.get(name, 0) + n
 

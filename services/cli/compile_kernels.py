@@ -24,6 +24,7 @@ import numba
 import numpy as np
 
 from topseg.core import labels as L
+from topseg.core.background import warm_up_gate
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.crf import CRFConfig, realtime, segment_crf
 from topseg.core.crf.energy import MODES
@@ -79,10 +80,12 @@ def compile_training() -> None:
 
 
 def compile_labelling() -> None:
-    """A frame labelled end to end with each CRF mode, as the worker and `segment` do: after
-    the jobs above this loads their kernels and compiles only what they left."""
+    """A frame labelled end to end with each CRF mode, as the worker and `segment` do, and
+    the static cell's background gate: after the jobs above this loads their kernels and
+    compiles only what they left."""
     for mode in MODES:
         Segmenter.from_file(None, SegmenterConfig(check_camera=False), crf=mode).warm_up()
+    warm_up_gate(np.full((48, 64), 3000, np.uint16))
 
 
 #: name -> job (its docstring says what it compiles). These run side by side; `LAST`'s run

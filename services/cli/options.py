@@ -85,10 +85,22 @@ def early_exit(text: str) -> float | None:
 early_exit.__name__ = "early exit"
 
 
+def path_or_off(text: str) -> str | None:
+    """A `type=` for a file setting: `off` (None: none) or a file name, taken as written."""
+    if text == "off":
+        return None
+    if not text:
+        raise argparse.ArgumentTypeError("expected a file name or off, got ''")
+    return text
+
+
+path_or_off.__name__ = "path"
+
+
 T = TypeVar("T")
 
 #: the groups of `SegmenterConfig` a command can take as options, in order
-SEGMENTER_GROUPS = ("pre", "grid", "crf", "post")
+SEGMENTER_GROUPS = ("pre", "grid", "crf", "post", "background")
 
 
 def auto_int(lo: int, hi: int | None) -> Callable[[str], int | None]:
@@ -117,6 +129,8 @@ def _parser(option: Option) -> dict[str, Any]:
         return {"type": auto_int(int(option.lo or 0), int_hi)}
     if option.kind == "share_or_off":
         return {"type": early_exit}
+    if option.kind == "path":
+        return {"type": path_or_off}
     raise ValueError(f"unknown option kind {option.kind!r}")
 
 
@@ -167,7 +181,7 @@ def segmenter_config(
 
 def _text(value: Any, option: Option) -> str:
     if value is None:
-        return "off" if option.kind == "share_or_off" else "auto"
+        return "off" if option.kind in ("share_or_off", "path") else "auto"
     return str(value)
 
 

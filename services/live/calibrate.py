@@ -22,6 +22,17 @@ A camera that sends range along each pixel's ray instead of depth is recognised,
 mount says so (`radial`, docs/howto/calibrate.md). A stereo camera's edges are thinned before
 labelling (`core/fattening.py`); `--no-edge-thinning` writes a mount that says its edges are
 not fattened (a camera whose own filters already clean them), so they are left as they are.
+
+    topseg calibrate --source freenect --background cell1-background.npz
+
+records the empty cell instead (or as well, with `--out`): over the same frames, the depth of
+what does not move at every pixel and its noise (`core/background.py`), written as a
+background file for `topseg worker --background FILE` and `topseg segment --background FILE`,
+which send pixels matching it to background without the forest. Pixels with too few
+readings, or whose readings moved (a robot at work while recording), are not background and
+are always labelled. It prints the share of the view that is background, the median noise,
+the share that was unstable and the file's id. Record it again after a fixture or the camera
+moved (the worker reports that: docs/howto/static-cell-background.md).
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core.atomic import atomic_write
+from topseg.core.background import fit_background, save_background
 from topseg.core.calibration import CalibrationConfig, estimate_mount, floor_mask
 from topseg.core.errors import TopsegError
 from topseg.core.extras import is_installed, needs_extra
@@ -51,7 +63,7 @@ SENSOR_OF_KIND = {"freenect": "kinect_v1", "openni2": "kinect_v1", "oak": "oak_d
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--source, --frames, --sensor, --edge-thinning, --out, --picture."""
+    """--source, --frames, --sensor, --edge-thinning, --out, --picture, --background."""
     parser.add_argument(
         "--source", required=True, help="replay:FILE, freenect, openni2, oak or synthetic[:...]"
     )
@@ -76,7 +88,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: as the frames' own mount says, else on; --no-edge-thinning for a camera "
         "whose own filters already clean its edges: thinning clean edges costs accuracy)",
     )
-    parser.add_argument("--out", required=True, type=Path, help="the mount file to write (JSON)")
+    parser.add_argument("--out", type=Path, default=None, help="the mount file to write (JSON)")
+    parser.add_argument(
+        "--background",
+        type=Path,
+        default=None,
+        metavar="OUT.npz",
+        help="record the empty cell: the background file to write (the depth of what does not "
+        "move and its noise, for `worker --background`); with --out as well, both from the "
+        "same frames",
+    )
     parser.add_argument(
         "--picture", type=Path, default=None, help="picture to write (default: OUT with .png)"
     )
@@ -231,14 +252,20 @@ def picture_path(asked: Path | None, out: Path) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Grab frames, estimate the mount, print it, write the mount file and the picture."""
+    """Grab frames; estimate the mount, print it, write the mount file and the picture
+    (`--out`); fit the background, print it and write the background file (`--background`)."""
     if args.frames < 1:
         raise TopsegError(f"--frames must be at least 1, got {args.frames}")
-    out: Path = args.out
-    pic = picture_path(args.picture, out)
-    check_writable(out)
-    if pic:
-        check_writable(pic)
+    if args.out is None and args.background is None:
+        raise TopsegError(
+            "give --out FILE (the camera's mount) and/or --background FILE (the empty cell)"
+        )
+    if args.out is None and args.picture is not None:
+        raise TopsegError("--picture shows the mount: it goes with --out")
+    pic = picture_path(args.picture, args.out) if args.out is not None else None
+    for path in (args.out, pic, args.background):
+        if path is not None:
+            check_writable(path)
     if args.sensor and args.sensor != "unknown":
         sensor_name(args.sensor, args.source, None)  # an unknown name fails before the camera
     frames, intrinsics, frame_mount, known = grab(args.source, args.frames)
@@ -246,6 +273,18 @@ def run(args: argparse.Namespace) -> int:
     optics = None
     if not known:
         intrinsics, sensor, optics = png_optics(intrinsics, args.sensor)
+    mount = frame_mount
+    if args.out is not None:
+        mount = write_mount(args, frames, intrinsics, sensor, optics, frame_mount, pic)
+        optics = None  # said
+    if args.background is not None:
+        write_background(args, frames, intrinsics, sensor, optics, mount)
+    return 0
+
+
+def write_mount(args, frames, intrinsics, sensor: str, optics, frame_mount, pic):
+    """Estimate the mount, print it, write the mount file and the picture; the mount."""
+    out: Path = args.out
     estimate = estimate_mount(frames, intrinsics, sensor, CalibrationConfig(seed=args.seed))
     estimate = with_edge_thinning(estimate, args.edge_thinning, frame_mount)
     print(f"topseg calibrate: mount of {args.source} from {len(frames)} frames")
@@ -260,4 +299,19 @@ def run(args: argparse.Namespace) -> int:
         raise TopsegError(f"cannot write {exc.filename or out}: {exc.strerror or exc}") from exc
     print(f"mount file {out}")
     print(f"picture    {pic or needs_extra('not written', 'matplotlib', 'train')}")
-    return 0
+    return estimate.mount
+
+
+def write_background(args, frames, intrinsics, sensor: str, optics, mount) -> None:
+    """Fit the empty cell's background over the frames, print it and write the file."""
+    out: Path = args.background
+    background = fit_background(frames, intrinsics, sensor, mount, source=args.source)
+    print(f"topseg calibrate: background of {args.source} from {len(frames)} frames")
+    if optics:
+        print(optics)
+    print(background.summary())
+    try:
+        save_background(out, background)
+    except OSError as exc:
+        raise TopsegError(f"cannot write {exc.filename or out}: {exc.strerror or exc}") from exc
+    print(f"background file {out}")

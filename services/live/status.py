@@ -16,7 +16,10 @@ of `--timeout` seconds:
   and the camera's mount (height, tilt, and whether it came from the frames or the worker's
   estimate; "MOVED" when the worker saw the camera move); and a line when, in the window,
   the depth's `seq` started again or jumped ahead or its stamps lay off the worker's clock
-  (the worker's `seq_resets`, `seq_jumps`, `stamps_out_of_window`).
+  (the worker's `seq_resets`, `seq_jumps`, `stamps_out_of_window`);
+- the static cell's recorded background, when the worker has one (BG: `on`, or `MISMATCH`
+  with a line saying how much of it read farther than recorded: a fixture or the camera
+  moved, and the worker labels without it until it matches again).
 
 Text from the wire (the model, the driver's source and last error) is printed escaped and
 cut short (`topseg.core.printable`): escape codes, carriage returns and newlines in it cannot
@@ -39,8 +42,8 @@ session that cannot open by then (the rendezvous port held by a frozen process m
 handshake wait 10 s) is one error line, exit 2.
 
 Exit status: 0 when every camera has both its driver and its worker alive; 1 when any
-camera's driver or worker is DOWN, or when no topseg service was found at all; 2 for bad
-arguments or no Zenoh session. A camera whose services are alive but labelled no frame in
+camera's driver or worker is DOWN, its background no longer matches, or when no topseg
+service was found at all; 2 for bad arguments or no Zenoh session. A camera whose services are alive but labelled no frame in
 the window is shown as "idle" without changing the exit status.
 """
 
@@ -187,6 +190,8 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         out["floor_share"] = sum(shares) / len(shares)
     if "mount" in last:
         out["mount"] = last["mount"]
+    if "background" in last:
+        out["background"] = last["background"]
     for name in (
         "processed",
         "dropped",
@@ -196,6 +201,8 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "small_furniture",
         "satellite_heads",
         "filled_holes",
+        "background_px",
+        "background_missing_px",
         *ODD_FRAME_COUNTS,
     ):
         out[name] = last["counts"].get(name, 0)
@@ -213,6 +220,26 @@ def _odd_frame_lines(worker: dict) -> list[str]:
         for name in ODD_FRAME_COUNTS
         if worker.get(f"{name}_in_window")
     ]
+
+
+def _background_lines(worker: dict) -> list[str]:
+    """A line when the worker's recorded background no longer matches its frames."""
+    bg = worker.get("background")
+    if not bg or bg["state"] != "mismatch":
+        return []
+    return [
+        f"BACKGROUND MISMATCH: {100 * bg['missing_share']:.0f} % of background "
+        f"{bg['id'][:12]} reads farther than recorded (over {100 * bg['mismatch_share']:.0f} "
+        "%): a fixture or the camera moved; labelled without it until it matches again "
+        "(record it again: topseg calibrate --background)"
+    ]
+
+
+def background_cell(bg: dict | None) -> str:
+    """'-' without a recorded background, 'on' while it matches, 'MISMATCH' when not."""
+    if not bg:
+        return "-"
+    return "on" if bg["state"] == "match" else "MISMATCH"
 
 
 def _by_worker(stats: list[dict]) -> dict[str, list[dict]]:
@@ -273,6 +300,8 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
                 "frames of the one it does not follow"
             )
         problems += _odd_frame_lines(worker)
+        mismatch = _background_lines(worker)
+        problems += mismatch
         problems += [
             f"{r} went down during the window"
             for c, cam, r in sorted(seen.went_down)
@@ -286,7 +315,8 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
                 "ok": not any(r not in roles for r in REQUIRED_ROLES)
                 and not duplicates
                 and len(senders) <= 1
-                and not worker.get("foreign_in_window"),
+                and not worker.get("foreign_in_window")
+                and not mismatch,
                 "waiting": waiting,
                 "duplicates": duplicates,
                 "idle": idle,
@@ -369,7 +399,8 @@ def format_table(rep: dict) -> str:
         return f"no topseg service answered in {rep['window_s']:.1f} s (is Zenoh reachable?)"
     head = (
         "CAMERA", "DRIVER", "WORKER", "FPS", "LATENCY p50/p99 ms",
-        "PROCESSED", "DROPPED", "REJECTED", "FLOOR", "MOUNT", "MODEL", "SOURCE", "RECONNECTS",
+        "PROCESSED", "DROPPED", "REJECTED", "FLOOR", "MOUNT", "BG", "MODEL", "SOURCE",
+        "RECONNECTS",
     )  # fmt: skip
     lines = [head]
     for row in rep["cameras"]:
@@ -391,6 +422,7 @@ def format_table(rep: dict) -> str:
                 str(w.get("rejected", "-")),
                 f"{100 * w['floor_share']:.0f}%" if "floor_share" in w else "-",
                 mount_cell(w.get("mount")),
+                background_cell(w.get("background")),
                 printable(w.get("model") or "-", MAX_CELL),
                 printable(d.get("source") or "-", MAX_CELL),
                 str(d["reconnects"]) if d.get("reconnects") is not None else "-",

@@ -27,6 +27,15 @@ frames; a camera that moved is logged as a warning ("camera cell/cam0 moved: hei
 3.12 m ..."), counted in the stats and labelled with the new estimate. A camera whose mount
 lies outside what the model was trained for is warned about once.
 
+With a recorded background (`--background FILE`, from `topseg calibrate --background`; one
+camera's, so the worker then serves exactly one `--cameras` entry) pixels that match the
+static cell go to background without the forest, and each labels message carries the
+background's id. When the frames no longer match it (a share of its pixels, more than
+`--background-mismatch`, read farther than it for several frames: a fixture or the camera
+moved), the worker logs one warning, labels without it until it matches again (logged too)
+and its stats say so (`background`: id, state, the share missing), which `topseg status`
+shows (`services/live/worker_background.py`).
+
 Only the newest frame is kept: one `zenoh.handlers.RingChannel(1)` per camera, so a slow
 worker skips frames and its memory never grows. Skipped frames are counted from gaps in
 `seq`. `--lossless` uses a FIFO instead (tests, offline labelling of a replay). Messages that
@@ -85,6 +94,7 @@ from topseg.services.cli.options import (
     parse_camera,
     segmenter_config,
 )
+from topseg.services.live.worker_background import MISMATCH, BackgroundWatch
 from topseg.services.live.worker_mount import MountWatch, MountWatchConfig
 from topseg.services.live.worker_mount import warm_up as mount_warm_up
 from topseg.services.runtime import identity, zenoh_session
@@ -198,6 +208,7 @@ class CameraState:
     last_time: float | None = None
     fps: float = 0.0
     watch: MountWatch | None = None
+    background: BackgroundWatch | None = None  # whether frames match the recorded background
     warned_outside: bool = False
     downsample: int = 0  # the factor its frames were last labelled at (0: none yet)
     discovered: bool = False  # served because its depth came (not named by --cameras)
@@ -586,6 +597,10 @@ class Worker:
         state = CameraState(cell, camera, discovered=not self.args.cameras)
         state.counts.update(dict.fromkeys(self.segmenter.counter_names, 0))
         state.watch = MountWatch(f"{cell}/{camera}", self.mount_config)
+        if self.segmenter.background is not None:
+            state.background = BackgroundWatch(
+                self.segmenter.background_id, self.segmenter.config.background
+            )
         publish = dict(congestion_control=self.congestion, express=True)
         state.labels_pub = self.session.declare_publisher(wire.labels_key(cell, camera), **publish)
         state.stats_pub = self.session.declare_publisher(wire.stats_key(cell, camera), **publish)
@@ -604,7 +619,14 @@ class Worker:
         )
         self.cameras[(cell, camera)] = state
         self.depth_keys[key] = (cell, camera)
-        log.info("serving %s/%s (crf %s)", cell, camera, self.segmenter.crf_mode)
+        background = self.segmenter.background_id
+        log.info(
+            "serving %s/%s (crf %s%s)",
+            cell,
+            camera,
+            self.segmenter.crf_mode,
+            f", background {background[:12]}" if background else "",
+        )
         return state
 
     def handle_ready(self) -> bool:
@@ -711,14 +733,17 @@ class Worker:
                     self.segmenter.model_id,
                     why,
                 )
+        gate = state.background is None or state.background.gate
         try:
             result = self.segmenter.label(
-                frame.depth, frame.intrinsics, f"frame {frame.seq}", mount=mount
+                frame.depth, frame.intrinsics, f"frame {frame.seq}", mount, gate
             )
         except Exception as exc:  # a well-formed frame the forest or CRF cannot take
             self.reject(state, f"cannot label frame {frame.seq}: {type(exc).__name__}: {exc}")
             return
         t3 = time.perf_counter()
+        if state.background is not None:
+            self.note_background(state, result.background_missing_share)
         if result.downsample != state.downsample:  # said when it is known, or changes
             state.downsample = f = result.downsample
             h, w = result.labels.shape
@@ -732,7 +757,8 @@ class Worker:
                 if f == 1
                 else f"{-(-w // f)}x{-(-h // f)}, the labels brought back to {w}x{h} by depth",
             )
-        out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id)
+        background = self.segmenter.background_id if result.background_gated else None
+        out = wire.LabelFrame(result.labels, frame.seq, frame.stamp_ns, frame.frame_id, background)
         state.labels_pub.put(wire.encode_labels(out), attachment=self.attachment)
         t4 = time.perf_counter()
         state.note_seq(frame.seq, time.monotonic())
@@ -761,6 +787,33 @@ class Worker:
             floor_share=min(1.0, max(0.0, float(result.floor_share))),
         )
 
+    def note_background(self, state: CameraState, missing_share: float) -> None:
+        """Take a frame's share of the background seen farther than it; say once when the
+        background stops matching (and the worker labels without it) and when it matches
+        again."""
+        watch = state.background
+        change = watch.note(missing_share)
+        if change == MISMATCH:
+            log.warning(
+                "BACKGROUND MISMATCH on %s/%s: %.0f %% of background %s read farther than it "
+                "(over %.0f %%): a fixture or the camera moved; labelling without the "
+                "background until it matches again (record it again: topseg calibrate "
+                "--background)",
+                state.cell,
+                state.camera,
+                100 * watch.worst_share,
+                watch.background_id[:12],
+                100 * watch.config.mismatch_share,
+            )
+        elif change is not None:
+            log.warning(
+                "background %s matches %s/%s again (%.1f %% farther than it): gating with it",
+                watch.background_id[:12],
+                state.cell,
+                state.camera,
+                100 * missing_share,
+            )
+
     def reject(self, state: CameraState, why: str) -> None:
         """Count a message that could not be labelled, log it (sparingly), publish the counts."""
         state.counts["rejected"] += 1
@@ -783,6 +836,8 @@ class Worker:
         mount = state.watch.stats() if state.watch is not None else None
         if mount is not None:
             stats["mount"] = mount
+        if state.background is not None:
+            stats["background"] = state.background.stats()
         state.stats_pub.put(wire.encode_stats(stats), attachment=self.attachment)
 
     def close(self) -> None:
@@ -812,9 +867,11 @@ def status_line(worker: Worker) -> str:
         c = s.counts
         idle = s.last_time is None or now - s.last_time > 2.0
         rate = "idle" if idle else f"{s.fps:.1f} fps"
+        mismatch = s.background is not None and not s.background.gate
         parts.append(
             f"{s.cell}/{s.camera}: {rate}, {c['processed']} labelled, "
             f"{c['dropped']} dropped, {c['rejected']} rejected"
+            + (", BACKGROUND MISMATCH" if mismatch else "")
         )
     if worker.ignored:
         parts.append(
@@ -834,6 +891,16 @@ def mount_config(args: argparse.Namespace) -> MountWatchConfig:
 
         get_sensor(sensor)  # an unknown name fails here, in one line
     return MountWatchConfig(recheck_s=check, sensor=sensor)
+
+
+def check_background_cameras(config: SegmenterConfig, cameras: list[str] | None) -> None:
+    """TopsegError unless a recorded background, being one camera's, comes with exactly one
+    `--cameras` entry."""
+    if config.background.path is not None and len(cameras or ()) != 1:
+        raise TopsegError(
+            f"--background {config.background.path} is one camera's background: give the "
+            "worker exactly one --cameras CELL/CAMERA"
+        )
 
 
 def load_segmenter(model: str | None, config: SegmenterConfig | None = None) -> Segmenter:
@@ -867,13 +934,15 @@ def run(args: argparse.Namespace) -> int:
     for text in args.cameras or ():
         parse_camera(text)  # bad names fail before anything is loaded
     mount_config(args)  # so do a bad --mount-check or --sensor
+    config = segmenter_config(args)
+    check_background_cameras(config, args.cameras)  # and a background without one camera
     svc = ServiceLifecycle("worker", args)  # so does a bad Zenoh config
     if args.threads:
         import numba
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    # ModelFileError: one line, exit 2
-    segmenter = load_segmenter(args.model, segmenter_config(args))
+    # ModelFileError, BackgroundFileError: one line, exit 2
+    segmenter = load_segmenter(args.model, config)
     t0 = time.perf_counter()
     segmenter.warm_up()
     mount_warm_up()
