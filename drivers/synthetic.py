@@ -1,7 +1,8 @@
 """A virtual camera: `synthetic[:OPTIONS]` renders scenes from the density function live, with
 ground truth on every frame.
 
-OPTIONS is a comma-separated list: a mode (`modeled`, the default, or `non-modeled`) and
+OPTIONS is a comma-separated list: a mode (`modeled`, the default, `non-modeled` or `cell`: robot
+cells) and
 `key=value` settings `seed=N` (default 0), `room=NAME`, `noise=SPEC` (a `parse_noise` spec,
 or `sensor`: the camera's own noise family), `mount=paper|random` and `sensor=NAME`, e.g.
 `synthetic:non-modeled,seed=3` or `synthetic:mount=random,sensor=oak_d`. A camera stays put,

@@ -4,7 +4,7 @@ on loopback Zenoh, with the bundled model; it prints fps, latency p50/p99 and th
 table, and the viewer writes a Rerun file (`out/demo.rrd`). Needs no sensor and no display.
 `--core` runs the segmentation core alone on procedural scenes instead.
 
-By default: the bundled recording (`recordings/demo.mcap`, synthetic modeled scenes with
+By default: the bundled recording (`recordings/demo.mcap`, synthetic robot cells with
 ground truth) is replayed through driver -> Zenoh -> worker -> Zenoh -> viewer, each a
 separate process, with the bundled model; the viewer writes an `.rrd` (and serves the web
 viewer with `--web`). Prints fps, latency p50/p99 and the per-class table against the

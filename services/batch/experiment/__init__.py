@@ -105,6 +105,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="mounts, open-world: comma-separated sensors (default: every supported one)",
     )
     parser.add_argument(
+        "--background",
+        action="store_true",
+        help="open-world: also score each cell with its static background recorded and gating",
+    )
+    parser.add_argument(
         "--report-only",
         action="store_true",
         help="rewrite OUT/<experiment>.md/.json/.png from the finished points; run none",
@@ -253,7 +258,7 @@ def _run_open_world(args, frames: int, out: Path) -> int:
         f"cells a mount; results {out}",
         flush=True,
     )
-    report = open_world.run_open_world(args.model, sensors, frames, out)
+    report = open_world.run_open_world(args.model, sensors, frames, out, background=args.background)
     missed = [k for k, ok in report["verdict"].items() if ok is False]
     print(f"targets missed: {', '.join(missed) or 'none'}; wrote {out / 'open-world.md'}")
     return 0

@@ -33,11 +33,13 @@ from scipy import ndimage
 
 from topseg.core import labels as L
 from topseg.core.atomic import atomic_write
+from topseg.core.background import BackgroundModel, fit_background
 from topseg.core.camera import project
 from topseg.core.metrics import ConfusionAccumulator, person_scores
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 from topseg.core.synth.cell_scenes import CellConfig
 from topseg.core.synth.density import DensityConfig
+from topseg.core.synth.scene import Scene
 from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
 from topseg.services.batch.experiment.mounts import MOUNTS, cell_mount
 
@@ -50,6 +52,8 @@ PHANTOM_CM2 = 150.0
 MIN_VISIBLE_CM2 = 150.0
 #: share of a person's pixels that must be labelled as body parts for them to be found
 FOUND_SHARE = 0.5
+#: noisy frames of a held-out cell's empty scene its background is fitted from (--background)
+BACKGROUND_FRAMES = 12
 #: the poses the report names (every other pose is counted under its own name too)
 SCORED_POSES = ("standing", "reaching", "kneeling", "crouching", "lying")
 TARGETS = {
@@ -169,14 +173,31 @@ def cell_config(mount, seed: int = TEST_SEED) -> SynthesisConfig:
                            density=density)  # fmt: skip
 
 
-def render_cells(mount, frames: int, seed: int = TEST_SEED) -> list[tuple]:
-    """(depth, truth, mount, scene dict) of `frames` held-out cells seen from `mount`."""
+def render_cells(
+    mount, frames: int, seed: int = TEST_SEED, background: bool = False
+) -> list[tuple]:
+    """(depth, truth, mount, scene dict, background) of `frames` held-out cells seen from
+    `mount`; with `background`, each cell's static background (else None)."""
     with Synthesizer(cell_config(mount, seed)) as synth:
         out = []
         for i in range(frames):
             f = synth.render(frame_seed=i)
-            out.append((f.depth, f.labels, f.mount or mount, f.scene))
+            m = f.mount or mount
+            bg = static_background(synth, f.scene, m, seed=i) if background else None
+            out.append((f.depth, f.labels, m, f.scene, bg))
         return out
+
+
+def static_background(synth: Synthesizer, scene: dict, mount, seed: int = 0) -> BackgroundModel:
+    """The background `topseg calibrate --background` would record of this cell: its scene
+    without people and robots (a robot arm moves), BACKGROUND_FRAMES frames with noise."""
+    empty = Scene.from_dict(scene)
+    empty.human, empty.extra_humans, empty.robots = None, [], []
+    empty.relations = []
+    rng = np.random.default_rng([seed, 0x6267])
+    frames = [synth.render_scene(Scene.from_dict(empty.to_dict()), rng).depth
+              for _ in range(BACKGROUND_FRAMES)]  # fmt: skip
+    return fit_background(frames, mount.intrinsics, sensor=mount.sensor, mount=mount)
 
 
 def verdict(figures: dict) -> dict:
@@ -192,19 +213,26 @@ def verdict(figures: dict) -> dict:
     return out
 
 
-def run_open_world(model, sensors, frames: int, out: Path, progress=print) -> dict:
-    """Score `model` on held-out cells at every mount and sensor; write and return the report."""
+def run_open_world(
+    model, sensors, frames: int, out: Path, progress=print, background: bool = False
+) -> dict:
+    """Score `model` on held-out cells at every mount and sensor (and, with `background`,
+    again with each cell's static background gating it); write and return the report."""
     seg = Segmenter.from_file(model, SegmenterConfig(check_camera=False), crf="realtime")
-    total = OpenWorldTally()
+    total, total_bg = OpenWorldTally(), OpenWorldTally()
     per_sensor: dict[str, dict] = {}
     for sensor in sensors:
         tally = OpenWorldTally()
         for height, tilt in MOUNTS:
             mount = cell_mount(sensor, height, tilt)
-            for depth, truth, m, scene in render_cells(mount, frames):
+            for depth, truth, m, scene, bg in render_cells(mount, frames, background=background):
                 pred = seg.label(depth, mount=m).labels
                 tally.add(truth, pred, depth, m, scene)
                 total.add(truth, pred, depth, m, scene)
+                if bg is not None:
+                    gated = Segmenter(seg.forest, seg.header, seg.config, path=seg.path,
+                                      background=bg)  # fmt: skip
+                    total_bg.add(truth, gated.label(depth, mount=m).labels, depth, m, scene)
         per_sensor[sensor] = tally.figures()
         f = per_sensor[sensor]
         progress(
@@ -224,6 +252,8 @@ def run_open_world(model, sensors, frames: int, out: Path, progress=print) -> di
         "per_sensor": per_sensor,
         "verdict": verdict(figures),
     }
+    if background:
+        report["with_background"] = total_bg.figures()
     out.mkdir(parents=True, exist_ok=True)
     with atomic_write(out / "open-world.json") as fh:
         fh.write((json.dumps(_nan_none(report), indent=1) + "\n").encode())
@@ -292,6 +322,25 @@ def markdown(report: dict) -> str:
     lines += ["", "| pose | found | visible | share |", "|---|---|---|---|"]
     for pose, p in a["poses"].items():
         lines.append(f"| {pose} | {p['found']} | {p['visible']} | {_pct(p['share'])} |")
+    b = report.get("with_background")
+    if b:
+        lines += [
+            "",
+            "With each cell's static background recorded (its empty scene, "
+            f"{BACKGROUND_FRAMES} frames) and gating the frames:",
+            "",
+            "| | robot -> human | robot -> robot | object -> human | phantom frames | person F1 |"
+            " lowest pose found |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for name, f in (("model alone", a), ("with background", b)):
+            low = min((p["share"] for k, p in f["poses"].items() if k in SCORED_POSES
+                       and not math.isnan(p["share"])), default=math.nan)  # fmt: skip
+            lines.append(
+                f"| {name} | {_pct(f['robot_as_human'])} | {_pct(f['robot_as_robot'])} | "
+                f"{_pct(f['object_as_human'])} | {_pct(f['phantom_frames'])} | "
+                f"{f['person_f1']:.3f} | {_pct(low)} |"
+            )
     return "\n".join(lines) + "\n"
 
 

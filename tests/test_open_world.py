@@ -1,0 +1,81 @@
+"""`topseg experiment open-world`'s figures on hand-made frames, and one small real run."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from topseg.core import labels as L
+from topseg.core.camera import project
+from topseg.core.sensors import get_sensor
+from topseg.services.batch.experiment import open_world as ow
+from topseg.services.batch.experiment.mounts import cell_mount
+
+MOUNT = cell_mount("kinect_v1", 3.0, 0.0)
+
+
+def frame(h=480, w=640):
+    return np.zeros((h, w), np.uint8), np.full((h, w), 3000, np.uint16)
+
+
+def person(x=0.0, y=0.0, pose="standing"):
+    return {"x": x, "y": y, "z": 1.0, "pose": pose}
+
+
+def test_robot_and_object_pixels_called_human_are_counted():
+    truth, depth = frame()
+    truth[100:200, 100:200] = L.ROBOT
+    truth[300:320, 300:400] = L.OBJECT
+    pred = truth.copy()
+    pred[100:150, 100:200] = L.BODY  # half the robot called a body
+    pred[300:302, 300:400] = L.HEAD  # a tenth of the object called a head
+    t = ow.OpenWorldTally()
+    t.add(truth, pred, depth, MOUNT, {"human": None})
+    f = t.figures()
+    assert f["robot_as_human"] == 0.5 and f["robot_as_robot"] == 0.5
+    assert math.isclose(f["object_as_human"], 0.1)
+
+
+def test_a_phantom_person_needs_150_cm2_in_a_frame_without_people():
+    truth, depth = frame()
+    area_px = ow.pixel_area_cm2(depth, MOUNT)[0, 0]
+    side = int(math.ceil(math.sqrt(ow.PHANTOM_CM2 / area_px)))
+    small, big = truth.copy(), truth.copy()
+    small[: side - 2, : side - 2] = L.BODY
+    big[:side, :side] = L.BODY
+    t = ow.OpenWorldTally()
+    t.add(truth, small, depth, MOUNT, {"human": None})
+    t.add(truth, big, depth, MOUNT, {"human": None})
+    f = t.figures()
+    assert f["empty_frames"] == 2 and f["phantom_frames"] == 0.5
+
+
+def test_two_people_are_told_apart_by_their_projected_trunks():
+    truth, depth = frame()
+    left, right = person(-0.5, 0.0, "kneeling"), person(0.5, 0.0, "lying")
+    uv = project(MOUNT.world_to_camera(np.array([[-0.5, 0.0, 1.0], [0.5, 0.0, 1.0]])),
+                    MOUNT.intrinsics)  # fmt: skip
+    for u, v in uv.round().astype(int):
+        truth[v - 20 : v + 20, u - 20 : u + 20] = L.BODY
+    pred = truth.copy()
+    (u, v) = uv[1].round().astype(int)
+    pred[v - 20 : v + 20, u - 20 : u + 20] = L.ROBOT  # the lying person is missed
+    t = ow.OpenWorldTally()
+    t.add(truth, pred, depth, MOUNT, {"human": left, "extra_humans": [right]})
+    poses = t.figures()["poses"]
+    assert poses["kneeling"] == {"found": 1, "visible": 1, "share": 1.0}
+    assert poses["lying"] == {"found": 0, "visible": 1, "share": 0.0}
+
+
+def test_a_small_run_writes_its_report(tmp_path, monkeypatch):
+    monkeypatch.setattr(ow, "MOUNTS", ((3.0, 0.0),))
+    report = ow.run_open_world(None, ["kinect_v1"], 2, tmp_path, progress=lambda _: None,
+                               background=True)  # fmt: skip
+    saved = json.loads((tmp_path / "open-world.json").read_text())
+    assert saved["all"]["frames"] == 2 and "with_background" in saved
+    assert set(report["verdict"]) == set(ow.TARGETS)
+    text = (tmp_path / "open-world.md").read_text()
+    assert "robot as human" in text and "with background" in text
+    assert get_sensor("kinect_v1").name in text
