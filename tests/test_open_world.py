@@ -41,7 +41,7 @@ def test_robot_and_object_pixels_called_human_are_counted():
 def test_a_phantom_person_needs_150_cm2_in_a_frame_without_people():
     truth, depth = frame()
     area_px = ow.pixel_area_cm2(depth, MOUNT)[0, 0]
-    side = int(math.ceil(math.sqrt(ow.PHANTOM_CM2 / area_px)))
+    side = math.ceil(math.sqrt(ow.PHANTOM_CM2 / area_px))
     small, big = truth.copy(), truth.copy()
     small[: side - 2, : side - 2] = L.BODY
     big[:side, :side] = L.BODY
