@@ -53,7 +53,7 @@ MIN_VISIBLE_CM2 = 150.0
 #: share of a person's pixels that must be labelled as body parts for them to be found
 FOUND_SHARE = 0.5
 #: noisy frames of a held-out cell's empty scene its background is fitted from (--background)
-BACKGROUND_FRAMES = 12
+BACKGROUND_FRAMES = 8
 #: the poses the report names (every other pose is counted under its own name too)
 SCORED_POSES = ("standing", "reaching", "kneeling", "crouching", "lying")
 TARGETS = {
