@@ -513,7 +513,7 @@ def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(
     np.testing.assert_array_equal(got.labels, upsample_labels(depth, want.labels, small, 2))
     forest_labels = upsample_labels(depth, want.forest_labels(), small, 2)
     np.testing.assert_array_equal(got.forest_labels(), forest_labels)
-    assert got.proba.shape == (*small.shape, auto.n_classes) == (*small.shape, 11)
+    assert got.proba.shape == (*small.shape, auto.n_classes)
     np.testing.assert_array_equal(got.proba, want.proba)
     assert got.floor_share == want.floor_share > 0
     t = got.timings

@@ -21,6 +21,7 @@ worker and the viewer. The children's logs go to `logs_dir` (a temporary folder 
 
 from __future__ import annotations
 
+import math
 import signal
 import socket
 import subprocess
@@ -363,4 +364,8 @@ def summary(figures: dict) -> str:
     s = figures.get("scores")
     if s is None:
         return line + "\nno ground truth on this source: no F1"
-    return line + f"\nF1 against ground truth (mean of classes 1-10): {s['avg_f1']:.3f}"
+    ten = s.get("avg_f1_10", s["avg_f1"])
+    text = f"\nF1 against ground truth (mean of classes 1-10): {ten:.3f}"
+    if not math.isclose(ten, s["avg_f1"], abs_tol=5e-4) and not math.isnan(s["avg_f1"]):
+        text += f", of classes 1-12 (with robot and object): {s['avg_f1']:.3f}"
+    return line + text
