@@ -323,9 +323,9 @@ def check_into_machine(scene: Scene, rel: Relation, human: PlacedHuman) -> bool:
 
 
 #: kinds of cell object a person may reach into
-MACHINE_KINDS_HINT = ("machine",)
+MACHINE_KINDS = ("machine",)
 
 
 def is_machine(o: PlacedObject) -> bool:
     """A cell object a person can reach into (a machine housing)."""
-    return o.cls == "object" and any(h in o.kind for h in MACHINE_KINDS_HINT)
+    return o.kind in MACHINE_KINDS

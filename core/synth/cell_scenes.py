@@ -30,7 +30,7 @@ import numpy as np
 
 from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
-from topseg.core.synth import cell_objects, cell_relations, furniture, humanoid, robots
+from topseg.core.synth import cell_objects, cell_relations, furniture, humanoid, relations, robots
 from topseg.core.synth.cell_relations import CELL_STACKING
 from topseg.core.synth.geometry import inside_rect, overlap_fraction
 from topseg.core.synth.scene import PlacedHuman, PlacedObject, Relation, Scene, human_id
@@ -195,9 +195,6 @@ class CellSampler:
                 return None
         return scene
 
-    def _next_id(self, scene: Scene) -> int:
-        return 1 + max([o.id for o in scene.objects] + [r.id for r in scene.robots], default=-1)
-
     def _robot_name(self, rng) -> str:
         c = self.config
         if c.robot_urdfs and (not robots.ROBOTS or rng.random() < c.user_robot_share):
@@ -220,7 +217,7 @@ class CellSampler:
             model = robots.robot_model(name)
             x, y = self._free_spot(rng, scene)
             robot = robots.PlacedRobot(
-                self._next_id(scene), name, x, y, float(rng.uniform(0, 2 * np.pi)), "floor", 0.0,
+                scene.next_id(), name, x, y, float(rng.uniform(0, 2 * np.pi)), "floor", 0.0,
                 model.random_joints(rng),
             )  # fmt: skip
             added: list[PlacedObject] = []
@@ -288,7 +285,7 @@ class CellSampler:
         lo, hi = cell_objects.HEIGHT_RANGE_M[kind]
         x, y = self._free_spot(rng, scene)
         return PlacedObject(
-            self._next_id(scene), kind, int(rng.integers(furniture.N_VARIANTS)),
+            scene.next_id(), kind, int(rng.integers(furniture.N_VARIANTS)),
             furniture.quantize_height(float(rng.uniform(lo, hi))), x, y, 0.0,
             float(rng.uniform(0, 2 * np.pi)),
         )  # fmt: skip
@@ -298,9 +295,7 @@ class CellSampler:
         if kind == "free":
             if rng.random() < c.furniture_share:
                 cls = str(rng.choice(list(d.object_height)))
-                d._add_free_object(rng, scene, cls)
-                for o in scene.objects[-1:]:
-                    o.id = max(o.id, self._next_id(scene) - 1)
+                d._add_free_object(rng, scene, cls)  # its id is scene.next_id(): robots counted
                 return
             for _ in range(d.config.max_tries):
                 obj = self._draw_item(rng, scene, cell_objects.FLOOR_KINDS)
@@ -342,7 +337,7 @@ class CellSampler:
             robot = scene.robots[int(rng.integers(len(scene.robots)))]
             if kind == "table_by_robot":
                 obj = d._draw_object(rng, scene, "table", ("table_rect",))
-                obj.id = self._next_id(scene)
+                obj.id = scene.next_id()
             else:
                 obj = self._draw_item(rng, scene, cell_objects.FLOOR_KINDS)
             radius = float(np.ptp(cell_relations.robot_footprint(robot), axis=0).max() / 2)
@@ -528,8 +523,7 @@ def _holds(scene: Scene, rel: Relation) -> bool:
 
 
 def _paper_relation_holds(scene: Scene, rel: Relation) -> bool | None:
-    from topseg.core.synth import relations
-
+    """Whether one of the paper's relations holds; None for a cell's own."""
     if rel.kind in relations.OO_RELATIONS or rel.kind in relations.HO_RELATIONS:
         return relations.holds(scene, rel)
     return None
