@@ -32,10 +32,11 @@ from topseg.core.crf import CRFConfig, realtime, segment_crf
 from topseg.core.denoise import edge_table, smooth_depth
 from topseg.core.errors import TopsegError
 from topseg.core.fattening import thin_edges
-from topseg.core.forest.model_file import load_model
+from topseg.core.forest.model_file import ModelFileError, load_model
 from topseg.core.forest.model_header import model_camera, model_features
 from topseg.core.forest.predict import predict_proba
 from topseg.core.forest.tree import Forest
+from topseg.core.person_check import PersonCheck
 from topseg.core.segmenter_config import SegmenterConfig, crf_config
 from topseg.core.stages import (
     FramePlan,
@@ -157,9 +158,21 @@ class Segmenter:
         else:
             self.reader = DepthReader(self.camera, self.header)
         self.background = background or self._load_background(config)
-        self.stages = build_stages(StageModel(forest, self.reader, config, self.background))
+        self.person_check = self._person_check(self.header, path)
+        self.stages = build_stages(
+            StageModel(forest, self.reader, config, self.background, self.person_check)
+        )
         # the stages whose time is the CRF's headline share; the rest (and the plan) the forest's
         self._crf_share = {stage.name for stage in self.stages if stage.share == CRFS_SHARE}
+
+    @staticmethod
+    def _person_check(header: dict[str, Any], path: Path | None) -> PersonCheck | None:
+        """The person check the model header carries (None: none); ModelFileError naming
+        the model when it is malformed."""
+        try:
+            return PersonCheck.from_header(header)
+        except TopsegError as exc:
+            raise ModelFileError(f"{path or 'model'}: {exc}") from None
 
     @staticmethod
     def _load_background(config: SegmenterConfig) -> BackgroundModel | None:

@@ -64,12 +64,17 @@ def crf_config(mode: str = "realtime") -> CRFConfig:
     return CRFConfig(mode=mode)
 
 
+def _area_fields(config: Any) -> list[str]:
+    """The names of the fields of `config` that hold an area (cm2): its float fields."""
+    return [f.name for f in fields(config) if isinstance(getattr(config, f.name), float | int)]
+
+
 def _check_areas(config: Any) -> None:
-    """Every field of `config` is an area in cm2: finite and >= 0; TopsegError otherwise."""
-    for f in fields(config):
-        area = getattr(config, f.name)
+    """Every area field of `config` is finite and >= 0 cm2; TopsegError otherwise."""
+    for name in _area_fields(config):
+        area = getattr(config, name)
         if not (np.isfinite(area) and area >= 0):
-            raise TopsegError(f"{f.name} must be >= 0 cm2, got {area}")
+            raise TopsegError(f"{name} must be >= 0 cm2, got {area}")
 
 
 @dataclass(frozen=True)
@@ -174,6 +179,9 @@ class PostConfig:
     min_plant_cm2      blobs of plant
     satellite_head_cm2 head blobs smaller than this whose centre lies within
                        `islands.SATELLITE_RADIUS_CM` of a larger head blob's
+    person_check       `on`: body-part blobs the model's person check says are not people
+                       take their most probable other class (`core.person_check`; a model
+                       without a check has none); `off`: none
     """
 
     min_head_cm2: float = setting(
@@ -214,14 +222,25 @@ class PostConfig:
         "a larger head blob's (an arm or a hand beside a head) take their border's label; 0 "
         "keeps them (default: %(default)s)",
     )
+    person_check: str = setting(
+        "on",
+        flag="person-check",
+        kind="choice",
+        choices=("on", "off"),
+        help="after the CRF, body-part blobs that the model's person check (fitted by "
+        "`topseg person-check`) says are not people, such as the top of a robot link or a "
+        "drum, take their most probable other class; off keeps them (default: %(default)s)",
+    )
 
     def __post_init__(self) -> None:
         _check_areas(self)
+        if self.person_check not in ("on", "off"):
+            raise TopsegError(f"person_check must be on or off, got {self.person_check!r}")
 
     @property
     def any(self) -> bool:
-        """Whether some rule is on (some area above 0)."""
-        return max(getattr(self, f.name) for f in fields(self)) > 0
+        """Whether some island rule is on (some area above 0)."""
+        return max(getattr(self, name) for name in _area_fields(self)) > 0
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ from topseg.core.islands import (
     island_areas,
     relabel_islands,
 )
+from topseg.core.person_check import blob_features, relabel_blobs
 
 #: the Segmenter's default minimum areas, per class
 AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2, S.MIN_PLANT_CM2)
@@ -23,3 +24,14 @@ def relabel_as_the_segmenter(labels, depth, k):
         labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM,
         ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
     )  # fmt: skip
+
+
+def check_people_as_the_segmenter(labels, depth, proba, mount, check):
+    """The Segmenter's person check on `labels` after its CRF, in place (working-resolution
+    depth, posteriors and mount): (blobs, pixels) relabelled."""
+    blobs = blob_features(
+        labels, depth, mount.height_map_mm(depth), proba, mount.intrinsics, mount.height_mm
+    )
+    if blobs.count == 0:
+        return 0, 0
+    return relabel_blobs(labels, blobs, check.people(blobs), proba)

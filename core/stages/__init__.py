@@ -8,6 +8,7 @@ adapter in `readers.py`), then runs `STAGES` in order over one `FrameState`:
   background   pixels that match the static cell's recorded background join the floor gate
   forest       the forest's posteriors (lazy on a grid)
   crf          the Potts CRF
+  person_check body-part blobs the model's person check says are not people take another class
   post         island rules, labels brought back to the frame's resolution
 
 Every stage is timed by `run_stages` and counts what it changed in `FrameState.counts` under
@@ -24,6 +25,7 @@ from topseg.core.stages.base import FORESTS_SHARE, Stage, StageModel
 from topseg.core.stages.crf import CRFStage
 from topseg.core.stages.forest import ForestStage
 from topseg.core.stages.model_input import ModelInputStage
+from topseg.core.stages.person_check import PersonCheckStage
 from topseg.core.stages.plan import FramePlan, FrameState
 from topseg.core.stages.post import PostStage
 from topseg.core.stages.pre import PreStage
@@ -35,6 +37,7 @@ STAGES: tuple[type[Stage], ...] = (
     BackgroundStage,
     ForestStage,
     CRFStage,
+    PersonCheckStage,
     PostStage,
 )
 

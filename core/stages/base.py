@@ -10,6 +10,7 @@ from topseg.core.segmenter_config import SegmenterConfig
 if TYPE_CHECKING:
     from topseg.core.background import BackgroundModel
     from topseg.core.forest.tree import Forest
+    from topseg.core.person_check import PersonCheck
     from topseg.core.stages.plan import FrameState
     from topseg.core.stages.readers import ModelReader
 
@@ -21,13 +22,14 @@ CRFS_SHARE = "crf"
 
 @dataclass(frozen=True)
 class StageModel:
-    """What stages are built from: the loaded forest, its input adapter, the run settings
-    and the recorded background of a static cell (None: none)."""
+    """What stages are built from: the loaded forest, its input adapter, the run settings,
+    the recorded background of a static cell and the model's person check (None: none)."""
 
     forest: Forest
     reader: ModelReader
     config: SegmenterConfig
     background: BackgroundModel | None = None
+    person_check: PersonCheck | None = None
 
 
 class Stage:

@@ -33,6 +33,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "topseg.services.batch.evaluate",
         "score a model on a dataset: per-class table, JSON, plots",
     ),
+    "person-check": (
+        "topseg.services.batch.person_check",
+        "fit a model's person check on a dataset, write it into the model file",
+    ),
     "segment": (
         "topseg.services.batch.segment",
         "segment depth PNGs or recordings offline into label PNGs",
@@ -79,6 +83,7 @@ DETAILS: dict[str, str] = {
     "demo": "docs/tutorial.md",
     "train": "docs/howto/retrain.md",
     "evaluate": "docs/howto/retrain.md",
+    "person-check": "docs/howto/retrain.md",
     "segment": "docs/howto/label-offline.md",
     "experiment": "docs/results.md",
     "bench": "docs/performance.md",

@@ -197,6 +197,8 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "dropped",
         "rejected",
         "foreign",
+        "not_people_blobs",
+        "not_people_px",
         "small_heads",
         "small_furniture",
         "satellite_heads",
