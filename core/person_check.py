@@ -9,7 +9,8 @@ and scored by a small boosted tree ensemble the model file carries (`PersonCheck
 check's threshold is not a person, and its pixels take their most probable class that is not
 a body part (`relabel_blobs`).
 
-Everything here is pure numpy and scipy.ndimage on the working resolution's arrays.
+Everything here is pure: numpy, and the numba kernels of `person_check_kernels`, on the
+working resolution's arrays.
 """
 
 from __future__ import annotations
@@ -19,13 +20,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from topseg.core import labels as L
+from topseg.core import person_check_kernels as K
+from topseg.core.camera import Intrinsics
 from topseg.core.errors import TopsegError
 
-#: how blobs connect: 8-neighbours, as the island rules and the open-world report count them
-EIGHT = np.ones((3, 3), bool)
 #: the ring around a blob that its neighbours are read from: pixels within this many pixels
 RING_PX = 3
 #: a ring pixel this high above the floor (mm) or more is "tall" (a blob on top of something)
@@ -42,6 +42,15 @@ POSTERIOR_COLUMNS = L.NUM_CLASSES
 NO_HEAD_MM = -2000.0
 
 _PARTS = tuple(L.HUMAN_IDS)
+#: label -> its body part's index in _PARTS (-1: not a body part)
+_PART_OF = np.full(256, -1, np.int64)
+_PART_OF[list(_PARTS)] = np.arange(len(_PARTS))
+#: label -> whether it is a body part
+IS_PART = _PART_OF >= 0
+#: label -> what it is to the ring and component sums (`person_check_kernels`)
+_KINDS = np.full(256, K.OTHER, np.int64)
+_KINDS[L.ROBOT], _KINDS[L.OBJECT], _KINDS[L.BACKGROUND] = K.ROBOT, K.OBJECT, K.BACKGROUND
+_KINDS[list(L.FURNITURE_IDS)] = K.FURNITURE
 #: what each feature row holds, in order; a model file's check names them and must match
 FEATURES: tuple[str, ...] = (
     "log_area_cm2",
@@ -93,13 +102,6 @@ class Blobs:
         return len(self.area_cm2)
 
 
-def pixel_area_cm2(depth_mm: np.ndarray, fx: float, fy: float) -> np.ndarray:
-    """Each pixel's footprint (cm2) on a surface facing the camera at its depth; 0 without
-    depth."""
-    z_cm = depth_mm.astype(np.float64) / 10.0
-    return z_cm * z_cm / (fx * fy)
-
-
 def blob_features(
     labels: np.ndarray,
     depth_mm: np.ndarray,
@@ -115,128 +117,84 @@ def blob_features(
     proba       (h, w, C) forest posteriors, stored at least at every body-part pixel
     intrinsics  the optics at this resolution (fx, fy, cx, cy)
     """
-    human = np.isin(labels, _PARTS)
-    image, n = ndimage.label(human, structure=EIGHT)
+    image, n = K.label8(IS_PART[labels])
     if n == 0:
         return Blobs(image, np.zeros((0, len(FEATURES))), np.zeros(0))
-    index = np.arange(1, n + 1)
-    flat = image.ravel()
-    valid = depth_mm > 0
-    area = pixel_area_cm2(depth_mm, intrinsics.fx, intrinsics.fy)
-    h = np.where(valid, np.nan_to_num(heights_mm, nan=0.0), 0.0).astype(np.float64)
-
-    def per_blob(weights: np.ndarray) -> np.ndarray:
-        return np.bincount(flat, weights.ravel(), n + 1)[1:]
-
-    blob_area = per_blob(area)
-    safe_area = np.maximum(blob_area, 1e-9)
-    pixels = np.maximum(np.bincount(flat, minlength=n + 1)[1:], 1)
-    h_max = _extreme(ndimage.maximum, np.where(valid, h, -np.inf), image, index)
-    h_min = _extreme(ndimage.minimum, np.where(valid, h, np.inf), image, index)
-    h_mean = per_blob(area * h) / safe_area
-    h_std = np.sqrt(np.maximum(per_blob(area * h * h) / safe_area - h_mean**2, 0.0))
-    top = np.zeros_like(h)
-    inside = image > 0
-    top[inside] = h[inside] > h_max[image[inside] - 1] - TOP_MM
-    top_share = per_blob(area * top) / safe_area
-    parts = np.stack([per_blob(area * (labels == c)) / safe_area for c in _PARTS], axis=1)
-    posterior = np.zeros((n, POSTERIOR_COLUMNS))
-    for c in range(min(proba.shape[-1], POSTERIOR_COLUMNS)):
-        posterior[:, c] = per_blob(np.where(inside, proba[..., c], 0.0)) / pixels
-    head = labels == L.HEAD
-    head_area = per_blob(area * head)
-    head_h = per_blob(area * head * h) / np.maximum(head_area, 1e-9)
+    k = intrinsics
+    heights = np.asarray(heights_mm, np.float32)
+    s = K.blob_sums(image, n, labels, _PART_OF, depth_mm, heights, proba, POSTERIOR_COLUMNS,
+                    k.fx, k.fy, k.cx, k.cy)  # fmt: skip
+    h_max = np.where(np.isfinite(s[:, K.H_MAX]), s[:, K.H_MAX], 0.0)
+    h_min = np.where(np.isfinite(s[:, K.H_MIN]), s[:, K.H_MIN], 0.0)
+    K.blob_top(image, depth_mm, heights, h_max, TOP_MM, k.fx, k.fy, s)
+    area = s[:, K.AREA]
+    safe = np.maximum(area, 1e-9)
+    h_mean = s[:, K.AREA_H] / safe
+    h_std = np.sqrt(np.maximum(s[:, K.AREA_HH] / safe - h_mean**2, 0.0))
+    parts = s[:, K.PART : K.PART + len(_PARTS)] / safe[:, None]
+    posterior = s[:, K.POSTERIOR :] / np.maximum(s[:, K.PIXELS], 1.0)[:, None]
+    head_area = s[:, K.PART]
+    head_h = s[:, K.HEAD_AREA_H] / np.maximum(head_area, 1e-9)
     head_below = np.where(head_area > 0, head_h - h_max, NO_HEAD_MM)
-    major, minor = _extents(depth_mm, area, flat, n, intrinsics)
-    ring = _ring_features(labels, valid, h, image, index, h_max)
-    component = _component_features(labels, valid, area, image, index, blob_area)
+    major, minor = _extents(s, safe)
     features = np.column_stack([
-        np.log1p(blob_area), h_max, h_mean, h_std, h_min, h_max - h_min, top_share,
+        np.log1p(area), h_max, h_mean, h_std, h_min, h_max - h_min, s[:, K.TOP] / safe,
         parts, (parts > PART_PRESENT).sum(axis=1),
         posterior, posterior[:, list(_PARTS)].sum(axis=1),
         posterior[:, list(L.FURNITURE_IDS)].sum(axis=1),
         np.log1p(head_area), head_below,
         major, minor, major / np.maximum(minor, MIN_EXTENT_M),
-        ring, component,
-        np.full(n, camera_height_mm), np.full(n, camera_height_mm / intrinsics.fx),
+        _ring_features(image, n, labels, depth_mm, heights, h_max),
+        _component_features(image, n, labels, depth_mm, k, area),
+        np.full(n, camera_height_mm), np.full(n, camera_height_mm / k.fx),
     ])  # fmt: skip
-    return Blobs(image, np.nan_to_num(features, nan=0.0, posinf=1e30, neginf=-1e30), blob_area)
+    return Blobs(image, np.nan_to_num(features, nan=0.0, posinf=1e30, neginf=-1e30), area)
 
 
-def _extreme(fn, values: np.ndarray, image: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """ndimage's per-blob max or min of `values`; 0 for a blob without a finite value."""
-    out = np.asarray(fn(values, image, index), np.float64)
-    return np.where(np.isfinite(out), out, 0.0)
-
-
-def _extents(depth_mm, area, flat, n, k) -> tuple[np.ndarray, np.ndarray]:
+def _extents(s: np.ndarray, safe_area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each blob's spread on the floor (m): the square roots of its points' covariance's
     eigenvalues (area-weighted), major first."""
-    rows, cols = np.indices(depth_mm.shape)
-    z = depth_mm.astype(np.float64) / 1000.0
-    x, y = (cols - k.cx) * z / k.fx, (rows - k.cy) * z / k.fy
-    w = np.bincount(flat, area.ravel(), n + 1)[1:]
-    w = np.maximum(w, 1e-9)
-
-    def mean(v):
-        return np.bincount(flat, (area * v).ravel(), n + 1)[1:] / w
-
-    mx, my = mean(x), mean(y)
-    sxx, syy, sxy = mean(x * x) - mx * mx, mean(y * y) - my * my, mean(x * y) - mx * my
+    mx, my = s[:, K.MX] / safe_area, s[:, K.MY] / safe_area
+    sxx = s[:, K.MXX] / safe_area - mx * mx
+    syy = s[:, K.MYY] / safe_area - my * my
+    sxy = s[:, K.MXY] / safe_area - mx * my
     half_trace = (sxx + syy) / 2
     root = np.sqrt(np.maximum(((sxx - syy) / 2) ** 2 + sxy * sxy, 0.0))
     return np.sqrt(np.maximum(half_trace + root, 0.0)), np.sqrt(np.maximum(half_trace - root, 0.0))
 
 
-def _ring_features(labels, valid, h, image, index, h_max) -> np.ndarray:
+def _ring_features(image, n, labels, depth_mm, heights, h_max) -> np.ndarray:
     """What lies within RING_PX pixels around each blob: shares of robot, object, furniture,
     background and no depth, its mean height, how far its highest point is above the blob's,
     and the share of it that is tall."""
-    n = len(index)
-    grown = ndimage.grey_dilation(image, size=(2 * RING_PX + 1, 2 * RING_PX + 1))
-    ring = np.where(image == 0, grown, 0)
-    flat = ring.ravel()
-
-    def count(mask):
-        return np.bincount(flat, mask.ravel().astype(np.float64), n + 1)[1:]
-
-    total = np.maximum(count(ring > 0), 1.0)
-    with_depth = count(valid)
-    safe_depth = np.maximum(with_depth, 1.0)
-    highest = _extreme(ndimage.maximum, np.where(valid, h, -np.inf), ring, index)
+    r = K.ring_sums(image, n, labels, _KINDS, depth_mm, heights, RING_PX, TALL_MM)
+    total = np.maximum(r[:, K.R_PIXELS], 1.0)
+    valid = r[:, K.R_VALID]
+    safe_valid = np.maximum(valid, 1.0)
     return np.column_stack([
-        count(labels == L.ROBOT) / total,
-        count(labels == L.OBJECT) / total,
-        count(np.isin(labels, L.FURNITURE_IDS)) / total,
-        count(labels == L.BACKGROUND) / total,
-        count(~valid) / total,
-        np.bincount(flat, (h * valid).ravel(), n + 1)[1:] / safe_depth,
-        np.where(with_depth > 0, highest - h_max, 0.0),
-        count(valid & (h > TALL_MM)) / safe_depth,
+        r[:, K.R_ROBOT] / total,
+        r[:, K.R_OBJECT] / total,
+        r[:, K.R_FURNITURE] / total,
+        r[:, K.R_BACKGROUND] / total,
+        r[:, K.R_NO_DEPTH] / total,
+        r[:, K.R_H] / safe_valid,
+        np.where(valid > 0, r[:, K.R_H_MAX] - h_max, 0.0),
+        r[:, K.R_TALL] / safe_valid,
     ])  # fmt: skip
 
 
-def _component_features(labels, valid, area, image, index, blob_area) -> np.ndarray:
+def _component_features(image, n, labels, depth_mm, k, blob_area) -> np.ndarray:
     """The blob's place in the connected foreground it belongs to (everything labelled and
     not background): log of that component's area over the blob's, and the shares of it
     labelled robot, object and furniture."""
-    foreground = valid & (labels != L.BACKGROUND) & (labels != L.NO_DEPTH)
-    comp, m = ndimage.label(foreground, structure=EIGHT)
-    flat = comp.ravel()
-
-    def per_comp(weights):
-        return np.bincount(flat, weights.ravel(), m + 1)
-
-    comp_area = np.maximum(per_comp(area), 1e-9)
-    which = np.asarray(ndimage.maximum(comp, image, index), np.int64)
-    shares = [
-        per_comp(area * (labels == L.ROBOT)) / comp_area,
-        per_comp(area * (labels == L.OBJECT)) / comp_area,
-        per_comp(area * np.isin(labels, L.FURNITURE_IDS)) / comp_area,
-    ]
+    foreground = (depth_mm > 0) & (labels != L.BACKGROUND) & (labels != L.NO_DEPTH)
+    comp, m = K.label8(foreground)
+    sums, which = K.component_sums(comp, m, image, n, labels, _KINDS, depth_mm, k.fx, k.fy)
+    comp_area = np.maximum(sums[:, K.C_AREA], 1e-9)
     ratio = np.log(comp_area[which] / np.maximum(blob_area, 1e-9))
     ratio[which == 0] = 0.0
-    return np.column_stack([ratio, *(s[which] for s in shares)])
+    shares = [sums[which, col] / comp_area[which] for col in (K.C_ROBOT, K.C_OBJECT, K.C_FURNITURE)]
+    return np.column_stack([ratio, *shares])
 
 
 @dataclass(frozen=True)
@@ -381,10 +339,27 @@ def relabel_blobs(
     rejected = np.flatnonzero(~people)
     if rejected.size == 0:
         return 0, 0
-    mask = np.isin(blobs.image, rejected + 1)
+    is_rejected = np.zeros(blobs.count + 1, bool)
+    is_rejected[rejected + 1] = True
+    mask = is_rejected[blobs.image]
     others = np.array([c for c in range(proba.shape[-1]) if c not in _PARTS])
     labels[mask] = others[np.argmax(proba[mask][:, others], axis=1)].astype(labels.dtype)
     return int(rejected.size), int(mask.sum())
+
+
+def warm_up_check(depth: np.ndarray) -> None:
+    """Compile (or load from numba's cache) the check's kernels on a small frame of `depth`'s
+    shape with a body-part blob, writable and read-only (as frames off the wire are)."""
+    labels = np.full(depth.shape, L.OBJECT, np.uint8)
+    labels[: depth.shape[0] // 2, : depth.shape[1] // 2] = L.BODY
+    proba = np.full((*depth.shape, L.NUM_CLASSES), 1.0 / L.NUM_CLASSES, np.float32)
+    heights = np.full(depth.shape, 1000.0, np.float32)
+    read_only = np.full(depth.shape, 2000, np.uint16)
+    read_only.flags.writeable = False
+    rows, cols = depth.shape
+    k = Intrinsics(cols, rows, 500.0, 500.0, cols / 2, rows / 2)
+    for frame in (np.full(depth.shape, 2000, np.uint16), read_only):
+        blob_features(labels, frame, heights, proba, k, 3000.0)
 
 
 __all__ = [
@@ -394,4 +369,5 @@ __all__ = [
     "TreeEnsemble",
     "blob_features",
     "relabel_blobs",
+    "warm_up_check",
 ]

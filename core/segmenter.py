@@ -36,7 +36,7 @@ from topseg.core.forest.model_file import ModelFileError, load_model
 from topseg.core.forest.model_header import model_camera, model_features
 from topseg.core.forest.predict import predict_proba
 from topseg.core.forest.tree import Forest
-from topseg.core.person_check import PersonCheck
+from topseg.core.person_check import PersonCheck, warm_up_check
 from topseg.core.segmenter_config import SegmenterConfig, crf_config
 from topseg.core.stages import (
     FramePlan,
@@ -354,3 +354,5 @@ class Segmenter:
             realtime.warm_up(self.n_classes)  # the solve of a large band, in parallel
         if self.background is not None:
             warm_up_gate(depth)
+        if self.person_check is not None:
+            warm_up_check(depth)

@@ -22,6 +22,7 @@ from topseg.core.person_check import (
     blob_features,
     relabel_blobs,
 )
+from topseg.core.person_check_kernels import label8
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 from topseg.services.batch.person_check import (
     choose_threshold,
@@ -120,6 +121,17 @@ def test_blob_features_match_a_per_blob_reference(seed):
     assert blobs.count == expected.shape[0] > 0
     np.testing.assert_array_equal(blobs.image, image)
     np.testing.assert_allclose(blobs.features, expected, rtol=1e-6, atol=1e-4)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_label8_numbers_components_as_scipy_does(seed):
+    rng = np.random.default_rng(seed)
+    density = rng.uniform(0.2, 0.7)
+    mask = rng.random((int(rng.integers(1, 60)), int(rng.integers(1, 60)))) < density
+    image, n = label8(mask)
+    want, m = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    assert n == m
+    np.testing.assert_array_equal(image, want)
 
 
 def test_a_frame_without_body_parts_has_no_blobs():

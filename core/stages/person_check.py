@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from topseg.core import labels as L
-from topseg.core.person_check import Blobs, blob_features, relabel_blobs
+from topseg.core.person_check import IS_PART, Blobs, blob_features, relabel_blobs
 from topseg.core.stages.base import CRFS_SHARE, Stage
 from topseg.core.stages.plan import FrameState
 
@@ -50,7 +49,7 @@ def frame_blobs(frame: FrameState) -> tuple[Blobs, np.ndarray] | None:
     """The body-part blobs of `frame` after its CRF with their features (what the check
     scores and what `topseg person-check` fits it on), and the posteriors, stored at least
     at every body-part pixel; None without a body-part pixel."""
-    human = np.isin(frame.labels, L.HUMAN_IDS)
+    human = IS_PART[frame.labels]
     if not human.any():
         return None
     mount = frame.plan.work_mount
