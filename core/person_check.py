@@ -6,8 +6,8 @@ height profile, what surrounds it and the forest's posteriors over all of it dif
 CRF, every 8-connected blob of body-part labels is described by `FEATURES` (`blob_features`)
 and scored by a small boosted tree ensemble the model file carries (`PersonCheck`, fitted by
 `topseg person-check` on the model's own labels of rendered cells); a blob scoring under the
-check's threshold is not a person, and its pixels take their most probable class that is not
-a body part (`relabel_blobs`).
+check's threshold is not a person, and its pixels take their most probable class that is
+neither a body part nor background (`relabel_blobs`): something stands there.
 
 Everything here is pure: numpy, and the numba kernels of `person_check_kernels`, on the
 working resolution's arrays.
@@ -335,14 +335,15 @@ def relabel_blobs(
     labels: np.ndarray, blobs: Blobs, people: np.ndarray, proba: np.ndarray
 ) -> tuple[int, int]:
     """Give every pixel of a blob that is not a person (`people` False) its most probable
-    class that is not a body part, in place; (blobs, pixels) relabelled."""
+    class that is neither a body part nor background (it stands above the floor: the floor
+    gate passed it), in place; (blobs, pixels) relabelled."""
     rejected = np.flatnonzero(~people)
     if rejected.size == 0:
         return 0, 0
     is_rejected = np.zeros(blobs.count + 1, bool)
     is_rejected[rejected + 1] = True
     mask = is_rejected[blobs.image]
-    others = np.array([c for c in range(proba.shape[-1]) if c not in _PARTS])
+    others = np.array([c for c in range(1, proba.shape[-1]) if c not in _PARTS])
     labels[mask] = others[np.argmax(proba[mask][:, others], axis=1)].astype(labels.dtype)
     return int(rejected.size), int(mask.sum())
 
