@@ -45,6 +45,9 @@ _PARTS = tuple(L.HUMAN_IDS)
 #: label -> its body part's index in _PARTS (-1: not a body part)
 _PART_OF = np.full(256, -1, np.int64)
 _PART_OF[list(_PARTS)] = np.arange(len(_PARTS))
+#: label -> whether a rejected blob's pixel may take it: neither a body part nor background
+_REPLACEMENT = np.ones(L.NUM_CLASSES, bool)
+_REPLACEMENT[[L.BACKGROUND, *_PARTS]] = False
 #: label -> whether it is a body part
 IS_PART = _PART_OF >= 0
 #: label -> what it is to the ring and component sums (`person_check_kernels`)
@@ -201,7 +204,8 @@ def _component_features(image, n, labels, depth_mm, k, blob_area) -> np.ndarray:
 class TreeEnsemble:
     """Boosted regression trees in flat arrays: score = offset + rate * sum of each tree's
     leaf value. A node with `feature` -1 is a leaf; otherwise rows with feature <= threshold
-    (compared in float32, as scikit-learn fits them) go to `left`, the rest to `right`."""
+    (compared in float32, as scikit-learn fits them) go to `left`, the rest to `right`, both
+    after their parent (so a walk always ends)."""
 
     feature: np.ndarray  # int32
     threshold: np.ndarray  # float64
@@ -215,17 +219,10 @@ class TreeEnsemble:
 
     def score(self, x: np.ndarray) -> np.ndarray:
         """(n,) scores of the (n, F) feature rows `x`."""
-        x = np.asarray(x, np.float32).astype(np.float64)
-        if x.shape[0] == 0:
-            return np.zeros(0)
-        rows = np.arange(x.shape[0])[:, None]
-        node = np.broadcast_to(self.roots, (x.shape[0], len(self.roots))).copy()
-        for _ in range(self.depth):
-            f = self.feature[node]
-            leaf = f < 0
-            go_left = x[rows, np.where(leaf, 0, f)] <= self.threshold[node]
-            node = np.where(leaf, node, np.where(go_left, self.left[node], self.right[node]))
-        return self.offset + self.rate * self.value[node].sum(axis=1)
+        x = np.ascontiguousarray(np.asarray(x, np.float32), np.float64)
+        sums = K.tree_sums(x, self.feature, self.threshold, self.left, self.right, self.value,
+                           self.roots)  # fmt: skip
+        return self.offset + self.rate * sums
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON lists and numbers (what a model header holds)."""
@@ -273,6 +270,7 @@ class TreeEnsemble:
             or roots.min() < 0
             or roots.max() >= n
             or (inner & ((left < 0) | (left >= n) | (right < 0) | (right >= n))).any()
+            or (inner & ((left <= np.arange(n)) | (right <= np.arange(n)))).any()
             or not 0 <= depth <= 64
             or not all(map(math.isfinite, (offset, rate)))
             or not np.isfinite(value).all()
@@ -342,13 +340,11 @@ def relabel_blobs(
         return 0, 0
     is_rejected = np.zeros(blobs.count + 1, bool)
     is_rejected[rejected + 1] = True
-    mask = is_rejected[blobs.image]
-    others = np.array([c for c in range(1, proba.shape[-1]) if c not in _PARTS])
-    labels[mask] = others[np.argmax(proba[mask][:, others], axis=1)].astype(labels.dtype)
-    return int(rejected.size), int(mask.sum())
+    pixels = K.relabel_rejected(labels, blobs.image, is_rejected, proba, _REPLACEMENT)
+    return int(rejected.size), int(pixels)
 
 
-def warm_up_check(depth: np.ndarray) -> None:
+def warm_up_check(depth: np.ndarray, check: PersonCheck) -> None:
     """Compile (or load from numba's cache) the check's kernels on a small frame of `depth`'s
     shape with a body-part blob, writable and read-only (as frames off the wire are)."""
     labels = np.full(depth.shape, L.OBJECT, np.uint8)
@@ -360,7 +356,9 @@ def warm_up_check(depth: np.ndarray) -> None:
     rows, cols = depth.shape
     k = Intrinsics(cols, rows, 500.0, 500.0, cols / 2, rows / 2)
     for frame in (np.full(depth.shape, 2000, np.uint16), read_only):
-        blob_features(labels, frame, heights, proba, k, 3000.0)
+        blobs = blob_features(labels, frame, heights, proba, k, 3000.0)
+        relabel_blobs(labels.copy(), blobs, np.zeros(blobs.count, bool), proba)
+        check.people(blobs)
 
 
 __all__ = [

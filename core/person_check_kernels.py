@@ -242,3 +242,43 @@ def component_sums(comp, m, image, n, labels, kinds, depth, fx, fy):
             elif kind == FURNITURE:
                 sums[q, C_FURNITURE] += a
     return sums, which
+
+
+@numba.njit(cache=True)
+def tree_sums(x, feature, threshold, left, right, value, roots):
+    """(n,) the sum over the trees starting at `roots` of the leaf value each row of `x`
+    reaches (feature -1: a leaf; x[f] <= threshold goes left)."""
+    n = x.shape[0]
+    out = np.zeros(n)
+    for i in range(n):
+        total = 0.0
+        for root in roots:
+            node = root
+            while feature[node] >= 0:
+                if x[i, feature[node]] <= threshold[node]:
+                    node = left[node]
+                else:
+                    node = right[node]
+            total += value[node]
+        out[i] = total
+    return out
+
+
+@numba.njit(cache=True)
+def relabel_rejected(labels, image, is_rejected, proba, allowed):
+    """Give each pixel of a blob with is_rejected[blob] its most probable class among
+    `allowed` (the first on ties), in place; how many pixels changed label."""
+    rows, cols = labels.shape
+    classes = min(proba.shape[2], allowed.size)
+    count = 0
+    for r in range(rows):
+        for c in range(cols):
+            if not is_rejected[image[r, c]]:
+                continue
+            best, best_p = -1, -1.0
+            for j in range(classes):
+                if allowed[j] and proba[r, c, j] > best_p:
+                    best, best_p = j, proba[r, c, j]
+            labels[r, c] = best
+            count += 1
+    return count

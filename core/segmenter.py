@@ -355,4 +355,4 @@ class Segmenter:
         if self.background is not None:
             warm_up_gate(depth)
         if self.person_check is not None:
-            warm_up_check(depth)
+            warm_up_check(depth, self.person_check)

@@ -168,6 +168,11 @@ def test_trees_that_read_out_of_bounds_are_refused():
     broken = {**d, "left": [len(d["left"]) + 5] * len(d["left"])}
     with pytest.raises(TopsegError, match="out of bounds"):
         TreeEnsemble.from_dict(broken, x.shape[1])
+    inner = int(np.flatnonzero(np.asarray(d["feature"]) >= 0)[0])
+    looping = {**d, "left": [*d["left"]]}
+    looping["left"][inner] = inner  # a node that is its own child would walk forever
+    with pytest.raises(TopsegError, match="out of bounds"):
+        TreeEnsemble.from_dict(looping, x.shape[1])
     with pytest.raises(TopsegError, match="differ in length"):
         TreeEnsemble.from_dict({**d, "value": d["value"][:-1]}, x.shape[1])
     with pytest.raises(TopsegError, match="malformed"):
