@@ -112,6 +112,7 @@ def blob_features(
     proba: np.ndarray,
     intrinsics,
     camera_height_mm: float,
+    parts: np.ndarray | None = None,
 ) -> Blobs:
     """Every body-part blob of `labels` and its `FEATURES` row.
 
@@ -119,8 +120,9 @@ def blob_features(
     depth_mm    (h, w) depth (0: none); heights_mm (h, w) height above the floor (NaN: none)
     proba       (h, w, C) forest posteriors, stored at least at every body-part pixel
     intrinsics  the optics at this resolution (fx, fy, cx, cy)
+    parts       `IS_PART[labels]`, when the caller has it already
     """
-    image, n = K.label8(IS_PART[labels])
+    image, n = K.label8(IS_PART[labels] if parts is None else parts)
     if n == 0:
         return Blobs(image, np.zeros((0, len(FEATURES))), np.zeros(0))
     k = intrinsics

@@ -89,6 +89,12 @@ def label8(mask):
 
 
 @numba.njit(cache=True)
+def _pixel_area(d, fx, fy):
+    """A pixel's footprint (cm2) on a surface facing the camera at depth `d` (mm)."""
+    return (d / 10.0) * (d / 10.0) / (fx * fy)
+
+
+@numba.njit(cache=True)
 def _height(depth, heights, r, c):
     """A pixel's height (mm; 0 without depth or height)."""
     if depth[r, c] == 0:
@@ -114,7 +120,7 @@ def blob_sums(image, n, labels, part_of, depth, heights, proba, columns, fx, fy,
                 continue
             k = b - 1
             d = np.float64(depth[r, c])
-            a = (d / 10.0) * (d / 10.0) / (fx * fy)
+            a = _pixel_area(d, fx, fy)
             h = _height(depth, heights, r, c)
             out[k, AREA] += a
             out[k, AREA_H] += a * h
@@ -152,7 +158,7 @@ def blob_top(image, depth, heights, h_max, top_mm, fx, fy, out):
                 continue
             d = np.float64(depth[r, c])
             if _height(depth, heights, r, c) > h_max[b - 1] - top_mm:
-                out[b - 1, TOP] += (d / 10.0) * (d / 10.0) / (fx * fy)
+                out[b - 1, TOP] += _pixel_area(d, fx, fy)
 
 
 @numba.njit(cache=True)
@@ -232,7 +238,7 @@ def component_sums(comp, m, image, n, labels, kinds, depth, fx, fy):
             if q == 0:
                 continue
             d = np.float64(depth[r, c])
-            a = (d / 10.0) * (d / 10.0) / (fx * fy)
+            a = _pixel_area(d, fx, fy)
             sums[q, C_AREA] += a
             kind = kinds[labels[r, c]]
             if kind == ROBOT:

@@ -9,7 +9,7 @@ from sklearn.ensemble import GradientBoostingClassifier
 from topseg.core import labels as L
 from topseg.core.camera import Intrinsics
 from topseg.core.errors import TopsegError
-from topseg.core.forest.model_file import ModelFileError, load_model, save_model
+from topseg.core.forest.model_file import ModelFileError, caller_header, load_model, save_model
 from topseg.core.person_check import (
     FEATURES,
     MIN_EXTENT_M,
@@ -226,8 +226,7 @@ def with_check(model_path, tmp_path, threshold, features=None):
     entry = PersonCheck(trees, threshold, {}).to_header()
     if features is not None:
         entry["features"] = features
-    keep = {k: v for k, v in header.items() if k not in ("magic", "format_version", "labels",
-                                                         "forest")}  # fmt: skip
+    keep = caller_header(header)
     out = tmp_path / f"checked-{threshold}.npz"
     save_model(out, forest, {**keep, "person_check": entry})
     return out

@@ -75,6 +75,12 @@ def _forest_header(forest: Forest) -> dict[str, Any]:
     }
 
 
+def caller_header(header: dict[str, Any]) -> dict[str, Any]:
+    """A loaded header without the keys `save_model` writes itself: what to pass it back to
+    write the same model again (with changes)."""
+    return {k: v for k, v in header.items() if k not in _RESERVED}
+
+
 def save_model(
     path: str | os.PathLike, forest: Forest, header: dict[str, Any] | None = None
 ) -> None:

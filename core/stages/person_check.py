@@ -56,6 +56,6 @@ def frame_blobs(frame: FrameState) -> tuple[Blobs, np.ndarray] | None:
     proba = frame.fill(human)
     heights = mount.height_map_mm(frame.depth)
     blobs = blob_features(
-        frame.labels, frame.depth, heights, proba, mount.intrinsics, mount.height_mm
+        frame.labels, frame.depth, heights, proba, mount.intrinsics, mount.height_mm, human
     )
     return blobs, proba

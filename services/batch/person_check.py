@@ -21,7 +21,7 @@ import numpy as np
 from topseg.core import labels as L
 from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
 from topseg.core.errors import TopsegError
-from topseg.core.forest.model_file import load_model, save_model
+from topseg.core.forest.model_file import caller_header, load_model, save_model
 from topseg.core.formats.dataset import open_dataset
 from topseg.core.person_check import PersonCheck, TreeEnsemble
 from topseg.core.scoring import dataset_frames
@@ -41,12 +41,10 @@ HOLD_OUT = 4
 PERSON_SHARE = 0.5
 #: the boosted trees: how many, how deep, the learning rate
 N_TREES, TREE_DEPTH, RATE = 150, 3, 0.1
-#: the header keys `save_model` writes itself
-_FILE_KEYS = ("magic", "format_version", "labels", "forest")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--model, --data, --out, --frames, --keep and the Segmenter's settings."""
+    """--model, --data, --out, --frames, --keep and the Segmenter's settings up to the CRF."""
     parser.add_argument("--model", type=Path, default=None, help=MODEL_HELP)
     parser.add_argument(
         "--data", required=True, type=Path,
@@ -65,7 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "in body-part blobs (default: %(default)s)",
     )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="the boosted trees' seed")
-    add_segmenter_arguments(parser)
+    # the check is fitted on labels as the CRF leaves them: the island rules, the check
+    # itself and a background come after it or not at all
+    add_segmenter_arguments(parser, ("pre", "grid", "crf"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,8 +89,7 @@ def run(args: argparse.Namespace) -> int:
     check = fit_check(rows, args.keep, args.seed)
     check.validation["dataset"] = str(args.data)
     check.validation["frames"] = n
-    kept = {k: v for k, v in header.items() if k not in _FILE_KEYS}
-    save_model(out, forest, {**kept, PersonCheck.HEADER_KEY: check.to_header()})
+    save_model(out, forest, {**caller_header(header), PersonCheck.HEADER_KEY: check.to_header()})
     print(describe(check.validation))
     print(f"wrote {out}")
     return 0
@@ -130,7 +129,7 @@ def fit_check(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> Person
     keep `keep` of its person pixels; the check with what the fourth measured."""
     from sklearn.ensemble import GradientBoostingClassifier
 
-    x = _finite(rows["features"])
+    x = rows["features"]  # finite: `blob_features` makes them so
     person = rows["share"] >= PERSON_SHARE
     held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
     if person[~held].all() or not person[~held].any():
@@ -208,11 +207,6 @@ def describe(validation: dict) -> str:
         f"removes {v['other_px_removed']:.1%} of the other pixels labelled as body parts "
         f"({v['other_blobs_removed']:.1%} of those blobs)"
     )
-
-
-def _finite(x: np.ndarray) -> np.ndarray:
-    """`x` with NaN as 0 and infinities clipped (what the trees compare as float32)."""
-    return np.clip(np.nan_to_num(x, nan=0.0, posinf=1e30, neginf=-1e30), -1e30, 1e30)
 
 
 def _share(part: np.ndarray, whole: np.ndarray) -> float:
