@@ -48,6 +48,7 @@ from topseg.core.stages import (
 )
 from topseg.core.stages.base import CRFS_SHARE
 from topseg.core.stages.readers import DepthReader, HeightReader, ModelReader
+from topseg.core.surfaces import voting_table, warm_up_surfaces
 
 
 @dataclass(frozen=True)
@@ -356,3 +357,5 @@ class Segmenter:
             warm_up_gate(depth)
         if self.person_check is not None:
             warm_up_check(depth, self.person_check)
+        if voting_table(self.n_classes).any():
+            warm_up_surfaces(depth.shape)

@@ -182,6 +182,8 @@ class PostConfig:
     person_check       `on`: body-part blobs the model's person check says are not people
                        take their most probable other class (`core.person_check`; a model
                        without a check has none); `off`: none
+    surface_vote       `on`: robot and object pixels on one continuous surface take its
+                       majority class (`core.surfaces`); `off`: none
     """
 
     min_head_cm2: float = setting(
@@ -231,11 +233,22 @@ class PostConfig:
         "`topseg person-check`) says are not people, such as the top of a robot link or a "
         "drum, take their most probable other class; off keeps them (default: %(default)s)",
     )
+    surface_vote: str = setting(
+        "on",
+        flag="surface-vote",
+        kind="choice",
+        choices=("on", "off"),
+        help="after the CRF, pixels labelled robot or object that lie on one continuous "
+        "surface (neighbours within two sigma of the sensor's depth noise, at least 4 cm) take the class "
+        "most of them hold: a large robot link is not a patchwork of robot and object; off "
+        "keeps them (default: %(default)s)",
+    )
 
     def __post_init__(self) -> None:
         _check_areas(self)
-        if self.person_check not in ("on", "off"):
-            raise TopsegError(f"person_check must be on or off, got {self.person_check!r}")
+        for name in ("person_check", "surface_vote"):
+            if getattr(self, name) not in ("on", "off"):
+                raise TopsegError(f"{name} must be on or off, got {getattr(self, name)!r}")
 
     @property
     def any(self) -> bool:

@@ -34,12 +34,14 @@ bit (as stumpy keeps its naive versions in one test module).
   (`fattening.thin_edges`).
 - `gate_background_reference`: the static cell's background gate
   (`background.gate_background`).
+- `vote_surfaces_reference`: robot and object pixels on one continuous surface take its
+  majority class (`surfaces.vote_surfaces`), with scipy's connected components of a graph.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, sparse
 
 from topseg.core import labels
 from topseg.core.camera import PAPER_MOUNT, TopViewMount, check_depth, metres_to_mm
@@ -1251,3 +1253,45 @@ def gate_background_reference(depth, values, background, tolerance, gate, apply=
     missing = seen & ~match & (diff > tolerance)
     out = gate | match if apply else gate.copy()
     return out, int(match.sum()), int(missing.sum())
+
+
+# --- one surface, one thing (surfaces.vote_surfaces) ---------------------------------------
+
+
+def vote_surfaces_reference(labels_in, depth, step_mm, voting, bin_mm):
+    """`surfaces.vote_surfaces` in numpy and scipy: (labels after it, pixels relabelled,
+    surfaces that changed). Voting pixels with depth are the graph's nodes; 4-neighbours
+    are joined when their depths differ by at most the step table's entry at the nearer
+    depth's bin (the last entry beyond it); each component takes its majority of the two
+    voting classes, a tie leaving it as it is."""
+    lab = labels_in.copy()
+    h, w = lab.shape
+    d = np.asarray(depth, np.float32)
+    node = voting[lab] & (d > 0)
+    idx = np.arange(h * w).reshape(h, w)
+    a_all, b_all = [], []
+    for da, db in (((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+                   ((slice(1, None), slice(None)), (slice(None, -1), slice(None)))):  # fmt: skip
+        near = np.minimum(d[da], d[db]).astype(np.int64) // bin_mm
+        limit = step_mm[np.minimum(near, len(step_mm) - 1)]
+        ok = node[da] & node[db] & (np.abs(d[da] - d[db]) <= limit)
+        a_all.append(idx[da][ok])
+        b_all.append(idx[db][ok])
+    a, b = np.concatenate(a_all), np.concatenate(b_all)
+    graph = sparse.coo_matrix((np.ones(len(a)), (a, b)), shape=(h * w, h * w))
+    _, comp = sparse.csgraph.connected_components(graph, directed=False)
+    first, second = np.flatnonzero(voting)
+    changed, surfaces = 0, 0
+    for c in np.unique(comp.reshape(h, w)[node]):
+        members = node & (comp.reshape(h, w) == c)
+        n1 = int((lab[members] == first).sum())
+        n2 = int((lab[members] == second).sum())
+        if n1 == n2:
+            continue
+        winner = first if n1 > n2 else second
+        flip = members & (lab != winner)
+        if flip.any():
+            changed += int(flip.sum())
+            surfaces += 1
+            lab[flip] = winner
+    return lab, changed, surfaces

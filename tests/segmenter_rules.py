@@ -12,6 +12,7 @@ from topseg.core.islands import (
     relabel_islands,
 )
 from topseg.core.person_check import blob_features, relabel_blobs
+from topseg.core.surfaces import surface_step_mm, vote_surfaces, voting_table
 
 #: the Segmenter's default minimum areas, per class
 AREAS = island_areas(S.MIN_HEAD_CM2, S.MIN_FURNITURE_CM2, S.MIN_PLANT_CM2)
@@ -35,3 +36,9 @@ def check_people_as_the_segmenter(labels, depth, proba, mount, check):
     if blobs.count == 0:
         return 0, 0
     return relabel_blobs(labels, blobs, check.people(blobs), proba)
+
+
+def vote_as_the_segmenter(labels, depth, mount, n_classes):
+    """The Segmenter's surface vote on `labels` after its person check, in place
+    (working-resolution depth and mount of a model of `n_classes`): (pixels, surfaces)."""
+    return vote_surfaces(labels, depth, surface_step_mm(mount.sensor), voting_table(n_classes))

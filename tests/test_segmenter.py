@@ -5,7 +5,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from segmenter_rules import check_people_as_the_segmenter, relabel_as_the_segmenter
+from segmenter_rules import (
+    check_people_as_the_segmenter,
+    relabel_as_the_segmenter,
+    vote_as_the_segmenter,
+)
 
 from topseg.core import bundled_model, crf, forest, segmenter_config
 from topseg.core import labels as L
@@ -134,6 +138,7 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         want = crf.segment_crf(proba, depth, seg.config.crf)
         if mode != "none":
             check_people_as_the_segmenter(want, depth, proba, mount, seg.person_check)
+            vote_as_the_segmenter(want, depth, mount, seg.n_classes)
             relabel_as_the_segmenter(want, depth, k)
         np.testing.assert_array_equal(got.labels, want)
         np.testing.assert_array_equal(got.proba, proba)

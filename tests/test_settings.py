@@ -44,7 +44,7 @@ ODD = SegmenterConfig(
     grid=GridConfig(downsample=1, stride=3, adaptive=0, early_exit=None),
     crf=CRFConfig(mode="exact", smoothness=2.5, noisy_smoothness=4.0),
     post=PostConfig(min_head_cm2=10.0, min_furniture_cm2=0.0, min_plant_cm2=20.0,
-                    satellite_head_cm2=30.0, person_check="off"),
+                    satellite_head_cm2=30.0, person_check="off", surface_vote="off"),
     background=BackgroundConfig(path="/etc/topseg/cell1-background.npz", sigmas=4.0,
                                 margin_mm=12.5, mismatch_share=0.1),
 )  # fmt: skip
@@ -53,7 +53,7 @@ ODD = SegmenterConfig(
 def test_every_setting_has_a_unique_flag_in_its_group():
     paths = [p for p, _, _ in options_of(SegmenterConfig)]
     flags = [o.flag for _, _, o in options_of(SegmenterConfig)]
-    assert len(set(flags)) == len(flags) == 17
+    assert len(set(flags)) == len(flags) == 18
     assert {p.split(".")[0] for p in paths} == set(SEGMENTER_GROUPS)
     for _, f, option in options_of(SegmenterConfig):
         assert option.help and f.name  # every option says what it does

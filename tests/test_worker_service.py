@@ -175,6 +175,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
             "forest",
             "crf",
             "person_check",
+            "surfaces",
             "post",
         )
     }

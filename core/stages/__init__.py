@@ -9,6 +9,7 @@ adapter in `readers.py`), then runs `STAGES` in order over one `FrameState`:
   forest       the forest's posteriors (lazy on a grid)
   crf          the Potts CRF
   person_check body-part blobs the model's person check says are not people take another class
+  surfaces     robot and object pixels on one continuous surface take its majority class
   post         island rules, labels brought back to the frame's resolution
 
 Every stage is timed by `run_stages` and counts what it changed in `FrameState.counts` under
@@ -29,6 +30,7 @@ from topseg.core.stages.person_check import PersonCheckStage
 from topseg.core.stages.plan import FramePlan, FrameState
 from topseg.core.stages.post import PostStage
 from topseg.core.stages.pre import PreStage
+from topseg.core.stages.surfaces import SurfaceVoteStage
 
 #: the stages, in the order a frame goes through them
 STAGES: tuple[type[Stage], ...] = (
@@ -38,6 +40,7 @@ STAGES: tuple[type[Stage], ...] = (
     ForestStage,
     CRFStage,
     PersonCheckStage,
+    SurfaceVoteStage,
     PostStage,
 )
 

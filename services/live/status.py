@@ -199,6 +199,7 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "foreign",
         "not_people_blobs",
         "not_people_px",
+        "surface_votes_px",
         "small_heads",
         "small_furniture",
         "satellite_heads",
