@@ -16,7 +16,7 @@ import functools
 import numpy as np
 
 from topseg.core.synth import humanoid
-from topseg.core.synth.geometry import points_in_convex, rot2
+from topseg.core.synth.geometry import BOX, CYLINDER, points_in_convex, rot2
 from topseg.core.synth.relations import lean_to_reach, stand_z
 from topseg.core.synth.robots import PlacedRobot
 from topseg.core.synth.scene import PlacedHuman, PlacedObject, Relation, Scene
@@ -80,7 +80,12 @@ def _points(state: tuple) -> np.ndarray:
            prims.center]  # fmt: skip
     for kind, size, c, r in zip(prims.kind, prims.size, prims.center, prims.rot, strict=True):
         s = np.asarray(size, np.float64)
-        ext = s if kind == 2 else np.array([s[0], s[0], s[0] + s[1]])  # BOX, else round
+        if kind == BOX:
+            ext = s
+        elif kind == CYLINDER:
+            ext = np.array([s[0], s[0], s[1]])
+        else:  # a sphere or a capsule
+            ext = np.array([s[0], s[0], s[0] + s[1]])
         corners = np.array(np.meshgrid(*[(-1.0, 1.0)] * 3)).reshape(3, -1).T * ext
         pts.append(c + corners @ np.asarray(r).T)
     return np.concatenate(pts)

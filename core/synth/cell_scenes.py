@@ -10,7 +10,7 @@ paper's own modeled scenes, so a model trained on cells keeps knowing them.
 
 | factor | what it scores | default |
 |---|---|---|
-| R_n, R_name, R_mount | robots per cell, which robot, what it stands on | 1-2; uniform over the catalogue (and the user's URDFs); floor 1, pedestal 2, table 1, gantry 0.3 |
+| R_n, R_name, R_mount | robots per cell, which robot, what it stands on | 1-2; a random arm (`random_arms`, `random:<seed>`) 0.3, else uniform over the catalogue (the user's URDFs first, `user_robot_share`); floor 1, pedestal 2, table 1, gantry 0.3 |
 | R_q | joint state | uniform within the URDF's limits, the arm clear of floor and support |
 | R_pos, R_ori | base on the floor the camera sees, heading | uniform, U[0, 360) |
 | C_n, C_rel | items per cell, the relation placing each | 2-8; free 2, stacked 1, beside a table 0.7, by a robot 1, a worktable by a robot 1, a part on a table 1.5 |
@@ -64,9 +64,10 @@ class CellConfig:
 
     paper_share: float = 0.35
     robots: tuple[int, int] = (1, 2)
-    robot_names: tuple[str, ...] = ()  # empty: the whole catalogue
+    robot_names: tuple[str, ...] = ()  # empty: the whole catalogue; "random": random arms
     robot_urdfs: tuple[str, ...] = ()  # a user's own robots
     user_robot_share: float = 0.5  # of robots, when robot_urdfs are given
+    random_robot_share: float = 0.3  # of the others, when random arms are allowed
     mount_weights: dict = field(
         default_factory=lambda: {"floor": 1.0, "pedestal": 2.0, "table": 1.0, "gantry": 0.3}
     )
@@ -112,16 +113,17 @@ class CellConfig:
         def bad(msg: str):
             raise TopsegError(msg)
 
-        for name in ("paper_share", "user_robot_share", "furniture_share"):
+        for name in ("paper_share", "user_robot_share", "random_robot_share", "furniture_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 bad(f"{name} is a fraction in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.robots[0] <= self.robots[1] <= 4:
             bad(f"robots must satisfy 0 <= min <= max <= 4, got {self.robots}")
         if not 0 <= self.n_items[0] <= self.n_items[1] <= 20:
             bad(f"n_items must satisfy 0 <= min <= max <= 20, got {self.n_items}")
-        unknown = [n for n in self.robot_names if n not in robots.ROBOTS]
+        unknown = [n for n in self.robot_names if n not in (*robots.ROBOTS, robots.RANDOM)]
         if unknown:
-            bad(f"robot_names: unknown robots {unknown}; known: {', '.join(robots.ROBOTS)}")
+            known = ", ".join((*robots.ROBOTS, robots.RANDOM))
+            bad(f"robot_names: unknown robots {unknown}; known: {known}")
         for name, weights, known in (
             ("mount_weights", self.mount_weights, MOUNTS),
             ("item_relation_weights", self.item_relation_weights, ITEM_RELATIONS),
@@ -196,10 +198,14 @@ class CellSampler:
         return scene
 
     def _robot_name(self, rng) -> str:
+        """A user URDF, a random arm (`random:<seed>`) or a catalogue robot, by their shares."""
         c = self.config
         if c.robot_urdfs and (not robots.ROBOTS or rng.random() < c.user_robot_share):
             return str(c.robot_urdfs[int(rng.integers(len(c.robot_urdfs)))])
-        names = c.robot_names or robots.ROBOTS
+        names = [n for n in c.robot_names or robots.ROBOTS if n != robots.RANDOM]
+        random_allowed = not c.robot_names or robots.RANDOM in c.robot_names
+        if random_allowed and (not names or rng.random() < c.random_robot_share):
+            return robots.random_arm_name(int(rng.integers(2**31)))
         return str(names[int(rng.integers(len(names)))])
 
     def _free_spot(self, rng, scene: Scene) -> tuple[float, float]:

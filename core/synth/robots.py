@@ -20,6 +20,10 @@ URDF is drawn about 3.9 times too large (joint offsets 0.28 / 1.38 / 1.42 / 1.49
 ABB's 0.070 / 0.352 / 0.360 / 0.380 m): the catalogue scales it back. Mobile and
 free-floating bases (rtb-data's Ridgeback and Frankie) are left out.
 
+A random arm (`random_arms`) loads by its seed, `robot_model("random:17")`: its URDF is
+generated and parsed like a file's, its tool link is `random_arms.TOOL_LINK`, and the last
+RANDOM_CACHE of them stay cached. A malformed name (`random:x`) is a `TopsegError` naming it.
+
 Any other fixed-base URDF loads by its path (`robot_model("/path/arm.urdf")`, `.xacro` too):
 meshes by relative paths, `file://` or `package://NAME/...` resolved beside it (in NAME/... or
 in ... in the URDF's folder or one above it). A missing or unparsable file, a missing or
@@ -39,7 +43,9 @@ from __future__ import annotations
 
 import importlib
 import io
+import re
 import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,6 +65,7 @@ from topseg.core.synth.geometry import (
     quat_to_matrix,
     yaw_quat,
 )
+from topseg.core.synth.random_arms import TOOL_LINK, random_arm_urdf
 from topseg.core.synth.render import Primitives, Triangles
 
 #: most triangles one link keeps; denser links are decimated
@@ -123,6 +130,11 @@ CATALOGUE: dict[str, CatalogueEntry] = {
 }
 #: the catalogue's robot names
 ROBOTS: tuple[str, ...] = tuple(CATALOGUE)
+#: a random arm is named RANDOM + ":" + its seed (`random_arm_name`); RANDOM alone, in a list
+#: of robot names, asks for random arms
+RANDOM = "random"
+#: how many random arms stay cached (a dataset draws thousands of them)
+RANDOM_CACHE = 64
 
 #: ROS package names that rtb-data's xacro files ask for -> their folders in rtb-data
 _RTB_PACKAGES = {
@@ -497,16 +509,48 @@ class RobotModel:
 # --- the catalogue and user URDFs -----------------------------------------------------------
 
 _MODELS: dict[str, RobotModel] = {}
+_RANDOM_MODELS: OrderedDict[str, RobotModel] = OrderedDict()  # least recently used first
 _MODELS_LOCK = threading.Lock()
 
 
+def random_arm_name(seed: int) -> str:
+    """The name `robot_model` knows the random arm of `seed` by."""
+    return f"{RANDOM}:{int(seed)}"
+
+
 def robot_model(name_or_urdf_path: str) -> RobotModel:
-    """The model of a catalogue robot (`ROBOTS`) or of a URDF (or xacro) file, cached."""
+    """The model of a catalogue robot (`ROBOTS`), a random arm (`random:<seed>`) or a URDF
+    (or xacro) file, cached (the last RANDOM_CACHE random arms)."""
     key = str(name_or_urdf_path)
     with _MODELS_LOCK:
+        if key.startswith(RANDOM + ":"):
+            return _cached_random(key)
         if key not in _MODELS:
             _MODELS[key] = _build(key)
         return _MODELS[key]
+
+
+def _cached_random(key: str) -> RobotModel:
+    """A random arm's model from the bounded cache (the caller holds _MODELS_LOCK)."""
+    if key in _RANDOM_MODELS:
+        _RANDOM_MODELS.move_to_end(key)
+        return _RANDOM_MODELS[key]
+    model = _random_model(key)
+    _RANDOM_MODELS[key] = model
+    while len(_RANDOM_MODELS) > RANDOM_CACHE:
+        _RANDOM_MODELS.popitem(last=False)
+    return model
+
+
+def _random_model(key: str) -> RobotModel:
+    """The model of `random:<seed>`, parsed from its generated URDF text like any other."""
+    seed = key[len(RANDOM) + 1 :]
+    if not re.fullmatch(r"[0-9]{1,19}", seed):
+        raise TopsegError(
+            f"robot {key!r}: a random arm is named {RANDOM}:<seed>, the seed a whole number >= 0"
+        )
+    urdf = _load_urdf(io.StringIO(random_arm_urdf(int(seed))), key)
+    return RobotModel(key, urdf, Path("."), TOOL_LINK)
 
 
 def _build(key: str) -> RobotModel:
@@ -518,7 +562,8 @@ def _build(key: str) -> RobotModel:
         return _from_file(key, path, entry.tool, entry.scale, dict(entry.xacro_args), packages)
     if not any(key.endswith(ext) for ext in (".urdf", ".xacro", ".xml")) and "/" not in key:
         raise TopsegError(
-            f"unknown robot {key!r}: known: {', '.join(ROBOTS)}, or the path of a .urdf file"
+            f"unknown robot {key!r}: known: {', '.join(ROBOTS)}, {RANDOM}:<seed>, "
+            "or the path of a .urdf file"
         )
     return _from_file(key, Path(key).expanduser(), None, 1.0, {}, {})
 

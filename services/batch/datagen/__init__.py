@@ -77,8 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--robots",
         default=None,
         metavar="NAMES",
-        help="with --mode cell: comma-separated catalogue robots to draw from, or none to "
-        "draw only --robot-urdf robots (default: the whole catalogue)",
+        help="with --mode cell: comma-separated catalogue robots to draw from (random for "
+        "random arms among them), or none to draw only --robot-urdf robots (default: the whole "
+        "catalogue and random arms)",
     )
     parser.add_argument(
         "--frames", type=int_range(1, 10**8), help="number of frames in the dataset"
@@ -164,9 +165,10 @@ def cell_config(args: argparse.Namespace) -> dict | None:
             if args.robots.strip() == "none"
             else [n.strip() for n in args.robots.split(",") if n.strip()]
         )
-        unknown = [n for n in names if n not in robots.ROBOTS]
+        known = (*robots.ROBOTS, robots.RANDOM)
+        unknown = [n for n in names if n not in known]
         if unknown:
-            raise TopsegError(f"--robots: unknown {unknown}; known: {', '.join(robots.ROBOTS)}")
+            raise TopsegError(f"--robots: unknown {unknown}; known: {', '.join(known)}")
         if not names and not urdfs:
             raise TopsegError("--robots none needs at least one --robot-urdf")
     cell: dict = {"robot_urdfs": urdfs, "robot_names": names}
