@@ -12,7 +12,7 @@ and spheres in the item's own frame (origin on the floor at the centre of its fo
 +x its front), overall height exactly `height`, real sizes in metres. `furniture` lists these
 kinds in its tables (class "object") and its `model()` builds them through `build()`, so
 placed cell objects are pooled, posed and rendered exactly like furniture. This module imports
-nothing from `furniture`.
+nothing from `furniture`. Objects of arbitrary shape, from meshes, are `mesh_objects`.
 """
 
 from __future__ import annotations

@@ -2,8 +2,9 @@
 
 A cell scene holds robot arms (from URDF, joints drawn within their limits, on the floor, a
 pedestal, a table or a gantry), the objects of a cell that are neither people nor furniture
-(`cell_objects`: crates, drums, racks, cabinets, machine housings, parts on tables, ...), some
-of the paper's furniture, and zero, one or two people, each placed freely or by a relation
+(`cell_objects`: crates, drums, racks, cabinets, machine housings, parts on tables, ...; and,
+a share `mesh_share` of them, meshes of arbitrary shape from `mesh_objects`), some of the
+paper's furniture, and zero, one or two people, each placed freely or by a relation
 (`cell_relations`: working at a robot's tool, standing under its arm, reaching into a machine,
 or one of the paper's relations to furniture). A share `paper_share` of cell frames are the
 paper's own modeled scenes, so a model trained on cells keeps knowing them.
@@ -14,6 +15,7 @@ paper's own modeled scenes, so a model trained on cells keeps knowing them.
 | R_q | joint state | uniform within the URDF's limits, the arm clear of floor and support |
 | R_pos, R_ori | base on the floor the camera sees, heading | uniform, U[0, 360) |
 | C_n, C_rel | items per cell, the relation placing each | 2-8; free 2, stacked 1, beside a table 0.7, by a robot 1, a worktable by a robot 1, a part on a table 1.5 |
+| C_mesh | whether an item placed free, beside a table, by a robot or on a table is a mesh object, which, its size, lie and yaw | 0.3; uniform over the catalogue entries that stand there; size uniform in the entry's range; lie uniform over the entry's; U[0, 360) |
 | P_n, P_rel, P_p | people per cell, the relation placing each, pose | 0: 1, 1: 1.5, 2: 0.8; at a robot 2, under its arm 0.6, into a machine 0.6, the paper's furniture relations 0.8, free 2; the paper's poses 1, kneeling, crouching and reaching 3, lying 4 |
 | theta | overlap of unrelated footprints (robots included) | U[0, theta'] as the paper's |
 
@@ -30,7 +32,15 @@ import numpy as np
 
 from topseg.core.config import from_dict
 from topseg.core.errors import TopsegError
-from topseg.core.synth import cell_objects, cell_relations, furniture, humanoid, relations, robots
+from topseg.core.synth import (
+    cell_objects,
+    cell_relations,
+    furniture,
+    humanoid,
+    mesh_objects,
+    relations,
+    robots,
+)
 from topseg.core.synth.cell_relations import CELL_STACKING
 from topseg.core.synth.geometry import inside_rect, overlap_fraction
 from topseg.core.synth.scene import PlacedHuman, PlacedObject, Relation, Scene, human_id
@@ -49,6 +59,8 @@ ITEM_RELATIONS = (
 MAX_PEOPLE = 2
 #: spots a freely placed person tries before its pose is drawn again
 FREE_SPOTS = 5
+#: how far (m) below the camera a mesh object's top stays
+MESH_CAMERA_CLEARANCE_M = 0.4
 #: poses that lie or kneel on the floor: placed freely or at a robot, never by furniture
 GROUND_POSES = ("kneeling", "crouching", "lying")
 
@@ -75,6 +87,7 @@ class CellConfig:
     gantry_height_m: tuple[float, float] = (1.9, 2.6)
     n_items: tuple[int, int] = (2, 8)
     furniture_share: float = 0.3
+    mesh_share: float = 0.3  # of items placed free, beside a table, by a robot or on a table
     item_relation_weights: dict = field(
         default_factory=lambda: {
             "free": 2.0,
@@ -113,7 +126,9 @@ class CellConfig:
         def bad(msg: str):
             raise TopsegError(msg)
 
-        for name in ("paper_share", "user_robot_share", "random_robot_share", "furniture_share"):
+        shares = ("paper_share", "user_robot_share", "random_robot_share", "furniture_share",
+                  "mesh_share")  # fmt: skip
+        for name in shares:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 bad(f"{name} is a fraction in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.robots[0] <= self.robots[1] <= 4:
@@ -186,8 +201,8 @@ class CellSampler:
             self._add_robot(rng, scene)
         n = int(rng.integers(c.n_items[0], c.n_items[1] + 1))
         budget = 6 * max(n, 1)
-        target = len(scene.objects) + n
-        while len(scene.objects) < target and budget > 0:
+        target = _n_items(scene) + n
+        while _n_items(scene) < target and budget > 0:
             budget -= 1
             self._add_item(rng, scene, _pick(rng, c.item_relation_weights))
         weights = np.asarray(c.people_weights, np.float64)
@@ -268,14 +283,16 @@ class CellSampler:
         for a in added:
             if not inside_rect(a.footprint(), *scene.bounds):
                 return False
-        others = [o.footprint() for o in scene.objects] + [
+        others = [o.footprint() for o in _items(scene)] + [
             cell_relations.robot_footprint(r) for r in scene.robots
         ]
         mine = [fp] + [a.footprint() for a in added]
         return all(overlap_fraction(m, o) <= scene.theta_oo for m in mine for o in others)
 
-    def _item_fits(self, scene: Scene, obj: PlacedObject, rel: Relation | None) -> bool:
+    def _item_fits(self, scene: Scene, obj, rel: Relation | None) -> bool:
         if not self.density._fits_object(scene, obj, rel):
+            return False
+        if isinstance(obj, mesh_objects.PlacedMeshObject) and not self._below_camera(scene, obj):
             return False
         if obj.support is not None:  # on a table or a crate: clear of the arms is all it needs
             return True
@@ -285,6 +302,19 @@ class CellSampler:
             or (rel is not None and rel.object == r.id and rel.kind in CELL_STACKING)
             for r in scene.robots
         )
+
+    def _below_camera(self, scene: Scene, obj) -> bool:
+        """An item's top stays MESH_CAMERA_CLEARANCE_M below the camera."""
+        mount_h = (scene.mount or self.density.mount).height_mm / 1000.0
+        return obj.z_range()[1] <= mount_h - MESH_CAMERA_CLEARANCE_M
+
+    def _draw_any(self, rng, scene: Scene, kinds, on_table: bool = False):
+        """A mesh object `mesh_share` of the time (no draw at share 0), else a cell object of
+        one of `kinds`."""
+        if self.config.mesh_share > 0 and rng.random() < self.config.mesh_share:
+            x, y = self._free_spot(rng, scene)
+            return mesh_objects.draw(rng, scene.next_id(), on_table, x, y)
+        return self._draw_item(rng, scene, kinds)
 
     def _draw_item(self, rng, scene: Scene, kinds) -> PlacedObject:
         kind = str(kinds[int(rng.integers(len(kinds)))])
@@ -304,9 +334,9 @@ class CellSampler:
                 d._add_free_object(rng, scene, cls)  # its id is scene.next_id(): robots counted
                 return
             for _ in range(d.config.max_tries):
-                obj = self._draw_item(rng, scene, cell_objects.FLOOR_KINDS)
+                obj = self._draw_any(rng, scene, cell_objects.FLOOR_KINDS)
                 if self._item_fits(scene, obj, None):
-                    scene.objects.append(obj)
+                    _append(scene, [obj])
                     return
             return
         for _ in range(4):
@@ -315,7 +345,7 @@ class CellSampler:
                 continue
             objs, rel = placed
             if all(self._item_fits(scene, o, rel) for o in objs):
-                scene.objects.extend(objs)
+                _append(scene, objs)
                 scene.relations.append(rel)
                 return
 
@@ -334,7 +364,7 @@ class CellSampler:
             if not pool:
                 return None
             table = pool[int(rng.integers(len(pool)))]
-            part = self._draw_item(rng, scene, cell_objects.TABLE_TOP_KINDS)
+            part = self._draw_any(rng, scene, cell_objects.TABLE_TOP_KINDS, on_table=True)
             rel = cell_relations.place_on_table(rng, table, part)
             return None if rel is None else ([part], rel)
         if kind in ("item_by_robot", "table_by_robot"):
@@ -345,7 +375,7 @@ class CellSampler:
                 obj = d._draw_object(rng, scene, "table", ("table_rect",))
                 obj.id = scene.next_id()
             else:
-                obj = self._draw_item(rng, scene, cell_objects.FLOOR_KINDS)
+                obj = self._draw_any(rng, scene, cell_objects.FLOOR_KINDS)
             radius = float(np.ptp(cell_relations.robot_footprint(robot), axis=0).max() / 2)
             params = cell_relations.place_near(
                 rng, (robot.x, robot.y), min(radius, 0.4), obj, (0.05, 0.5)
@@ -356,7 +386,7 @@ class CellSampler:
             if not pool:
                 return None
             table = pool[int(rng.integers(len(pool)))]
-            obj = self._draw_item(rng, scene, cell_objects.FLOOR_KINDS)
+            obj = self._draw_any(rng, scene, cell_objects.FLOOR_KINDS)
             tm = table.model()
             params = cell_relations.place_near(
                 rng, (table.x, table.y), min(tm.size_x, tm.size_y) / 2, obj, (0.02, 0.3)
@@ -371,8 +401,8 @@ class CellSampler:
         if not d._human_in_bounds(scene, human.footprint(arms=True)):
             return False
         fp = human.footprint()
-        exempt = exempt | {o.id for o in scene.objects if o.support in exempt}
-        others = [o.footprint() for o in scene.objects if o.id not in exempt]
+        exempt = exempt | {o.id for o in _items(scene) if o.support in exempt}
+        others = [o.footprint() for o in _items(scene) if o.id not in exempt]
         others += [cell_relations.robot_footprint(r) for r in scene.robots if r.id not in exempt]
         others += [h.footprint() for h in scene.humans]
         return all(overlap_fraction(fp, o) <= scene.theta_ho for o in others)
@@ -475,6 +505,11 @@ class CellSampler:
             else:
                 ok = d.object_height[o.cls].log_pdf(o.height) > -math.inf
             f["O"] += 0.0 if ok else -math.inf
+        for m in scene.mesh_objects:
+            on_floor = inside_rect(np.array([[m.x, m.y]]), scene.floor_lo, scene.floor_hi)
+            resting = m.support is not None or m.z == 0.0
+            ok = mesh_objects.size_ok(m) and on_floor and resting and self._below_camera(scene, m)
+            f["O"] += 0.0 if ok else -math.inf
         if not 0 <= scene.theta_oo <= d.config.theta_max_oo or not (
             0 <= scene.theta_ho <= d.config.theta_max_ho
         ):
@@ -483,6 +518,24 @@ class CellSampler:
             if not _holds(scene, rel):
                 f["rel"] = -math.inf
         return f
+
+
+def _items(scene: Scene) -> list:
+    """The scene's objects and mesh objects."""
+    return [*scene.objects, *scene.mesh_objects]
+
+
+def _n_items(scene: Scene) -> int:
+    return len(scene.objects) + len(scene.mesh_objects)
+
+
+def _append(scene: Scene, items) -> None:
+    """Add placed items to the scene: mesh objects to its mesh objects, others to its objects."""
+    for item in items:
+        if isinstance(item, mesh_objects.PlacedMeshObject):
+            scene.mesh_objects.append(item)
+        else:
+            scene.objects.append(item)
 
 
 def _probe(scene: Scene, human: PlacedHuman) -> Scene:

@@ -292,12 +292,12 @@ class DensityFunction:
         got = np.array((*scene.floor_lo, *scene.floor_hi, *scene.bounds[0], *scene.bounds[1]))
         if np.max(np.abs(expect - got)) > 1e-6:
             return bad
-        ids = [o.id for o in scene.objects] + [r.id for r in scene.robots]
+        ids = [o.id for o in [*scene.objects, *scene.mesh_objects]] + [r.id for r in scene.robots]
         if len(set(ids)) != len(ids):
             return bad
         if self.mode == "cell":
             return {**self.cell.log_factors(scene), "room": 0.0}
-        if scene.robots or scene.extra_humans:
+        if scene.robots or scene.extra_humans or scene.mesh_objects:
             return bad
         objects = {o.id: o for o in scene.objects}
 
@@ -547,7 +547,7 @@ class DensityFunction:
         fp = obj.footprint()
         if not self._on_floor(scene, obj.x, obj.y) or not self._in_bounds(scene, fp):
             return False
-        for o in scene.objects:
+        for o in [*scene.objects, *scene.mesh_objects]:
             if rel is not None and rel.object == o.id and rel.kind in relations.STACKING:
                 continue
             if obj.support == o.id:
@@ -624,10 +624,11 @@ class DensityFunction:
             self._human_in_bounds(scene, human.footprint(arms=True))
         ):
             return False
-        exempt = related | {o.id for o in scene.objects if o.support in related}
+        items = [*scene.objects, *scene.mesh_objects]
+        exempt = related | {o.id for o in items if o.support in related}
         return all(
             overlap_fraction(fp, o.footprint()) <= scene.theta_ho
-            for o in scene.objects
+            for o in items
             if o.id not in exempt
         )
 

@@ -17,6 +17,7 @@ import numpy as np
 from topseg.core.camera import TopViewMount
 from topseg.core.synth import furniture, humanoid
 from topseg.core.synth.geometry import rect_footprint
+from topseg.core.synth.mesh_objects import PlacedMeshObject
 from topseg.core.synth.robots import PlacedRobot
 
 HUMAN = "human"  # the id relations use for the human
@@ -216,6 +217,8 @@ class Scene:
     #: people besides `human` (a robot cell may hold several); relations name them
     #: `human_id(i + 1)`
     extra_humans: list[PlacedHuman] = field(default_factory=list)
+    #: cell objects from meshes (their ids share the objects' id space)
+    mesh_objects: list[PlacedMeshObject] = field(default_factory=list)
 
     @property
     def humans(self) -> list[PlacedHuman]:
@@ -241,9 +244,9 @@ class Scene:
         hi = self.floor_hi if self.bounds_hi is None else self.bounds_hi
         return tuple(lo), tuple(hi)
 
-    def object(self, oid: int) -> PlacedObject:
-        """The object with id `oid`; KeyError when there is none."""
-        for o in self.objects:
+    def object(self, oid: int) -> PlacedObject | PlacedMeshObject:
+        """The object (or mesh object) with id `oid`; KeyError when there is none."""
+        for o in [*self.objects, *self.mesh_objects]:
             if o.id == oid:
                 return o
         raise KeyError(f"scene has no object {oid}")
@@ -251,7 +254,8 @@ class Scene:
     def next_id(self) -> int:
         """The id a new object or robot takes: one past the highest in use (0 in an empty
         scene; the paper's scenes number their objects 0, 1, 2, ...)."""
-        return 1 + max([o.id for o in self.objects] + [r.id for r in self.robots], default=-1)
+        ids = [o.id for o in [*self.objects, *self.mesh_objects]] + [r.id for r in self.robots]
+        return 1 + max(ids, default=-1)
 
     def related(self, a, b) -> list[Relation]:
         """Relations between items `a` and `b`, in either direction (ids, or HUMAN)."""
@@ -279,6 +283,11 @@ class Scene:
                 if self.extra_humans
                 else {}
             ),
+            **(
+                {"mesh_objects": [m.to_dict() for m in self.mesh_objects]}
+                if self.mesh_objects
+                else {}
+            ),
         }
 
     @classmethod
@@ -299,4 +308,5 @@ class Scene:
             None if d.get("mount") is None else TopViewMount.from_dict(d["mount"], "scene mount"),
             [PlacedRobot.from_dict(r) for r in d.get("robots", [])],
             [PlacedHuman.from_dict(h) for h in d.get("extra_humans", [])],
+            [PlacedMeshObject.from_dict(m) for m in d.get("mesh_objects", [])],
         )

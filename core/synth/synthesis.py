@@ -194,11 +194,17 @@ class SynthesisConfig:
 
 def scene_geometry(built: Primitives, scene: Scene) -> tuple[Primitives, Triangles | None]:
     """The scene's pybullet-built primitives with its robots' shapes added (robots are posed
-    from their URDFs, not through pybullet); triangles None when no robot brings a mesh."""
-    if not scene.robots:
+    from their URDFs, not through pybullet) and its mesh objects' triangles; triangles None
+    when the scene has neither robots nor mesh objects."""
+    if not scene.robots and not scene.mesh_objects:
         return built, None
-    prims, tris = zip(*(r.geometry() for r in scene.robots), strict=True)
-    return Primitives.concat([built, *prims]), Triangles.concat(list(tris))
+    prims, tris = [built], []
+    for robot in scene.robots:
+        p, t = robot.geometry()
+        prims.append(p)
+        tris.append(t)
+    tris += [m.geometry() for m in scene.mesh_objects]
+    return Primitives.concat(prims), Triangles.concat(tris)
 
 
 @dataclass
