@@ -6,6 +6,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from topseg.core import labels as L
 from topseg.core.camera import project
@@ -89,3 +90,19 @@ def test_every_sensor_and_mount_sees_its_own_cells():
     ((_, _, _, first, _),) = ow.render_cells(mount, 1, ow.cells_seed(0, 0))
     ((_, _, _, second, _),) = ow.render_cells(mount, 1, ow.cells_seed(0, 1))
     assert first != second
+
+
+def test_generated_cells_hold_only_random_arms_and_mesh_objects(tmp_path, monkeypatch):
+    """`--cells generated`: robots and objects drawn from generators, not the catalogues."""
+    mount = cell_mount("kinect_v1", 3.0, 0.0)
+    scenes = [s for *_, s, _ in ow.render_cells(mount, 3, ow.GENERATED_SEED, cells="generated")]
+    robots = [r["name"] for s in scenes for r in s.get("robots", [])]
+    assert robots and all(name.startswith("random:") for name in robots)
+    assert sum(len(s.get("mesh_objects", [])) for s in scenes) > 0
+    monkeypatch.setattr(ow, "MOUNTS", ((3.0, 0.0),))
+    report = ow.run_open_world(None, ["kinect_v1"], 1, tmp_path, progress=lambda _: None,
+                               cells="generated")  # fmt: skip
+    assert report["cells"] == "generated" and report["test_seed"] == ow.GENERATED_SEED
+    assert "generated cells" in (tmp_path / "open-world.md").read_text()
+    with pytest.raises(ValueError, match="cells must be one of"):
+        ow.run_open_world(None, ["kinect_v1"], 1, tmp_path, cells="imagined")

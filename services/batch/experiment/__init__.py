@@ -110,6 +110,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="open-world: also score each cell with its static background recorded and gating",
     )
     parser.add_argument(
+        "--cells",
+        choices=("default", "generated"),
+        default="default",
+        help="open-world: the held-out cells: the density function's own (default), or every "
+        "robot a random arm and every item that can be one a mesh object (robots and objects "
+        "nobody modelled)",
+    )
+    parser.add_argument(
         "--report-only",
         action="store_true",
         help="rewrite OUT/<experiment>.md/.json/.png from the finished points; run none",
@@ -255,10 +263,12 @@ def _run_open_world(args, frames: int, out: Path) -> int:
     sensors = [get_sensor(s.strip()).name for s in args.sensors.split(",") if s.strip()]
     print(
         f"topseg experiment open-world: {len(sensors)} sensors x 5 mounts, {frames} held-out "
-        f"cells a mount; results {out}",
+        f"{args.cells} cells a mount; results {out}",
         flush=True,
     )
-    report = open_world.run_open_world(args.model, sensors, frames, out, background=args.background)
+    report = open_world.run_open_world(
+        args.model, sensors, frames, out, background=args.background, cells=args.cells
+    )
     missed = [k for k, ok in report["verdict"].items() if ok is False]
     print(f"targets missed: {', '.join(missed) or 'none'}; wrote {out / 'open-world.md'}")
     return 0

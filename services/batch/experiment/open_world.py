@@ -19,6 +19,10 @@ in a frame, each body-part pixel of the truth goes to the person whose projected
 nearest its connected blob. `--background` also scores each frame with the scene's static
 cell recorded as a background (its empty scene rendered `BACKGROUND_FRAMES` times with
 noise), to show what the gate adds; the targets are the model's alone.
+`--cells generated` scores cells of shapes drawn from generators rather than the density
+function's own mix of catalogues and generators: every robot a random arm (`random_arms`), every item that can be one a mesh object (`mesh_objects`),
+from their own seeds (`GENERATED_SEED`): the nearest rendered stand-in for a cell with robots
+and objects nobody modelled.
 Writes OUT/open-world.md and open-world.json.
 """
 
@@ -56,6 +60,13 @@ MIN_VISIBLE_CM2 = 150.0
 FOUND_SHARE = 0.5
 #: noisy frames of a held-out cell's empty scene its background is fitted from (--background)
 BACKGROUND_FRAMES = 8
+#: dataset seed of the `generated` cells (the pair of index k: GENERATED_SEED + k)
+GENERATED_SEED = 535353
+#: what each kind of held-out cell changes in the density function's cells
+CELLS = {
+    "default": {},
+    "generated": {"robot_names": ("random",), "mesh_share": 1.0},
+}
 #: the poses the report names (every other pose is counted under its own name too)
 SCORED_POSES = ("standing", "reaching", "kneeling", "crouching", "lying")
 TARGETS = {
@@ -173,20 +184,21 @@ def cells_seed(sensor_index: int, mount_index: int, base: int = TEST_SEED) -> in
     return base + sensor_index * len(MOUNTS) + mount_index
 
 
-def cell_config(mount, seed: int = TEST_SEED) -> SynthesisConfig:
+def cell_config(mount, seed: int = TEST_SEED, cells: str = "default") -> SynthesisConfig:
     """The held-out cells seen from `mount`: robot cells only (no paper scenes), each sensor's
-    own noise."""
-    density = DensityConfig(cell=CellConfig(paper_share=0.0))
+    own noise; `cells` one of CELLS."""
+    density = DensityConfig(cell=CellConfig(paper_share=0.0, **CELLS[cells]))
     return SynthesisConfig(mode="cell", noise=SENSOR_NOISE, seed=seed, camera=mount,
                            density=density)  # fmt: skip
 
 
 def render_cells(
-    mount, frames: int, seed: int = TEST_SEED, background: bool = False
+    mount, frames: int, seed: int = TEST_SEED, background: bool = False, cells: str = "default"
 ) -> list[tuple]:
-    """(depth, truth, mount, scene dict, background) of `frames` held-out cells seen from
-    `mount`; with `background`, each cell's static background (else None)."""
-    with Synthesizer(cell_config(mount, seed)) as synth:
+    """(depth, truth, mount, scene dict, background) of `frames` held-out cells (`cells`, one
+    of CELLS) seen from `mount`; with `background`, each cell's static background (else
+    None)."""
+    with Synthesizer(cell_config(mount, seed, cells)) as synth:
         out = []
         for i in range(frames):
             f = synth.render(frame_seed=i)
@@ -222,10 +234,20 @@ def verdict(figures: dict) -> dict:
 
 
 def run_open_world(
-    model, sensors, frames: int, out: Path, progress=print, background: bool = False
+    model,
+    sensors,
+    frames: int,
+    out: Path,
+    progress=print,
+    background: bool = False,
+    cells: str = "default",
 ) -> dict:
-    """Score `model` on held-out cells at every mount and sensor (and, with `background`,
-    again with each cell's static background gating it); write and return the report."""
+    """Score `model` on held-out cells (`cells`, one of CELLS) at every mount and sensor
+    (and, with `background`, again with each cell's static background gating it); write and
+    return the report."""
+    if cells not in CELLS:
+        raise ValueError(f"cells must be one of {', '.join(CELLS)}, got {cells!r}")
+    base = TEST_SEED if cells == "default" else GENERATED_SEED
     seg = Segmenter.from_file(model, SegmenterConfig(check_camera=False), crf="realtime")
     total, total_bg = OpenWorldTally(), OpenWorldTally()
     per_sensor: dict[str, dict] = {}
@@ -233,8 +255,8 @@ def run_open_world(
         tally = OpenWorldTally()
         for mi, (height, tilt) in enumerate(MOUNTS):
             mount = cell_mount(sensor, height, tilt)
-            cells = render_cells(mount, frames, cells_seed(si, mi), background=background)
-            for depth, truth, m, scene, bg in cells:
+            seed = cells_seed(si, mi, base)
+            for depth, truth, m, scene, bg in render_cells(mount, frames, seed, background, cells):
                 pred = seg.label(depth, mount=m).labels
                 tally.add(truth, pred, depth, m, scene)
                 total.add(truth, pred, depth, m, scene)
@@ -255,7 +277,8 @@ def run_open_world(
         "mounts": [list(m) for m in MOUNTS],
         "sensors": list(sensors),
         "frames_per_mount": frames,
-        "test_seed": TEST_SEED,
+        "test_seed": base,
+        "cells": cells,
         "targets": {k: list(v) for k, v in TARGETS.items()},
         "all": figures,
         "per_sensor": per_sensor,
@@ -293,8 +316,8 @@ def markdown(report: dict) -> str:
         "",
         f"Model `{report['model']['path']}` ({report['model']['model_id']}); "
         f"{report['frames_per_mount']} cells per mount x {len(report['mounts'])} mounts x "
-        f"{len(report['sensors'])} sensors = {a['frames']} frames, test seed "
-        f"{report['test_seed']}; realtime CRF.",
+        f"{len(report['sensors'])} sensors = {a['frames']} frames of {report['cells']} cells, "
+        f"test seed {report['test_seed']}; realtime CRF.",
         "",
         "| figure | value | target | |",
         "|---|---|---|---|",
