@@ -259,3 +259,18 @@ def test_a_bad_robot_urdf_is_one_clear_line_before_any_frame(tmp_path):
         env=env(), capture_output=True, text=True,
     )  # fmt: skip
     assert "need --mode cell" in one_error_line(run)
+
+
+def test_a_preview_caption_counts_robots_people_and_every_kind_of_object():
+    from topseg.services.batch.datagen.preview import caption
+
+    scene = {
+        "human": {"pose": "kneeling"},
+        "extra_humans": [{"pose": "lying"}],
+        "robots": [{"name": "random:3"}, {"name": "panda"}],
+        "objects": [{}, {}, {}],
+        "mesh_objects": [{}],
+        "relations": [{}],
+    }
+    assert caption(4, scene) == "#4  kneeling  +1 people  2 robots  4 objects  1 relations"
+    assert caption(0, {"objects": []}) == "#0  0 objects"  # a paper scene's record as before

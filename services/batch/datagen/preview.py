@@ -72,9 +72,17 @@ def caption(index: int, scene: dict) -> str:
     human = scene.get("human")
     if isinstance(human, dict) and human.get("pose"):
         parts.append(str(human["pose"]))
+    extra = scene.get("extra_humans")
+    if isinstance(extra, list) and extra:
+        parts.append(f"+{len(extra)} people")
+    robots = scene.get("robots")
+    if isinstance(robots, list) and robots:
+        parts.append(f"{len(robots)} robots")
     objects = scene.get("objects")
     if isinstance(objects, list):
-        parts.append(f"{len(objects)} objects")
+        meshes = scene.get("mesh_objects")
+        meshes = meshes if isinstance(meshes, list) else []
+        parts.append(f"{len(objects) + len(meshes)} objects")
     relations = scene.get("relations")
     if isinstance(relations, list) and relations:
         parts.append(f"{len(relations)} relations")
