@@ -7,6 +7,7 @@ import json
 import signal
 import struct
 import threading
+import time
 import urllib.request
 from pathlib import Path
 
@@ -145,7 +146,10 @@ class FoxgloveClient:
         ws_subs = [{"id": i, "channelId": c["id"]} for i, c in subs.items()]
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": ws_subs}))
         got = {}
+        deadline = time.monotonic() + timeout
         while len(got) < len(subs):
+            missing = sorted({c["topic"] for c in subs.values()} - set(got))
+            assert time.monotonic() < deadline, f"no message in {timeout} s on {missing}"
             data = self.ws.recv(timeout=timeout)
             if isinstance(data, bytes):
                 op, sub = struct.unpack_from("<BI", data)
