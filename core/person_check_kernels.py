@@ -20,6 +20,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from topseg.core.union_find import find_root
+
 AREA, AREA_H, AREA_HH, PIXELS, H_MAX, H_MIN = 0, 1, 2, 3, 4, 5
 PART = 6  # six body parts: 6..11
 HEAD_AREA_H = 12
@@ -38,15 +40,6 @@ C_AREA, C_ROBOT, C_OBJECT, C_FURNITURE = 0, 1, 2, 3
 
 
 @numba.njit(cache=True)
-def _root(parent, x):
-    """The root of x in the union-find forest `parent`, halving the path on the way."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
-@numba.njit(cache=True)
 def label8(mask):
     """(image, n): the 8-connected components of a bool `mask`, numbered 1..n in the raster
     order of their first pixel (as scipy.ndimage.label numbers them); 0 outside."""
@@ -62,7 +55,7 @@ def label8(mask):
             for i, j in ((r - 1, c - 1), (r - 1, c), (r - 1, c + 1), (r, c - 1)):
                 if i < 0 or j < 0 or j >= cols or image[i, j] == 0:
                     continue
-                root = _root(parent, image[i, j])
+                root = find_root(parent, image[i, j])
                 if best == 0:
                     best = root
                 elif root != best:
@@ -80,7 +73,7 @@ def label8(mask):
         for c in range(cols):
             if image[r, c] == 0:
                 continue
-            root = _root(parent, image[r, c])
+            root = find_root(parent, image[r, c])
             if number[root] == 0:
                 n += 1
                 number[root] = n

@@ -239,9 +239,9 @@ class PostConfig:
         kind="choice",
         choices=("on", "off"),
         help="after the CRF, pixels labelled robot or object that lie on one continuous "
-        "surface (neighbours within two sigma of the sensor's depth noise, at least 4 cm) take the class "
-        "most of them hold: a large robot link is not a patchwork of robot and object; off "
-        "keeps them (default: %(default)s)",
+        "surface (neighbours within two sigma of the sensor's depth noise, at least 4 cm) "
+        "take the class most of them hold: a large robot link is not a patchwork of robot "
+        "and object; off keeps them (default: %(default)s)",
     )
 
     def __post_init__(self) -> None:

@@ -24,6 +24,7 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.sensors import depth_sigma_mm
+from topseg.core.union_find import find_root
 
 #: the classes that vote: what one rigid thing in the cell is labelled as
 VOTING_IDS: tuple[int, ...] = L.OPEN_WORLD_IDS
@@ -46,15 +47,6 @@ def surface_step_mm(sensor: str, sigmas: float = STEP_SIGMAS) -> np.ndarray:
     step = step.astype(np.float32)
     step.flags.writeable = False
     return step
-
-
-@numba.njit(cache=True)
-def _root(parent, x):
-    """The root of x in the union-find forest `parent`, halving the path on the way."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
 
 
 @numba.njit(cache=True)
@@ -81,11 +73,11 @@ def _vote(labels, depth, voting, step):
                 continue
             here = r * cols + c
             if c > 0 and voting[labels[r, c - 1]] and _joins(depth, r, c, r, c - 1, step):
-                a, b = _root(parent, here), _root(parent, here - 1)
+                a, b = find_root(parent, here), find_root(parent, here - 1)
                 if a != b:
                     parent[max(a, b)] = min(a, b)
             if r > 0 and voting[labels[r - 1, c]] and _joins(depth, r, c, r - 1, c, step):
-                a, b = _root(parent, here), _root(parent, here - cols)
+                a, b = find_root(parent, here), find_root(parent, here - cols)
                 if a != b:
                     parent[max(a, b)] = min(a, b)
     n_classes = voting.shape[0]
@@ -101,7 +93,7 @@ def _vote(labels, depth, voting, step):
         for c in range(cols):
             lab = labels[r, c]
             if voting[lab] and depth[r, c] > 0:
-                root = _root(parent, r * cols + c)
+                root = find_root(parent, r * cols + c)
                 counts[root, 0 if lab == ids[0] else 1] += 1
     changed = 0
     surfaces = 0
@@ -111,7 +103,7 @@ def _vote(labels, depth, voting, step):
             lab = labels[r, c]
             if not voting[lab] or depth[r, c] <= 0:
                 continue
-            root = _root(parent, r * cols + c)
+            root = find_root(parent, r * cols + c)
             first, second = counts[root, 0], counts[root, 1]
             if first == second:  # a tie leaves the surface as it is
                 continue

@@ -26,8 +26,7 @@ class SurfaceVoteStage(Stage):
         changed = 0
         if self.active(frame):
             step = surface_step_mm(frame.plan.work_mount.sensor)
-            depth = frame.forest_depth if frame.forest_depth is not None else frame.depth
-            changed, _ = vote_surfaces(frame.labels, depth, step, self.voting)
+            changed, _ = vote_surfaces(frame.labels, frame.forest_depth, step, self.voting)
         frame.counts["surface_votes_px"] = changed
 
     def active(self, frame: FrameState) -> bool:

@@ -36,7 +36,7 @@ from topseg.core import labels
 from topseg.core.errors import TopsegError
 from topseg.core.synth.geometry import quat_from_axis_angle, quat_to_matrix, yaw_quat
 from topseg.core.synth.render import Triangles
-from topseg.core.synth.robots import _data_root, _decimated, _import
+from topseg.core.synth.robots import data_root, decimated, import_train_module, robot_model
 
 #: how many shapes pybullet_data's random_urdfs holds
 N_RANDOM_URDFS = 1000
@@ -44,6 +44,11 @@ N_RANDOM_URDFS = 1000
 MEASURES = ("height", "extent", "length")
 #: lie codes: upright, on its side (about x), on its end (about y)
 LIES = (0, 1, 2)
+
+
+def _train_module(module: str):
+    """A package of the `train` extra that mesh objects need (a TopsegError without it)."""
+    return import_train_module(module, "mesh cell objects")
 
 
 @dataclass(frozen=True)
@@ -127,12 +132,12 @@ def lie_matrix(lie: int) -> np.ndarray:
 
 
 def _trimesh(vertices, faces):
-    return _import("trimesh").Trimesh(np.asarray(vertices), np.asarray(faces), process=True)
+    return _train_module("trimesh").Trimesh(np.asarray(vertices), np.asarray(faces), process=True)
 
 
 def _load(path: Path, name: str):
     """A mesh file through trimesh, as one mesh; TopsegError naming the file when unreadable."""
-    trimesh = _import("trimesh")
+    trimesh = _train_module("trimesh")
     try:
         mesh = trimesh.load(str(path), force="mesh")
     except Exception as exc:
@@ -154,7 +159,7 @@ def _placed_copy(mesh, xyz=(0.0, 0.0, 0.0), yaw: float = 0.0):
 def _husky(root: Path):
     """The Husky platform from its URDF's meshes and offsets (base link frame): body, top
     plate, rail, bumpers and four wheels; the URDF itself needs ROS environment values."""
-    trimesh = _import("trimesh")
+    trimesh = _train_module("trimesh")
     d = root / "husky" / "meshes"
     wheel = _load(d / "wheel.stl", "husky")
     bumper = _load(d / "bumper.stl", "husky")
@@ -170,11 +175,9 @@ def _husky(root: Path):
 def _racecar(root: Path):
     """pybullet's racecar at rest: chassis and wheels (its URDF posed by the robots' reader),
     its primitive shapes turned into triangles."""
-    from topseg.core.synth.robots import robot_model
-
     model = robot_model(str(root / "racecar" / "racecar.urdf"))
     prims, tris = model.link_geometry({}, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
-    trimesh = _import("trimesh")
+    trimesh = _train_module("trimesh")
     meshes = [_trimesh(tris.vertices.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))]
     for kind, size, centre, rot in zip(prims.kind, prims.size, prims.center, prims.rot,
                                        strict=True):  # fmt: skip
@@ -195,7 +198,7 @@ def _racecar(root: Path):
 def _revolve(profile):
     """A closed solid of revolution about z from (radius, z) points running from the axis
     at the bottom to the axis at the top."""
-    trimesh = _import("trimesh")
+    trimesh = _train_module("trimesh")
     return trimesh.creation.revolve(np.asarray(profile, np.float64), sections=24)
 
 
@@ -248,8 +251,8 @@ def _stand(rng):
 
 def _extrude(points, height: float):
     """A prism: the polygon `points` (x, y) extruded along z by `height`."""
-    geometry = _import("shapely.geometry")
-    trimesh = _import("trimesh")
+    geometry = _train_module("shapely.geometry")
+    trimesh = _train_module("trimesh")
     polygon = geometry.Polygon(points).buffer(0)
     return trimesh.creation.extrude_polygon(polygon, height)
 
@@ -310,7 +313,7 @@ def _raw_mesh(name: str, params: dict):
     entry = CATALOGUE[name]
     if entry.source in GENERATORS:
         return GENERATORS[entry.source](np.random.default_rng(int(params["seed"])))
-    root = _data_root("pybullet")
+    root = data_root("pybullet")
     if entry.source == "husky":
         return _husky(root)
     if entry.source == "racecar":
@@ -332,7 +335,7 @@ def _raw_mesh(name: str, params: dict):
 def _model(name: str, key: tuple) -> MeshModel:
     mesh = _raw_mesh(name, dict(key))
     mesh.merge_vertices()
-    mesh = _decimated(mesh, f"mesh object {name}", name)
+    mesh = decimated(mesh, f"mesh object {name}")
     tris = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)]
     points = np.unique(tris.reshape(-1, 3), axis=0)
     hull = points[ConvexHull(points).vertices]

@@ -153,19 +153,20 @@ _RTB_PACKAGES = {
 # --- reading a URDF -----------------------------------------------------------------------
 
 
-def _import(module: str):
-    """An optional package of the `train` extra, or a TopsegError saying how to install it."""
+def import_train_module(module: str, purpose: str = "robot models"):
+    """An optional package of the `train` extra, or a TopsegError saying that `purpose` needs
+    it and how to install it."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        raise TopsegError(import_failure("robot models", module, "train", exc)) from None
+        raise TopsegError(import_failure(purpose, module, "train", exc)) from None
 
 
-def _data_root(source: str) -> Path:
-    """pybullet_data's folder or rtb-data's xacro folder."""
+def data_root(source: str) -> Path:
+    """pybullet_data's folder ("pybullet") or rtb-data's xacro folder ("rtb")."""
     if source == "pybullet":
-        return Path(_import("pybullet_data").getDataPath())
-    return Path(_import("rtbdata").__file__).parent / "xacro"
+        return Path(import_train_module("pybullet_data").getDataPath())
+    return Path(import_train_module("rtbdata").__file__).parent / "xacro"
 
 
 _XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
@@ -173,7 +174,7 @@ _XACRO_LOCK = threading.Lock()  # xacro keeps its state in module globals
 
 def _expand_xacro(path: Path, args: dict[str, str], packages: dict[str, Path]) -> str:
     """The URDF text of a xacro file, its `$(find NAME)` and `package://NAME` resolved."""
-    xacrodoc = _import("xacrodoc")
+    xacrodoc = import_train_module("xacrodoc")
     with _XACRO_LOCK:
         xacrodoc.packages.update_package_cache({k: str(v) for k, v in packages.items()})
         try:
@@ -207,8 +208,8 @@ def _resolve_mesh(filename: str, urdf_dir: Path) -> Path | None:
 def _load_urdf(source, label: str):
     """yourdfpy's URDF (no meshes; its scene graph gives the links' poses). The XML must be
     well formed: yourdfpy would recover what it can from a broken file."""
-    yourdfpy = _import("yourdfpy")
-    etree = _import("lxml.etree")
+    yourdfpy = import_train_module("yourdfpy")
+    etree = import_train_module("lxml.etree")
     try:
         etree.parse(source)
     except (OSError, etree.XMLSyntaxError) as exc:
@@ -224,22 +225,21 @@ def _load_urdf(source, label: str):
         raise TopsegError(f"robot {label}: cannot read URDF: {_one_line(exc)}") from None
 
 
-def _decimated(mesh, label: str, link: str):
-    """`mesh` reduced to at most MAX_LINK_FACES triangles by quadric decimation."""
+def decimated(mesh, what: str):
+    """`mesh` reduced to at most MAX_LINK_FACES triangles by quadric decimation; `what` names
+    the mesh in a TopsegError when it cannot be."""
     if len(mesh.faces) <= MAX_LINK_FACES:
         return mesh
-    _import("fast_simplification")
+    import_train_module("fast_simplification")
     try:
         return mesh.simplify_quadric_decimation(face_count=MAX_LINK_FACES)
     except Exception as exc:
-        raise TopsegError(
-            f"robot {label}: link {link!r}: cannot simplify its mesh: {_one_line(exc)}"
-        ) from None
+        raise TopsegError(f"{what}: cannot simplify its mesh: {_one_line(exc)}") from None
 
 
 def _read_mesh(element, urdf_dir: Path, label: str, link: str) -> np.ndarray:
     """(m, 3, 3) triangles of one URDF mesh element, at its scale, in its own frame."""
-    trimesh = _import("trimesh")
+    trimesh = import_train_module("trimesh")
     name = element.filename
     path = _resolve_mesh(name, urdf_dir)
     if path is None or not path.is_file():
@@ -275,7 +275,7 @@ def _link_shapes(link, urdf_dir: Path, label: str) -> _LinkShapes | None:
     elements = link.collisions or link.visuals
     if not elements:
         return None
-    trimesh = _import("trimesh")
+    trimesh = import_train_module("trimesh")
     shapes = _LinkShapes(np.zeros((0, 3, 3)))
     meshes = []
     for element in elements:
@@ -301,7 +301,7 @@ def _link_shapes(link, urdf_dir: Path, label: str) -> _LinkShapes | None:
         if len(tris) > MAX_LINK_FACES:
             mesh = trimesh.Trimesh(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
             mesh.merge_vertices()
-            mesh = _decimated(mesh, label, link.name)
+            mesh = decimated(mesh, f"robot {label}: link {link.name!r}")
             tris = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)]
         shapes.triangles = tris
     return shapes
@@ -556,7 +556,7 @@ def _random_model(key: str) -> RobotModel:
 def _build(key: str) -> RobotModel:
     if key in CATALOGUE:
         entry = CATALOGUE[key]
-        root = _data_root(entry.source)
+        root = data_root(entry.source)
         path = root / entry.path
         packages = {k: root / v for k, v in _RTB_PACKAGES.items()} if entry.source == "rtb" else {}
         return _from_file(key, path, entry.tool, entry.scale, dict(entry.xacro_args), packages)
