@@ -63,6 +63,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "topseg.services.live.bridge_ros2",
         "publish depth, labels, camera info and mounts to ROS 2 (rmw_zenoh)",
     ),
+    "safety": (
+        "topseg.services.live.safety",
+        "a cell's state from labels and the robot's joints: clear, warning or stop",
+    ),
     "status": (
         "topseg.services.live.status",
         "each camera's driver and worker: alive, fps, latency",
@@ -95,6 +99,7 @@ DETAILS: dict[str, str] = {
     "viewer": "docs/reference/services.md#viewer",
     "router": "docs/reference/services.md#router",
     "bridge": "docs/howto/ros2.md",
+    "safety": "docs/howto/safety.md",
     "status": "docs/reference/services.md#status",
     "calibrate": "docs/howto/calibrate.md",
     "compile": "docs/howto/deploy.md",

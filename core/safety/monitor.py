@@ -1,0 +1,342 @@
+"""The cell's decision from its newest inputs: labelled frames per camera, the robot's joint
+state and the clock. Pure state, no I/O: the safety service feeds it and publishes what it
+says (`topseg.services.live.safety`).
+
+Per labelled frame of a camera (`CellMonitor.frame`):
+
+1. Faults of the frame itself: no mount to place its pixels, a blinded camera (too little of
+   the image has depth, or what it sees is at the lens), a camera that moved (the pixels
+   labelled background no longer lie on the floor its mount predicts).
+2. The robot's own pixels: with a fresh joint state the robot is rendered as this camera sees
+   it, its silhouette grown by the state's age times the robot's fastest speed; pixels in it
+   that are not in front of the rendered robot (a person's hand above a link is) are `robot`.
+   With no fresh state the model's `robot` class stands and the robot is where those pixels
+   are.
+3. People: every human pixel in 3-D, in the cell frame; blobs smaller than
+   `MIN_PERSON_AREA_M2` on the floor are dropped as noise. Their separation from the robot
+   (its capsules, or its pixels' points), the zones they are in, and how much of each
+   protective zone the camera does not see.
+
+`CellMonitor.decision(now)` combines every camera's newest frame (the nearest person over all,
+zones occupied by any, a protective zone unseen only when no camera sees it) and decides with
+the reaction time measured now: depth stamp of the oldest frame in use to this moment. A
+camera whose last labelled frame is older than the cell's deadline, or that sent none yet, is
+a fault: `stop`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import ndimage
+
+from topseg.core import labels as label_table
+from topseg.core.camera import TopViewMount, axis_depth, backproject_pixels
+from topseg.core.formats.joint_states import JointState
+from topseg.core.formats.wire import DepthFrame, LabelFrame
+from topseg.core.safety.cell import CameraPlacement, CellConfig
+from topseg.core.safety.decision import Decision, decide
+from topseg.core.safety.robot import Capsules, CellRobot
+from topseg.core.safety.separation import HumanPoints, Nearest, human_points, nearest
+from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
+
+#: A blob of human pixels smaller than this on the floor plane (m^2) is noise, not a person.
+MIN_PERSON_AREA_M2 = 0.01
+#: A camera whose image has depth on less than this share of its pixels is blinded.
+MIN_DEPTH_SHARE = 0.3
+#: A camera whose median depth is nearer than this (m) has something on its lens.
+MIN_MEDIAN_DEPTH_M = 0.5
+#: Pixels labelled background whose height above the floor (m) is within this of 0 lie on
+#: the floor; with fewer than MIN_FLOOR_SHARE of them the camera moved (or its mount is wrong).
+FLOOR_TOLERANCE_M = 0.08
+MIN_FLOOR_SHARE = 0.5
+#: Fewer background pixels than this share of the image: too few to judge the floor by.
+MIN_BACKGROUND_SHARE = 0.05
+#: The silhouette's margin beyond the joint state's age times the robot's speed (m).
+SILHOUETTE_MARGIN_M = 0.03
+#: A pixel this much (m) nearer the camera than the rendered robot is in front of it.
+IN_FRONT_M = 0.06
+#: Without a joint state the robot's pixels stand for it, thinned to one point per cell of
+#: this side (m).
+ROBOT_POINT_GRID_M = 0.03
+
+_HUMAN = np.zeros(256, bool)
+_HUMAN[list(label_table.HUMAN_IDS)] = True
+
+
+@dataclass
+class CameraView:
+    """What one camera's newest labelled frame said."""
+
+    seq: int
+    stamp_ns: int
+    received_ns: int
+    faults: tuple[str, ...] = ()
+    nearest: Nearest | None = None
+    occupied: frozenset[str] = frozenset()
+    unseen: dict[str, float] = field(default_factory=dict)
+    robot_source: str = "none"  # "joints" | "labels" | "none"
+    labels: np.ndarray | None = None  # the labels after the robot's own pixels
+
+
+@dataclass(frozen=True)
+class CellDecision:
+    """The cell's decision at one moment and what it rests on."""
+
+    decision: Decision
+    reaction_ms: float | None
+    zones: dict[str, str]
+    nearest: Nearest | None
+    frame: tuple[str, int] | None
+
+
+class CellMonitor:
+    """The decision of one cell from its cameras' labelled frames and the robot's joints."""
+
+    def __init__(self, cell: CellConfig, robot: CellRobot | None) -> None:
+        self.cell = cell
+        self.robot = robot
+        self.placements = {c.name: c for c in cell.cameras}
+        self.views: dict[str, CameraView] = {}
+        self.joints: JointState | None = None
+        self.joints_received_ns = 0
+        self._zone_masks: dict[str, tuple[dict, ZoneMasks]] = {}
+        self.counts = {"frames": 0, "joint_states": 0, "joint_states_refused": 0}
+
+    # ------------------------------------------------------------------ inputs
+
+    def joint_state(self, state: JointState, received_ns: int) -> None:
+        """Take the robot's newest joint state; ValueError (and counted) when it does not
+        name the robot's joints (it is then not used)."""
+        if self.robot is None:
+            return
+        missing = set(self.robot.joint_names) - set(state.name)
+        if missing:
+            self.counts["joint_states_refused"] += 1
+            raise ValueError(
+                f"joint state without {', '.join(sorted(missing)[:4])} of robot "
+                f"{self.cell.robot.name}"
+            )
+        if self.joints is not None and state.stamp_ns < self.joints.stamp_ns:
+            return  # an older state arriving late
+        self.joints, self.joints_received_ns = state, received_ns
+        self.counts["joint_states"] += 1
+
+    def joints_age_s(self, now_ns: int) -> float:
+        """Seconds since the joint state in use was measured (its stamp); inf with none."""
+        if self.joints is None:
+            return math.inf
+        return max(0.0, (now_ns - self.joints.stamp_ns) / 1e9)
+
+    def fresh_joints(self, now_ns: int) -> dict[str, float] | None:
+        """The joint values, when the state is younger than the robot's limit; else None."""
+        if self.joints is None or self.robot is None:
+            return None
+        if self.joints_age_s(now_ns) * 1000.0 > self.cell.robot.joint_state_max_age_ms:
+            return None
+        values = dict(zip(self.joints.name, self.joints.position, strict=True))
+        return {n: values[n] for n in self.robot.joint_names}
+
+    def frame(self, camera: str, depth: DepthFrame, labels: LabelFrame, now_ns: int) -> CameraView:
+        """Judge one camera's labelled frame and keep it as that camera's newest view."""
+        placement = self.placements.get(camera)
+        if placement is None:
+            raise ValueError(f"camera {camera!r} is not in cell file {self.cell.source}")
+        if depth.depth.shape != labels.labels.shape:
+            raise ValueError(
+                f"camera {camera}: labels {labels.labels.shape} do not match depth "
+                f"{depth.depth.shape}"
+            )
+        self.counts["frames"] += 1
+        view = CameraView(seq=labels.seq, stamp_ns=depth.stamp_ns, received_ns=now_ns)
+        mount = depth.mount or placement.mount
+        if mount is None:
+            view.faults = (f"{camera}: no mount (the frames carry none and the cell file "
+                           "gives none): run topseg calibrate",)  # fmt: skip
+            self.views[camera] = view
+            return view
+        depth_mm = axis_depth(depth.depth, mount)
+        view.faults = camera_faults(camera, depth_mm, labels.labels, mount)
+        joints = self.fresh_joints(now_ns)
+        capsules: Capsules | None = None
+        lab = labels.labels
+        shadow = np.zeros(lab.shape, bool)
+        if self.robot is not None and joints is not None:
+            capsules = self.robot.capsules(joints)
+            margin = SILHOUETTE_MARGIN_M + self.joints_age_s(now_ns) * self.cell.robot.max_speed_mps
+            robot_depth, grown = self.robot.silhouette(joints, mount, placement, margin)
+            lab = robot_pixels(lab, depth_mm, robot_depth, grown)
+            shadow = grown
+            view.robot_source = "joints"
+        elif self.robot is not None:
+            capsules = robot_points_as_capsules(depth_mm, lab, mount, placement)
+            shadow = lab == label_table.ROBOT
+            view.robot_source = "labels" if capsules is not None else "none"
+        view.labels = lab
+        people = people_points(depth_mm, lab, mount, placement)
+        if capsules is not None and people is not None:
+            view.nearest = nearest(people, capsules)
+        masks = self._masks(camera, mount, placement)
+        if people is not None:
+            view.occupied = frozenset(occupied_zones(masks, people))
+        view.unseen = unseen_fraction(masks, depth_mm, shadow)
+        self.views[camera] = view
+        return view
+
+    def _masks(self, camera: str, mount: TopViewMount, placement: CameraPlacement) -> ZoneMasks:
+        key = mount.to_dict()
+        cached = self._zone_masks.get(camera)
+        if cached is None or cached[0] != key:
+            cached = (key, zone_masks(self.cell.zones, mount, placement))
+            self._zone_masks[camera] = cached
+        return cached[1]
+
+    # ------------------------------------------------------------------ the decision
+
+    def decision(self, now_ns: int) -> CellDecision:
+        """The cell's decision now, over every camera's newest view."""
+        faults: list[str] = []
+        deadline_ms = self.cell.deadline_ms
+        nearest_all: Nearest | None = None
+        occupied: set[str] = set()
+        unseen: dict[str, float] = {}
+        oldest_stamp: int | None = None
+        frame = None
+        for placement in self.cell.cameras:
+            view = self.views.get(placement.name)
+            if view is None:
+                faults.append(f"{placement.name}: no labelled frame yet")
+                continue
+            age_ms = (now_ns - view.received_ns) / 1e6
+            if age_ms > deadline_ms:
+                faults.append(
+                    f"{placement.name}: no labelled frame for {age_ms:.0f} ms "
+                    f"(deadline {deadline_ms:g} ms)"
+                )
+                continue
+            faults.extend(view.faults)
+            occupied |= view.occupied
+            for zone, share in view.unseen.items():
+                unseen[zone] = min(share, unseen.get(zone, math.inf))
+            if view.nearest is not None and (
+                nearest_all is None or view.nearest.distance_m < nearest_all.distance_m
+            ):
+                nearest_all, frame = view.nearest, (placement.name, view.seq)
+            if oldest_stamp is None or view.stamp_ns < oldest_stamp:
+                oldest_stamp = view.stamp_ns
+                frame = frame or (placement.name, view.seq)
+        reaction_ms = None if oldest_stamp is None else max(0.0, (now_ns - oldest_stamp) / 1e6)
+        reaction_s = math.inf if reaction_ms is None else reaction_ms / 1000.0
+        decision = decide(self.cell, nearest_all, sorted(occupied), unseen, reaction_s, tuple(faults))
+        zones = zone_states(self.cell, occupied, unseen, decision)
+        return CellDecision(decision, reaction_ms, zones, nearest_all, frame)
+
+
+# ---------------------------------------------------------------------------- pure steps
+
+
+def camera_faults(
+    camera: str, depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount
+) -> tuple[str, ...]:
+    """Why this frame cannot be trusted: a blinded camera or one that moved; () when none."""
+    valid = depth_mm > 0
+    share = float(valid.mean())
+    if share < MIN_DEPTH_SHARE:
+        return (f"{camera}: blinded: {share:.0%} of the image has depth",)
+    median_m = float(np.median(depth_mm[valid])) / 1000.0
+    if median_m < MIN_MEDIAN_DEPTH_M:
+        return (f"{camera}: blinded: something {median_m:.2f} m from the lens",)
+    background = (lab == label_table.BACKGROUND) & valid
+    if background.mean() < MIN_BACKGROUND_SHARE:
+        return ()
+    heights = floor_heights(depth_mm, background, mount)
+    on_floor = float((np.abs(heights) <= FLOOR_TOLERANCE_M).mean())
+    if on_floor < MIN_FLOOR_SHARE:
+        off = float(np.median(heights))
+        return (
+            f"{camera}: moved: only {on_floor:.0%} of the background lies on the floor its "
+            f"mount predicts (median {off:+.2f} m)",
+        )
+    return ()
+
+
+def floor_heights(depth_mm: np.ndarray, mask: np.ndarray, mount: TopViewMount) -> np.ndarray:
+    """Heights above the floor (m) through `mount` of the pixels of `mask` (axis depth)."""
+    flat = replace(mount, radial=False) if mount.radial else mount  # axis depth already
+    return flat.height_map_mm(depth_mm)[mask].astype(np.float64) / 1000.0
+
+
+def mount_points(depth_mm: np.ndarray, v: np.ndarray, u: np.ndarray, mount: TopViewMount) -> np.ndarray:
+    """(n, 3) points in the camera's world frame (m) of pixels (v, u) of axis depth `depth_mm`."""
+    return mount.camera_to_world(backproject_pixels(depth_mm, v, u, mount.intrinsics))
+
+
+def robot_pixels(
+    lab: np.ndarray, depth_mm: np.ndarray, robot_depth_mm: np.ndarray, grown: np.ndarray
+) -> np.ndarray:
+    """The labels with the robot's own pixels made `robot`: inside the grown silhouette,
+    every pixel with depth that is not in front of the rendered robot (nearer the camera by
+    more than IN_FRONT_M) and not background. A person's hand over a link is in front of it
+    and keeps its label; the floor beside a link keeps background."""
+    rendered = robot_depth_mm.astype(np.float64)
+    rendered[robot_depth_mm == 0] = np.inf
+    nearest_robot = ndimage.grey_erosion(rendered, footprint=_disk(_grow_radius_px(grown)))
+    in_front = depth_mm.astype(np.float64) < nearest_robot - IN_FRONT_M * 1000.0
+    take = grown & (depth_mm > 0) & ~in_front & (lab != label_table.BACKGROUND)
+    out = lab.copy()
+    out[take] = label_table.ROBOT
+    return out
+
+
+def _grow_radius_px(grown: np.ndarray) -> int:
+    """A neighbourhood wide enough to carry the rendered depth over the silhouette's margin."""
+    return 3 if not grown.any() else 7
+
+
+def _disk(radius: int) -> np.ndarray:
+    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    return (xx * xx + yy * yy) <= radius * radius
+
+
+def people_points(
+    depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount, placement: CameraPlacement
+) -> HumanPoints | None:
+    """The human pixels in 3-D, blobs smaller than MIN_PERSON_AREA_M2 left out; None if none."""
+    if not _HUMAN[lab].any():
+        return None
+    points = human_points(depth_mm, lab, mount, placement)
+    return points.without_small_blobs(MIN_PERSON_AREA_M2, mount)
+
+
+def robot_points_as_capsules(
+    depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount, placement: CameraPlacement
+) -> Capsules | None:
+    """The robot's labelled pixels as points (capsules of no length or radius), thinned to
+    one per ROBOT_POINT_GRID_M cell; None when no pixel is labelled robot."""
+    v, u = np.nonzero((lab == label_table.ROBOT) & (depth_mm > 0))
+    if not len(v):
+        return None
+    points = placement.to_cell(mount_points(depth_mm, v, u, mount))
+    cells = np.floor(points / ROBOT_POINT_GRID_M).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    points = points[np.sort(first)]
+    return Capsules(points, points.copy(), np.zeros(len(points)), ("robot pixels",) * len(points))
+
+
+def zone_states(
+    cell: CellConfig, occupied: set[str], unseen: dict[str, float], decision: Decision
+) -> dict[str, str]:
+    """Each zone's state for the viewers: `stop` when a protective zone is occupied or
+    unseen, `warning` when a warning zone is occupied, else `clear`; every zone `stop` when
+    the cell decided `stop` for a fault."""
+    out = {}
+    for zone in cell.zones:
+        state = "clear"
+        if zone.name in occupied:
+            state = "stop" if zone.kind == "protective" else "warning"
+        if zone.kind == "protective" and unseen.get(zone.name, 0.0) > cell.max_unseen_fraction:
+            state = "stop"
+        out[zone.name] = state
+    return out

@@ -1,0 +1,247 @@
+"""The cell's safety service: from its cameras' labelled frames and the robot's joint states
+to a state (`clear`, `warning`, `stop`) and a speed scale, published on
+`topseg/<cell>/safety` at least every `publish_period_ms` of the cell file (33 ms).
+
+    topseg safety --cell /etc/topseg/cell1.toml
+
+The cell file (`core/safety/cell.py`, `docs/howto/safety.md`) names the cell, its cameras and
+where each hangs over the cell, the robot (URDF, base pose, where its joint states come from,
+stopping time and distance, speeds), the zones and the standard's parameters. For every
+camera in it the service takes the depth (`topseg/<cell>/<camera>/depth`) and the worker's
+labels (`.../labels`) and pairs them by `seq`; the robot's joint states come from
+`topseg/<cell>/robot/<name>/joints` (msgpack) or ROS 2 `/joint_states` over rmw_zenoh.
+
+Every labelled frame is decided on at once (`core/safety/monitor.py`) and published; between
+frames the last decision is published again, re-decided with the reaction time measured
+then (depth stamp to now). No labelled frame from a camera within `deadline_ms` (100 ms), a
+blinded camera, one that moved, or a camera that never sent anything gives `stop` with the
+reason. The robot's joint state may be missing or stale: then the model's `robot` class
+stands for the robot.
+
+Messages that do not decode are dropped, counted and logged at most every 10 s; a queue of
+`--queue` messages bounds what waits. A monitoring aid, not a certified safety device.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+from topseg.core.errors import TopsegError
+from topseg.core.formats import joint_states as joint_wire
+from topseg.core.formats import safety_wire, wire
+from topseg.core.formats.rmw_zenoh import topic_key
+from topseg.core.formats.wire import WireError
+from topseg.core.printable import printable
+from topseg.core.safety.cell import CellConfig, load_cell
+from topseg.core.safety.monitor import CellDecision, CellMonitor
+from topseg.core.safety.robot import CellRobot
+from topseg.services.cli.options import positive_int
+from topseg.services.runtime import identity, zenoh_session
+from topseg.services.runtime.inbox import Inbox
+from topseg.services.runtime.lifecycle import ServiceLifecycle
+
+log = logging.getLogger("topseg.safety")
+
+#: Depth frames kept per camera while their labels are on the way (by seq).
+PENDING_DEPTH = 8
+#: A repeated warning (bad messages, unpaired labels) is logged at most this often (s).
+WARN_EVERY_S = 10.0
+#: ROS 2 joint states: the type on the wire.
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The cell file, the queue and Zenoh."""
+    parser.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    parser.add_argument(
+        "--ros-domain",
+        type=int,
+        default=0,
+        metavar="N",
+        help="the ROS 2 domain of /joint_states when the cell file takes them from ROS 2 "
+        "(default: %(default)s)",
+    )
+    parser.add_argument(
+        "--queue",
+        type=positive_int,
+        default=64,
+        metavar="N",
+        help="messages waiting to be decided on, at most (default: %(default)s)",
+    )
+    zenoh_session.add_arguments(parser)
+
+
+class SafetyService:
+    """The service's state between messages: the monitor, depth frames waiting for their
+    labels, the counts, and the publisher of the decisions."""
+
+    def __init__(self, cell: CellConfig, monitor: CellMonitor, publish, ros_domain: int) -> None:
+        self.cell = cell
+        self.monitor = monitor
+        self.publish_bytes = publish
+        self.pending: dict[str, OrderedDict[int, wire.DepthFrame]] = {
+            c.name: OrderedDict() for c in cell.cameras
+        }
+        self.seq = 0
+        self.last_publish = 0.0
+        self.counts = {"decisions": 0, "frames": 0, "rejected": 0, "unpaired": 0}
+        self.last_state = ""
+        self._warned: dict[str, float] = {}
+        self.keys = self._keys(ros_domain)
+
+    def _keys(self, ros_domain: int) -> dict[str, tuple[str, str]]:
+        """Key expression -> (what, camera) for every subscription."""
+        keys = {}
+        for camera in self.cell.cameras:
+            keys[wire.depth_key(self.cell.cell, camera.name)] = ("depth", camera.name)
+            keys[wire.labels_key(self.cell.cell, camera.name)] = ("labels", camera.name)
+        robot = self.cell.robot
+        if robot is not None:
+            if robot.joints_source == "ros2":
+                keys[topic_key(ros_domain, robot.ros2_topic, JOINT_STATE_TYPE)] = ("ros2", "")
+            else:
+                keys[joint_wire.joints_key(self.cell.cell, robot.name)] = ("joints", "")
+        return keys
+
+    def warn(self, what: str, message: str, *args) -> None:
+        """Log `message` at most every WARN_EVERY_S per `what`."""
+        now = time.monotonic()
+        if now - self._warned.get(what, -WARN_EVERY_S) >= WARN_EVERY_S:
+            self._warned[what] = now
+            log.warning(message, *args)
+
+    def handle(self, key: str, data: bytes, received_ns: int) -> bool:
+        """Take one message; True when it was a labelled frame that was decided on."""
+        what, camera = self.keys.get(key, ("", ""))
+        try:
+            if what == "depth":
+                frame = wire.decode_depth(data)
+                pending = self.pending[camera]
+                pending[frame.seq] = frame
+                while len(pending) > PENDING_DEPTH:
+                    pending.popitem(last=False)
+                return False
+            if what == "labels":
+                return self._labels(camera, wire.decode_labels(data), received_ns)
+            if what in ("joints", "ros2"):
+                decode = joint_wire.decode_joint_state if what == "joints" else (
+                    joint_wire.decode_ros2_joint_state)  # fmt: skip
+                self.monitor.joint_state(decode(data), received_ns)
+                return False
+        except (WireError, ValueError) as exc:
+            self.counts["rejected"] += 1
+            self.warn(
+                f"rejected {what}", "dropped a message on %s: %s (%d dropped so far)",
+                printable(key), printable(exc), self.counts["rejected"],
+            )  # fmt: skip
+        return False
+
+    def _labels(self, camera: str, labels: wire.LabelFrame, received_ns: int) -> bool:
+        depth = self.pending[camera].pop(labels.seq, None)
+        if depth is None:
+            self.counts["unpaired"] += 1
+            self.warn(
+                f"unpaired {camera}", "labels of %s seq %d came without their depth frame "
+                "(%d so far): is the worker labelling another driver's frames?",
+                camera, labels.seq, self.counts["unpaired"],
+            )  # fmt: skip
+            return False
+        self.monitor.frame(camera, depth, labels, received_ns)
+        self.counts["frames"] += 1
+        return True
+
+    def publish(self, now_ns: int) -> CellDecision:
+        """Decide now and publish the state."""
+        decided = self.monitor.decision(now_ns)
+        d = decided.decision
+        nearest = decided.nearest
+        pair = None
+        if nearest is not None:
+            pair = (tuple(map(float, nearest.point_m)), tuple(map(float, nearest.link_point_m)))
+        state = safety_wire.SafetyState(
+            seq=self.seq,
+            stamp_ns=now_ns,
+            state=d.state,
+            speed_scale=float(d.speed_scale) if d.state != "stop" else 0.0,
+            min_distance_m=None if nearest is None else float(nearest.distance_m),
+            part=d.part,
+            link=d.link[:256],
+            reaction_ms=decided.reaction_ms,
+            reasons=tuple(safety_wire.cut_reason(r) for r in d.reasons[: safety_wire.MAX_REASONS]),
+            zones=decided.zones,
+            nearest_m=pair,
+            frame=decided.frame,
+        )
+        self.publish_bytes(safety_wire.encode_safety(state))
+        self.seq += 1
+        self.counts["decisions"] += 1
+        self.last_publish = time.monotonic()
+        if d.state != self.last_state:
+            log.info("%s: %s%s", d.state, "; ".join(d.reasons[:3]), "" if d.reasons else "-")
+            self.last_state = d.state
+        return decided
+
+    def status(self) -> str:
+        """One line for systemd and the log."""
+        c = self.counts
+        return (
+            f"cell {self.cell.cell}: {self.last_state or 'starting'}, {c['frames']} frames, "
+            f"{c['decisions']} decisions, {c['rejected']} rejected, {c['unpaired']} unpaired, "
+            f"{self.monitor.counts['joint_states']} joint states"
+        )
+
+
+def load(args: argparse.Namespace) -> tuple[CellConfig, CellRobot | None]:
+    """The cell file and its robot, before Zenoh: a bad file is one line and exit 2."""
+    cell = load_cell(args.cell)
+    robot = None
+    if cell.robot is not None:
+        robot = CellRobot(cell.robot, Path(args.cell).resolve().parent)
+    return cell, robot
+
+
+def run(args: argparse.Namespace) -> int:
+    """Publish the cell's state until SIGTERM/SIGINT."""
+    cell, robot = load(args)
+    if not cell.cameras:
+        raise TopsegError(f"cell file {args.cell}: no [[camera]]: the service has nothing to watch")
+    monitor = CellMonitor(cell, robot)
+    svc = ServiceLifecycle("safety", args)
+    inbox = Inbox(args.queue, stamp=True)
+    period_s = cell.publish_period_ms / 1000.0
+    with svc:
+        session = svc.session
+        me = identity.Identity.of(session)
+        publisher = svc.declare(session.declare_publisher(safety_wire.safety_key(cell.cell)))
+        service = SafetyService(cell, monitor, publisher.put, args.ros_domain)
+        for key in service.keys:
+            svc.declare(session.declare_subscriber(key, inbox.on_sample))
+        svc.declare(
+            session.liveliness().declare_token(safety_wire.safety_alive_key(cell.cell, me.instance))
+        )
+        svc.on_stop(inbox.wake)
+        log.info(
+            "deciding for cell %s from %s%s; publishing on %s",
+            cell.cell,
+            ", ".join(c.name for c in cell.cameras),
+            f" and robot {cell.robot.name}'s joints ({cell.robot.joints_source})" if cell.robot else "",
+            safety_wire.safety_key(cell.cell),
+        )
+        service.publish(time.time_ns())  # `stop`: no frame yet
+        svc.ready(status=service.status)
+        while not svc.stopping:
+            svc.beat()
+            wait = period_s - (time.monotonic() - service.last_publish)
+            item = inbox.get(max(0.0, wait))
+            decided = False
+            if item is not None:
+                key, data, received_ns = item
+                decided = service.handle(key, data, received_ns)
+            if decided or time.monotonic() - service.last_publish >= period_s:
+                service.publish(time.time_ns())
+    log.info("stopped: %s (%d dropped while the queue was full)", service.status(), inbox.dropped)
+    return 0
