@@ -44,7 +44,9 @@ def test_round_trip_keeps_every_field():
 
 
 def test_a_state_with_no_person_and_no_frame_round_trips():
-    state = SafetyState(seq=0, stamp_ns=1, state="stop", speed_scale=0.0, reasons=("cam0: no labelled frame yet",))
+    state = SafetyState(
+        seq=0, stamp_ns=1, state="stop", speed_scale=0.0, reasons=("cam0: no labelled frame yet",)
+    )
     back = decode_safety(encode_safety(state))
     assert back == state
     assert back.min_distance_m is None and back.reaction_ms is None and back.nearest_m is None
@@ -55,7 +57,12 @@ def test_keys():
     token = safety_alive_key("cell1", "abc123")
     assert token == "topseg/cell1/safety/alive/safety/abc123"
     parts = wire.parse_key(token)  # a token of the shape every service holds
-    assert (parts.cell, parts.camera, parts.role, parts.instance) == ("cell1", "safety", "safety", "abc123")
+    assert (parts.cell, parts.camera, parts.role, parts.instance) == (
+        "cell1",
+        "safety",
+        "safety",
+        "abc123",
+    )
     with pytest.raises(WireError):
         safety_key("bad/name")
 

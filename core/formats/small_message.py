@@ -24,7 +24,9 @@ def short(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def unpack_map(data: Any, what: str, max_bytes: int = MAX_SMALL_BYTES, max_items: int = 256) -> dict:
+def unpack_map(
+    data: Any, what: str, max_bytes: int = MAX_SMALL_BYTES, max_items: int = 256
+) -> dict:
     """The msgpack map in `data`; WireError for anything else (not bytes, too long, not
     msgpack, not a map, arrays or strings over the limits)."""
     if not isinstance(data, bytes | bytearray | memoryview):

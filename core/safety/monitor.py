@@ -229,7 +229,9 @@ class CellMonitor:
                 frame = frame or (placement.name, view.seq)
         reaction_ms = None if oldest_stamp is None else max(0.0, (now_ns - oldest_stamp) / 1e6)
         reaction_s = math.inf if reaction_ms is None else reaction_ms / 1000.0
-        decision = decide(self.cell, nearest_all, sorted(occupied), unseen, reaction_s, tuple(faults))
+        decision = decide(
+            self.cell, nearest_all, sorted(occupied), unseen, reaction_s, tuple(faults)
+        )
         zones = zone_states(self.cell, occupied, unseen, decision)
         return CellDecision(decision, reaction_ms, zones, nearest_all, frame)
 
@@ -268,7 +270,9 @@ def floor_heights(depth_mm: np.ndarray, mask: np.ndarray, mount: TopViewMount) -
     return flat.height_map_mm(depth_mm)[mask].astype(np.float64) / 1000.0
 
 
-def mount_points(depth_mm: np.ndarray, v: np.ndarray, u: np.ndarray, mount: TopViewMount) -> np.ndarray:
+def mount_points(
+    depth_mm: np.ndarray, v: np.ndarray, u: np.ndarray, mount: TopViewMount
+) -> np.ndarray:
     """(n, 3) points in the camera's world frame (m) of pixels (v, u) of axis depth `depth_mm`."""
     return mount.camera_to_world(backproject_pixels(depth_mm, v, u, mount.intrinsics))
 

@@ -228,7 +228,9 @@ def run(args: argparse.Namespace) -> int:
             "deciding for cell %s from %s%s; publishing on %s",
             cell.cell,
             ", ".join(c.name for c in cell.cameras),
-            f" and robot {cell.robot.name}'s joints ({cell.robot.joints_source})" if cell.robot else "",
+            f" and robot {cell.robot.name}'s joints ({cell.robot.joints_source})"
+            if cell.robot
+            else "",
             safety_wire.safety_key(cell.cell),
         )
         service.publish(time.time_ns())  # `stop`: no frame yet

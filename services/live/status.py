@@ -17,6 +17,10 @@ of `--timeout` seconds:
   estimate; "MOVED" when the worker saw the camera move); and a line when, in the window,
   the depth's `seq` started again or jumped ahead or its stamps lay off the worker's clock
   (the worker's `seq_resets`, `seq_jumps`, `stamps_out_of_window`);
+- each cell's safety service (`services/live/status_safety.py`): alive or DOWN, its state
+  now, how often each state held in the window, reaction time p50/p99 and why it is not
+  clear; a `stop` is the cell's state and does not change the exit status, a safety
+  service that went down in the window does;
 - the static cell's recorded background, when the worker has one (BG: `on`, or `MISMATCH`
   with a line saying how much of it read farther than recorded: a fixture or the camera
   moved, and the worker labels without it until it matches again).
@@ -64,13 +68,22 @@ import zenoh
 
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
+from topseg.core.formats.safety_wire import decode_safety
 from topseg.core.metrics import percentile
 from topseg.core.printable import printable
 from topseg.services.cli.options import finite, parse_camera
+from topseg.services.live.status_safety import (
+    format_safety,
+    is_safety_token,
+    safety_ok,
+    safety_rows,
+)
 from topseg.services.runtime import zenoh_session
 
 log = logging.getLogger("topseg.status")
 
+#: The most safety states kept per cell in one window (a cell publishes ~30 a second).
+MAX_SAFETY_STATES = 100_000
 #: The roles whose absence makes a camera DOWN.
 REQUIRED_ROLES = ("driver", "worker")
 #: the key under which a stats message keeps the id of the worker that sent it (from its
@@ -135,6 +148,9 @@ class Observed:
     info_end: dict = field(default_factory=dict)
     window_s: float = 0.0
     incomplete: list = field(default_factory=list)  # queries cut off at their deadline
+    safety_alive: set = field(default_factory=set)  # cells whose safety service is alive
+    safety_went_down: set = field(default_factory=set)
+    safety: dict = field(default_factory=dict)  # cell -> [SafetyState] in the window
 
 
 def _info_count(info: dict, name: str) -> int | None:
@@ -329,11 +345,14 @@ def report(seen: Observed, expect: list[tuple[str, str]] = ()) -> dict:
                 "problems": problems,
             }
         )
-    ok = bool(rows) and all(r["ok"] for r in rows)
+    safety = safety_rows(seen.safety_alive, seen.safety_went_down, seen.safety, seen.window_s)
+    ok = bool(rows) and all(r["ok"] for r in rows) and safety_ok(safety)
     any_workers = [
         {"instance": inst, "cameras": len(cams)} for inst, cams in sorted(seen.any_workers.items())
     ]
     rep = {"window_s": round(seen.window_s, 3), "ok": ok, "cameras": rows}
+    if safety:
+        rep["safety"] = safety
     if any_workers:
         rep["any_camera_workers"] = any_workers
     if seen.incomplete:
@@ -351,12 +370,20 @@ def observed_tokens(tokens: set, went_down: set) -> Observed:
     for cell, camera, role, inst in tokens:
         if cell == wire.ANY:
             continue
+        if is_safety_token(camera, role):
+            seen.safety_alive.add(cell)
+            continue
         seen.alive.add((cell, camera, role))
         seen.instances.setdefault((cell, camera, role), set()).add(inst or "?")
         if inst in seen.any_workers:
             seen.any_workers[inst].add((cell, camera))
     # a token deleted and never seen again is down; one that came back is alive
-    seen.went_down = {(c, cam, r) for c, cam, r, _ in went_down if c != wire.ANY} - seen.alive
+    seen.went_down = {
+        (c, cam, r) for c, cam, r, _ in went_down if c != wire.ANY and not is_safety_token(cam, r)
+    } - seen.alive
+    seen.safety_went_down = {
+        c for c, cam, r, _ in went_down if is_safety_token(cam, r)
+    } - seen.safety_alive
     return seen
 
 
@@ -444,6 +471,7 @@ def format_table(rep: dict) -> str:
                 + printable(row["driver"]["last_error"], MAX_LINE_TEXT)
             )
     out += waiting
+    out += format_safety(rep.get("safety", []))
     for what in rep.get("incomplete", ()):
         out.append(f"warning: the query for {what} did not end in time; cameras may be missing")
     verdict = "all cameras up" if rep["ok"] else "PROBLEM: see the lines above"
@@ -518,6 +546,8 @@ class Listener:
             for key in self.alive_keys
         ]
         self._subs.append(session.declare_subscriber(f"topseg/{cell}/*/stats", self._on_stats))
+        self.safety: dict = {}
+        self._subs.append(session.declare_subscriber(f"topseg/{cell}/safety", self._on_safety))
 
     def _on_token(self, sample) -> None:
         try:
@@ -543,6 +573,17 @@ class Listener:
         stats[INSTANCE_FIELD] = wire.instance_of(sample.attachment)
         with self.lock:
             self.stats.setdefault(camera, []).append(stats)
+
+    def _on_safety(self, sample) -> None:
+        try:
+            state = decode_safety(sample.payload.to_bytes())
+        except wire.WireError:
+            return
+        cell = str(sample.key_expr).split("/")[1]
+        with self.lock:
+            got = self.safety.setdefault(cell, [])
+            if len(got) < MAX_SAFETY_STATES:
+                got.append(state)
 
     def info(self, timeout: float):
         """Ask every driver's info queryable; the returned callable collects the replies as
@@ -603,7 +644,7 @@ class Listener:
         (those queries wait at most a third of the window, 1 s at most, for slow repliers)."""
         t0 = time.monotonic()
         with self.lock:
-            self.stats, self.went_down = {}, set()
+            self.stats, self.went_down, self.safety = {}, set(), {}
         self.incomplete = []
         query_s = max(0.2, min(1.0, seconds / 3))
         start = self.info(query_s)()
@@ -623,6 +664,9 @@ class Listener:
                 info_end=end,
                 incomplete=sorted(set(self.incomplete)),
                 window_s=time.monotonic() - t0,
+                safety_alive=seen.safety_alive,
+                safety_went_down=seen.safety_went_down,
+                safety={k: list(v) for k, v in self.safety.items()},
             )
         return seen
 
