@@ -1295,3 +1295,41 @@ def vote_surfaces_reference(labels_in, depth, step_mm, voting, bin_mm):
             surfaces += 1
             lab[flip] = winner
     return lab, changed, surfaces
+
+
+# --- safety: separation ---------------------------------------------------------------------
+
+
+def capsule_distances_reference(points, a, b, radius):
+    """`separation.point_distances` in numpy: every point against every capsule at once;
+    (n,) distance to the nearest capsule's surface (0 inside) and (n,) its index."""
+    points = np.asarray(points, np.float64)[:, None, :]  # (n, 1, 3)
+    axis = (b - a)[None]  # (1, m, 3)
+    length2 = np.einsum("...i,...i->...", axis, axis)
+    along = np.einsum("...i,...i->...", points - a[None], axis)
+    t = np.clip(np.divide(along, length2, out=np.zeros_like(along), where=length2 > 0), 0, 1)
+    closest = a[None] + t[..., None] * axis
+    d = np.linalg.norm(points - closest, axis=-1) - radius[None]  # (n, m)
+    index = np.argmin(d, axis=1)
+    return np.maximum(d[np.arange(len(d)), index], 0.0), index
+
+
+def label4_reference(mask):
+    """`separation.label4` with scipy: 4-connected components numbered in raster order of
+    their first pixel (ndimage's own order), -1 off the mask."""
+    ids, count = ndimage.label(mask)
+    return ids.astype(np.int32) - 1, int(count)
+
+
+def grow_mask_reference(mask, ru, rv):
+    """`robot._grow_kernel` in numpy: the mask shifted by every integer offset (du, dv)
+    with (du / ru)^2 + (dv / rv)^2 <= 1, or-ed together."""
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    padded = np.zeros((h + 2 * h, w + 2 * w), bool)
+    padded[h : 2 * h, w : 2 * w] = mask
+    for dv in range(-int(rv), int(rv) + 1):
+        for du in range(-int(ru), int(ru) + 1):
+            if (du / ru) ** 2 + (dv / rv) ** 2 <= 1 + 1e-12:
+                out |= padded[h - dv : 2 * h - dv, w - du : 2 * w - du]
+    return out

@@ -499,6 +499,32 @@ class RobotModel:
             [pts @ world_rot[i].T + world_pos[i] for i, pts in enumerate(self._hull_points)]
         )
 
+    @property
+    def links(self) -> tuple[str, ...]:
+        """The links that have geometry, in the order of `link_poses` and `link_shapes`."""
+        return tuple(self._links)
+
+    def link_poses(self, joints, base_pos, base_quat) -> np.ndarray:
+        """(k, 4, 4) rigid world poses of `links` at `joints`; a link's shapes
+        (`link_shapes`, already at the model's scale) map to the world through them."""
+        poses = self._poses(joints, self._links)
+        rot, pos = self._to_world(base_pos, base_quat)
+        out = np.zeros_like(poses)
+        out[:, :3, :3] = rot @ poses[:, :3, :3]
+        out[:, :3, 3] = pos + self._scale * poses[:, :3, 3] @ rot.T
+        out[:, 3, 3] = 1.0
+        return out
+
+    def link_shapes(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Link `links[index]`'s geometry in its own frame, at the model's scale: (m, 3) the
+        corners of its meshes' convex hull, and its primitives' kinds, sizes and (p, 4, 4)
+        poses (as `render.Primitives` reads kind and size)."""
+        chosen = self._prim_link == index
+        poses = self._prim_pose[chosen].copy()
+        poses[:, :3, 3] *= self._scale
+        hull = self._scale * self._hull_points[index].reshape(-1, 3)
+        return hull, self._prim_kind[chosen].copy(), self._scale * self._prim_size[chosen], poses
+
     def tool_position(self, joints, base_pos, base_quat) -> np.ndarray:
         """The tool link's origin in the world frame."""
         pose = self._poses(joints, [self.tool_link])[0]

@@ -1,0 +1,278 @@
+"""The separation of people from the robot: human pixels as cell-frame points, and the
+nearest pair of a human point and the robot's bounding capsules.
+
+`human_points` back-projects every pixel labelled as a human part (`labels.HUMAN_IDS`) that
+has depth, through the camera's mount (a `radial` camera's frame read as depth first) into
+the camera's world frame and by the camera's placement into the cell frame; its blobs are
+the 4-connected components of those pixels (one blob is roughly one person: two people who
+touch in the image are one blob).
+
+`nearest` measures each point's distance to the surface of the nearest capsule (0 inside
+one, never negative) with a numba kernel, then the overall nearest pair and the nearest per
+blob. The capsules bound the robot's links (`robot.CellRobot.capsules`), so the distance is
+never more than the true one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from topseg.core import labels
+from topseg.core.camera import backproject_pixels
+from topseg.core.union_find import find_root
+
+_IS_HUMAN = np.zeros(256, bool)
+_IS_HUMAN[list(labels.HUMAN_IDS)] = True
+
+
+@dataclass(frozen=True, eq=False)
+class Capsules:
+    """Bounding capsules in the cell frame: capsule i is every point within `radius[i]` of
+    the segment `a[i]`..`b[i]` (a == b: a sphere), bounding the link named `link[i]`."""
+
+    a: np.ndarray
+    b: np.ndarray
+    radius: np.ndarray
+    link: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.radius)
+
+
+@dataclass(frozen=True, eq=False)
+class HumanPoints:
+    """The human pixels of one camera's frame as cell-frame points.
+
+    `points_m` (n, 3) float64 cell frame; `part` (n,) uint8 their label ids; `rows`, `cols`
+    (n,) int32 their pixels (v, u); `blob` (n,) int32 the 4-connected component of human
+    pixels each belongs to, 0 .. blob_count - 1 in raster order of their first pixel;
+    `shape` the frame's (height, width).
+    """
+
+    points_m: np.ndarray
+    part: np.ndarray
+    rows: np.ndarray
+    cols: np.ndarray
+    blob: np.ndarray
+    blob_count: int
+    shape: tuple[int, int]
+
+    def __len__(self) -> int:
+        return len(self.part)
+
+    @property
+    def pixel_index(self) -> np.ndarray:
+        """(n,) int64 flat pixel index of each point, `row * width + col`."""
+        return self.rows.astype(np.int64) * self.shape[1] + self.cols
+
+
+@dataclass(frozen=True)
+class PersonSeparation:
+    """One blob of human pixels: its nearest point's distance to the robot, that point's
+    part (label id) and the robot link nearest to it, and how many pixels the blob has."""
+
+    blob: int
+    distance_m: float
+    part: int
+    link: str
+    pixel_count: int
+
+
+@dataclass(frozen=True, eq=False)
+class Nearest:
+    """The nearest pair of a human point and the robot (cell frame, metres): its distance
+    (0 when the point is inside a capsule), the point's part (label id), the link,
+    the human point and the nearest point of that link's capsule; and the same per blob."""
+
+    distance_m: float
+    part: int
+    link: str
+    point_m: np.ndarray
+    link_point_m: np.ndarray
+    per_person: tuple[PersonSeparation, ...]
+
+
+def human_points(depth_mm: np.ndarray, label_img: np.ndarray, mount, placement) -> HumanPoints:
+    """The human pixels with depth of a frame as cell-frame points with their parts, pixels
+    and blobs. `mount` is the camera's `TopViewMount`, `placement` its `CameraPlacement` (any
+    object with `to_cell(points_world)`); ValueError when the frames' shapes do not match
+    the camera's."""
+    k = mount.intrinsics
+    depth_mm = np.asarray(depth_mm)
+    label_img = np.asarray(label_img)
+    if depth_mm.shape != k.shape or label_img.shape != k.shape:
+        raise ValueError(
+            f"depth {depth_mm.shape} and labels {label_img.shape} must both be the camera's "
+            f"{k.shape} (height, width)"
+        )
+    depth_mm = mount.z_depth(depth_mm)
+    human = _IS_HUMAN[label_img] & (depth_mm > 0)
+    blob_img, blob_count = label4(human)
+    rows, cols = np.nonzero(human)
+    camera_points = backproject_pixels(depth_mm, rows, cols, k).astype(np.float64)
+    world = mount.camera_to_world(camera_points)
+    cell = np.asarray(placement.to_cell(world), np.float64).reshape(-1, 3)
+    return HumanPoints(
+        points_m=cell,
+        part=label_img[rows, cols].astype(np.uint8),
+        rows=rows.astype(np.int32),
+        cols=cols.astype(np.int32),
+        blob=blob_img[rows, cols],
+        blob_count=blob_count,
+        shape=(int(k.height), int(k.width)),
+    )
+
+
+def label4(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """(H, W) int32 4-connected component ids of `mask`'s pixels (-1 elsewhere), numbered
+    0.. in raster order of each component's first pixel, and how many there are."""
+    mask = np.ascontiguousarray(mask, dtype=np.bool_)
+    out = np.empty(mask.shape, np.int32)
+    count = _label4_kernel(mask, out)
+    return out, int(count)
+
+
+@numba.njit(cache=True)
+def _label4_kernel(mask, out):
+    """Union-find over the mask's 4-neighbours, then roots renumbered in raster order."""
+    h, w = mask.shape
+    parent = np.arange(h * w, dtype=np.int32)
+    for v in range(h):
+        for u in range(w):
+            if not mask[v, u]:
+                continue
+            i = v * w + u
+            if u > 0 and mask[v, u - 1]:
+                _union(parent, i, i - 1)
+            if v > 0 and mask[v - 1, u]:
+                _union(parent, i, i - w)
+    ids = np.full(h * w, -1, np.int32)
+    count = 0
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = -1
+            if not mask[v, u]:
+                continue
+            root = find_root(parent, v * w + u)
+            if ids[root] < 0:
+                ids[root] = count
+                count += 1
+            out[v, u] = ids[root]
+    return count
+
+
+@numba.njit(cache=True)
+def _union(parent, a, b):
+    """Join the trees of a and b, the smaller root under the larger's."""
+    ra = find_root(parent, a)
+    rb = find_root(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
+@numba.njit(cache=True)
+def _nearest_kernel(points, a, b, radius, distance, capsule):
+    """Per point: the distance to the nearest capsule's surface (0 inside) and its index."""
+    n = points.shape[0]
+    m = a.shape[0]
+    for i in range(n):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        best = np.inf
+        best_j = -1
+        for j in range(m):
+            d = _segment_distance(px, py, pz, a[j], b[j]) - radius[j]
+            if d < best:
+                best = d
+                best_j = j
+        distance[i] = max(best, 0.0)
+        capsule[i] = best_j
+
+
+@numba.njit(cache=True, inline="always")
+def _segment_distance(px, py, pz, a, b):
+    """Distance from (px, py, pz) to the segment a..b (a point when a == b)."""
+    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    wx, wy, wz = px - a[0], py - a[1], pz - a[2]
+    length2 = ex * ex + ey * ey + ez * ez
+    t = 0.0
+    if length2 > 0.0:
+        t = min(max((wx * ex + wy * ey + wz * ez) / length2, 0.0), 1.0)
+    dx, dy, dz = wx - t * ex, wy - t * ey, wz - t * ez
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+def point_distances(points_m: np.ndarray, capsules: Capsules) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) float64 distance of each point to the nearest capsule's surface (0 inside one)
+    and (n,) int32 that capsule's index; the kernel behind `nearest`."""
+    points = np.ascontiguousarray(points_m, np.float64).reshape(-1, 3)
+    distance = np.empty(len(points), np.float64)
+    capsule = np.empty(len(points), np.int32)
+    _nearest_kernel(
+        points,
+        np.ascontiguousarray(capsules.a, np.float64).reshape(-1, 3),
+        np.ascontiguousarray(capsules.b, np.float64).reshape(-1, 3),
+        np.ascontiguousarray(capsules.radius, np.float64).reshape(-1),
+        distance,
+        capsule,
+    )
+    return distance, capsule
+
+
+def nearest(points: HumanPoints, capsules: Capsules) -> Nearest | None:
+    """The nearest pair of a human point and a robot capsule, overall and per blob; None
+    when there is no human point or no capsule."""
+    if len(points) == 0 or len(capsules) == 0:
+        return None
+    distance, capsule = point_distances(points.points_m, capsules)
+    i = int(np.argmin(distance))
+    j = int(capsule[i])
+    point = points.points_m[i].copy()
+    return Nearest(
+        distance_m=float(distance[i]),
+        part=int(points.part[i]),
+        link=capsules.link[j],
+        point_m=point,
+        link_point_m=surface_point(point, capsules, j),
+        per_person=_per_person(points, distance, capsule, capsules.link),
+    )
+
+
+def surface_point(point: np.ndarray, capsules: Capsules, j: int) -> np.ndarray:
+    """The point of capsule j's surface nearest to `point` (the point itself inside it)."""
+    a, b = np.asarray(capsules.a[j], np.float64), np.asarray(capsules.b[j], np.float64)
+    axis = b - a
+    length2 = float(axis @ axis)
+    t = 0.0 if length2 == 0.0 else float(np.clip((point - a) @ axis / length2, 0.0, 1.0))
+    centre = a + t * axis
+    offset = point - centre
+    dist = float(np.linalg.norm(offset))
+    r = float(capsules.radius[j])
+    if dist <= r:
+        return point.copy()
+    return centre + offset * (r / dist)
+
+
+def _per_person(points: HumanPoints, distance, capsule, links) -> tuple[PersonSeparation, ...]:
+    """The nearest point of every blob, in blob order."""
+    order = np.lexsort((distance, points.blob))  # by blob, nearest first within it
+    blobs = points.blob[order]
+    first = np.flatnonzero(np.r_[True, blobs[1:] != blobs[:-1]])
+    counts = np.diff(np.r_[first, len(order)])
+    out = []
+    for start, count in zip(first, counts, strict=True):
+        i = order[start]
+        out.append(
+            PersonSeparation(
+                blob=int(points.blob[i]),
+                distance_m=float(distance[i]),
+                part=int(points.part[i]),
+                link=links[int(capsule[i])],
+                pixel_count=int(count),
+            )
+        )
+    return tuple(out)
