@@ -33,8 +33,10 @@ from typing import Any
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.camera import TopViewMount
 from topseg.core.config import describe, from_dict, suggest
 from topseg.core.errors import ConfigError
+from topseg.core.formats.mount_file import read_mount_file
 from topseg.core.synth.robots import RANDOM, ROBOTS
 
 #: a cell, camera, robot or zone name: a plain Zenoh key chunk, as the wire's names
@@ -92,16 +94,22 @@ class CameraPlacement:
     """Where a camera hangs over the cell (`[[camera]]`): its world frame (`TopViewMount`'s,
     origin on the floor under the camera centre) is the cell frame turned by `yaw_deg` about
     z and moved by (`x_m`, `y_m`): `p_cell = Rz(yaw) @ p_cam_world + (x, y, 0)`. `name` is
-    the camera's name on the wire (`topseg/<cell>/<camera>/labels`)."""
+    the camera's name on the wire (`topseg/<cell>/<camera>/labels`). `mount_file`: the
+    camera's mount file (`topseg calibrate`), for frames that carry no mount; "" when the
+    frames carry it (`topseg driver --mount`). The loader reads it into `mount`."""
 
     name: str = "cam0"
     x_m: float = 0.0
     y_m: float = 0.0
     yaw_deg: float = 0.0
+    mount_file: str = ""
+    mount: TopViewMount | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         _check_name("camera name", self.name)
         _check_finite(x_m=self.x_m, y_m=self.y_m, yaw_deg=self.yaw_deg)
+        if self.mount is not None and not isinstance(self.mount, TopViewMount):
+            raise ValueError("mount is read from mount_file; give the mount file's path")
 
     def rotation(self) -> np.ndarray:
         """(3, 3) Rz(yaw): camera world -> cell directions."""
@@ -490,7 +498,8 @@ def cell_from_dict(table: dict, source: str, base_dir: Path | None = None) -> Ce
     if "robot" in table:
         kwargs["robot"] = _robot(table["robot"], source, base_dir)
     if "camera" in table:
-        kwargs["cameras"] = _array(CameraPlacement, table["camera"], source, "camera")
+        cameras = _array(CameraPlacement, table["camera"], source, "camera")
+        kwargs["cameras"] = tuple(_with_mount(c, source, base_dir) for c in cameras)
     if "zone" in table:
         kwargs["zones"] = _array(Zone, table["zone"], source, "zone")
     if "separation" in table:
@@ -521,6 +530,20 @@ def _robot(table: Any, source: str, base_dir: Path | None) -> RobotSpec:
     if not path.is_file():
         raise ConfigError(f"{where}: urdf {spec.urdf!r}: no such file ({path})")
     return replace(spec, urdf=str(path))
+
+
+def _with_mount(camera: CameraPlacement, source: str, base_dir: Path | None) -> CameraPlacement:
+    """The placement with its mount file (resolved against `base_dir`) read into `mount`."""
+    if not camera.mount_file:
+        return camera
+    path = Path(camera.mount_file).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    try:
+        mount = read_mount_file(path)
+    except ConfigError as exc:
+        raise ConfigError(f"{source} [camera {camera.name!r}]: {exc}") from None
+    return replace(camera, mount_file=str(path), mount=mount)
 
 
 def _array(cls: type, items: Any, source: str, key: str) -> tuple:

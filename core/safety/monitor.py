@@ -36,12 +36,16 @@ from topseg.core import labels as label_table
 from topseg.core.camera import TopViewMount, axis_depth, backproject_pixels
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import DepthFrame, LabelFrame
+from topseg.core.resolution import decimate, decimated_mount
 from topseg.core.safety.cell import CameraPlacement, CellConfig
 from topseg.core.safety.decision import Decision, decide
-from topseg.core.safety.robot import Capsules, CellRobot
-from topseg.core.safety.separation import HumanPoints, Nearest, human_points, nearest
+from topseg.core.safety.robot import CellRobot
+from topseg.core.safety.separation import Capsules, HumanPoints, Nearest, human_points, nearest
 from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
 
+#: The widest frame the monitor reads at its own resolution (pixels); wider ones are read at
+#: every n-th pixel (a 640x480 Kinect's at 320x240: 1.1 cm of floor a pixel from 3 m).
+WORKING_WIDTH = 320
 #: A blob of human pixels smaller than this on the floor plane (m^2) is noise, not a person.
 MIN_PERSON_AREA_M2 = 0.01
 #: A camera whose image has depth on less than this share of its pixels is blinded.
@@ -58,6 +62,10 @@ MIN_BACKGROUND_SHARE = 0.05
 SILHOUETTE_MARGIN_M = 0.03
 #: A pixel this much (m) nearer the camera than the rendered robot is in front of it.
 IN_FRONT_M = 0.06
+#: The robot is rendered at every this-many pixels of the working frame.
+SILHOUETTE_STEP = 1
+#: The widest (pixels) the rendered robot's depth is carried across the silhouette's margin.
+MAX_REACH_PX = 60
 #: Without a joint state the robot's pixels stand for it, thinned to one point per cell of
 #: this side (m).
 ROBOT_POINT_GRID_M = 0.03
@@ -157,17 +165,20 @@ class CellMonitor:
                            "gives none): run topseg calibrate",)  # fmt: skip
             self.views[camera] = view
             return view
-        depth_mm = axis_depth(depth.depth, mount)
-        view.faults = camera_faults(camera, depth_mm, labels.labels, mount)
+        factor = working_factor(mount)
+        mount = decimated_mount(mount, factor)
+        depth_mm = axis_depth(decimate(depth.depth, factor), mount)
+        lab = np.ascontiguousarray(labels.labels[::factor, ::factor])
+        view.faults = camera_faults(camera, depth_mm, lab, mount)
         joints = self.fresh_joints(now_ns)
         capsules: Capsules | None = None
-        lab = labels.labels
         shadow = np.zeros(lab.shape, bool)
         if self.robot is not None and joints is not None:
             capsules = self.robot.capsules(joints)
-            margin = SILHOUETTE_MARGIN_M + self.joints_age_s(now_ns) * self.cell.robot.max_speed_mps
-            robot_depth, grown = self.robot.silhouette(joints, mount, placement, margin)
-            lab = robot_pixels(lab, depth_mm, robot_depth, grown)
+            age_s = self.joints_age_s(now_ns)
+            margin = SILHOUETTE_MARGIN_M + age_s * self.cell.robot.max_speed_mps
+            robot_depth, grown = silhouette(self.robot, joints, mount, placement, margin)
+            lab = robot_pixels(lab, depth_mm, axis_depth(robot_depth, mount), grown, margin, mount)
             shadow = grown
             view.robot_source = "joints"
         elif self.robot is not None:
@@ -178,9 +189,15 @@ class CellMonitor:
         people = people_points(depth_mm, lab, mount, placement)
         if capsules is not None and people is not None:
             view.nearest = nearest(people, capsules)
+        elif self.robot is not None and people is not None:
+            view.faults += (
+                f"{camera}: a person in view and robot {self.cell.robot.name} nowhere known "
+                "(no fresh joint state, no pixel labelled robot)",
+            )
         masks = self._masks(camera, mount, placement)
         if people is not None:
-            view.occupied = frozenset(occupied_zones(masks, people))
+            pixels = np.stack([people.rows, people.cols], axis=1)
+            view.occupied = frozenset(occupied_zones(masks, people.points_m, pixels))
         view.unseen = unseen_fraction(masks, depth_mm, shadow)
         self.views[camera] = view
         return view
@@ -239,6 +256,12 @@ class CellMonitor:
 # ---------------------------------------------------------------------------- pure steps
 
 
+def working_factor(mount: TopViewMount) -> int:
+    """Every how many pixels the monitor reads a frame: the frame's own up to WORKING_WIDTH
+    pixels across, every second pixel of every second row of a 640-wide frame."""
+    return max(1, math.ceil(mount.intrinsics.width / WORKING_WIDTH))
+
+
 def camera_faults(
     camera: str, depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount
 ) -> tuple[str, ...]:
@@ -277,41 +300,78 @@ def mount_points(
     return mount.camera_to_world(backproject_pixels(depth_mm, v, u, mount.intrinsics))
 
 
+def silhouette(
+    robot: CellRobot, joints: dict[str, float], mount: TopViewMount, placement, margin_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's rendered depth and grown silhouette at the working resolution of `mount`,
+    rendered at every SILHOUETTE_STEP-th pixel (ray casting the robot's meshes is most of the
+    monitor's time) and spread back over the pixels between; the margin grows by the pixels
+    that skips so the mask never comes out smaller."""
+    step = SILHOUETTE_STEP
+    coarse = decimated_mount(mount, step)
+    pad = step * mount.floor_pixel_mm() / 1000.0
+    depth, grown = robot.silhouette(joints, coarse, placement, margin_m + pad)
+    h, w = mount.intrinsics.shape
+    depth = np.repeat(np.repeat(depth, step, axis=0), step, axis=1)[:h, :w]
+    grown = np.repeat(np.repeat(grown, step, axis=0), step, axis=1)[:h, :w]
+    return depth, grown
+
+
 def robot_pixels(
-    lab: np.ndarray, depth_mm: np.ndarray, robot_depth_mm: np.ndarray, grown: np.ndarray
+    lab: np.ndarray,
+    depth_mm: np.ndarray,
+    robot_depth_mm: np.ndarray,
+    grown: np.ndarray,
+    margin_m: float,
+    mount: TopViewMount,
 ) -> np.ndarray:
     """The labels with the robot's own pixels made `robot`: inside the grown silhouette,
-    every pixel with depth that is not in front of the rendered robot (nearer the camera by
-    more than IN_FRONT_M) and not background. A person's hand over a link is in front of it
-    and keeps its label; the floor beside a link keeps background."""
-    rendered = robot_depth_mm.astype(np.float64)
-    rendered[robot_depth_mm == 0] = np.inf
-    nearest_robot = ndimage.grey_erosion(rendered, footprint=_disk(_grow_radius_px(grown)))
-    in_front = depth_mm.astype(np.float64) < nearest_robot - IN_FRONT_M * 1000.0
-    take = grown & (depth_mm > 0) & ~in_front & (lab != label_table.BACKGROUND)
+    every pixel with depth that is not background and not in front of the rendered robot
+    (nearer the camera by more than IN_FRONT_M than the nearest rendered robot within the
+    margin). A person's hand over a link is in front of it and keeps its label; the floor
+    beside a link keeps background. All depths are along the optical axis (mm)."""
     out = lab.copy()
+    robot = robot_depth_mm > 0
+    if not robot.any():
+        return out
+    rendered = np.where(robot, robot_depth_mm.astype(np.float32), np.float32(np.inf))
+    near_m = float(robot_depth_mm[robot].min()) / 1000.0
+    k = mount.intrinsics
+    reach_px = int(math.ceil(margin_m * max(k.fx, k.fy) / max(near_m, 0.1))) + 1
+    nearest_robot = ndimage.minimum_filter(rendered, size=2 * min(reach_px, MAX_REACH_PX) + 1)
+    in_front = depth_mm.astype(np.float32) < nearest_robot - np.float32(IN_FRONT_M * 1000.0)
+    take = grown & (depth_mm > 0) & ~in_front & (lab != label_table.BACKGROUND)
     out[take] = label_table.ROBOT
     return out
-
-
-def _grow_radius_px(grown: np.ndarray) -> int:
-    """A neighbourhood wide enough to carry the rendered depth over the silhouette's margin."""
-    return 3 if not grown.any() else 7
-
-
-def _disk(radius: int) -> np.ndarray:
-    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
-    return (xx * xx + yy * yy) <= radius * radius
 
 
 def people_points(
     depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount, placement: CameraPlacement
 ) -> HumanPoints | None:
-    """The human pixels in 3-D, blobs smaller than MIN_PERSON_AREA_M2 left out; None if none."""
+    """The human pixels in 3-D (`separation.human_points`), blobs whose pixels cover less
+    than MIN_PERSON_AREA_M2 of the floor-parallel plane at their depth left out; None when
+    no person is left."""
     if not _HUMAN[lab].any():
         return None
-    points = human_points(depth_mm, lab, mount, placement)
-    return points.without_small_blobs(MIN_PERSON_AREA_M2, mount)
+    people = human_points(depth_mm, lab, mount, placement)
+    if not len(people):
+        return None
+    k = mount.intrinsics
+    z = depth_mm[people.rows, people.cols].astype(np.float64) / 1000.0
+    area = np.bincount(people.blob, weights=z * z / (k.fx * k.fy), minlength=people.blob_count)
+    keep = area[people.blob] >= MIN_PERSON_AREA_M2
+    if keep.all():
+        return people
+    if not keep.any():
+        return None
+    return replace(
+        people,
+        points_m=people.points_m[keep],
+        part=people.part[keep],
+        rows=people.rows[keep],
+        cols=people.cols[keep],
+        blob=people.blob[keep],
+    )
 
 
 def robot_points_as_capsules(

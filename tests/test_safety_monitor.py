@@ -1,0 +1,260 @@
+"""The cell monitor on rendered frames: people near and far, the robot's own pixels from its
+joint state, a hand over a link, zones, and every fault that must give `stop`."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.safety_scenes import MOUNT, person, render
+from topseg.core import labels
+from topseg.core.formats.joint_states import JointState
+from topseg.core.formats.wire import DepthFrame, LabelFrame
+from topseg.core.safety.cell import cell_from_dict
+from topseg.core.safety.monitor import CellMonitor, working_factor
+from topseg.core.safety.robot import CellRobot
+
+T0 = 1_800_000_000_000_000_000
+MS = 1_000_000
+
+CELL = {
+    "cell": "c1",
+    "robot": {"name": "panda", "urdf": "panda", "base_xyz_m": [0.5, 0.0, 0.0]},
+    "camera": [{"name": "cam0"}],
+    "zone": [
+        {"name": "guard", "kind": "protective",
+         "polygon_m": [[-1.4, -1.0], [-0.8, -1.0], [-0.8, -0.4], [-1.4, -0.4]]},
+        {"name": "aisle", "kind": "warning",
+         "polygon_m": [[-1.4, 0.3], [-0.6, 0.3], [-0.6, 1.0], [-1.4, 1.0]]},
+    ],
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return cell_from_dict(CELL, "test cell", Path("."))
+
+
+@pytest.fixture(scope="module")
+def robot(cell):
+    return CellRobot(cell.robot, Path("."))
+
+
+@pytest.fixture(scope="module")
+def joints(robot):
+    values = {n: 0.0 for n in robot.joint_names}
+    values["panda_joint4"] = -1.5  # the elbow bent: the arm reaches out along +x
+    return values
+
+
+def monitor_with_joints(cell, robot, joints, stamp_ns=T0) -> CellMonitor:
+    mon = CellMonitor(cell, robot)
+    mon.joint_state(JointState(stamp_ns, tuple(joints), tuple(joints.values())), stamp_ns)
+    return mon
+
+
+def decide(mon, cell, robot, joints, people, now=T0, **kw):
+    depth, lab = render(cell.cameras[0], robot, joints, people, stamp_ns=now, **kw)
+    view = mon.frame("cam0", depth, lab, now)
+    return view, mon.decision(now + 20 * MS)
+
+
+def test_nobody_in_view_is_clear(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints)
+    view, d = decide(mon, cell, robot, joints, [])
+    assert view.faults == () and view.robot_source == "joints"
+    assert d.decision.state == "clear" and d.decision.speed_scale == 1.0
+    assert d.nearest is None and d.reaction_ms == pytest.approx(20.0)
+    assert d.zones == {"guard": "clear", "aisle": "clear"}
+
+
+def test_a_person_walking_up_slows_then_stops_the_robot(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints)
+    scales, distances = [], []
+    for x in (-1.2, -0.4, 0.2, 0.9):
+        _, d = decide(mon, cell, robot, joints, [person(x, 0.6)])
+        distances.append(d.nearest.distance_m)
+        scales.append(d.decision.speed_scale)
+    assert distances == sorted(distances, reverse=True)
+    assert scales == sorted(scales, reverse=True)
+    assert d.decision.state == "stop" and d.decision.link.startswith("panda_")
+    assert d.decision.part in ("head", "body", "legs")
+
+
+def _capsule_distance(points, caps) -> np.ndarray:
+    ab = caps.b - caps.a
+    ap = points[:, None, :] - caps.a[None]
+    t = np.clip((ap * ab).sum(2) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+    gap = np.linalg.norm(ap - t[..., None] * ab, axis=2) - caps.radius
+    return np.maximum(gap, 0).min(axis=1)
+
+
+def _box_surface(centre, half, step=0.01) -> np.ndarray:
+    axes = [np.arange(-h, h + 1e-9, step) for h in half]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    on_face = (np.abs(np.abs(grid) - half) < step / 2).any(axis=1)
+    return grid[on_face] + centre
+
+
+def test_the_separation_is_that_of_the_persons_body(cell, robot, joints):
+    """The measured distance (from the pixels the camera sees) lies within 5 cm above the
+    distance of the person's whole body to the robot's capsules, never below it."""
+    mon = monitor_with_joints(cell, robot, joints)
+    _, d = decide(mon, cell, robot, joints, [person(-0.6, 0.0)])
+    body = np.concatenate([
+        _box_surface(np.array([-0.6, 0.0, 0.45]), np.array([0.15, 0.1, 0.45])),
+        _box_surface(np.array([-0.6, 0.0, 1.2]), np.array([0.2, 0.12, 0.3])),
+    ])  # fmt: skip
+    truth = _capsule_distance(body, robot.capsules(joints)).min()
+    assert truth - 0.01 <= d.nearest.distance_m <= truth + 0.05
+
+
+def test_robot_pixels_read_as_human_are_the_robot_with_a_fresh_joint_state(cell, robot, joints):
+    """The model labelled the arm as a person: the joint state's silhouette gives those
+    pixels back to the robot, so nobody is there; without a joint state they stand."""
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    wrong = lab.labels.copy()
+    wrong[wrong == labels.ROBOT] = labels.BODY
+    mislabelled = LabelFrame(wrong, lab.seq, lab.stamp_ns, lab.frame_id)
+    mon = monitor_with_joints(cell, robot, joints)
+    mon.frame("cam0", depth, mislabelled, T0)
+    assert mon.decision(T0).decision.state == "clear"
+    blind = CellMonitor(cell, robot)
+    blind.frame("cam0", depth, mislabelled, T0)
+    assert blind.views["cam0"].robot_source == "none"  # no robot pixel left to place it
+    # a person and a robot nobody can place: stop
+    assert blind.decision(T0).decision.state == "stop"
+    assert "nowhere known" in blind.decision(T0).decision.reasons[0]
+
+
+def test_a_stale_joint_state_leaves_the_models_robot_class(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints, stamp_ns=T0 - 5000 * MS)
+    view, d = decide(mon, cell, robot, joints, [person(0.9, 0.6)])
+    assert view.robot_source == "labels"  # the robot's labelled pixels stand for it
+    assert d.nearest is not None and d.nearest.link == "robot pixels"
+    assert d.decision.state == "stop"
+
+
+def test_a_hand_over_a_link_keeps_its_label(cell, robot, joints):
+    """A hand 15 cm above the arm is in front of the rendered robot: still a person's."""
+    caps = robot.capsules(joints)
+    top = int(np.argmax(np.maximum(caps.a[:, 2], caps.b[:, 2])))
+    tip = caps.b[top] if caps.b[top, 2] >= caps.a[top, 2] else caps.a[top]
+    hand = (tip[0], tip[1], tip[2] + caps.radius[top] + 0.15)
+    mon = monitor_with_joints(cell, robot, joints)
+    view, d = decide(mon, cell, robot, joints, [person(1.2, 0.9, hand_at=hand)])
+    assert (view.labels == labels.HAND).sum() > 20
+    assert d.decision.state == "stop" and d.decision.part in ("hand", "lower-arm")
+
+
+def test_small_blobs_are_noise(cell, robot, joints):
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    speck = lab.labels.copy()
+    speck[10:13, 10:13] = labels.HEAD  # 9 px of ~1.3 cm: far below a person's area
+    mon = monitor_with_joints(cell, robot, joints)
+    mon.frame("cam0", depth, LabelFrame(speck, 0, T0, "cam0"), T0)
+    assert mon.decision(T0).nearest is None
+
+
+def test_zones(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints)
+    _, d = decide(mon, cell, robot, joints, [person(-1.0, 0.6)])
+    assert d.zones["aisle"] == "warning" and d.decision.state in ("warning", "stop")
+    _, d = decide(mon, cell, robot, joints, [person(-1.1, -0.7)])
+    assert d.zones["guard"] == "stop" and d.decision.state == "stop"
+    assert any("guard" in r for r in d.decision.reasons)
+
+
+def test_a_protective_zone_the_camera_cannot_see_stops_the_robot(cell, robot, joints):
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    holes = depth.depth.copy()  # the guard's pixels blanked: its floor has no depth
+    mon = monitor_with_joints(cell, robot, joints)
+    masks = mon._masks("cam0", MOUNT, cell.cameras[0])
+    holes[masks.mask("guard")] = 0
+    mon.frame("cam0", DepthFrame(holes, MOUNT.intrinsics, 0, T0, "cam0", MOUNT), lab, T0)
+    d = mon.decision(T0)
+    assert d.decision.state == "stop" and d.zones["guard"] == "stop"
+    assert any("guard" in r and "unseen" in r for r in d.decision.reasons)
+
+
+def test_the_robots_own_shadow_does_not_stop_it(cell, robot, joints):
+    """No depth right beside the robot (a structured-light shadow) inside a protective zone
+    around it is explained by the robot and passes."""
+    table = dict(CELL, zone=[{"name": "robot", "kind": "protective",
+                              "polygon_m": [[0.2, -0.5], [1.6, -0.5], [1.6, 0.5], [0.2, 0.5]]}])  # fmt: skip
+    robot_cell = cell_from_dict(table, "test cell", Path("."))
+    depth, lab = render(robot_cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    shadowed = depth.depth.copy()
+    arm = lab.labels == labels.ROBOT
+    beside = np.roll(arm, 3, axis=1) & ~arm
+    shadowed[beside] = 0
+    mon = monitor_with_joints(robot_cell, robot, joints)
+    mon.frame("cam0", DepthFrame(shadowed, MOUNT.intrinsics, 0, T0, "cam0", MOUNT), lab, T0)
+    assert mon.decision(T0).decision.state == "clear"
+
+
+def test_no_frame_yet_and_stale_frames_stop(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints)
+    d = mon.decision(T0)
+    assert d.decision.state == "stop" and "no labelled frame yet" in d.decision.reasons[0]
+    decide(mon, cell, robot, joints, [])
+    assert mon.decision(T0 + 90 * MS).decision.state == "clear"
+    late = mon.decision(T0 + 150 * MS)
+    assert late.decision.state == "stop" and "150 ms" in late.decision.reasons[0]
+
+
+def test_a_blinded_camera_stops(cell, robot, joints):
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    mon = monitor_with_joints(cell, robot, joints)
+    covered = np.zeros_like(depth.depth)
+    covered[:20] = 400  # a hand over the lens: a few rows of very near depth, the rest none
+    mon.frame("cam0", DepthFrame(covered, MOUNT.intrinsics, 0, T0, "cam0", MOUNT), lab, T0)
+    d = mon.decision(T0)
+    assert d.decision.state == "stop" and "blinded" in d.decision.reasons[0]
+    lens = np.full_like(depth.depth, 300)
+    mon.frame("cam0", DepthFrame(lens, MOUNT.intrinsics, 0, T0, "cam0", MOUNT), lab, T0)
+    assert "blinded" in mon.decision(T0).decision.reasons[0]
+
+
+def test_a_camera_that_moved_stops(cell, robot, joints):
+    """Frames rendered 3.0 m up but sent with the mount of 3.4 m: the floor is off."""
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    told = replace(MOUNT, height_mm=3400.0)
+    mon = monitor_with_joints(cell, robot, joints)
+    mon.frame("cam0", DepthFrame(depth.depth, MOUNT.intrinsics, 0, T0, "cam0", told), lab, T0)
+    d = mon.decision(T0)
+    assert d.decision.state == "stop" and "moved" in d.decision.reasons[0]
+
+
+def test_a_frame_without_a_mount_stops(cell, robot, joints):
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    mon = monitor_with_joints(cell, robot, joints)
+    mon.frame("cam0", DepthFrame(depth.depth, MOUNT.intrinsics, 0, T0, "cam0"), lab, T0)
+    assert "no mount" in mon.decision(T0).decision.reasons[0]
+
+
+def test_two_cameras_see_more_than_one(robot, joints):
+    """The person stands where only the second camera sees them: the cell still stops."""
+    table = dict(CELL, camera=[{"name": "cam0"}, {"name": "cam1", "x_m": 2.5}], zone=[])
+    two = cell_from_dict(table, "test cell", Path("."))
+    mon = monitor_with_joints(two, robot, joints)
+    for placement in two.cameras:
+        depth, lab = render(placement, robot, joints, [person(2.2, 0.0)], stamp_ns=T0,
+                            name=placement.name)  # fmt: skip
+        mon.frame(placement.name, depth, lab, T0)
+    assert mon.views["cam0"].nearest is None and mon.views["cam1"].nearest is not None
+    d = mon.decision(T0)
+    assert d.frame[0] == "cam1" and d.nearest is mon.views["cam1"].nearest
+
+
+def test_a_joint_state_that_misses_joints_is_refused(cell, robot, joints):
+    mon = CellMonitor(cell, robot)
+    with pytest.raises(ValueError, match="panda_joint"):
+        mon.joint_state(JointState(T0, ("panda_joint1",), (0.0,)), T0)
+    assert mon.counts["joint_states_refused"] == 1 and mon.joints is None
+
+
+def test_a_full_resolution_frame_is_read_at_the_working_resolution():
+    big = replace(MOUNT, intrinsics=MOUNT.intrinsics.scaled_to(640, 480))
+    assert working_factor(big) == 2 and working_factor(MOUNT) == 1
