@@ -337,7 +337,7 @@ def robot_pixels(
     rendered = np.where(robot, robot_depth_mm.astype(np.float32), np.float32(np.inf))
     near_m = float(robot_depth_mm[robot].min()) / 1000.0
     k = mount.intrinsics
-    reach_px = int(math.ceil(margin_m * max(k.fx, k.fy) / max(near_m, 0.1))) + 1
+    reach_px = math.ceil(margin_m * max(k.fx, k.fy) / max(near_m, 0.1)) + 1
     nearest_robot = ndimage.minimum_filter(rendered, size=2 * min(reach_px, MAX_REACH_PX) + 1)
     in_front = depth_mm.astype(np.float32) < nearest_robot - np.float32(IN_FRONT_M * 1000.0)
     take = grown & (depth_mm > 0) & ~in_front & (lab != label_table.BACKGROUND)
