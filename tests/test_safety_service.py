@@ -1,0 +1,147 @@
+"""`topseg safety` as a real process on loopback Zenoh: the test publishes rendered depth,
+exact labels and the robot's joint states, and reads the states the service publishes."""
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from netutil import free_port, wait_for
+
+from tests.safety_scenes import person, render
+from topseg.core.formats import joint_states, safety_wire, wire
+from topseg.core.safety.cell import load_cell
+from topseg.core.safety.robot import CellRobot
+from topseg.services.runtime.zenoh_session import open_session
+
+CELL_TOML = """
+cell = "{cell}"
+deadline_ms = 100
+[robot]
+name = "arm"
+urdf = "panda"
+base_xyz_m = [0.5, 0.0, 0.0]
+[[camera]]
+name = "cam0"
+[[zone]]
+name = "guard"
+kind = "protective"
+polygon_m = [[-1.4, -1.0], [-0.8, -1.0], [-0.8, -0.4], [-1.4, -0.4]]
+"""
+
+
+class CellPeer:
+    """The test's session: publishes depth, labels and joints, keeps the safety states."""
+
+    def __init__(self, port: int, cell: str) -> None:
+        self.session = open_session(port=port)
+        self.cell = cell
+        self.states: list[tuple[float, safety_wire.SafetyState]] = []
+        self.lock = threading.Lock()
+        block = zenoh.CongestionControl.BLOCK
+        self.depth = self.session.declare_publisher(wire.depth_key(cell), congestion_control=block)
+        self.labels = self.session.declare_publisher(
+            wire.labels_key(cell), congestion_control=block
+        )
+        self.joints = self.session.declare_publisher(joint_states.joints_key(cell, "arm"))
+        self.session.declare_subscriber(safety_wire.safety_key(cell), self._on_state)
+
+    def _on_state(self, sample) -> None:
+        state = safety_wire.decode_safety(sample.payload.to_bytes())
+        with self.lock:
+            self.states.append((time.monotonic(), state))
+
+    def since(self, t: float) -> list[safety_wire.SafetyState]:
+        with self.lock:
+            return [s for when, s in self.states if when >= t]
+
+    def send(self, placement, robot, joints, people, seq: int) -> None:
+        now = time.time_ns()
+        self.joints.put(joint_states.encode_joint_state(
+            joint_states.JointState(now, tuple(joints), tuple(joints.values()))))  # fmt: skip
+        depth, lab = render(placement, robot, joints, people, seq=seq, stamp_ns=now)
+        self.depth.put(wire.encode_depth(depth))
+        self.labels.put(wire.encode_labels(lab))
+
+    def close(self) -> None:
+        self.session.close()
+
+
+@pytest.fixture(scope="module")
+def cell_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cell") / "cell.toml"
+    path.write_text(CELL_TOML.format(cell="safetytest"))
+    return path
+
+
+def test_the_service_decides_from_frames_and_stops_when_they_stop(run, cell_file):
+    cell = load_cell(cell_file)
+    robot = CellRobot(cell.robot, Path(cell_file).parent)
+    port = free_port()
+    svc = run("safety", "--cell", cell_file, "--zenoh-port", port)
+    peer = CellPeer(port, "safetytest")
+    try:
+        svc.wait_line("deciding for cell safetytest")
+        t0 = time.monotonic()
+        wait_for(lambda: len(peer.since(t0)) >= 3, 30, "states before any frame")
+        first = peer.since(t0)
+        assert all(s.state == "stop" for s in first)
+        assert "no labelled frame" in first[0].reasons[0]
+        gaps = [b.stamp_ns - a.stamp_ns for a, b in zip(first, first[1:], strict=False)]
+        assert max(gaps) < 200_000_000  # published on its own, not only on frames
+
+        joints = {n: 0.0 for n in robot.joint_names}
+        joints["panda_joint4"] = -1.5
+        seq = 0
+
+        def send_until(people, state, what):
+            nonlocal seq
+            t = time.monotonic()
+
+            def got():
+                nonlocal seq
+                seq += 1
+                peer.send(cell.cameras[0], robot, joints, people, seq)
+                return any(s.state == state and s.frame is not None for s in peer.since(t))
+
+            wait_for(got, 30, what)
+            return [s for s in peer.since(t) if s.state == state and s.frame is not None][-1]
+
+        clear = send_until([], "clear", "clear with nobody in view")
+        assert clear.speed_scale == 1.0 and clear.min_distance_m is None
+        assert clear.reaction_ms is not None and clear.reaction_ms < 5000
+        near = send_until([person(0.9, 0.6)], "stop", "stop with a person at the robot")
+        assert near.min_distance_m is not None and near.min_distance_m < 0.5
+        assert near.link.startswith("panda_") and near.part in ("head", "body", "legs")
+        assert near.nearest_m is not None and near.zones == {"guard": "clear"}
+        send_until([], "clear", "clear again once the person left")
+
+        # the frames stop: `stop` within the deadline (100 ms) plus a publish period
+        quiet = time.monotonic()
+        wait_for(lambda: any("no labelled frame for" in " ".join(s.reasons)
+                             for s in peer.since(quiet)), 10, "stop after the frames stopped")  # fmt: skip
+        stale = next(s for s in peer.since(quiet) if s.state == "stop")
+        last_clear = [s for s in peer.since(quiet - 1) if s.state == "clear"]
+        if last_clear:
+            assert (stale.stamp_ns - last_clear[-1].stamp_ns) / 1e6 < 100 + 33 + 50
+
+        # garbage on its keys is dropped and counted; the service goes on
+        peer.labels.put(b"\x93garbage")
+        peer.joints.put(b"not msgpack at all")
+        svc.wait_line("dropped a message on topseg/safetytest/cam0/labels")
+        send_until([], "clear", "clear after the garbage")
+        assert svc.alive()
+    finally:
+        peer.close()
+    assert svc.stop() == 0
+
+
+def test_a_bad_cell_file_is_one_line_and_exit_2(run, tmp_path):
+    bad = tmp_path / "cell.toml"
+    bad.write_text(
+        'cell = "x"\n[[zone]]\nname = "z"\nkind = "protective"\npolygon_m = [[0, 0], [1, 1]]\n'
+    )
+    svc = run("safety", "--cell", bad, "--zenoh-port", free_port())
+    assert svc.proc.wait(60) == 2
+    assert "zone" in svc.err and "Traceback" not in svc.err
