@@ -10,7 +10,9 @@ import zenoh
 from netutil import free_port, wait_for
 
 from tests.safety_scenes import person, render
+from topseg.core import labels
 from topseg.core.formats import joint_states, safety_wire, wire
+from topseg.core.formats.rmw_zenoh import topic_key
 from topseg.core.safety.cell import load_cell
 from topseg.core.safety.robot import CellRobot
 from topseg.services.runtime.zenoh_session import open_session
@@ -142,3 +144,54 @@ def test_a_bad_cell_file_is_one_line_and_exit_2(run, tmp_path):
     svc = run("safety", "--cell", bad, "--zenoh-port", free_port())
     assert svc.proc.wait(60) == 2
     assert "zone" in svc.err and "Traceback" not in svc.err
+
+
+def test_joint_states_from_ros2_give_the_robot_its_own_pixels(run, tmp_path):
+    """The model read the whole arm as a person: with no joint state the service stops (a
+    person, and a robot nowhere known); with the robot's ROS 2 /joint_states the arm's
+    pixels are the robot's and the cell is clear."""
+    path = tmp_path / "cell.toml"
+    path.write_text(CELL_TOML.format(cell="rostest").replace(
+        'base_xyz_m = [0.5, 0.0, 0.0]', 'base_xyz_m = [0.5, 0.0, 0.0]\njoints_source = "ros2"'))  # fmt: skip
+    cell = load_cell(path)
+    robot = CellRobot(cell.robot, tmp_path)
+    joints = {n: 0.0 for n in robot.joint_names}
+    joints["panda_joint4"] = -1.5
+    port = free_port()
+    svc = run("safety", "--cell", path, "--zenoh-port", port)
+    peer = CellPeer(port, "rostest")
+    ros = peer.session.declare_publisher(
+        topic_key(0, "/joint_states", "sensor_msgs/msg/JointState")
+    )
+    seq = 0
+
+    def send(with_joints: bool):
+        nonlocal seq
+        seq += 1
+        now = time.time_ns()
+        if with_joints:
+            js = joint_states.JointState(now, tuple(joints), tuple(joints.values()))
+            ros.put(joint_states.encode_ros2_joint_state(js))
+        depth, lab = render(cell.cameras[0], robot, joints, [], seq=seq, stamp_ns=now)
+        wrong = lab.labels.copy()
+        wrong[wrong == labels.ROBOT] = labels.BODY
+        peer.depth.put(wire.encode_depth(depth))
+        peer.labels.put(wire.encode_labels(wire.LabelFrame(wrong, seq, now, "cam0")))
+
+    def until(with_joints, predicate, what):
+        t = time.monotonic()
+
+        def got():
+            send(with_joints)
+            return any(predicate(s) for s in peer.since(t) if s.frame is not None)
+
+        wait_for(got, 30, what)
+
+    try:
+        svc.wait_line("robot arm's joints (ros2)")
+        until(False, lambda s: s.state == "stop" and "nowhere known" in " ".join(s.reasons),
+              "stop without a joint state")  # fmt: skip
+        until(True, lambda s: s.state == "clear", "clear with the ROS 2 joint states")
+    finally:
+        peer.close()
+    assert svc.stop() == 0
