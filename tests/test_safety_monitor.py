@@ -258,3 +258,18 @@ def test_a_joint_state_that_misses_joints_is_refused(cell, robot, joints):
 def test_a_full_resolution_frame_is_read_at_the_working_resolution():
     big = replace(MOUNT, intrinsics=MOUNT.intrinsics.scaled_to(640, 480))
     assert working_factor(big) == 2 and working_factor(MOUNT) == 1
+
+
+def test_a_driver_that_went_away_stops_the_cell_at_once(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints)
+    mon.token("cam0", "driver", "a1", True)
+    mon.token("cam0", "viewer", "v1", True)  # not watched
+    decide(mon, cell, robot, joints, [])
+    assert mon.decision(T0).decision.state == "clear"
+    mon.token("cam0", "viewer", "v1", False)
+    assert mon.decision(T0).decision.state == "clear"
+    mon.token("cam0", "driver", "a1", False)
+    d = mon.decision(T0)  # the frame is fresh, but its driver is gone
+    assert d.decision.state == "stop" and d.decision.reasons == ("cam0: its driver went away",)
+    mon.token("cam0", "driver", "a2", True)  # a restarted driver
+    assert mon.decision(T0).decision.state == "clear"

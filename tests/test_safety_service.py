@@ -118,6 +118,20 @@ def test_the_service_decides_from_frames_and_stops_when_they_stop(run, cell_file
         assert near.nearest_m is not None and near.zones == {"guard": "clear"}
         send_until([], "clear", "clear again once the person left")
 
+        # a driver's token that goes away (a killed driver) stops the cell before any deadline
+        token = peer.session.liveliness().declare_token(
+            wire.alive_key("safetytest", "cam0", "driver", "d1")
+        )
+        send_until([], "clear", "clear with the driver's token there")
+        gone = time.monotonic()
+        token.undeclare()
+        wait_for(lambda: any("its driver went away" in " ".join(s.reasons) for s in peer.since(gone)),
+                 10, "stop once the driver went away")  # fmt: skip
+        token = peer.session.liveliness().declare_token(
+            wire.alive_key("safetytest", "cam0", "driver", "d2")
+        )
+        send_until([], "clear", "clear once a driver is back")
+
         # the frames stop: `stop` once the deadline passed (how soon: `topseg bench safety`)
         quiet = time.monotonic()
         wait_for(lambda: any("no labelled frame for" in " ".join(s.reasons)

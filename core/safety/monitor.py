@@ -21,7 +21,8 @@ Per labelled frame of a camera (`CellMonitor.frame`):
 zones occupied by any, a protective zone unseen only when no camera sees it) and decides with
 the reaction time measured now: depth stamp of the oldest frame in use to this moment. A
 camera whose last labelled frame is older than the cell's deadline, or that sent none yet, is
-a fault: `stop`.
+a fault: `stop`; so is a camera whose driver or worker went away (its liveliness token was
+dropped: a killed process's is as soon as its link closes), at once.
 """
 
 from __future__ import annotations
@@ -43,6 +44,10 @@ from topseg.core.safety.robot import CellRobot
 from topseg.core.safety.separation import Capsules, HumanPoints, Nearest, human_points, nearest
 from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
 
+#: The services whose liveliness tokens the monitor follows per camera: one that goes away (a
+#: killed driver's token is dropped as soon as its link closes) stops the cell at once,
+#: without waiting for the frames' deadline.
+WATCHED_ROLES = ("driver", "worker")
 #: The widest frame the monitor reads at its own resolution (pixels); wider ones are read at
 #: every n-th pixel (a 640x480 Kinect's at 320x240: 1.1 cm of floor a pixel from 3 m).
 WORKING_WIDTH = 320
@@ -111,6 +116,9 @@ class CellMonitor:
         self.joints: JointState | None = None
         self.joints_received_ns = 0
         self._zone_masks: dict[str, tuple[dict, ZoneMasks]] = {}
+        # camera -> role -> instances whose liveliness token is there; a role whose last
+        # instance went away is a fault until one is back (one never seen is none)
+        self.alive: dict[str, dict[str, set[str]]] = {c.name: {} for c in cell.cameras}
         self.counts = {"frames": 0, "joint_states": 0, "joint_states_refused": 0}
 
     # ------------------------------------------------------------------ inputs
@@ -131,6 +139,20 @@ class CellMonitor:
             return  # an older state arriving late
         self.joints, self.joints_received_ns = state, received_ns
         self.counts["joint_states"] += 1
+
+    def token(self, camera: str, role: str, instance: str, present: bool) -> None:
+        """A liveliness token of `role` (driver, worker) for `camera` came or went."""
+        if camera not in self.alive or role not in WATCHED_ROLES:
+            return
+        instances = self.alive[camera].setdefault(role, set())
+        if present:
+            instances.add(instance)
+        else:
+            instances.discard(instance)
+
+    def gone(self, camera: str) -> list[str]:
+        """The roles of `camera` whose every instance went away."""
+        return [role for role, ids in sorted(self.alive.get(camera, {}).items()) if not ids]
 
     def joints_age_s(self, now_ns: int) -> float:
         """Seconds since the joint state in use was measured (its stamp); inf with none."""
@@ -223,6 +245,8 @@ class CellMonitor:
         frame = None
         for placement in self.cell.cameras:
             view = self.views.get(placement.name)
+            for role in self.gone(placement.name):
+                faults.append(f"{placement.name}: its {role} went away")
             if view is None:
                 faults.append(f"{placement.name}: no labelled frame yet")
                 continue

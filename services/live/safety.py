@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import threading
 import time
 from collections import OrderedDict
 from pathlib import Path
@@ -50,6 +51,9 @@ log = logging.getLogger("topseg.safety")
 PENDING_DEPTH = 8
 #: A repeated warning (bad messages, unpaired labels) is logged at most this often (s).
 WARN_EVERY_S = 10.0
+#: Token changes kept between two turns of the main loop, at most (a flood of tokens costs
+#: changes, never memory).
+MAX_TOKEN_CHANGES = 1024
 #: ROS 2 joint states: the type on the wire.
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
@@ -195,6 +199,40 @@ class SafetyService:
         )
 
 
+class TokenWatch:
+    """The liveliness tokens of the cell's drivers and workers, handed from Zenoh's threads to
+    the main loop (`take`); a change wakes the loop, so a killed driver stops the cell at once."""
+
+    def __init__(self, wake) -> None:
+        self._lock = threading.Lock()
+        self._changes: list[tuple[str, str, str, bool]] = []
+        self._wake = wake
+
+    def on_sample(self, sample) -> None:
+        """A liveliness subscriber's callback: note the token's camera, role and instance."""
+        try:
+            parts = wire.parse_key(str(sample.key_expr))
+        except WireError:
+            return
+        if parts.kind != "alive" or parts.role is None:
+            return
+        present = not str(sample.kind).endswith("DELETE")
+        with self._lock:
+            if len(self._changes) < MAX_TOKEN_CHANGES:
+                self._changes.append((parts.camera, parts.role, parts.instance or "?", present))
+        self._wake()
+
+    def take(self, monitor: CellMonitor) -> bool:
+        """Give the changes since the last call to `monitor`; True when there were any."""
+        with self._lock:
+            changes, self._changes = self._changes, []
+        for camera, role, instance, present in changes:
+            monitor.token(camera, role, instance, present)
+            if not present:
+                log.warning("%s's %s %s went away", camera, role, instance)
+        return bool(changes)
+
+
 def load(args: argparse.Namespace) -> tuple[CellConfig, CellRobot | None]:
     """The cell file and its robot, before Zenoh: a bad file is one line and exit 2."""
     cell = load_cell(args.cell)
@@ -223,6 +261,12 @@ def run(args: argparse.Namespace) -> int:
         svc.declare(
             session.liveliness().declare_token(safety_wire.safety_alive_key(cell.cell, me.instance))
         )
+        tokens = TokenWatch(inbox.wake)
+        for camera in cell.cameras:
+            key = f"{wire.camera_prefix(cell.cell, camera.name)}/alive/**"
+            svc.declare(
+                session.liveliness().declare_subscriber(key, tokens.on_sample, history=True)
+            )
         svc.on_stop(inbox.wake)
         log.info(
             "deciding for cell %s from %s%s; publishing on %s",
@@ -239,10 +283,10 @@ def run(args: argparse.Namespace) -> int:
             svc.beat()
             wait = period_s - (time.monotonic() - service.last_publish)
             item = inbox.get(max(0.0, wait))
-            decided = False
+            decided = tokens.take(monitor)
             if item is not None:
                 key, data, received_ns = item
-                decided = service.handle(key, data, received_ns)
+                decided = service.handle(key, data, received_ns) or decided
             if decided or time.monotonic() - service.last_publish >= period_s:
                 service.publish(time.time_ns())
     log.info("stopped: %s (%d dropped while the queue was full)", service.status(), inbox.dropped)
