@@ -224,7 +224,7 @@ fi
 # 3. Data and docs the configs and units point at.
 install_file "$CHECKOUT/models/default.npz" "$OPT/models/default.npz" 0644
 install_file "$CHECKOUT/recordings/demo.mcap" "$OPT/recordings/demo.mcap" 0644
-for doc in howto/deploy.md howto/ros2.md security.md; do
+for doc in howto/deploy.md howto/ros2.md howto/safety.md security.md; do
     [ -f "$CHECKOUT/docs/$doc" ] && install_file "$CHECKOUT/docs/$doc" "$OPT/docs/$doc" 0644
 done
 

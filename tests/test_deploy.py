@@ -11,6 +11,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,7 @@ UNIT_INSTANCES = {
     "topseg-viewer.service": [""],
     "topseg-router.service": [""],
     "topseg-bridge-ros2.service": [""],
+    "topseg-safety@.service": ["cell1"],
 }
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze") or (
     "/usr/bin/systemd-analyze" if Path("/usr/bin/systemd-analyze").exists() else None
@@ -194,6 +196,8 @@ def test_units_start_with_the_example_configs(name, instance):
         assert args.zenoh_config == "/etc/topseg/zenoh/router.json5"
     elif command == "bridge":
         assert args.target == "ros2" and args.domain == 0
+    elif command == "safety":
+        assert args.cell == f"/etc/topseg/{instance}.cell.toml"
 
 
 def test_example_configs_are_all_used():
@@ -204,7 +208,9 @@ def test_example_configs_are_all_used():
         for a in exec_argv(n, i)
         if a.endswith(".toml")
     }
-    assert used == {p.name for p in CONFIGS.glob("*.toml")}
+    cell_files = {Path(tomllib.loads((CONFIGS / name).read_text())["safety"]["cell"]).name
+                  for name in list(used) if name.startswith("safety-")}  # fmt: skip
+    assert used | cell_files == {p.name for p in CONFIGS.glob("*.toml")}
 
 
 UDEV_RULES = DEPLOY / "99-topseg.rules"

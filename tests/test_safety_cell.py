@@ -20,7 +20,7 @@ from topseg.core.safety.cell import (
 )
 
 REPO = Path(__file__).resolve().parents[1]
-EXAMPLE = REPO / "deploy" / "cell.example.toml"
+EXAMPLE = REPO / "deploy" / "config" / "cell1.cell.toml"
 
 MINIMAL = 'cell = "c1"\n'
 SQUARE = "[[0, 0], [1, 0], [1, 1], [0, 1]]"
