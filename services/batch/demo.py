@@ -17,6 +17,7 @@ procedural top-view scenes and scores forest, realtime and exact CRF on held-out
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from topseg.core.errors import TopsegError
 from topseg.core.segmenter import Segmenter
 from topseg.core.segmenter_config import SegmenterConfig
 from topseg.core.synth import procedural
+from topseg.services.batch.cell_pipeline import cell_summary, run_cell_pipeline
 from topseg.services.batch.pipeline import run_pipeline, summary
 from topseg.services.cli.options import finite, int_range, non_negative_int
 
@@ -55,6 +57,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="label every frame (the replay waits for the worker)",
     )
+    cell = parser.add_argument_group("--cell: the safety service on a robot cell")
+    cell.add_argument(
+        "--cell",
+        action="store_true",
+        help="replay the cell recording (recordings/cell.mcap, its cell file beside it) through "
+        "driver -> worker -> safety and score the states against its truth",
+    )
+    cell.add_argument(
+        "--cell-recording", type=Path, default=REPO / "recordings" / "cell.mcap", metavar="FILE"
+    )
+    cell.add_argument("--json", action="store_true", help="--cell: print the figures as JSON")
     core = parser.add_argument_group("--core: the segmentation core on procedural scenes")
     core.add_argument(
         "--core", action="store_true", help="run the core demo instead of the live one"
@@ -74,8 +87,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """The live demo, or the core demo with --core."""
+    """The live demo, the cell demo with --cell, or the core demo with --core."""
+    if args.cell:
+        return run_cell(args)
     return run_core(args) if args.core else run_live(args)
+
+
+def run_cell(args: argparse.Namespace) -> int:
+    """Replay the cell recording through driver -> worker -> safety; print how the states
+    agree with the truth, the separation error and the reaction time."""
+    recording = args.cell_recording
+    cell_file = recording.with_suffix(".toml")
+    if not args.json:
+        print(
+            f"replaying {recording} through driver -> worker -> safety ({cell_file.name}) -> "
+            "viewer, each a separate process on loopback Zenoh"
+        )
+    args.rrd.parent.mkdir(parents=True, exist_ok=True)
+    rrd = args.rrd.with_name("cell.rrd") if args.rrd == Path("out/demo.rrd") else args.rrd
+    figures = run_cell_pipeline(recording, cell_file, args.model, rrd)
+    if args.json:
+        print(json.dumps(figures))
+    else:
+        print(cell_summary(figures))
+        print(f"Rerun recording: {rrd}; logs: {figures['logs']}")
+    return 0
 
 
 def run_live(args: argparse.Namespace) -> int:

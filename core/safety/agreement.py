@@ -1,0 +1,125 @@
+"""How the safety service's decisions compare with the truth of a rendered cell sequence.
+
+A cell recording (`topseg datagen cell-sequence`) carries, per frame, the exact labels and
+each person's exact separation from the robot's links. The truth's decision for a frame is
+the cell's own rules (`decision.decide`) applied to what a perfect perception would give:
+the nearest in-view person's exact distance, part and link; the zones the exactly labelled
+person pixels occupy; the unseen share of the protective zones and the camera's faults as
+the frame's depth shows them; and the reaction time the service measured for that decision
+(so the protective distance is the same). So a disagreement is perception's: labels or
+separation, not timing.
+
+`score` reads the decisions taken on frames (the first the service published for each) and
+gives: the share whose state equals the truth's, how often it said `clear` when the truth
+said `stop` (must be never), the separation error (|measured - true| where both saw a person
+and a robot) p50/p95, the share of frames with one person in view where the nearest part
+is the truth's, and the reaction time p50/p99.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from topseg.core import labels as label_table
+from topseg.core.formats.wire import DepthFrame, LabelFrame
+from topseg.core.metrics import percentile
+from topseg.core.safety.decision import Decision, decide
+from topseg.core.safety.monitor import CellMonitor
+
+
+@dataclass(frozen=True)
+class TruthNearest:
+    """The exact nearest pair of one frame (what `decide` reads)."""
+
+    distance_m: float
+    part: int
+    link: str
+
+
+def truth_nearest(persons: list[dict]) -> tuple[TruthNearest | None, int]:
+    """The nearest of the in-view persons of a safety truth message and how many were in view."""
+    seen = [p for p in persons if p.get("in_view", True)]
+    if not seen:
+        return None, 0
+    best = min(seen, key=lambda p: float(p["distance_m"]))
+    part = label_table.by_name(str(best["part"])).id
+    return TruthNearest(float(best["distance_m"]), part, str(best["link"])), len(seen)
+
+
+def truth_decision(
+    monitor: CellMonitor,
+    camera: str,
+    depth: DepthFrame,
+    truth: LabelFrame,
+    persons: list[dict],
+    reaction_s: float,
+) -> Decision:
+    """The truth's decision for one frame (see the module doc): `monitor` is a monitor of the
+    cell that holds the frame's exact joint state."""
+    view = monitor.frame(camera, depth, truth, depth.stamp_ns)
+    nearest, _ = truth_nearest(persons)
+    faults = tuple(f for f in view.faults if "nowhere known" not in f)
+    return decide(monitor.cell, nearest, sorted(view.occupied), view.unseen, reaction_s, faults)
+
+
+@dataclass
+class Compared:
+    """One decision the service took on a frame, beside the truth's."""
+
+    state: str
+    truth_state: str
+    distance_m: float | None
+    truth_distance_m: float | None
+    part: str
+    truth_part: str
+    persons_in_view: int
+    reaction_ms: float | None
+
+
+def score(compared: list[Compared]) -> dict:
+    """The figures of the module doc over `compared` (JSON-able)."""
+    n = len(compared)
+    if not n:
+        return {"frames": 0}
+    equal = sum(c.state == c.truth_state for c in compared)
+    unsafe = sum(c.state == "clear" and c.truth_state == "stop" for c in compared)
+    errors = [
+        abs(c.distance_m - c.truth_distance_m)
+        for c in compared
+        if c.distance_m is not None and c.truth_distance_m is not None
+    ]
+    single = [c for c in compared if c.persons_in_view == 1 and c.part and c.truth_part]
+    reactions = [c.reaction_ms for c in compared if c.reaction_ms is not None]
+    confusion = {
+        f"{t}->{s}": sum(c.truth_state == t and c.state == s for c in compared)
+        for t in ("clear", "warning", "stop")
+        for s in ("clear", "warning", "stop")
+    }
+    return {
+        "frames": n,
+        "state_agreement": equal / n,
+        "clear_when_truth_stop": unsafe,
+        "states_truth_to_service": confusion,
+        "distance_frames": len(errors),
+        "distance_error_p50_m": percentile(errors, 50) if errors else None,
+        "distance_error_p95_m": percentile(errors, 95) if errors else None,
+        "part_frames": len(single),
+        "part_agreement": (
+            sum(c.part == c.truth_part for c in single) / len(single) if single else None
+        ),
+        "reaction_p50_ms": percentile(reactions, 50) if reactions else None,
+        "reaction_p99_ms": percentile(reactions, 99) if reactions else None,
+    }
+
+
+def one_decision_per_frame(states: list, key=lambda s: s.frame) -> list:
+    """The first decision published on each frame (later ones on the same frame are the
+    re-decisions between frames)."""
+    seen, out = set(), []
+    for state in states:
+        frame = key(state)
+        if frame is None or frame in seen:
+            continue
+        seen.add(frame)
+        out.append(state)
+    return out
