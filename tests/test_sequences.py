@@ -137,3 +137,40 @@ def test_frames_carry_depth_labels_joints_and_truth_and_repeat_by_seed(sequence)
     np.testing.assert_array_equal(g.depth, f.depth)
     np.testing.assert_array_equal(g.labels, f.labels)
     assert [p.to_dict() for p in g.persons] == [p.to_dict() for p in f.persons]
+
+
+def test_the_recording_holds_depth_truth_joints_and_separations_and_its_cell_file(tmp_path):
+    import tomllib
+
+    import msgpack
+
+    from topseg.core.formats import wire
+    from topseg.core.formats.recording import read_messages
+    from topseg.services.batch.datagen.cell_sequence import write_recording
+
+    seq = CellSequence(CellSequenceConfig(duration_s=1.0, fps=4, size=(80, 60)), seed=3)
+    out = tmp_path / "cell.mcap"
+    done = write_recording(seq, out)
+    assert done["frames"] == 4
+    by_key = {}
+    for msg in read_messages(out):
+        by_key.setdefault(msg.key, []).append(msg)
+    joints = "topseg/default/robot/panda/joints"
+    assert sorted(by_key) == sorted(
+        ["topseg/default/cam0/depth", "topseg/default/cam0/truth", joints,
+         "topseg/default/safety/truth"]
+    )  # fmt: skip
+    depth = [wire.decode_depth(m.data) for m in by_key["topseg/default/cam0/depth"]]
+    states = [msgpack.unpackb(m.data) for m in by_key[joints]]
+    truths = [msgpack.unpackb(m.data) for m in by_key["topseg/default/safety/truth"]]
+    assert [d.mount for d in depth] == [seq.mount] * 4
+    for d, js, tr in zip(depth, states, truths, strict=True):
+        assert js["v"] == 1 and js["stamp_ns"] == d.stamp_ns == tr["stamp_ns"]
+        assert tuple(js["name"]) == seq.model.joint_names
+        assert tr["seq"] == d.seq
+    cell = tomllib.loads(out.with_suffix(".toml").read_text())
+    assert cell["camera"][0] == {"name": "cam0", "x_m": 0.0, "y_m": 0.0, "yaw_deg": 0.0}
+    r = cell["robot"]
+    assert r["urdf"] == "panda" and r["joints_source"] == "zenoh"
+    assert r["base_xyz_m"] == pytest.approx([seq.robot.x, seq.robot.y, 0.8], abs=1e-6)
+    assert [z["kind"] for z in cell["zone"]] == ["protective", "warning"]
