@@ -138,14 +138,15 @@ def write_recording(seq: CellSequence, out: Path) -> dict:
             depth = wire.DepthFrame(
                 f.depth, seq.mount.intrinsics, f.index, stamp, c.camera, seq.mount
             )
+            # depth first: a replay publishes what follows a depth frame with it
+            writer.write(keys["depth"], wire.encode_depth(depth), stamp)
+            truth = wire.LabelFrame(f.labels, f.index, stamp, c.camera)
+            writer.write(keys["truth"], wire.encode_labels(truth), stamp)
             writer.write(
                 keys["joints"],
                 cell_truth.encode_joint_state(stamp, f.joint_names, f.joint_positions),
                 stamp,
             )
-            writer.write(keys["depth"], wire.encode_depth(depth), stamp)
-            truth = wire.LabelFrame(f.labels, f.index, stamp, c.camera)
-            writer.write(keys["truth"], wire.encode_labels(truth), stamp)
             persons = [p.to_dict() for p in f.persons]
             writer.write(
                 keys["safety"], cell_truth.encode_safety_truth(stamp, f.index, persons), stamp
