@@ -5,7 +5,7 @@ TOPSEG := $(VENV)/bin/topseg
 STAMP  := $(VENV)/.installed
 PYTEST := $(PY) -m pytest
 
-.PHONY: install test test-all demo bench lint format clean model recording experiments docs
+.PHONY: install test test-all demo bench lint format clean model recording cell-recording experiments docs
 
 install: $(STAMP)
 
@@ -43,6 +43,10 @@ model: install
 ## rebuild the bundled demo recording (recordings/demo.mcap)
 recording: install
 	bash scripts/make_recording.sh
+
+## rebuild the rendered robot-cell recording with its truth (recordings/cell.mcap, cell.toml)
+cell-recording: install
+	$(TOPSEG) datagen cell-sequence --out recordings/cell.mcap --seed 3 --duration 20 --fps 15 --size 320x240
 
 ## the command-line reference, docs/reference/cli.md, from the parsers
 docs: install

@@ -4,7 +4,7 @@ A `Source` is opened by `topseg.drivers.open_source(spec, options)` (the constru
 it), yields `SourceFrame`s from `frames()` and is closed by `close()` or a `with` block::
 
     with open_source("replay:recordings/demo.mcap", SourceOptions(loop=True)) as src:
-        for depth, truth in src.frames():   # DepthFrame, LabelFrame or None
+        for depth, truth, companions in src.frames():   # DepthFrame, LabelFrame or None
             ...
 
 Frames carry host time (`stamp_ns`, ns since the epoch, taken when the frame reached
@@ -70,10 +70,13 @@ class SourceOptions:
 
 
 class SourceFrame(NamedTuple):
-    """One frame from a source: the depth image and, when the source knows it, the truth labels."""
+    """One frame from a source: the depth image and, when the source knows it, the truth
+    labels; a replay adds the recording's companion messages of that frame (joint states,
+    safety truth: `replay.Companion`) to publish with it."""
 
     depth: DepthFrame
     truth: LabelFrame | None = None
+    companions: tuple = ()
 
 
 class Source(abc.ABC):

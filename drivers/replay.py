@@ -3,7 +3,11 @@
 - an MCAP recording (`FILE.mcap`, or `FILE.mcap#KEY` to pick one depth channel), ROS 2 or
   msgpack (`core/formats/recording.py` reads both): its depth channel (the first one unless
   named), with ground truth from the same camera's `truth` channel when it has one (paired
-  by `seq`); messages that fail to decode are skipped and counted;
+  by `seq`), and its companion messages: joint states (`topseg/<cell>/robot/<name>/joints`)
+  and safety truth (`topseg/<cell>/safety/truth`, `core/formats/cell_truth.py`), each
+  handed on with the depth frame it follows in the file (one read before the first depth
+  frame, with the first), its stamp as far from the frame's as recorded; messages that
+  fail to decode are skipped and counted;
 - a folder of 16-bit PNGs in millimetres, played in name order at `fps` (default 30), with
   Kinect v1 optics scaled to the image size;
 - a libfreenect fakenect dump (a folder with INDEX.txt), read directly (no libfreenect).
@@ -19,13 +23,13 @@ import logging
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from topseg.core.camera import KINECT_V1, Intrinsics, TopViewMount
-from topseg.core.formats import recording, wire
+from topseg.core.formats import cell_truth, recording, wire
 from topseg.core.formats.wire import MAX_SIDE, DepthFrame, LabelFrame, WireError
 from topseg.drivers import fakenect_dump
 from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceOptions
@@ -33,6 +37,21 @@ from topseg.drivers.base import Pacer, Source, SourceError, SourceFrame, SourceO
 log = logging.getLogger(__name__)
 
 DEFAULT_FPS = 30.0
+#: companion messages held per frame (memory bound: a robot's joint states at 1 kHz with
+#: frames at 10 fps are 100)
+MAX_COMPANIONS = 256
+
+
+@dataclass(frozen=True)
+class Companion:
+    """A recorded message handed on with a depth frame: its key, its bytes, and how far
+    (ns) its stamp lies from the frame's recorded stamp."""
+
+    key: str
+    data: bytes
+    offset_ns: int
+
+
 #: PIL modes of a 16-bit single-channel image.
 DEPTH_PNG_MODES = ("I;16", "I;16B", "I;16L", "I")
 
@@ -53,6 +72,8 @@ class ReplayFrame:
     seq: int | None = None
     mount: TopViewMount | None = None
     key: str | None = None
+    stamp_ns: int | None = None
+    companions: list[Companion] = field(default_factory=list)
 
 
 # -- readers: the one place recorded depth is read and validated (the replay driver and
@@ -122,14 +143,22 @@ class RecordingFrames:
     `STEM_TAG_SEQ` with a `tag` (the camera, when a recording holds several); a seq seen
     before in this channel (a driver restarted within the recording) gets `-N` for its Nth
     occurrence, so no two frames share a name. Iterating again reads the file again.
+
+    With `companions`, the joint states and safety truth the file holds come with the frame
+    they follow (`ReplayFrame.companions`); a frame is then handed on once the next depth
+    frame (or the end) is read, so that all of its companions are there.
     """
 
-    def __init__(self, path: Path, key: str | None = None, tag: str | None = None) -> None:
+    def __init__(
+        self, path: Path, key: str | None = None, tag: str | None = None, companions: bool = False
+    ) -> None:
         self.path = path
         self.key = key
         self.tag = tag
+        self.companions = companions
         self.depth_key: str | None = key
         self.rejected = 0
+        self.dropped_companions = 0
         self.others: set[str] = set()
         self._bad: set[str] = set()  # depth channels whose key no camera could have
 
@@ -154,16 +183,22 @@ class RecordingFrames:
 
         def ready() -> Iterator[ReplayFrame]:
             """The frames that wait no longer: those at the front with their truth, and
-            the oldest beyond the window (one frame until the channel shows any truth)."""
+            the oldest beyond the window (one frame until the channel shows any truth);
+            with companions, never the newest (its companions may follow)."""
             window = MAX_FRAMES_AWAITING_TRUTH if has_truth else 1
-            while pending and (pending[0].truth is not None or len(pending) > window):
+            keep = 1 if self.companions else 0
+            while len(pending) > keep and (pending[0].truth is not None or len(pending) > window):
                 yield pending.popleft()
 
+        early_companions: list[Companion] = []  # before the first depth frame
         info = recording.RecordingInfo()  # counts the ROS 2 messages that do not decode
         counted = 0
         for msg in recording.read_messages(self.path, info=info):
             self.rejected += info.rejected - counted
             counted = info.rejected
+            if self.companions and cell_truth.companion_kind(msg.key) is not None:
+                self._keep_companion(pending[-1] if pending else None, early_companions, msg)
+                continue
             kind = msg.key.rsplit("/", 1)[-1]
             if depth_key is None and kind == "depth" and wire.depth_key_problem(msg.key):
                 self._other(msg.key, depth_key)  # no camera's key: never read
@@ -197,7 +232,11 @@ class RecordingFrames:
                     seq=frame.seq,
                     mount=frame.mount,
                     key=depth_key,
+                    stamp_ns=frame.stamp_ns,
                 )
+                for c in early_companions:  # their offsets were kept as stamps
+                    item.companions.append(Companion(c.key, c.data, c.offset_ns - frame.stamp_ns))
+                early_companions.clear()
                 pair(item)  # its truth may have come first
                 pending.append(item)
                 yield from ready()
@@ -215,6 +254,22 @@ class RecordingFrames:
             yield pending.popleft()
         if depth_key is None:
             raise SourceError(f"{self.path} holds no depth channel")
+
+    def _keep_companion(self, frame: ReplayFrame | None, early: list[Companion], msg) -> None:
+        """Attach a companion message to `frame` (the newest depth frame read), or keep it
+        in `early` (by its stamp) before the first; at most MAX_COMPANIONS a frame, the
+        rest dropped and counted; one that does not decode is rejected."""
+        try:
+            stamp = cell_truth.stamp_of(msg.data)
+        except WireError as exc:
+            self._reject(msg.key, exc)
+            return
+        held = early if frame is None else frame.companions
+        if len(held) >= MAX_COMPANIONS:
+            self.dropped_companions += 1
+            return
+        offset = stamp if frame is None else stamp - (frame.stamp_ns or 0)
+        held.append(Companion(msg.key, bytes(msg.data), offset))
 
     def _keep_truth(self, truths: OrderedDict[int, np.ndarray], msg) -> int | None:
         """Decode truth message `msg` into `truths` (seq -> labels, the newest
@@ -354,7 +409,7 @@ class ReplaySource(Source):
         if self.kind == "mcap":
             if self._reader is not None:
                 self._rejected_before += self._reader.rejected
-            self._reader = RecordingFrames(self.path, self.key)
+            self._reader = RecordingFrames(self.path, self.key, companions=True)
             yield from self._reader
         elif self.kind == "png":
             for item in png_frames(self._pngs):
@@ -391,7 +446,7 @@ class ReplaySource(Source):
                 self.intrinsics, self.mount = item.intrinsics, item.mount
                 depth = DepthFrame(item.depth, item.intrinsics, seq, stamp, "", item.mount)
                 truth = None if item.truth is None else LabelFrame(item.truth, seq, stamp, "")
-                yield SourceFrame(depth, truth)
+                yield SourceFrame(depth, truth, tuple(item.companions))
                 seq += 1
                 count += 1
             if count == 0:

@@ -439,6 +439,14 @@ class RobotModel:
         """How many triangles the posed arm has."""
         return len(self._tris)
 
+    def shape_links(self) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+        """(link names, each triangle's link index, each primitive's link index), in the order
+        `link_geometry` gives the triangles and primitives."""
+        tri_link = np.zeros(len(self._tris), np.int64)
+        for i, (lo, hi) in enumerate(self._tri_blocks):
+            tri_link[lo:hi] = i
+        return tuple(self._links), tri_link, self._prim_link.copy()
+
     def random_joints(self, rng: np.random.Generator) -> dict[str, float]:
         """Each joint uniform within its limits."""
         values = rng.uniform(self.lower, self.upper)

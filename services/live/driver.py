@@ -7,6 +7,10 @@ for a camera that already has one refuses to start.
 Reads frames from a source (`replay:PATH`, `freenect[:index]`, `openni2[:uri]`,
 `oak[:device-id]`, `synthetic`) and publishes them as wire messages on
 `topseg/<cell>/<camera>/depth`, with ground truth on `.../truth` when the source has it.
+A replay also publishes the recording's joint states and safety truth with the depth frame
+they follow (`topseg/<cell>/robot/<name>/joints`, `topseg/<cell>/safety/truth`, moved to
+`--cell`), restamped like the frame: as far from its new stamp as they were recorded, the
+safety truth's `seq` the frame's, so a safety service downstream sees a consistent robot.
 It holds the liveliness token `.../alive/driver/<instance>` while running (its Zenoh id,
 `services/runtime/identity.py`; also the attachment of every message it publishes) and answers
 `.../info` queries with JSON (source, camera intrinsics, mount, fps, frames published,
@@ -55,7 +59,7 @@ import zenoh
 from topseg import __version__
 from topseg.core.calibration import check_floor
 from topseg.core.errors import TopsegError
-from topseg.core.formats import wire
+from topseg.core.formats import cell_truth, wire
 from topseg.core.formats.mount_file import read_mount_file
 from topseg.core.formats.wire import DEFAULT_CAMERA, DEFAULT_CELL
 from topseg.drivers import Reconnecting, SourceOptions, SourceUnavailable, open_source, parse_spec
@@ -124,6 +128,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     zenoh_session.add_arguments(parser)
 
 
+#: the most companion keys (joint states, safety truth) one driver publishes on
+MAX_COMPANION_KEYS = 16
+
+
+class CompanionPublisher:
+    """Publishes a replay's companion messages on their keys (moved to the driver's cell),
+    restamped like their depth frame; publishers are declared on first use, at most
+    MAX_COMPANION_KEYS of them, and messages that cannot be restamped are dropped and
+    counted."""
+
+    def __init__(self, session, cell: str, publish: dict, attachment: bytes) -> None:
+        self.session, self.cell, self.publish, self.attachment = session, cell, publish, attachment
+        self.publishers: dict[str, object] = {}
+        self.sent = 0
+        self.dropped = 0
+
+    def put(self, companions, stamp_ns: int, seq: int) -> None:
+        """Publish the companions of the depth frame stamped `stamp_ns`, numbered `seq`."""
+        for c in companions:
+            key = cell_truth.in_cell(c.key, self.cell)
+            publisher = self.publishers.get(key)
+            if publisher is None:
+                if len(self.publishers) >= MAX_COMPANION_KEYS:
+                    self.dropped += 1
+                    continue
+                publisher = self.session.declare_publisher(key, **self.publish)
+                self.publishers[key] = publisher
+            try:
+                data = cell_truth.restamped(c.data, stamp_ns + c.offset_ns, seq)
+            except wire.WireError as exc:
+                self.dropped += 1
+                log.warning("a recorded message on %s not published: %s", wire.shown_key(key), exc)
+                continue
+            publisher.put(data, attachment=self.attachment)
+            self.sent += 1
+
+    def undeclare(self) -> None:
+        """Undeclare the publishers."""
+        for publisher in self.publishers.values():
+            publisher.undeclare()
+
+
 class DriverState:
     """What the `info` queryable reports; updated by the publishing loop."""
 
@@ -140,6 +186,7 @@ class DriverState:
             "mount_file": getattr(args, "mount", None),
             "frames": 0,
             "truth_frames": 0,
+            "companions": 0,
             "reconnects": 0,
             "last_error": None,
             "started_ns": time.time_ns(),
@@ -455,6 +502,7 @@ def _serve(args, spec, options, mount, opened, judged: bool) -> int:
         publish = dict(congestion_control=congestion[args.congestion], express=True)
         depth_pub = session.declare_publisher(keys["depth"], **publish)
         truth_pub = session.declare_publisher(keys["truth"], **publish)
+        companions = svc.declare(CompanionPublisher(session, args.cell, publish, attachment))
         svc.declare(  # before the token: a driver that sees the token can ask at once
             session.declare_queryable(
                 keys["info"], lambda query: query.reply(keys["info"], state.to_json())
@@ -526,12 +574,15 @@ def _serve(args, spec, options, mount, opened, judged: bool) -> int:
                 truth = dataclasses.replace(frame.truth, seq=seq, frame_id=args.camera)
                 truth_pub.put(wire.encode_labels(truth), attachment=attachment)
                 truth_count += 1
+            if frame.companions:
+                companions.put(frame.companions, depth.stamp_ns, seq)
             seq += 1
             svc.beat()  # watchdog ping from the publishing loop, STATUS= every few s
             one_driver.poll()  # a driver that started first appeared: stop (exit 2)
             state.update(
                 frames=seq,
                 truth_frames=truth_count,
+                companions=companions.sent,
                 intrinsics=depth.intrinsics.to_dict(),
                 mount=None if frame_mount is None else frame_mount.to_dict(),
                 fps=args.fps or getattr(reconnecting.source, "nominal_fps", None),

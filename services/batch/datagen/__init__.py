@@ -134,7 +134,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="progress bar (default: on when stderr is a terminal)",
     )
-    sub = parser.add_subparsers(dest="datagen_command", metavar="{preview}")
+    sub = parser.add_subparsers(dest="datagen_command", metavar="{preview,cell-sequence}")
+    from topseg.services.batch.datagen import cell_sequence
     from topseg.services.batch.datagen import preview as datagen_preview
 
     p = sub.add_parser(
@@ -144,6 +145,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         formatter_class=describe.ParagraphFormatter,
     )
     datagen_preview.add_arguments(p)
+    p = sub.add_parser(
+        "cell-sequence",
+        help=cell_sequence.HELP,
+        description=describe.description(cell_sequence.__doc__, "docs/howto/retrain.md"),
+        formatter_class=describe.ParagraphFormatter,
+    )
+    cell_sequence.add_arguments(p)
 
 
 def cell_config(args: argparse.Namespace) -> dict | None:
@@ -393,6 +401,10 @@ def run(args: argparse.Namespace) -> int:
         from topseg.services.batch.datagen import preview as datagen_preview
 
         return datagen_preview.run(args)
+    if args.datagen_command == "cell-sequence":
+        from topseg.services.batch.datagen import cell_sequence
+
+        return cell_sequence.run(args)
 
     from topseg.services.batch.datagen.sources import (
         generator_config,
