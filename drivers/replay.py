@@ -4,7 +4,7 @@
   msgpack (`core/formats/recording.py` reads both): its depth channel (the first one unless
   named), with ground truth from the same camera's `truth` channel when it has one (paired
   by `seq`), and its companion messages: joint states (`topseg/<cell>/robot/<name>/joints`)
-  and safety truth (`topseg/<cell>/safety/truth`, `core/formats/cell_truth.py`), each
+  and safety truth (`topseg/<cell>/safety/separation`, `core/formats/cell_truth.py`), each
   handed on with the depth frame it follows in the file (one read before the first depth
   frame, with the first), its stamp as far from the frame's as recorded; messages that
   fail to decode are skipped and counted;

@@ -56,7 +56,7 @@ def test_the_reader_hands_each_frame_its_companions_with_their_offsets(recording
         assert [c.offset_ns for c in joints][-3:] == list(JOINT_OFFSETS_NS)
         positions = [msgpack.unpackb(c.data)["position"][0] for c in joints][-3:]
         assert positions == pytest.approx([i, i + 0.1, i + 0.2])
-        (safety,) = [c for c in f.companions if c.key.endswith("/safety/truth")]
+        (safety,) = [c for c in f.companions if c.key.endswith("/safety/separation")]
         assert msgpack.unpackb(safety.data)["seq"] == i
     # without companions (what `topseg segment` reads) nothing changes
     assert all(not f.companions for f in RecordingFrames(recording))

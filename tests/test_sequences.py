@@ -158,11 +158,11 @@ def test_the_recording_holds_depth_truth_joints_and_separations_and_its_cell_fil
     joints = "topseg/default/robot/panda/joints"
     assert sorted(by_key) == sorted(
         ["topseg/default/cam0/depth", "topseg/default/cam0/truth", joints,
-         "topseg/default/safety/truth"]
+         "topseg/default/safety/separation"]
     )  # fmt: skip
     depth = [wire.decode_depth(m.data) for m in by_key["topseg/default/cam0/depth"]]
     states = [msgpack.unpackb(m.data) for m in by_key[joints]]
-    truths = [msgpack.unpackb(m.data) for m in by_key["topseg/default/safety/truth"]]
+    truths = [msgpack.unpackb(m.data) for m in by_key["topseg/default/safety/separation"]]
     assert [d.mount for d in depth] == [seq.mount] * 4
     for d, js, tr in zip(depth, states, truths, strict=True):
         assert js["v"] == 1 and js["stamp_ns"] == d.stamp_ns == tr["stamp_ns"]

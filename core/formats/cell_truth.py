@@ -4,7 +4,7 @@ and the truth separation of each person from the robot, and how a replay restamp
 Joint states, on `topseg/<cell>/robot/<name>/joints`: a msgpack map `v` (1), `stamp_ns`,
 `name` (list of joint names), `position` (list of floats, radians or metres).
 
-Safety truth, on `topseg/<cell>/safety/truth`: a msgpack map `v` (1), `stamp_ns`, `seq`
+Safety truth, on `topseg/<cell>/safety/separation`: a msgpack map `v` (1), `stamp_ns`, `seq`
 (the depth frame's), `persons`: a list of maps per person on stage: `id`, `distance_m` (the
 least distance between the person's body and the robot's links, 0 when they touch),
 `part` (label name of the person's nearest part), `link` (the robot's nearest link),
@@ -18,6 +18,8 @@ from typing import Any
 
 import msgpack
 
+from topseg.core.formats import joint_states
+from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import WireError
 
 #: the version both maps are written with
@@ -27,28 +29,20 @@ MAX_COMPANION_BYTES = 1 << 20
 _MAX_STAMP = 2**63 - 1
 
 
-def joints_key(cell: str, robot: str) -> str:
-    """`topseg/<cell>/robot/<name>/joints`."""
-    return f"topseg/{cell}/robot/{robot}/joints"
+joints_key = joint_states.joints_key
 
 
 def safety_truth_key(cell: str) -> str:
-    """`topseg/<cell>/safety/truth`."""
-    return f"topseg/{cell}/safety/truth"
+    """`topseg/<cell>/safety/separation`."""
+    return f"topseg/{cell}/safety/separation"
 
 
-# replaced by joint_states.encode_joint_state on merge
 def encode_joint_state(stamp_ns: int, names, positions) -> bytes:
-    """A joint-state message (see the module doc)."""
-    return msgpack.packb(
-        {
-            "v": TRUTH_VERSION,
-            "stamp_ns": int(stamp_ns),
-            "name": [str(n) for n in names],
-            "position": [float(p) for p in positions],
-        },
-        use_bin_type=True,
+    """A joint-state message (`joint_states.encode_joint_state`) from its parts."""
+    state = JointState(
+        int(stamp_ns), tuple(str(n) for n in names), tuple(float(p) for p in positions)
     )
+    return joint_states.encode_joint_state(state)
 
 
 def encode_safety_truth(stamp_ns: int, seq: int, persons: list[dict]) -> bytes:
@@ -65,7 +59,7 @@ def companion_kind(key: str) -> str | None:
     parts = key.split("/")
     if len(parts) == 5 and parts[0] == "topseg" and parts[2] == "robot" and parts[4] == "joints":
         return "joints"
-    if len(parts) == 4 and parts[0] == "topseg" and parts[2:] == ["safety", "truth"]:
+    if len(parts) == 4 and parts[0] == "topseg" and parts[2:] == ["safety", "separation"]:
         return "safety_truth"
     return None
 
@@ -105,3 +99,18 @@ def restamped(data: bytes, stamp_ns: int, seq: int | None = None) -> bytes:
     if seq is not None and "seq" in msg:
         msg["seq"] = int(seq)
     return msgpack.packb(msg, use_bin_type=True)
+
+
+def decode_safety_truth(data: bytes) -> dict:
+    """A safety truth message as a dict (`seq`, `stamp_ns`, `persons`); WireError when it is
+    not one (each person needs `distance_m`, `part`, `link`)."""
+    msg = _unpack_map(data)
+    seq, persons = msg.get("seq"), msg.get("persons")
+    if isinstance(seq, bool) or not isinstance(seq, int) or seq < 0:
+        raise WireError("a safety truth message needs an integer seq >= 0")
+    if not isinstance(persons, list):
+        raise WireError("a safety truth message needs a list of persons")
+    for person in persons:
+        if not isinstance(person, dict) or not {"distance_m", "part", "link"} <= set(person):
+            raise WireError("each person of a safety truth needs distance_m, part and link")
+    return msg

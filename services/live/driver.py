@@ -8,7 +8,7 @@ Reads frames from a source (`replay:PATH`, `freenect[:index]`, `openni2[:uri]`,
 `oak[:device-id]`, `synthetic`) and publishes them as wire messages on
 `topseg/<cell>/<camera>/depth`, with ground truth on `.../truth` when the source has it.
 A replay also publishes the recording's joint states and safety truth with the depth frame
-they follow (`topseg/<cell>/robot/<name>/joints`, `topseg/<cell>/safety/truth`, moved to
+they follow (`topseg/<cell>/robot/<name>/joints`, `topseg/<cell>/safety/separation`, moved to
 `--cell`), restamped like the frame: as far from its new stamp as they were recorded, the
 safety truth's `seq` the frame's, so a safety service downstream sees a consistent robot.
 It holds the liveliness token `.../alive/driver/<instance>` while running (its Zenoh id,

@@ -5,7 +5,7 @@ truth, as a msgpack recording the safety service can be replayed against
 The recording holds, per frame at the sequence's rate: depth (with the camera's mount) on
 `topseg/<cell>/<camera>/depth`, exact labels on `.../truth`, the robot's joint state on
 `topseg/<cell>/robot/<name>/joints` and the truth separation of each person on stage on
-`topseg/<cell>/safety/truth` (`core/formats/cell_truth.py`). The cell file places the
+`topseg/<cell>/safety/separation` (`core/formats/cell_truth.py`). The cell file places the
 camera at (0, 0, yaw 0) and the robot where it was rendered, with a protective zone around
 what the robot's links sweep and a warning zone a metre beyond.
 """
