@@ -132,12 +132,12 @@ def _raw_image(image: np.ndarray, encoding: str, stamp_ns: int, frame_id: str):
 class FoxgloveSink:
     """Serves the viewer's cameras to Foxglove clients over the SDK's WebSocket server."""
 
-    def __init__(self, server, context) -> None:
-        self.server, self.context = server, context
+    def __init__(self, server, context, cell=None) -> None:
+        self.server, self.context, self.cell = server, context, cell
         self.channels: dict[tuple[str, str], dict] = {}
 
     @classmethod
-    def start(cls, host: str, port: int) -> FoxgloveSink:
+    def start(cls, host: str, port: int, cell=None) -> FoxgloveSink:
         """Start the WebSocket server on host:port; a TopsegError when it cannot."""
         import foxglove
 
@@ -153,7 +153,7 @@ class FoxgloveSink:
         except Exception as exc:
             raise TopsegError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         log.info("Foxglove WebSocket server: ws://%s:%d", host, server.port)
-        return cls(server, context)
+        return cls(server, context, cell)
 
     def cameras_changed(self, cameras) -> None:
         """Advertise the channels of cameras not seen before."""
@@ -249,6 +249,12 @@ class FoxgloveSink:
         channel = self.channels[cam][STATS_STREAM]
         if channel.has_sinks():
             channel.log(stats, log_time=int(stats["stamp_ns"]))
+
+    def safety(self, cell: str, state) -> None:
+        """A cell's safety state (not served to Foxglove yet)."""
+
+    def robot(self, cell: str, capsules, stamp_ns: int) -> None:
+        """The robot's capsules (not served to Foxglove yet)."""
 
     def close(self) -> None:
         """Stop the server (clients see it go)."""
