@@ -19,6 +19,7 @@ import numpy as np
 
 from topseg.core.errors import TopsegError
 from topseg.core.formats import joint_states as joint_wire
+from topseg.core.formats import ros2_messages as ros2
 from topseg.core.formats import safety_wire
 from topseg.core.safety.cell import CameraPlacement, CellConfig, Zone, load_cell
 from topseg.core.safety.robot import CellRobot
@@ -135,3 +136,44 @@ def load_cell_view(path: str | None) -> CellView | None:
         except (OSError, ValueError) as exc:
             raise TopsegError(f"{path}: cannot load robot {config.robot.name!r}: {exc}") from None
     return CellView(config, robot)
+
+
+def rgba(state: str | None, alpha: float = 1.0) -> tuple[float, float, float, float]:
+    """The colour of a state as (r, g, b, a) in 0..1 (ROS 2 and Foxglove colours)."""
+    r, g, b = state_colour(state)
+    return (r / 255.0, g / 255.0, b / 255.0, alpha)
+
+
+def safety_markers(zones, state) -> list:
+    """A cell's zones (`Zone`s) and its state's nearest pair as ROS 2 markers in the cell
+    frame: per zone (ns `zone/<name>`) its outline at z_min (id 0) and z_max (id 1) as
+    LINE_STRIPs and its vertical edges (id 2) as a LINE_LIST, coloured by the zone's state;
+    the nearest pair (ns `nearest`) as an ARROW from the person to the robot (id 0) and its
+    distance as text (id 1), both deleted when there is no pair."""
+    markers = []
+    for zone in zones:
+        colour = rgba(state.zones.get(zone.name))
+        bottom, top, *edges = zone_strips(zone)
+        ns = f"zone/{zone.name}"
+        markers += [
+            ros2.MarkerSpec(ns, 0, ros2.LINE_STRIP, bottom, colour),
+            ros2.MarkerSpec(ns, 1, ros2.LINE_STRIP, top, colour),
+            ros2.MarkerSpec(ns, 2, ros2.LINE_LIST, np.vstack(edges), colour),
+        ]
+    if state.nearest_m is None:
+        markers += [
+            ros2.MarkerSpec("nearest", 0, ros2.ARROW, delete=True),
+            ros2.MarkerSpec("nearest", 1, ros2.TEXT_VIEW_FACING, delete=True),
+        ]
+        return markers
+    person, robot = (np.asarray(p, np.float64) for p in state.nearest_m)
+    colour = rgba(state.state)
+    text = "" if state.min_distance_m is None else f"{state.min_distance_m:.2f} m"
+    markers += [
+        ros2.MarkerSpec("nearest", 0, ros2.ARROW, [person, robot], colour, width_m=0.02),
+        ros2.MarkerSpec(
+            "nearest", 1, ros2.TEXT_VIEW_FACING, rgba=colour, text=text,
+            position=tuple((person + robot) / 2 + (0.0, 0.0, 0.1)),
+        ),
+    ]  # fmt: skip
+    return markers
