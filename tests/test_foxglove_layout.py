@@ -30,7 +30,12 @@ def test_every_panel_is_placed_once_and_reads_the_cameras_topics():
     assert foxglove_layout.layout_topics(layout) == {
         topic("c2", "top", stream)
         for stream in ("depth", "labels_color", "camera_info", "points", "stats")
-    }
+    } | {"/topseg/c2/safety", "/topseg/c2/safety/scene"}
+    safety = layout["configById"]["Plot!safety"]
+    assert [p["value"] for p in safety["paths"]] == [
+        "/topseg/c2/safety.speed_scale",
+        "/topseg/c2/safety.level",
+    ]
     plot = layout["configById"]["Plot!timings"]
     assert [p["value"] for p in plot["paths"]] == [
         f"{topic('c2', 'top', 'stats')}.timings_ms.{stage}"

@@ -21,7 +21,8 @@ The mount is the static transform floor frame -> optical frame.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
@@ -38,6 +39,13 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 #: the types topseg publishes, in the order a reader is told about them
 MESSAGE_TYPES = (IMAGE, CAMERA_INFO, TF_MESSAGE)
+
+FLOAT64 = "std_msgs/msg/Float64"
+STRING = "std_msgs/msg/String"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+#: visualization_msgs/Marker types and actions topseg uses
+ARROW, LINE_STRIP, LINE_LIST, TEXT_VIEW_FACING = 0, 4, 5, 9
+MARKER_ADD, MARKER_DELETE = 0, 2
 
 DEPTH_ENCODING = "16UC1"  # millimetres, 0 = no reading (REP 118)
 LABEL_ENCODING = "mono8"  # label ids of core/labels.py
@@ -77,6 +85,16 @@ def ros2_topic(cell: str, camera: str, stream: str) -> str:
 def floor_frame(cell: str, camera: str) -> str:
     """The frame id of the floor below a camera: `<cell>_<camera>_floor` (z up)."""
     return f"{cell}_{camera}_floor"
+
+
+def cell_floor_frame(cell: str) -> str:
+    """The frame id of a cell's own floor frame (the cell file's frame): `<cell>_floor`."""
+    return f"{cell}_floor"
+
+
+def safety_topic(cell: str, stream: str) -> str:
+    """The ROS 2 topic of a cell's safety stream: `/topseg/<cell>/safety/<stream>`."""
+    return f"/topseg/{cell}/safety/{stream}"
 
 
 def optical_frame(cell: str, camera: str) -> str:
@@ -157,14 +175,17 @@ def mount_transform_message(mount: TopViewMount, stamp_ns: int, cell: str, camer
 
 
 def mount_transforms_message(
-    mounts: Mapping[tuple[str, str], TopViewMount], stamp_ns: int
+    mounts: Mapping[tuple[str, str], TopViewMount],
+    stamp_ns: int,
+    placements: Mapping[tuple[str, str], tuple[np.ndarray, float]] | None = None,
 ) -> bytes:
     """A `tf2_msgs/TFMessage` as CDR with one static transform floor frame -> optical frame
     per camera of `mounts` ({(cell, camera): mount}): `/tf_static` keeps only its last
     message, so that message names every camera (as tf2_ros' StaticTransformBroadcaster
-    does)."""
+    does). With `placements` (`placement_transforms`) it also names each camera's floor
+    frame in its cell's."""
     types = _types()
-    transforms = []
+    transforms = placement_transforms(placements or {}, stamp_ns)
     for (cell, camera), mount in mounts.items():
         (tx, ty, tz), (qx, qy, qz, qw) = mount_pose(mount)
         transforms.append(
@@ -178,3 +199,100 @@ def mount_transforms_message(
             )
         )
     return _serialise(types[TF_MESSAGE](transforms=transforms), TF_MESSAGE)
+
+
+def float64_message(value: float) -> bytes:
+    """A `std_msgs/Float64` as CDR."""
+    return _serialise(_types()[FLOAT64](data=float(value)), FLOAT64)
+
+
+def string_message(text: str) -> bytes:
+    """A `std_msgs/String` as CDR."""
+    return _serialise(_types()[STRING](data=str(text)), STRING)
+
+
+@dataclass(frozen=True)
+class MarkerSpec:
+    """One `visualization_msgs/Marker`: `kind` (ARROW, LINE_STRIP, ...), its `points`
+    ((n, 3) m, in the array's frame), colour (r, g, b, a in 0..1), line width or arrow shaft
+    diameter (m), the text of a TEXT_VIEW_FACING marker at `position`; `delete` removes the
+    marker of this ns and id."""
+
+    ns: str
+    id: int
+    kind: int = LINE_STRIP
+    points: Sequence = ()
+    rgba: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    width_m: float = 0.02
+    text: str = ""
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    delete: bool = False
+
+
+def _marker(spec: MarkerSpec, header):
+    types = _types()
+    point, vector = types["geometry_msgs/msg/Point"], types["geometry_msgs/msg/Vector3"]
+    r, g, b, a = (float(c) for c in spec.rgba)
+    width = float(spec.width_m)
+    # ARROW from two points: x the shaft's diameter, y the head's, z the head's length
+    scale = {ARROW: (width, 2 * width, 3 * width), TEXT_VIEW_FACING: (0, 0, 0.15)}.get(
+        spec.kind, (width, 0.0, 0.0)
+    )
+    x, y, z = (float(v) for v in spec.position)
+    return types["visualization_msgs/msg/Marker"](
+        header=header,
+        ns=spec.ns,
+        id=int(spec.id),
+        type=int(spec.kind),
+        action=MARKER_DELETE if spec.delete else MARKER_ADD,
+        pose=types["geometry_msgs/msg/Pose"](
+            position=point(x=x, y=y, z=z),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        ),
+        scale=vector(x=scale[0], y=scale[1], z=scale[2]),
+        color=types["std_msgs/msg/ColorRGBA"](r=r, g=g, b=b, a=a),
+        lifetime=types["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+        frame_locked=False,
+        points=[point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in spec.points],
+        colors=[],
+        texture_resource="",
+        texture=types["sensor_msgs/msg/CompressedImage"](
+            header=_header(0, ""), format="", data=np.zeros(0, np.uint8)
+        ),
+        uv_coordinates=[],
+        text=spec.text,
+        mesh_resource="",
+        mesh_file=types["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+        mesh_use_embedded_materials=False,
+    )
+
+
+def marker_array_message(markers: Sequence[MarkerSpec], stamp_ns: int, frame_id: str) -> bytes:
+    """A `visualization_msgs/MarkerArray` as CDR: every marker stamped in `frame_id`."""
+    header = _header(stamp_ns, frame_id)
+    message = _types()[MARKER_ARRAY](markers=[_marker(m, header) for m in markers])
+    return _serialise(message, MARKER_ARRAY)
+
+
+def placement_transforms(
+    placements: Mapping[tuple[str, str], tuple[np.ndarray, float]], stamp_ns: int
+) -> list:
+    """`geometry_msgs/TransformStamped`s `<cell>_floor` -> `<cell>_<camera>_floor`, one per
+    camera of `placements` ({(cell, camera): (offset (x, y, 0) m, yaw in degrees)}): where the
+    cell file places each camera's floor frame in the cell's."""
+    types = _types()
+    out = []
+    for (cell, camera), (offset, yaw_deg) in placements.items():
+        qx, qy, qz, qw = Rotation.from_euler("z", float(yaw_deg), degrees=True).as_quat()
+        tx, ty, tz = (float(v) for v in offset)
+        out.append(
+            types["geometry_msgs/msg/TransformStamped"](
+                header=_header(stamp_ns, cell_floor_frame(cell)),
+                child_frame_id=floor_frame(cell, camera),
+                transform=types["geometry_msgs/msg/Transform"](
+                    translation=types["geometry_msgs/msg/Vector3"](x=tx, y=ty, z=tz),
+                    rotation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+                ),
+            )
+        )
+    return out

@@ -17,6 +17,11 @@ bridge's names):
     /topseg/<cell>/<camera>/mount        std_msgs/msg/String         the wire's mount map as JSON
     /topseg/<cell>/<camera>/background   std_msgs/msg/String         {"id": background id or null}
     /tf_static                           tf2_msgs/msg/TFMessage      <cell>_<camera>_floor -> optical frame
+    /topseg/<cell>/safety                std_msgs/msg/String         the safety state's map as JSON
+    /topseg/<cell>/robot/<robot>/joints  sensor_msgs/msg/JointState  the robot's joint states
+
+The cell's topics mirror the Zenoh keys `topseg/<cell>/safety` (`safety_wire`) and
+`topseg/<cell>/robot/<robot>/joints` (`joint_states`) and read back as those wire messages.
 
 Depth images hold depth along the optical axis, as REP 118 says: a radial camera's frames
 (range along each ray, `TopViewMount.radial`) are written as depth, and its `/mount` as a
@@ -55,10 +60,11 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
+import msgpack
 import numpy as np
 
 from topseg.core.camera import Intrinsics, TopViewMount
-from topseg.core.formats import wire
+from topseg.core.formats import joint_states, safety_wire, wire
 from topseg.core.formats.ros2_messages import (
     CAMERA_INFO,
     DEPTH_ENCODING,
@@ -91,6 +97,47 @@ LATCHED = frozenset(("mount", "background"))
 #: Streams that only update their camera's state (no wire message of their own).
 STATE_STREAMS = ("camera_info", "mount", "background")
 _TOPIC = re.compile(r"/topseg/([^/]+)/([^/]+)/([^/]+)")
+_CELL_TOPIC = re.compile(r"/topseg/([^/]+)/(?:safety|robot/([^/]+)/joints)")
+#: the largest JSON safety state read back (a wire state is far smaller)
+MAX_SAFETY_JSON = 65536
+
+
+@cache
+def parse_cell_topic(topic: str) -> tuple[str, str] | None:
+    """A cell's topic (`/topseg/<cell>/safety`, `/topseg/<cell>/robot/<robot>/joints`) ->
+    (its wire key, its ROS 2 type); None for other topics."""
+    m = _CELL_TOPIC.fullmatch(topic)
+    if m is None:
+        return None
+    try:
+        if m.group(2) is None:
+            return safety_wire.safety_key(m.group(1)), STRING
+        return joint_states.joints_key(m.group(1), m.group(2)), joint_states.ROS2_JOINT_STATE
+    except (WireError, ValueError):
+        return None
+
+
+def cell_topic(key: str) -> str | None:
+    """The ROS 2 topic of a cell's wire key (`topseg/<cell>/safety`,
+    `topseg/<cell>/robot/<robot>/joints`): the key with a leading `/`; None for other keys."""
+    topic = "/" + key
+    return topic if parse_cell_topic(topic) is not None else None
+
+
+def safety_json(data: bytes) -> str:
+    """A wire safety state (checked: WireError) as the JSON of its map."""
+    safety_wire.decode_safety(data)
+    return json.dumps(msgpack.unpackb(data, raw=False))
+
+
+def safety_from_json(text: str) -> bytes:
+    """The wire safety state of a JSON map (`safety_json`), checked; WireError otherwise."""
+    if len(text) > MAX_SAFETY_JSON:
+        raise WireError(f"a safety state of {len(text)} characters is too long")
+    state = _json(text)
+    if not isinstance(state, dict):
+        raise WireError("a safety state must be a JSON object")
+    return safety_wire.encode_safety(safety_wire.decode_safety(msgpack.packb(state)))
 
 
 @cache
@@ -136,11 +183,21 @@ class Ros2Channels:
         self.path = path
         self._channels: dict[int, _Channel] = {}
         self._cameras: dict[tuple[str, str], _Camera] = {}
+        self._cell_channels: dict[int, tuple[str, str]] = {}  # id -> (wire key, type)
 
     def add(self, channel_id: int, topic: str, schema_name: str | None) -> bool:
         """Take a channel if it is one of topseg's topics of the expected type (False: skip
         it; `/tf_static` is skipped too, `/mount` says the same more exactly)."""
         parsed = parse_topic(topic)
+        cell = parse_cell_topic(topic) if parsed is None else None
+        if cell is not None:
+            if schema_name != cell[1]:
+                log.warning(
+                    "%s: channel %s is %s, not %s: skipped", self.path, topic, schema_name, cell[1]
+                )
+                return False
+            self._cell_channels[channel_id] = cell
+            return True
         if parsed is None:
             if topic != TF_STATIC:
                 log.info("%s: channel %s is not a topseg topic: skipped", self.path, topic)
@@ -160,17 +217,21 @@ class Ros2Channels:
         return True
 
     def __contains__(self, channel_id: int) -> bool:
-        return channel_id in self._channels
+        return channel_id in self._channels or channel_id in self._cell_channels
 
     def key(self, channel_id: int) -> str | None:
         """The wire key a channel's messages are rebuilt for; None for camera info, mount and
         background."""
+        if channel_id in self._cell_channels:
+            return self._cell_channels[channel_id][0]
         ch = self._channels.get(channel_id)
         return None if ch is None or ch.stream in STATE_STREAMS else ch.key
 
     def message(self, channel_id: int, data: bytes, sequence: int) -> bytes | None:
         """A wire message rebuilt from one CDR message (None for camera info, mount and
         background, which only update their camera); WireError when it does not decode."""
+        if channel_id in self._cell_channels:
+            return _cell_message(self._cell_channels[channel_id][1], data)
         ch = self._channels[channel_id]
         cam = self._cameras[ch.cell, ch.camera]
         try:
@@ -208,6 +269,17 @@ class Ros2Channels:
         labels = _image(msg, LABEL_ENCODING, np.uint8)
         background = cam.background if ch.stream == "labels" else None
         return wire.encode_labels(LabelFrame(labels, sequence, stamp, ch.camera, background))
+
+
+def _cell_message(typename: str, data: bytes) -> bytes:
+    """The wire message of a cell topic's CDR message: a safety state or a joint state."""
+    if typename == joint_states.ROS2_JOINT_STATE:
+        return joint_states.encode_joint_state(joint_states.decode_ros2_joint_state(data))
+    try:
+        text = typestore().deserialize_cdr(data, STRING).data
+    except Exception as exc:  # rosbags raises many types for malformed CDR
+        raise WireError(f"not a CDR {STRING} ({type(exc).__name__}: {exc})") from None
+    return safety_from_json(text)
 
 
 def _background_id(state: Any) -> str | None:

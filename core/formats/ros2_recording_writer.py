@@ -13,7 +13,7 @@ from pathlib import Path
 
 from topseg.core import labels as label_table
 from topseg.core.camera import axis_depth
-from topseg.core.formats import wire
+from topseg.core.formats import joint_states, wire
 from topseg.core.formats.recording import CHUNK_SIZE, RecordingWriter
 from topseg.core.formats.ros2_messages import (
     TF_MESSAGE,
@@ -35,7 +35,10 @@ from topseg.core.formats.ros2_recording import (
     STREAM_TYPES,
     STRING,
     TF_STATIC,
+    cell_topic,
+    parse_cell_topic,
     parse_topic,
+    safety_json,
 )
 from topseg.core.formats.wire import DepthFrame, LabelFrame, WireError
 
@@ -90,7 +93,8 @@ class Ros2RecordingWriter:
     """Write wire messages to `path` as a ROS 2 MCAP recording (see the module), atomically.
 
     `write(key, data)` takes a wire message as it crossed Zenoh and raises WireError,
-    writing nothing, when it is not a depth, labels, truth or stats message; the file's
+    writing nothing, when it is not a depth, labels, truth, stats, safety or joint state
+    message; the file's
     atomic rename, small chunks and full-disk salvage are `RecordingWriter`'s.
     """
 
@@ -121,6 +125,10 @@ class Ros2RecordingWriter:
 
     def write(self, key: str, data: bytes, log_time_ns: int | None = None) -> None:
         """Convert one wire message on `key` and append its ROS 2 messages."""
+        topic = cell_topic(key)
+        if topic is not None:
+            self._write(topic, _cell_message(topic, data), log_time_ns, None)
+            return
         parts = wire.parse_key(key)
         message = wire.decode_for_key(key, data)
         cell, camera = parts.cell, parts.camera
@@ -180,9 +188,12 @@ class Ros2RecordingWriter:
         self._counts[topic] = count + 1
 
     def _add_channel(self, topic: str) -> int:
-        parsed = parse_topic(topic)
-        typename = TF_MESSAGE if parsed is None else STREAM_TYPES[parsed[2]]
-        latched = parsed is None or parsed[2] in LATCHED
+        parsed, cell = parse_topic(topic), parse_cell_topic(topic)
+        if cell is not None:
+            typename, latched = cell[1], False
+        else:
+            typename = TF_MESSAGE if parsed is None else STREAM_TYPES[parsed[2]]
+            latched = parsed is None or parsed[2] in LATCHED
         schema = self._schemas.get(typename)
         if schema is None:
             text = schema_text(typename).encode()
@@ -210,6 +221,18 @@ class Ros2RecordingWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self._out.__exit__(exc_type, exc, tb)
+
+
+def _cell_message(topic: str, data: bytes) -> bytes:
+    """A cell topic's CDR message of a wire safety or joint state (WireError when it is
+    not one): the safety state's map as JSON in a String, the joints as a JointState."""
+    if topic.endswith("/joints"):
+        js = joint_states.decode_joint_state(data)
+        try:
+            return joint_states.encode_ros2_joint_state(js)
+        except (ValueError, OverflowError, struct.error) as exc:  # past ROS's int32 seconds
+            raise WireError(f"a joint state with no ROS 2 form: {exc}") from None
+    return _string_message(safety_json(data))
 
 
 def _mount_state(frame: DepthFrame) -> dict | None:

@@ -11,6 +11,18 @@ it publishes, as a ROS 2 node `/topseg_bridge` would under `rmw_zenoh_cpp`:
 - `/tf_static`: `tf2_msgs/msg/TFMessage`, `<cell>_<camera>_floor` -> `<cell>_<camera>_optical_frame` for every
   camera whose frames carry a mount, kept for late joiners (transient local, depth 1).
 
+For every cell seen on `topseg/<cell>/safety` (the safety service's state):
+
+- `/topseg/<cell>/safety/state`: `std_msgs/msg/String`, `clear`, `warning` or `stop`;
+- `/topseg/<cell>/safety/speed_scale`: `std_msgs/msg/Float64`, 0..1;
+- with `--cell CELL.toml` naming that cell, `/topseg/<cell>/safety/markers`:
+  `visualization_msgs/msg/MarkerArray` in `<cell>_floor` (the cell file's frame), the zones
+  and the nearest pair coloured by state (`safety_view.safety_markers`), and `/tf_static`
+  gains `<cell>_floor` -> `<cell>_<camera>_floor` for every camera of the file.
+
+A cell heard of that sends no valid state for `--safety-timeout` seconds is published as
+`stop` with speed scale 0 (every timeout, until states come again).
+
 Images carry the topseg frame's stamp and `<cell>_<camera>_optical_frame`. The bytes are
 `core/formats/ros2_messages.py`'s CDR (the same as in recordings); keys, liveliness tokens,
 GIDs and attachments are `core/formats/rmw_zenoh.py`'s. Each topic is a Zenoh
@@ -45,9 +57,11 @@ from topseg.core.camera import axis_depth
 from topseg.core.errors import TopsegError
 from topseg.core.formats import rmw_zenoh as rz
 from topseg.core.formats import ros2_messages as ros2
-from topseg.core.formats import wire
+from topseg.core.formats import safety_wire, wire
 from topseg.core.printable import printable
+from topseg.core.safety.cell import CellConfig, load_cell
 from topseg.services.cli.options import finite, int_range, parse_camera
+from topseg.services.live import safety_view
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.inbox import Inbox
 from topseg.services.runtime.lifecycle import ServiceLifecycle
@@ -69,6 +83,13 @@ CAMERA_STREAMS = {
 }
 #: Distinct refused camera names remembered (beyond it, messages still count)
 MAX_REFUSED_NAMES = 4096
+#: A cell's safety topics: /topseg/<cell>/safety/<stream> and their message types; markers
+#: only for the cell of --cell
+SAFETY_STREAMS = {
+    "state": ros2.STRING,
+    "speed_scale": ros2.FLOAT64,
+    "markers": ros2.MARKER_ARRAY,
+}
 #: At most one "ignoring" warning this often (s)
 WARN_EVERY_S = 10.0
 
@@ -103,6 +124,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="S",
         help="without --cameras, release a camera that sent nothing for this long: its topics "
         "leave the ROS graph; 0 = never (default: %(default)s s)",
+    )
+    parser.add_argument(
+        "--cell",
+        metavar="CELL.toml",
+        help="a cell file: also publish its zones and nearest pair as markers in the "
+        "<cell>_floor frame, and where its cameras hang on /tf_static (default: each "
+        "cell's safety state and speed scale only)",
+    )
+    parser.add_argument(
+        "--safety-timeout",
+        type=finite(0.001, 1e6),
+        default=0.5,
+        metavar="S",
+        help="a cell whose safety state was heard of and then sent no valid state for this "
+        "long is published as stop with speed scale 0 (default: %(default)s s)",
     )
     parser.add_argument(
         "--queue",
@@ -181,9 +217,15 @@ class Bridge:
         max_cameras: int,
         wanted=None,
         forget_after: float = 0.0,
+        cell: CellConfig | None = None,
+        safety_timeout: float = 0.5,
     ) -> None:
 
         self.session, self.max_cameras = session, max_cameras
+        self.cell, self.safety_timeout = cell, safety_timeout
+        self.safety: dict[str, dict[str, Ros2Publisher]] = {}  # cell -> its safety topics
+        self.safety_heard: dict[str, float] = {}  # cell -> monotonic s of its last valid state
+        self.stale: set[str] = set()
         self.forget_after = forget_after
         self.last_seen: dict[tuple[str, str], float] = {}  # monotonic s of the last message
         self.next_sweep = 0.0
@@ -252,8 +294,95 @@ class Bridge:
         )
         return None
 
+    def placements(self) -> dict[tuple[str, str], tuple[Any, float]]:
+        """Where the cell file hangs its cameras: {(cell, camera): (offset, yaw_deg)}."""
+        if self.cell is None:
+            return {}
+        return {(self.cell.cell, c.name): (c.offset(), c.yaw_deg) for c in self.cell.cameras}
+
+    def safety_topics(self, cell: str) -> dict[str, Ros2Publisher] | None:
+        """A cell's safety publishers, declared on its first state; None for a cell that is
+        not bridged (not among --cameras' cells, over --max-cameras cells, or a name ROS 2
+        refuses)."""
+        found = self.safety.get(cell)
+        if found is not None:
+            return found
+        name = (cell, "safety")
+        if self.wanted is not None and cell not in {c for c, _ in self.wanted}:
+            return None
+        if name in self.refused:
+            self.ignored += 1
+            return None
+        if len(self.safety) >= self.max_cameras:
+            return self._refuse(name, "limit", f"cell limit reached ({self.max_cameras})")
+        try:
+            rz.check_topic_name(ros2.safety_topic(cell, "speed_scale"))
+        except rz.Ros2NameError as exc:
+            return self._refuse(name, "name", str(exc))
+        streams = dict(SAFETY_STREAMS)
+        if self.cell is None or self.cell.cell != cell:
+            del streams["markers"]
+        found = {
+            stream: self._publisher(ros2.safety_topic(cell, stream), typename, rz.DEFAULT_QOS)
+            for stream, typename in streams.items()
+        }
+        self.safety[cell] = found
+        log.info("publishing %s", ", ".join(p.topic for p in found.values()))
+        return found
+
+    def handle_safety(self, key: str, cell: str, payload: bytes) -> None:
+        """A cell's safety state: its state, speed scale and (with its cell file) markers."""
+        try:
+            state = safety_wire.decode_safety(payload)
+        except wire.WireError as exc:
+            self.rejected += 1
+            self._warn(
+                "rejected", "%s: %s (%d rejected)", printable(key), printable(exc), self.rejected
+            )
+            return
+        topics = self.safety_topics(cell)
+        if topics is None:
+            return
+        self.safety_heard[cell] = time.monotonic()
+        if cell in self.stale:
+            self.stale.discard(cell)
+            log.info("cell %s: safety states again", cell)
+        topics["state"].put(ros2.string_message(state.state))
+        topics["speed_scale"].put(ros2.float64_message(state.speed_scale))
+        self.published += 2
+        if "markers" in topics:
+            markers = safety_view.safety_markers(self.cell.zones, state)
+            topics["markers"].put(
+                ros2.marker_array_message(markers, state.stamp_ns, ros2.cell_floor_frame(cell))
+            )
+            self.published += 1
+
+    def stop_stale(self) -> None:
+        """Publish stop and speed scale 0 for every cell whose states stopped coming (no
+        valid one for --safety-timeout): a reader never keeps a clear that is no longer
+        being said; repeated every --safety-timeout until states come again."""
+        now = time.monotonic()
+        for cell, heard in self.safety_heard.items():
+            if now - heard < self.safety_timeout:
+                continue
+            if cell not in self.stale:
+                self.stale.add(cell)
+                log.warning(
+                    "cell %s: no valid safety state for %.1f s: publishing stop",
+                    cell, self.safety_timeout,
+                )  # fmt: skip
+            topics = self.safety[cell]
+            topics["state"].put(ros2.string_message("stop"))
+            topics["speed_scale"].put(ros2.float64_message(0.0))
+            self.published += 2
+            self.safety_heard[cell] = now  # again after another timeout
+
     def handle(self, key: str, payload: bytes) -> None:
         """Decode one topseg message by its key and publish its ROS 2 messages."""
+        chunks = key.split("/")
+        if len(chunks) == 3 and chunks[0] == wire.ROOT and chunks[2] == safety_wire.SAFETY:
+            self.handle_safety(key, chunks[1], payload)
+            return
         try:
             parts = wire.parse_key(key)
             if parts.kind == "depth":
@@ -301,9 +430,12 @@ class Bridge:
         """Every known mount in one /tf_static message (its publisher keeps the last one)."""
         if self.tf_static is None:
             self.tf_static = self._publisher("/tf_static", ros2.TF_MESSAGE, rz.STATIC_TF_QOS)
-        self.tf_static.put(ros2.mount_transforms_message(self.mounts, stamp_ns))
+        self.tf_static.put(ros2.mount_transforms_message(self.mounts, stamp_ns, self.placements()))
         self.published += 1
-        frames = ", ".join(ros2.optical_frame(*cam) for cam in self.mounts)
+        frames = ", ".join(
+            [ros2.floor_frame(*cam) for cam in self.placements()]
+            + [ros2.optical_frame(*cam) for cam in self.mounts]
+        )
         log.info("published /tf_static: %s", frames)
 
     def forget_idle(self) -> None:
@@ -327,6 +459,9 @@ class Bridge:
     def close(self) -> None:
         """Leave the ROS graph: every publisher, then the node."""
         for topics in self.cameras.values():
+            for pub in topics.values():
+                pub.undeclare()
+        for topics in self.safety.values():
             for pub in topics.values():
                 pub.undeclare()
         if self.tf_static is not None:
@@ -353,16 +488,23 @@ def run(args: argparse.Namespace) -> int:
     """Bridge until SIGTERM/SIGINT; bad options or Zenoh config fail first (exit 2)."""
     domain = ros_domain(args.domain)
     wanted = wanted_cameras(args.cameras)
+    cell = None if args.cell is None else load_cell(args.cell)  # bad file: one line, exit 2
     svc = ServiceLifecycle("bridge", args)
     inbox = Inbox(args.queue)
 
     if wanted is None:
-        keys = ["topseg/*/*/depth", "topseg/*/*/labels"]
+        keys = ["topseg/*/*/depth", "topseg/*/*/labels", f"topseg/*/{safety_wire.SAFETY}"]
     else:
         keys = [k for c in sorted(wanted) for k in (wire.depth_key(*c), wire.labels_key(*c))]
+        keys += [safety_wire.safety_key(c) for c in sorted({c for c, _ in wanted})]
 
     with svc:
-        bridge = Bridge(svc.session, domain, args.max_cameras, wanted, args.forget_after)
+        bridge = Bridge(
+            svc.session, domain, args.max_cameras, wanted, args.forget_after, cell,
+            args.safety_timeout,
+        )  # fmt: skip
+        if cell is not None:
+            bridge.publish_mounts(time.time_ns())  # where the cell's cameras hang
         svc.defer(bridge.close)
         for key in keys:
             svc.declare(svc.session.declare_subscriber(key, inbox.on_sample))
@@ -381,9 +523,11 @@ def run(args: argparse.Namespace) -> int:
         svc.ready(status=status)
         while not svc.stopping:
             svc.beat()
-            item = inbox.get(svc.tick)
+            wait = svc.tick if not bridge.safety else min(svc.tick, args.safety_timeout / 4)
+            item = inbox.get(wait)
             if item is not None:
                 bridge.handle(*item)
+            bridge.stop_stale()
             bridge.forget_idle()
         log.info("bridge done: %s", status())
     return 0

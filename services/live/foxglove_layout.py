@@ -16,7 +16,7 @@ import argparse
 import json
 
 from topseg.core.formats import ros2_messages, wire
-from topseg.services.live.viewer_foxglove import topic
+from topseg.services.live.viewer_foxglove import safety_topic, topic
 
 #: depth shown from black (0 mm) to white (this many mm) in the depth panel
 DEPTH_DISPLAY_MAX_MM = 5000
@@ -33,7 +33,8 @@ PLOTTED_STAGES = ("forest", "crf", "total", "latency")
 
 def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> dict:
     """The layout of a camera: depth and label-colour images over the labelled 3-D cloud in
-    the floor frame (with a grid) beside a plot of the worker's ms per stage."""
+    the floor frame (with a grid, the cell's safety zones and nearest pair) beside plots of
+    the worker's ms per stage and the cell's speed scale and state."""
     import foxglove.layouts as fl
 
     calibration = topic(cell, camera, "camera_info")
@@ -55,7 +56,8 @@ def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> 
         topics={
             topic(cell, camera, "points"): fl.BaseRendererPointCloudTopicSettings(
                 visible=True, color_mode="rgba-fields", point_size=3
-            )
+            ),
+            safety_topic(cell, "scene"): fl.BaseRendererSceneUpdateTopicSettings(visible=True),
         },
         layers={"grid": fl.BaseRendererGridLayerSettings()},
     )
@@ -68,11 +70,20 @@ def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> 
         y_axis_label="ms",
         show_legend=True,
     )
+    state = safety_topic(cell)
+    safety = fl.PlotConfig(
+        paths=[
+            fl.PlotSeries(value=f"{state}.speed_scale", label="speed scale", enabled=True),
+            fl.PlotSeries(value=f"{state}.level", label="state (0 clear, 2 stop)", enabled=True),
+        ],
+        show_legend=True,
+    )
     panels = {
         "Image!depth": depth,
         "Image!labels": label_colours,
         "3D!floor": scene,
         "Plot!timings": timings,
+        "Plot!safety": safety,
     }
     return {
         "configById": {name: _config(config) for name, config in panels.items()},
@@ -92,7 +103,12 @@ def layout(cell: str = wire.DEFAULT_CELL, camera: str = wire.DEFAULT_CAMERA) -> 
                 "direction": "row",
                 "splitPercentage": 65,
                 "first": "3D!floor",
-                "second": "Plot!timings",
+                "second": {
+                    "direction": "column",
+                    "splitPercentage": 50,
+                    "first": "Plot!timings",
+                    "second": "Plot!safety",
+                },
             },
         },
     }

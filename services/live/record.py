@@ -1,12 +1,13 @@
 """Record what is on Zenoh to an MCAP file: every camera's depth, labels, ground truth and
-stats by default, as ROS 2 messages (`--format ros2`, which ROS 2 tools and `replay:` read)
+stats, every cell's safety state and its robot's joint states by default, as ROS 2 messages (`--format ros2`, which ROS 2 tools and `replay:` read)
 or as the raw wire bytes (`--format msgpack`). Stops after `--duration`, `--count` or
 Ctrl-C, then moves the finished file into place.
 
-Subscribes to `--keys` (default: every camera's depth, labels, ground truth and stats).
-`--format ros2` (the default) writes a ROS 2 recording (`core/formats/ros2_recording.py`:
-CDR images, camera info, the mount as `/tf_static`, stats as JSON); wire messages that are
-not depth, labels, truth or stats are dropped and counted as rejected. `--format msgpack`
+Subscribes to `--keys` (default: every camera's depth, labels, ground truth and stats,
+`topseg/*/safety` and `topseg/*/robot/*/joints`). `--format ros2` (the default) writes a ROS 2
+recording (`core/formats/ros2_recording.py`: CDR images, camera info, the mount as
+`/tf_static`, stats and safety states as JSON, joint states as `sensor_msgs/JointState`);
+wire messages that are none of these are dropped and counted as rejected. `--format msgpack`
 writes each message's exact bytes on a channel named after its key
 (`core/formats/recording.py`), a raw capture of the wire, garbage included.
 Stops after `--duration` seconds, `--count` messages, or SIGTERM/SIGINT, and only then
@@ -40,7 +41,14 @@ from topseg.services.runtime.lifecycle import ServiceLifecycle
 
 log = logging.getLogger("topseg.record")
 
-DEFAULT_KEYS = ("topseg/*/*/depth", "topseg/*/*/labels", "topseg/*/*/truth", "topseg/*/*/stats")
+DEFAULT_KEYS = (
+    "topseg/*/*/depth",
+    "topseg/*/*/labels",
+    "topseg/*/*/truth",
+    "topseg/*/*/stats",
+    "topseg/*/safety",
+    "topseg/*/robot/*/joints",
+)
 FORMATS = ("ros2", "msgpack")
 
 

@@ -22,6 +22,15 @@ and again when a camera appears. Each message is logged on the `frame` timeline 
 and `sensor_time` (its stamp). Undecodable messages are counted and skipped; Zenoh's
 thread only queues (bounded), the logging loop drops and counts what it cannot take.
 `--save` flushes the `.rrd` on SIGTERM, SIGINT or after `--duration` seconds.
+
+Every cell's safety state (`topseg/<cell>/safety`) is logged too: the state (clear 0,
+warning 1, stop 2), speed scale, reaction time and nearest distance as scalars, each change
+of state or reasons as a text log line, and the nearest person-robot pair as a line labelled
+with its distance. With `--cell CELL.toml` (optional) the viewer also draws the cell's
+zones coloured by their newest state (clear green, warning amber, stop red, grey before the
+first) and the robot's bounding capsules at its joint states (`topseg/<cell>/robot/<name>/
+joints`, at most 30 a second), each in every camera's world frame of the cell file, where
+that camera's cloud is (`services/live/safety_view.py`).
 """
 
 from __future__ import annotations
@@ -33,15 +42,19 @@ import urllib.parse
 from collections import OrderedDict
 from typing import Any
 
+import numpy as np
+
 from topseg.core import labels
 from topseg.core.camera import axis_depth
 from topseg.core.errors import TopsegError
-from topseg.core.formats import wire
+from topseg.core.formats import joint_states as joint_wire
+from topseg.core.formats import safety_wire, wire
 from topseg.core.formats.ros2_messages import mount_pose
 from topseg.core.labelled_cloud import labelled_cloud
 from topseg.core.printable import printable
 from topseg.services.cli.options import finite
-from topseg.services.live import viewer_layout
+from topseg.services.live import safety_view, viewer_layout
+from topseg.services.live.safety_view import CellView
 from topseg.services.live.viewer_foxglove import FoxgloveSink, add_foxglove_arguments
 from topseg.services.runtime import zenoh_session
 from topseg.services.runtime.inbox import Inbox
@@ -53,6 +66,8 @@ log = logging.getLogger("topseg.viewer")
 PAIR_WINDOW = 16
 #: messages queued between Zenoh's thread and the logging loop (older ones are dropped)
 QUEUE_SIZE = 64
+#: joint states are shown at most this often (s)
+JOINT_PERIOD_S = 1 / 30
 #: Rerun's own default ports of its web viewer and its gRPC server
 WEB_PORT, GRPC_PORT = 9090, 9876
 
@@ -83,6 +98,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="stop after this many seconds (default: never)",
     )
     parser.add_argument(
+        "--cell",
+        metavar="CELL.toml",
+        help="a cell file: also show its zones coloured by their state and its robot at "
+        "its joint states (default: states, speed scale and nearest pair only)",
+    )
+    parser.add_argument(
         "--stride",
         type=int,
         default=4,
@@ -107,20 +128,117 @@ def annotation_context():
 class RerunSink:
     """Logs the viewer's cameras to one Rerun RecordingStream, laid out by a blueprint."""
 
-    def __init__(self, rec) -> None:
+    def __init__(self, rec, cell: CellView | None = None) -> None:
         import rerun as rr
 
-        self.rec = rec
+        self.rec, self.cell = rec, cell
         self.pinholes: dict[tuple[str, str], Any] = {}
         self.mounts: dict[tuple[str, str], Any] = {}
+        self.cameras: list[tuple[str, str]] = []
+        self.cells: set[str] = set()
+        #: what was last drawn of each cell's state: (zones, nearest, reasons) by cell
+        self.drawn: dict[str, tuple] = {}
         rec.log("/", annotation_context(), static=True)
         rec.log(viewer_layout.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         rec.log(viewer_layout.LEGEND, viewer_layout.legend_points(), static=True)
-        rec.send_blueprint(viewer_layout.blueprint([]))
+        if cell is not None:
+            self.cells.add(cell.name)
+            self._zones(cell.name, {})  # grey until the first state
+        rec.send_blueprint(viewer_layout.blueprint([], self.cells))
 
     def cameras_changed(self, cameras) -> None:
         """Lay the views out again for this set of (cell, camera)."""
-        self.rec.send_blueprint(viewer_layout.blueprint(cameras))
+        self.cameras = list(cameras)
+        self.rec.send_blueprint(viewer_layout.blueprint(self.cameras, self.cells))
+
+    def _frames(self, cell: str) -> list[tuple[str, Any]]:
+        """Where a cell's safety shapes go: (entity, camera placement) per camera of the
+        cell file, each in that camera's world frame (beside its cloud); without the cell's
+        file one entity in the cell frame."""
+        if self.cell is None or self.cell.name != cell:
+            return [(viewer_layout.safety_shapes_entity(cell), None)]
+        return [
+            (viewer_layout.safety_shapes_entity(cell, c.name), c) for c in self.cell.config.cameras
+        ]
+
+    def _zones(self, cell: str, states: dict[str, str]) -> None:
+        """The cell file's zones as line strips, coloured by their states."""
+        import rerun as rr
+
+        for zone in self.cell.config.zones:
+            colour = safety_view.state_colour(states.get(zone.name))
+            for entity, placement in self._frames(cell):
+                self.rec.log(
+                    f"{entity}/zones/{zone.name}",
+                    rr.LineStrips3D(
+                        safety_view.zone_strips(zone, placement), colors=colour, radii=0.01
+                    ),
+                )
+
+    def safety(self, cell: str, state) -> None:
+        """A cell's state: its scalars over time; its zones, nearest pair and reasons when
+        they changed."""
+        import rerun as rr
+
+        self.rec.reset_time()
+        if state.frame is not None:
+            self.rec.set_time("frame", sequence=state.frame[1])
+        self.rec.set_time("sensor_time", timestamp=state.stamp_ns * 1e-9)
+        if cell not in self.cells:
+            self.cells.add(cell)
+            self.rec.send_blueprint(viewer_layout.blueprint(self.cameras, self.cells))
+        base = viewer_layout.safety_entity(cell)
+        self.rec.log(f"{base}/state", rr.Scalars(safety_view.STATE_LEVELS[state.state]))
+        self.rec.log(f"{base}/speed_scale", rr.Scalars(state.speed_scale))
+        if state.reaction_ms is not None:
+            self.rec.log(f"{base}/reaction_ms", rr.Scalars(state.reaction_ms))
+        if state.min_distance_m is not None:
+            self.rec.log(f"{base}/min_distance_m", rr.Scalars(state.min_distance_m))
+        zones, nearest, reasons = self.drawn.get(cell, (None, None, None))
+        if (state.state, state.reasons) != reasons:
+            level = {"clear": "INFO", "warning": "WARN", "stop": "ERROR"}[state.state]
+            text = f"{state.state}: " + ("; ".join(state.reasons) or "-")
+            self.rec.log(f"{base}/reasons", rr.TextLog(text, level=level))
+        if self.cell is not None and self.cell.name == cell and state.zones != zones:
+            self._zones(cell, state.zones)
+        if state.nearest_m != nearest:
+            self._nearest(cell, state)
+        self.drawn[cell] = (state.zones, state.nearest_m, (state.state, state.reasons))
+
+    def _nearest(self, cell: str, state) -> None:
+        """The nearest pair as a line labelled with its distance (cleared when none)."""
+        import rerun as rr
+
+        for entity, placement in self._frames(cell):
+            if state.nearest_m is None:
+                self.rec.log(f"{entity}/nearest", rr.Clear(recursive=False))
+                continue
+            pair = safety_view.in_frame(np.array(state.nearest_m), placement)
+            label = "" if state.min_distance_m is None else f"{state.min_distance_m:.2f} m"
+            self.rec.log(
+                f"{entity}/nearest",
+                rr.LineStrips3D(
+                    [pair], colors=safety_view.state_colour(state.state), radii=0.015,
+                    labels=[label], show_labels=True,
+                ),
+            )  # fmt: skip
+
+    def robot(self, cell: str, capsules, stamp_ns: int) -> None:
+        """The robot's capsules at its newest joint state (measured at `stamp_ns`)."""
+        import rerun as rr
+
+        self.rec.reset_time()
+        self.rec.set_time("sensor_time", timestamp=stamp_ns * 1e-9)
+        for entity, placement in self._frames(cell):
+            posed = safety_view.posed_capsules(capsules, placement)
+            self.rec.log(
+                f"{entity}/robot",
+                rr.Capsules3D(
+                    lengths=posed.length, radii=posed.radius, translations=posed.translation,
+                    quaternions=posed.quaternion, labels=list(posed.link),
+                    class_ids=[labels.ROBOT] * len(posed.link),
+                ),
+            )  # fmt: skip
 
     def _time(self, seq: int, stamp_ns: int) -> None:
         self.rec.set_time("frame", sequence=seq)
@@ -197,8 +315,10 @@ class RerunSink:
 class Viewer:
     """Decodes topseg messages, pairs depth with labels and hands both to the sinks."""
 
-    def __init__(self, sinks: list, stride: int) -> None:
-        self.sinks, self.stride = sinks, stride
+    def __init__(self, sinks: list, stride: int, cell: CellView | None = None) -> None:
+        self.sinks, self.stride, self.cell = sinks, stride, cell
+        self.joints_key = None if cell is None else cell.joints_key()
+        self.next_joints = 0.0  # monotonic s: joint states before it are skipped
         #: the kinds the viewer subscribes to, and their decoders
         self.decoders = {
             "depth": wire.decode_depth,
@@ -216,8 +336,16 @@ class Viewer:
             self.seen.add(what)
             log.info("logging %s", what)
 
+    def _reject(self, key: str, exc: Exception) -> None:
+        """Count a message that does not decode; log the first ten, then every 100th."""
+        self.rejected += 1
+        if self.rejected <= 10 or self.rejected % 100 == 0:
+            log.warning("%s: %s (%d rejected)", printable(key), printable(exc), self.rejected)
+
     def handle(self, key: str, payload: bytes) -> None:
         """Decode one message by the kind its key names (parsed once) and pass it on."""
+        if self.on_cell_message(key, payload):
+            return
         try:
             parts = wire.parse_key(key)
             decode = self.decoders.get(parts.kind)
@@ -225,9 +353,7 @@ class Viewer:
                 raise wire.WireError(f"{key!r} does not carry a message the viewer shows")
             msg = decode(payload)
         except wire.WireError as exc:
-            self.rejected += 1
-            if self.rejected <= 10 or self.rejected % 100 == 0:
-                log.warning("%s: %s (%d rejected)", printable(key), printable(exc), self.rejected)
+            self._reject(key, exc)
             return
         cam = (parts.cell, parts.camera)
         if cam not in self.cameras:
@@ -242,6 +368,37 @@ class Viewer:
             for sink in self.sinks:
                 sink.stats(cam, msg)
             self._first(f"{parts.cell}/{parts.camera}/stats")
+
+    def on_cell_message(self, key: str, payload: bytes) -> bool:
+        """Show a cell's safety state (`topseg/<cell>/safety`) or, with a cell file, its
+        robot at a joint state (at most every JOINT_PERIOD_S); False for other keys."""
+        parts = key.split("/")
+        if len(parts) == 3 and parts[0] == wire.ROOT and parts[2] == safety_wire.SAFETY:
+            try:
+                state = safety_wire.decode_safety(payload)
+            except wire.WireError as exc:
+                self._reject(key, exc)
+                return True
+            for sink in self.sinks:
+                sink.safety(parts[1], state)
+            self._first(f"{parts[1]}/safety")
+            return True
+        if self.joints_key is None or key != self.joints_key:
+            return False
+        now = time.monotonic()
+        if now < self.next_joints:  # a robot's joint states come faster than a view needs
+            return True
+        try:
+            joints = joint_wire.decode_joint_state(payload)
+            capsules, stamp_ns = self.cell.capsules(joints), joints.stamp_ns
+        except (wire.WireError, ValueError) as exc:
+            self._reject(key, exc)
+            return True
+        self.next_joints = now + JOINT_PERIOD_S
+        for sink in self.sinks:
+            sink.robot(self.cell.name, capsules, stamp_ns)
+        self._first(f"{self.cell.name}/robot")
+        return True
 
     def on_depth(self, cam, frame) -> None:
         """Show the depth frame and keep it for pairing with its labels."""
@@ -310,18 +467,19 @@ def run(args: argparse.Namespace) -> int:
         if not lowest <= port <= 65535:
             option = f"--{name.replace('_', '-')}"
             raise TopsegError(f"{option} must be a port {lowest}-65535, got {port}")
+    cell = safety_view.load_cell_view(args.cell)  # a bad cell file: one line, exit 2
     svc = ServiceLifecycle("viewer", args)
     sinks: list = []
     inbox = Inbox(QUEUE_SIZE)
 
     rec = open_rerun(args)  # a sink that cannot open fails before Zenoh does (exit 2)
     if rec is not None:
-        sinks.append(RerunSink(rec))
+        sinks.append(RerunSink(rec, cell))
         svc.defer(sinks[-1].close)  # the .rrd is complete on SIGTERM too
     if args.foxglove:
-        sinks.append(FoxgloveSink.start(args.foxglove_host, args.foxglove_port))
+        sinks.append(FoxgloveSink.start(args.foxglove_host, args.foxglove_port, cell))
         svc.defer(sinks[-1].close)
-    viewer = Viewer(sinks, args.stride)
+    viewer = Viewer(sinks, args.stride, cell)
     rerun = args.save or ("the web viewer" if args.web else "the Rerun viewer")
     sink_names = ([rerun] if rec is not None else []) + (["Foxglove"] if args.foxglove else [])
     where = " and ".join(sink_names)
@@ -333,8 +491,12 @@ def run(args: argparse.Namespace) -> int:
         )
 
     with svc:
-        for kind in ("depth", "labels", "stats"):
-            svc.declare(svc.session.declare_subscriber(f"topseg/*/*/{kind}", inbox.on_sample))
+        keys = [f"topseg/*/*/{kind}" for kind in ("depth", "labels", "stats")]
+        keys.append(f"topseg/*/{safety_wire.SAFETY}")
+        if viewer.joints_key is not None:
+            keys.append(viewer.joints_key)
+        for key in keys:
+            svc.declare(svc.session.declare_subscriber(key, inbox.on_sample))
         svc.on_stop(inbox.wake)
         log.info("viewer ready")
         svc.ready(status=status_text)

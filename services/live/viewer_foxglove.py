@@ -19,6 +19,13 @@ the cloud is in the floor frame (`<cell>_<camera>_floor`) when the mount is know
 optical frame, and `mount` is sent with every depth frame that has one (so a client that
 connects late gets it). `stats` carries each stats message as it came (ms per stage, fps,
 counts, floor share), for Foxglove's Plot panel (`/topseg/<cell>/<camera>/stats.timings_ms.total`).
+Per cell (advertised with its first camera or safety state): `/topseg/<cell>/safety`, the
+safety state as JSON (`SAFETY_SCHEMA`: state, `level` 0/1/2, speed scale, reasons, zones...);
+`/topseg/<cell>/safety/scene`, a `foxglove.SceneUpdate` in `<cell>_floor` (the cell frame)
+with the nearest pair (`nearest`: a line and its distance) and, with `--cell`, the zones
+(`zone/<name>`: outlines coloured by their state); with `--cell`,
+`/topseg/<cell>/safety/placements`, `foxglove.FrameTransforms` `<cell>_floor` ->
+`<cell>_<camera>_floor` for the file's cameras, so the zones sit on the clouds.
 Images and clouds are converted only while a client subscribes to them; each client's queue holds `CLIENT_BACKLOG` messages, the oldest dropped first.
 `docs/foxglove/topseg-layout.json` opens these topics laid out.
 """
@@ -34,6 +41,7 @@ from topseg.core import labels
 from topseg.core.camera import axis_depth
 from topseg.core.errors import TopsegError
 from topseg.core.formats import ros2_messages
+from topseg.services.live import safety_view
 
 log = logging.getLogger("topseg.viewer")
 
@@ -70,6 +78,136 @@ STATS_SCHEMA = {
 }
 #: one point of a PointCloud: x, y, z float32 then r, g, b, a uint8
 POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgba", "u1", (4,))])
+
+
+#: the JSON schema of a cell's safety channel (`safety_wire`'s fields)
+SAFETY_SCHEMA = {
+    "type": "object",
+    "title": "topseg.Safety",
+    "properties": {
+        "seq": {"type": "integer", "description": "the decision's number"},
+        "stamp_ns": {"type": "integer", "description": "when it was decided (ns)"},
+        "state": {"type": "string", "description": "clear, warning or stop"},
+        "level": {"type": "number", "description": "the state as a number: 0, 1, 2"},
+        "speed_scale": {"type": "number", "description": "share of full speed, 0..1"},
+        "min_distance_m": {"type": ["number", "null"], "description": "nearest person (m)"},
+        "part": {"type": "string", "description": "body part of the nearest pair"},
+        "link": {"type": "string", "description": "robot link of the nearest pair"},
+        "reaction_ms": {"type": ["number", "null"], "description": "depth stamp to decision"},
+        "reasons": {"type": "array", "items": {"type": "string"}},
+        "zones": {"type": "object", "additionalProperties": {"type": "string"}},
+    },
+}
+
+
+def safety_topic(cell: str, stream: str | None = None) -> str:
+    """A cell's Foxglove safety topic: `/topseg/<cell>/safety`, or `.../safety/<stream>`."""
+    return f"/topseg/{cell}/safety" if stream is None else ros2_messages.safety_topic(cell, stream)
+
+
+def safety_map(state) -> dict:
+    """A safety state as the JSON the safety channel carries."""
+    return {
+        "seq": state.seq,
+        "stamp_ns": state.stamp_ns,
+        "state": state.state,
+        "level": safety_view.STATE_LEVELS[state.state],
+        "speed_scale": state.speed_scale,
+        "min_distance_m": state.min_distance_m,
+        "part": state.part,
+        "link": state.link,
+        "reaction_ms": state.reaction_ms,
+        "reasons": list(state.reasons),
+        "zones": dict(state.zones),
+    }
+
+
+def _colour(state: str | None):
+    from foxglove.messages import Color
+
+    r, g, b, a = safety_view.rgba(state)
+    return Color(r=r, g=g, b=b, a=a)
+
+
+def _points(points) -> list:
+    from foxglove.messages import Point3
+
+    return [Point3(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in points]
+
+
+def scene_update(cell: str, zones, state):
+    """The zones (`zone/<name>`: their outlines, by their states) and the nearest pair
+    (`nearest`: a line and its distance; deleted when there is none) in `<cell>_floor`."""
+    from foxglove.messages import (
+        LinePrimitive,
+        LinePrimitiveLineType,
+        Pose,
+        Quaternion,
+        SceneEntity,
+        SceneEntityDeletion,
+        SceneEntityDeletionType,
+        SceneUpdate,
+        TextPrimitive,
+        Vector3,
+    )
+
+    frame, stamp = ros2_messages.cell_floor_frame(cell), _timestamp(state.stamp_ns)
+    entities = []
+    for zone in zones:
+        colour = _colour(state.zones.get(zone.name))
+        lines = [
+            LinePrimitive(
+                type=LinePrimitiveLineType.LineStrip, thickness=0.02, points=_points(strip),
+                color=colour,
+            )
+            for strip in safety_view.zone_strips(zone)
+        ]  # fmt: skip
+        entities.append(
+            SceneEntity(timestamp=stamp, frame_id=frame, id=f"zone/{zone.name}", lines=lines)
+        )
+    if state.nearest_m is None:
+        deletion = SceneEntityDeletion(
+            timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id="nearest"
+        )
+        return SceneUpdate(deletions=[deletion], entities=entities)
+    person, robot = (np.asarray(p, np.float64) for p in state.nearest_m)
+    middle = (person + robot) / 2
+    text = "" if state.min_distance_m is None else f"{state.min_distance_m:.2f} m"
+    label = TextPrimitive(
+        pose=Pose(
+            position=Vector3(x=float(middle[0]), y=float(middle[1]), z=float(middle[2]) + 0.1),
+            orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+        ),
+        billboard=True, font_size=14.0, scale_invariant=True, color=_colour(state.state),
+        text=text,
+    )  # fmt: skip
+    line = LinePrimitive(
+        type=LinePrimitiveLineType.LineStrip, thickness=0.03, points=_points([person, robot]),
+        color=_colour(state.state),
+    )  # fmt: skip
+    entities.append(
+        SceneEntity(timestamp=stamp, frame_id=frame, id="nearest", lines=[line], texts=[label])
+    )
+    return SceneUpdate(entities=entities)
+
+
+def placements(config, stamp_ns: int):
+    """`<cell>_floor` -> `<cell>_<camera>_floor` for every camera of a cell file."""
+    from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Vector3
+
+    out = []
+    for camera in config.cameras:
+        half = np.radians(camera.yaw_deg) / 2
+        out.append(
+            FrameTransform(
+                timestamp=_timestamp(stamp_ns),
+                parent_frame_id=ros2_messages.cell_floor_frame(config.cell),
+                child_frame_id=ros2_messages.floor_frame(config.cell, camera.name),
+                translation=Vector3(x=camera.x_m, y=camera.y_m, z=0.0),
+                rotation=Quaternion(x=0.0, y=0.0, z=float(np.sin(half)), w=float(np.cos(half))),
+            )
+        )
+    return FrameTransforms(transforms=out)
 
 
 def add_foxglove_arguments(parser: argparse.ArgumentParser) -> None:
@@ -132,12 +270,13 @@ def _raw_image(image: np.ndarray, encoding: str, stamp_ns: int, frame_id: str):
 class FoxgloveSink:
     """Serves the viewer's cameras to Foxglove clients over the SDK's WebSocket server."""
 
-    def __init__(self, server, context) -> None:
-        self.server, self.context = server, context
+    def __init__(self, server, context, cell=None) -> None:
+        self.server, self.context, self.cell = server, context, cell
         self.channels: dict[tuple[str, str], dict] = {}
+        self.cell_streams: dict[str, dict] = {}
 
     @classmethod
-    def start(cls, host: str, port: int) -> FoxgloveSink:
+    def start(cls, host: str, port: int, cell=None) -> FoxgloveSink:
         """Start the WebSocket server on host:port; a TopsegError when it cannot."""
         import foxglove
 
@@ -153,7 +292,7 @@ class FoxgloveSink:
         except Exception as exc:
             raise TopsegError(f"cannot serve Foxglove on {host}:{port}: {exc}") from None
         log.info("Foxglove WebSocket server: ws://%s:%d", host, server.port)
-        return cls(server, context)
+        return cls(server, context, cell)
 
     def cameras_changed(self, cameras) -> None:
         """Advertise the channels of cameras not seen before."""
@@ -170,6 +309,7 @@ class FoxgloveSink:
         import foxglove
 
         for cam in cameras:
+            self.cell_channels(cam[0])
             if cam not in self.channels:
                 self.channels[cam] = {
                     stream: kinds[stream](topic(*cam, stream), context=self.context)
@@ -249,6 +389,43 @@ class FoxgloveSink:
         channel = self.channels[cam][STATS_STREAM]
         if channel.has_sinks():
             channel.log(stats, log_time=int(stats["stamp_ns"]))
+
+    def cell_channels(self, cell: str) -> dict:
+        """A cell's safety channels, advertised with its first camera or state: the state
+        as JSON, its zones and nearest pair as a SceneUpdate and, with a cell file, where
+        its cameras hang."""
+        import foxglove
+        from foxglove import channels as fc
+
+        found = self.cell_streams.get(cell)
+        if found is None:
+            found = self.cell_streams[cell] = {
+                "state": foxglove.Channel(
+                    safety_topic(cell), schema=SAFETY_SCHEMA, context=self.context
+                ),
+                "scene": fc.SceneUpdateChannel(safety_topic(cell, "scene"), context=self.context),
+            }
+            if self.cell is not None and self.cell.name == cell:
+                found["placements"] = fc.FrameTransformsChannel(
+                    safety_topic(cell, "placements"), context=self.context
+                )
+        return found
+
+    def safety(self, cell: str, state) -> None:
+        """A cell's state as JSON; its zones (with a cell file) and nearest pair as scene
+        entities in `<cell>_floor`, coloured by state; the cameras' placements."""
+        channels = self.cell_channels(cell)
+        log_time = int(state.stamp_ns)
+        channels["state"].log(safety_map(state), log_time=log_time)
+        zones = self.cell.config.zones if self.cell is not None and self.cell.name == cell else ()
+        channels["scene"].log(scene_update(cell, zones, state), log_time=log_time)
+        if "placements" in channels:
+            channels["placements"].log(
+                placements(self.cell.config, state.stamp_ns), log_time=log_time
+            )
+
+    def robot(self, cell: str, capsules, stamp_ns: int) -> None:
+        """The robot's capsules (shown in Rerun; not served to Foxglove)."""
 
     def close(self) -> None:
         """Stop the server (clients see it go)."""

@@ -9,6 +9,13 @@ Entity paths (one place, used by the logging and by the blueprint):
 - `world/<cell>/<camera>/camera/image`: the Pinhole, with `depth` and `labels` below it.
 - `world/<cell>/<camera>/points`: the labelled cloud in floor coordinates.
 - `<cell>/<camera>/stats/{ms/<stage>,fps,count/<name>}`: scalars over time.
+- `<cell>/safety/{state,speed_scale,reaction_ms,min_distance_m}`: a cell's safety state
+  (clear 0, warning 1, stop 2) and its numbers as scalars over time; `<cell>/safety/reasons`
+  the states and their reasons as a text log.
+- `world/<cell>/<camera>/safety/{zones/<zone>,nearest,robot}` with a cell file
+  (`--cell`): its zones, the nearest person-robot pair and the robot's capsules, in that
+  camera's world frame beside its cloud; without one, `world/<cell>/safety/nearest` in the
+  cell frame (the same as the camera's world frame for a camera at the cell's origin).
 - `legend`: one coloured, named dot per label (Points2D with class ids), so the label
   table stays visible next to the images.
 
@@ -41,6 +48,19 @@ def image_entity(cell: str, camera: str) -> str:
 def points_entity(cell: str, camera: str) -> str:
     """The camera's labelled point cloud, in floor coordinates."""
     return f"{WORLD}/{cell}/{camera}/points"
+
+
+def safety_entity(cell: str) -> str:
+    """The root of a cell's safety scalars and reasons."""
+    return f"{cell}/safety"
+
+
+def safety_shapes_entity(cell: str, camera: str | None = None) -> str:
+    """The root of a cell's safety shapes: in a camera's world frame
+    (`world/<cell>/<camera>/safety`), or in the cell frame without one."""
+    if camera is None:
+        return f"{WORLD}/{cell}/safety"
+    return f"{WORLD}/{cell}/{camera}/safety"
 
 
 def stats_entity(cell: str, camera: str) -> str:
@@ -85,9 +105,26 @@ def _camera_views(cell: str, camera: str):
     )
 
 
-def blueprint(cameras: Iterable[tuple[str, str]]):
-    """The viewer's layout for these (cell, camera) pairs: per camera its depth and labels
-    views over its timing plots, beside the shared 3-D view of the floor frame (with a
+def _cell_views(cell: str):
+    import rerun.blueprint as rrb
+
+    base = safety_entity(cell)
+    return rrb.Vertical(
+        rrb.TimeSeriesView(
+            name=f"{cell} safety state",
+            origin=base,
+            contents=["$origin/state", "$origin/speed_scale"],
+        ),
+        rrb.TimeSeriesView(name=f"{cell} reaction ms", origin=base, contents="$origin/reaction_ms"),
+        rrb.TextLogView(name=f"{cell} safety reasons", origin=f"{base}/reasons"),
+        name=f"{cell} safety",
+    )
+
+
+def blueprint(cameras: Iterable[tuple[str, str]], cells: Iterable[str] = ()):
+    """The viewer's layout for these (cell, camera) pairs and cells with a safety state:
+    per camera its depth and labels views over its timing plots, per cell its state, speed
+    scale, reaction time and reasons, beside the shared 3-D view of the floor frame (with a
     floor grid) over the label legend."""
     import rerun as rr
     import rerun.blueprint as rrb
@@ -104,6 +141,7 @@ def blueprint(cameras: Iterable[tuple[str, str]]):
         row_shares=[4, 1],
     )
     per_camera = [_camera_views(cell, camera) for cell, camera in sorted(set(cameras))]
+    per_camera += [_cell_views(cell) for cell in sorted(set(cells))]
     if per_camera:
         content = rrb.Horizontal(rrb.Tabs(*per_camera), scene, column_shares=[3, 2])
     else:
