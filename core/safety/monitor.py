@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from topseg.core import labels as label_table
-from topseg.core.camera import TopViewMount, axis_depth, backproject_pixels
+from topseg.core.camera import KINECT_V1, TopViewMount, axis_depth, backproject_pixels
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.resolution import decimate, decimated_mount
@@ -231,6 +231,26 @@ class CellMonitor:
             cached = (key, zone_masks(self.cell.zones, mount, placement))
             self._zone_masks[camera] = cached
         return cached[1]
+
+    def warm_up(self) -> None:
+        """Run every kernel once on a small made-up frame (numba compiles or loads them), so
+        that the first real frame is decided in milliseconds; leaves this monitor as it was."""
+        mount = TopViewMount(KINECT_V1.scaled_to(64, 48), 3000.0)
+        depth = np.full((48, 64), 3000, np.uint16)
+        lab = np.zeros((48, 64), np.uint8)
+        lab[20:30, 20:30] = label_table.BODY
+        lab[5:9, 5:9] = label_table.ROBOT
+        camera = self.cell.cameras[0].name
+        trial = CellMonitor(self.cell, self.robot)
+        if self.robot is not None:
+            rest = np.clip(0.0, self.robot.model.lower, self.robot.model.upper)
+            trial.joint_state(JointState(1, self.robot.joint_names, tuple(map(float, rest))), 1)
+        for joints in (True, False):
+            if not joints:
+                trial.joints = None
+            trial.frame(camera, DepthFrame(depth, mount.intrinsics, 0, 1, camera, mount),
+                        LabelFrame(lab, 0, 1, camera), 1)  # fmt: skip
+            trial.decision(1)
 
     # ------------------------------------------------------------------ the decision
 

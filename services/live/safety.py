@@ -248,6 +248,9 @@ def run(args: argparse.Namespace) -> int:
     if not cell.cameras:
         raise TopsegError(f"cell file {args.cell}: no [[camera]]: the service has nothing to watch")
     monitor = CellMonitor(cell, robot)
+    t0 = time.monotonic()
+    monitor.warm_up()
+    log.info("kernels ready in %.1f s", time.monotonic() - t0)
     svc = ServiceLifecycle("safety", args)
     inbox = Inbox(args.queue, stamp=True)
     period_s = cell.publish_period_ms / 1000.0
@@ -279,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
         )
         service.publish(time.time_ns())  # `stop`: no frame yet
         svc.ready(status=service.status)
+        log.info("safety ready: %s", service.status())
         while not svc.stopping:
             svc.beat()
             wait = period_s - (time.monotonic() - service.last_publish)
