@@ -273,3 +273,20 @@ def test_a_driver_that_went_away_stops_the_cell_at_once(cell, robot, joints):
     assert d.decision.state == "stop" and d.decision.reasons == ("cam0: its driver went away",)
     mon.token("cam0", "driver", "a2", True)  # a restarted driver
     assert mon.decision(T0).decision.state == "clear"
+
+
+def test_a_pedestal_read_as_legs_is_the_robots(joints):
+    """A robot on a 0.8 m column: the column's pixels read as legs are the robot's too."""
+    table = dict(CELL, robot=dict(CELL["robot"], base_xyz_m=[0.5, 0.0, 0.8],
+                                  pedestal="cylinder", pedestal_size_m=0.15), zone=[])  # fmt: skip
+    raised = cell_from_dict(table, "test cell", Path("."))
+    robot = CellRobot(raised.robot, Path("."))
+    depth, lab = render(raised.cameras[0], robot, joints, [], stamp_ns=T0)
+    column = (lab.labels == labels.ROBOT) & (depth.depth > 3000 - 900)  # below the arm's base
+    assert column.sum() > 50
+    wrong = lab.labels.copy()
+    wrong[column] = labels.LEGS
+    mon = monitor_with_joints(raised, robot, joints)
+    mon.frame("cam0", depth, LabelFrame(wrong, 0, T0, "cam0"), T0)
+    assert mon.decision(T0).decision.state == "clear"
+    assert mon.views["cam0"].nearest is None

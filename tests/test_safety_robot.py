@@ -27,6 +27,8 @@ class Spec:
     base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     base_yaw_deg: float = 0.0
     upside_down: bool = False
+    pedestal: str = "none"
+    pedestal_size_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -130,6 +130,10 @@ class CameraPlacement:
         return (p - self.offset()) @ self.rotation()
 
 
+#: what a robot's base may stand on
+PEDESTALS = ("none", "box", "cylinder")
+
+
 @dataclass(frozen=True)
 class RobotSpec:
     """The cell's robot (`[robot]`): its model, where its base stands, where its joint states
@@ -159,6 +163,12 @@ class RobotSpec:
     # m_R, ISO/TS 15066 A.3.2: half the moving mass plus the payload (M/2 + m_L). 15 kg: a
     # 20 kg cobot with a 5 kg payload; set the robot's own.
     effective_mass_kg: float = 15.0
+    # what the base stands on, from the floor up to base_xyz_m's z: "none", "box" (a square
+    # column of half width pedestal_size_m, turned with the robot) or "cylinder" (of radius
+    # pedestal_size_m). Its pixels are the robot's, like the links' (never a person's legs);
+    # the separation is measured to the links only.
+    pedestal: str = "none"
+    pedestal_size_m: float = 0.0
 
     def __post_init__(self) -> None:
         _check_name("robot name", self.name)
@@ -175,6 +185,14 @@ class RobotSpec:
                 f"joints_source must be one of {', '.join(JOINT_SOURCES)}, "
                 f"got {self.joints_source!r}{suggest(self.joints_source, JOINT_SOURCES)}"
             )
+        if self.pedestal not in PEDESTALS:
+            raise ValueError(
+                f"pedestal must be one of {', '.join(PEDESTALS)}, got {self.pedestal!r}"
+            )
+        if self.pedestal != "none" and not (
+            math.isfinite(self.pedestal_size_m) and self.pedestal_size_m > 0
+        ):
+            raise ValueError(f"a {self.pedestal} pedestal needs pedestal_size_m > 0")
         if not self.ros2_topic.startswith("/"):
             raise ValueError(f"ros2_topic must start with '/', got {self.ros2_topic!r}")
         _check_positive(

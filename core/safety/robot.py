@@ -26,6 +26,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from topseg.core import labels
 from topseg.core.camera import depth_to_range
 from topseg.core.safety.separation import Capsules
 from topseg.core.synth.geometry import (
@@ -110,8 +111,36 @@ class CellRobot:
         return Capsules(a, b, self._radius.copy(), self.links)
 
     def geometry(self, joints: dict[str, float]) -> tuple[Primitives, Triangles]:
-        """The posed robot's shapes in the cell frame (what `silhouette` renders)."""
-        return self.model.link_geometry(self.check_joints(joints), self.base_pos, self.base_quat)
+        """The posed robot's shapes in the cell frame with its pedestal (what `silhouette`
+        renders)."""
+        prims, tris = self.model.link_geometry(
+            self.check_joints(joints), self.base_pos, self.base_quat
+        )
+        return Primitives.concat([prims, self.pedestal()]), tris
+
+    def pedestal(self) -> Primitives:
+        """The pedestal of the spec, from the floor to the base, labelled robot; none for a
+        robot without one (or hanging upside down)."""
+        height = float(self.base_pos[2])
+        if self.spec.pedestal == "none" or height <= 0 or self.spec.upside_down:
+            return Primitives.empty()
+        size = float(self.spec.pedestal_size_m)
+        x, y = float(self.base_pos[0]), float(self.base_pos[1])
+        yaw = math.radians(float(self.spec.base_yaw_deg))
+        c, s = math.cos(yaw), math.sin(yaw)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        kind, dims = (
+            (CYLINDER, (size, height / 2, 0.0))
+            if self.spec.pedestal == "cylinder"
+            else (BOX, (size, size, height / 2))
+        )
+        return Primitives(
+            np.array([kind], np.int32),
+            np.array([dims], np.float64),
+            np.array([[x, y, height / 2]], np.float64),
+            rot[None],
+            np.array([labels.ROBOT], np.uint8),
+        )
 
     def silhouette(
         self, joints: dict[str, float], mount, placement, margin_m: float

@@ -96,6 +96,8 @@ def cell_toml(seq: CellSequence) -> str:
         f"base_xyz_m = [{r.x:.6f}, {r.y:.6f}, {r.base_z:.6f}]",
         f"base_yaw_deg = {math.degrees(r.yaw):.6f}",
         'joints_source = "zenoh"',
+        f'pedestal = "{"cylinder" if r.pedestal[1] else "box"}"',
+        f"pedestal_size_m = {r.pedestal[0]:.4f}",
         "# the fastest any point of its links moves in the recorded task",
         f"max_speed_mps = {seq.max_link_speed():.3f}",
     ]
