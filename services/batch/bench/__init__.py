@@ -1,5 +1,5 @@
 """Measure a stage's speed and memory: `topseg bench
-forest|crf|synthesis|datagen|transport|pipeline|train|calibrate`, printed as a table or, with
+forest|crf|synthesis|datagen|transport|pipeline|safety|train|calibrate`, printed as a table or, with
 `--json`, as one JSON object.
 
 Each benchmark lives in its own module with `add_arguments(parser)` and
@@ -37,6 +37,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "train": (
         "topseg.services.batch.bench.train",
         "topseg train, paper config x --scale: s, CPU s, peak RSS",
+    ),
+    "safety": (
+        "topseg.services.batch.bench.safety",
+        "driver -> worker -> safety at 30 fps: reaction p50/p99, stop after a killed or covered camera",
     ),
     "calibrate": (
         "topseg.services.batch.bench.calibrate",
