@@ -19,6 +19,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -31,6 +32,9 @@ from topseg.core.crf.energy import MODES
 from topseg.core.errors import TopsegError
 from topseg.core.extras import is_installed, needs_extra
 from topseg.core.forest.train import TrainConfig, train_forest
+from topseg.core.safety.cell import cell_from_dict
+from topseg.core.safety.monitor import CellMonitor
+from topseg.core.safety.robot import CellRobot
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 from topseg.core.sensors import SENSORS
 from topseg.core.synth.procedural import procedural_frames
@@ -88,6 +92,16 @@ def compile_labelling() -> None:
     warm_up_gate(np.full((48, 64), 3000, np.uint16))
 
 
+def compile_safety() -> None:
+    """The safety service's: the robot's silhouette and capsules, people's blobs and points,
+    the separation (`CellMonitor.warm_up` on a cell of the catalogue's Panda)."""
+    cell = cell_from_dict(
+        {"cell": "compile", "robot": {"name": "arm", "urdf": "panda"}, "camera": [{"name": "c"}]},
+        "topseg compile",
+    )
+    CellMonitor(cell, CellRobot(cell.robot, Path("."))).warm_up()
+
+
 #: name -> job (its docstring says what it compiles). These run side by side; `LAST`'s run
 #: after them, so that they reuse what these cached instead of compiling it again.
 JOBS = {
@@ -95,10 +109,11 @@ JOBS = {
     "crf": compile_crf,
     "training": compile_training,
     "synthesis": compile_synthesis,
+    "safety": compile_safety,
 }
 LAST = {"labelling": compile_labelling}
 #: job -> (the optional package it needs, the extra that installs it)
-NEEDS = {"synthesis": ("pybullet", "train")}
+NEEDS = {"synthesis": ("pybullet", "train"), "safety": ("yourdfpy", "cell")}
 
 
 def _timed(name: str) -> tuple[str, float]:
