@@ -6,6 +6,7 @@ heights, tilts and sensors. Each writes OUT/<experiment>.md, .json and .png; a r
     topseg experiment noise|features|frames|overlap|table [--scale tiny|quick|paper] --out DIR
     topseg experiment mounts [--model M] [--baseline OLD] --out DIR   (experiment/mounts.py)
     topseg experiment open-world [--model M] --out DIR   (experiment/open_world.py)
+    topseg experiment safety [--model M] [--sequences N] --out DIR   (experiment/safety.py)
 
 Every point trains a forest on a synthetic training set and scores it on one held-out test
 set: modeled scenes from other seeds, with the Kinect noise model. Training sets are modeled
@@ -34,7 +35,7 @@ from topseg.core.resolution import MAX_DOWNSAMPLE
 from topseg.core.sensors import get_sensor
 from topseg.services.cli.options import auto_int
 
-EXPERIMENTS = ("noise", "features", "frames", "overlap", "table", "mounts", "open-world")
+EXPERIMENTS = ("noise", "features", "frames", "overlap", "table", "mounts", "open-world", "safety")
 
 # the paper's x values
 NOISE_SIGMAS = (0, 5, 10, 15, 30, 50, 100)
@@ -117,6 +118,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "robot a random arm and every item that can be one a mesh object (robots and objects "
         "nobody modelled)",
     )
+    parser.add_argument(
+        "--sequences", type=int, default=8, metavar="N",
+        help="safety: rendered cell sequences scored (default %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--sequence-seconds", type=float, default=10.0, metavar="S",
+        help="safety: each sequence's length at 15 fps (default %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--validation", action="store_true",
+        help="safety: the validation sequences (other seeds), for choosing thresholds",
+    )  # fmt: skip
     parser.add_argument(
         "--report-only",
         action="store_true",
@@ -205,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_mounts(args, test_frames, out)
     if args.experiment == "open-world":
         return _run_open_world(args, args.test_frames or OPEN_WORLD_FRAMES, out)
+    if args.experiment == "safety":
+        return _run_safety(args, out)
     cache = (args.data_cache or out.parent / "data-cache").absolute()
     out.mkdir(parents=True, exist_ok=True)
     points = points_of(args.experiment, scale, args.seed)
@@ -219,6 +234,18 @@ def run(args: argparse.Namespace) -> int:
         return _run_points(args, scale, test_frames, out, cache, points)
     finally:
         signal.signal(signal.SIGTERM, old_handler)
+
+
+def _run_safety(args, out: Path) -> int:
+    """The safety decision on rendered cell sequences (experiment/safety.py)."""
+    from topseg.services.batch.experiment import safety
+
+    if args.sequences < 1 or not 1 <= args.sequence_seconds <= 600:
+        raise TopsegError("--sequences must be >= 1 and --sequence-seconds within 1..600")
+    seed = safety.VALIDATION_SEED if args.validation else safety.TEST_SEED
+    result = safety.run(out, args.model, args.sequences, args.sequence_seconds, 15.0, seed)
+    print(safety.markdown(result))
+    return 0
 
 
 def _run_mounts(args, frames: int, out: Path) -> int:

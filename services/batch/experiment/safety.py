@@ -1,0 +1,148 @@
+"""`topseg experiment safety`: the safety decision on rendered cell sequences whose truth is
+known, frame by frame, without the services (their timing is `topseg bench safety`'s).
+
+Each sequence (`core/synth/sequences.py`) is a robot working through a task with people
+walking up to it, reaching over its table and leaving, seen by one ceiling camera. Sequences
+cycle through robots, sensors and camera heights, and are drawn from seeds the cell
+recording (`recordings/cell.mcap`, seed 3) and the validation seeds do not use. Per frame
+the model labels the depth, the cell monitor decides with the robot's exact joint state, and
+the truth's decision is the same rules on the exact separation and labels
+(`core/safety/agreement.py`), at the same reaction time (`REACTION_S`, the live path's
+typical one). Writes OUT/safety.md and OUT/safety.json.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from topseg.core.atomic import atomic_write
+from topseg.core.formats import wire
+from topseg.core.formats.joint_states import JointState
+from topseg.core.safety.agreement import Compared, score, truth_decision, truth_nearest
+from topseg.core.safety.cell import cell_from_dict
+from topseg.core.safety.decision import decide
+from topseg.core.safety.monitor import CellMonitor
+from topseg.core.safety.robot import CellRobot
+from topseg.core.segmenter import Segmenter
+from topseg.core.synth.sequences import CellSequence, CellSequenceConfig
+from topseg.services.batch.datagen.cell_sequence import cell_toml
+
+#: the first seed of the held-out sequences (validation sequences start at VALIDATION_SEED)
+TEST_SEED = 9100
+VALIDATION_SEED = 7100
+#: what the sequences cycle through
+ROBOTS = ("panda", "kuka_iiwa", "xarm6")
+SENSORS = ("kinect_v1", "kinect_v2", "oak_d", "realsense_d435")
+HEIGHTS_M = (2.8, 3.0, 3.2, 3.4)
+#: the reaction time both decisions are taken at (s): the live path's typical one
+REACTION_S = 0.06
+
+
+def sequence_config(i: int, duration_s: float, fps: float) -> CellSequenceConfig:
+    """The i-th sequence's robot, sensor, height and people."""
+    return CellSequenceConfig(
+        duration_s=duration_s,
+        fps=fps,
+        robot=ROBOTS[i % len(ROBOTS)],
+        sensor=SENSORS[i % len(SENSORS)],
+        height_m=HEIGHTS_M[(i // 2) % len(HEIGHTS_M)],
+        people=1 + i % 2,
+    )
+
+
+def run_sequence(
+    seq: CellSequence, segmenter: Segmenter, reaction_s: float = REACTION_S
+) -> list[Compared]:
+    """Every frame of `seq`: the model's labels decided on beside the truth's decision."""
+    import tomllib
+
+    cell = cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
+    robot = CellRobot(cell.robot, Path("."))
+    mount = seq.config.mount()
+    live, exact = CellMonitor(cell, robot), CellMonitor(cell, robot)
+    camera = cell.cameras[0].name
+    out = []
+    for f in seq.frames():
+        stamp = 1 + int(f.time_s * 1e9)
+        state = JointState(stamp, tuple(f.joint_names), tuple(float(v) for v in f.joint_positions))
+        for monitor in (live, exact):
+            monitor.joints = None
+            monitor.joint_state(state, stamp)
+        depth = wire.DepthFrame(f.depth, mount.intrinsics, f.index, stamp, camera, mount)
+        labels = segmenter.label(f.depth, mount.intrinsics, mount=mount).labels
+        view = live.frame(camera, depth, wire.LabelFrame(labels, f.index, stamp, camera), stamp)
+        said = decide(
+            cell, view.nearest, sorted(view.occupied), view.unseen, reaction_s, view.faults
+        )
+        persons = [p.to_dict() for p in f.persons]
+        truth = truth_decision(exact, camera, depth,
+                               wire.LabelFrame(f.labels, f.index, stamp, camera), persons, reaction_s)  # fmt: skip
+        nearest, in_view = truth_nearest(persons)
+        out.append(
+            Compared(
+                state=said.state,
+                truth_state=truth.state,
+                distance_m=None if view.nearest is None else view.nearest.distance_m,
+                truth_distance_m=None if nearest is None else nearest.distance_m,
+                part=said.part,
+                truth_part=truth.part,
+                persons_in_view=in_view,
+                reaction_ms=None,
+            )
+        )
+    return out
+
+
+def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: float,
+        first_seed: int = TEST_SEED, report=print) -> dict:  # fmt: skip
+    """Score `sequences` sequences; write OUT/safety.md and .json; the figures."""
+    out.mkdir(parents=True, exist_ok=True)
+    segmenter = Segmenter.from_file(model)
+    rows, everything = [], []
+    for i in range(sequences):
+        config = sequence_config(i, duration_s, fps)
+        t0 = time.perf_counter()
+        compared = run_sequence(CellSequence(config, seed=first_seed + i), segmenter)
+        everything += compared
+        figures = score(compared)
+        rows.append({"seed": first_seed + i, "robot": config.robot, "sensor": config.sensor,
+                     "height_m": config.height_m, "people": config.people, **figures})  # fmt: skip
+        report(
+            f"sequence {i + 1}/{sequences} ({config.robot}, {config.sensor}, {config.height_m} m):"
+            f" states {100 * figures['state_agreement']:.1f} % equal, "
+            f"{figures['clear_when_truth_stop']} clear-when-stop, {time.perf_counter() - t0:.0f} s"
+        )
+    result = {"model": segmenter.model_id, "overall": score(everything), "sequences": rows}
+    with atomic_write(out / "safety.json") as f:
+        f.write(json.dumps(result, indent=2).encode())
+    with atomic_write(out / "safety.md") as f:
+        f.write(markdown(result).encode())
+    return result
+
+
+def _f(x, scale=1.0, unit="", digits=1) -> str:
+    return "-" if x is None else f"{scale * x:.{digits}f}{unit}"
+
+
+def markdown(result: dict) -> str:
+    """The table of OUT/safety.md: one row per sequence and the overall figures."""
+    head = ("| seed | robot | sensor | height | people | frames | state equal | clear when stop "
+            "| separation error p50 / p95 | nearest part |\n|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+    lines = [head]
+    for r in [*result["sequences"], {"seed": "all", "robot": "", "sensor": "", "height_m": None,
+                                     "people": "", **result["overall"]}]:  # fmt: skip
+        lines.append(
+            f"| {r['seed']} | {r['robot']} | {r['sensor']} | {_f(r['height_m'], unit=' m')} "
+            f"| {r['people']} | {r['frames']} | {_f(r.get('state_agreement'), 100, ' %')} "
+            f"| {r.get('clear_when_truth_stop', '-')} "
+            f"| {_f(r.get('distance_error_p50_m'), 100, ' cm')} / "
+            f"{_f(r.get('distance_error_p95_m'), 100, ' cm')} "
+            f"| {_f(r.get('part_agreement'), 100, ' %')} of {r.get('part_frames', 0)} |"
+        )
+    return (
+        f"# Safety decisions on rendered cell sequences\n\nmodel: {result['model']}\n\n"
+        + "\n".join(lines)
+        + "\n"
+    )
