@@ -32,8 +32,8 @@ from topseg.services.batch.datagen.cell_sequence import cell_toml
 #: the first seed of the held-out sequences (validation sequences start at VALIDATION_SEED)
 TEST_SEED = 9100
 VALIDATION_SEED = 7100
-#: what the sequences cycle through
-ROBOTS = ("panda", "kuka_iiwa", "xarm6")
+#: what the sequences cycle through (robots the sequences find a task over a table for)
+ROBOTS = ("panda", "kuka_iiwa", "abb_irb140", "kuka_kr6", "puma560", "interbotix_vx300s")
 SENSORS = ("kinect_v1", "kinect_v2", "oak_d", "realsense_d435")
 HEIGHTS_M = (2.8, 3.0, 3.2, 3.4)
 #: the reaction time both decisions are taken at (s): the live path's typical one
