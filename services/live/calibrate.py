@@ -3,7 +3,7 @@ clear, the camera still), print the height above the floor, pitch, roll and the 
 residual, and write a mount file for `topseg driver --mount` with a picture beside it to
 check by eye. Refuses with one line when it finds no floor, the camera moved, or it is
 tilted too far. `topseg calibrate robot --cell CELL.toml --source zenoh` fits the robot's
-base pose in the cell file instead (below).
+base pose in the cell file instead.
 
     topseg calibrate --source freenect --out cell1-mount.json
 
