@@ -2,7 +2,8 @@
 clear, the camera still), print the height above the floor, pitch, roll and the fit's
 residual, and write a mount file for `topseg driver --mount` with a picture beside it to
 check by eye. Refuses with one line when it finds no floor, the camera moved, or it is
-tilted too far.
+tilted too far. `topseg calibrate robot --cell CELL.toml --source zenoh` fits the robot's
+base pose in the cell file instead.
 
     topseg calibrate --source freenect --out cell1-mount.json
 
@@ -33,6 +34,15 @@ readings, or whose readings moved (a robot at work while recording), are not bac
 are always labelled. It prints the share of the view that is background, the median noise,
 the share that was unstable and the file's id. Record it again after a fixture or the camera
 moved (the worker reports that: docs/howto/static-cell-background.md).
+
+    topseg calibrate robot --cell cell1.toml --source zenoh [--write]
+
+fits the robot's base pose (`[robot] base_xyz_m`, `base_yaw_deg` of the cell file) to
+`--frames` (10) depth frames of one of the cell's cameras, each paired with the robot's
+joint state nearest in stamp (within 20 ms), live from Zenoh or from a recording
+(`--source replay:FILE.mcap`): it prints the fitted pose, the change from the cell file's
+and the residual, and the lines to paste, or with `--write` rewrites them in the cell file
+(`services/live/calibrate_robot.py`).
 """
 
 from __future__ import annotations
@@ -55,6 +65,7 @@ from topseg.core.sensors import get_sensor, sensor_of_frames
 from topseg.drivers import SourceOptions, open_source
 from topseg.drivers.spec import parse_spec
 from topseg.services.cli.options import positive_int
+from topseg.services.live import calibrate_robot
 
 log = logging.getLogger("topseg.calibrate")
 
@@ -63,15 +74,25 @@ SENSOR_OF_KIND = {"freenect": "kinect_v1", "openni2": "kinect_v1", "oak": "oak_d
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--source, --frames, --sensor, --edge-thinning, --out, --picture, --background."""
+    """[robot], --source, --frames, --sensor, --edge-thinning, --out, --picture,
+    --background; and the robot's flags (`calibrate_robot.add_arguments`)."""
     parser.add_argument(
-        "--source", required=True, help="replay:FILE, freenect, openni2, oak or synthetic[:...]"
+        "target",
+        nargs="?",
+        choices=("robot",),
+        help="robot: fit the robot's base pose in the cell file instead of the camera's mount",
+    )
+    parser.add_argument(
+        "--source",
+        required=True,
+        help="replay:FILE, freenect, openni2, oak or synthetic[:...]; robot: zenoh or "
+        "replay:FILE.mcap",
     )
     parser.add_argument(
         "--frames",
         type=positive_int,
-        default=60,
-        help="frames to fit over (default 60, ~2 s at 30 fps)",
+        default=None,
+        help="frames to fit over (default 60, ~2 s at 30 fps; robot: 10 paired with joint states)",
     )
     parser.add_argument(
         "--sensor",
@@ -102,6 +123,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--picture", type=Path, default=None, help="picture to write (default: OUT with .png)"
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the point subsample")
+    calibrate_robot.add_arguments(parser)
 
 
 def check_writable(path: Path) -> None:
@@ -253,7 +275,13 @@ def picture_path(asked: Path | None, out: Path) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     """Grab frames; estimate the mount, print it, write the mount file and the picture
-    (`--out`); fit the background, print it and write the background file (`--background`)."""
+    (`--out`); fit the background, print it and write the background file (`--background`).
+    `calibrate robot` fits the robot's base instead (`calibrate_robot.run`)."""
+    check_flags(args)
+    if args.target == "robot":
+        return calibrate_robot.run(args)
+    if args.frames is None:
+        args.frames = 60
     if args.frames < 1:
         raise TopsegError(f"--frames must be at least 1, got {args.frames}")
     if args.out is None and args.background is None:
@@ -280,6 +308,24 @@ def run(args: argparse.Namespace) -> int:
     if args.background is not None:
         write_background(args, frames, intrinsics, sensor, optics, mount)
     return 0
+
+
+#: flags of the camera's calibration only, and of `calibrate robot` only
+_MOUNT_FLAGS = (("--out", "out"), ("--background", "background"), ("--picture", "picture"),
+                ("--sensor", "sensor"))  # fmt: skip
+_ROBOT_FLAGS = (("--cell", "cell"), ("--camera", "camera"), ("--write", "write"))
+
+
+def check_flags(args: argparse.Namespace) -> None:
+    """TopsegError for a flag of the other mode (`--out` with `robot`, `--cell` without)."""
+    robot = args.target == "robot"
+    for flag, dest in _MOUNT_FLAGS if robot else _ROBOT_FLAGS:
+        if getattr(args, dest, None) not in (None, False):
+            raise TopsegError(
+                f"{flag} is not a flag of `topseg calibrate robot`"
+                if robot
+                else f"{flag} goes with `topseg calibrate robot`"
+            )
 
 
 def write_mount(args, frames, intrinsics, sensor: str, optics, frame_mount, pic):
