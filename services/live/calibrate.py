@@ -1,9 +1,8 @@
-"""Find where a camera hangs: fit the floor in a few seconds of its frames (the floor mostly
-clear, the camera still), print the height above the floor, pitch, roll and the fit's
-residual, and write a mount file for `topseg driver --mount` with a picture beside it to
-check by eye. Refuses with one line when it finds no floor, the camera moved, or it is
-tilted too far. `topseg calibrate robot --cell CELL.toml --source zenoh` fits the robot's
-base pose in the cell file instead.
+"""Find where a camera hangs: fit the floor in a few seconds of its frames, print the height
+above the floor, pitch, roll and the fit's residual, and write a mount file for `topseg
+driver --mount` with a picture to check by eye; refuses with one line when it finds no
+floor, the camera moved, or it is tilted too far. `topseg calibrate robot --cell CELL.toml
+--source zenoh` fits the robot's base pose in the cell file instead.
 
     topseg calibrate --source freenect --out cell1-mount.json
 
