@@ -290,3 +290,22 @@ def test_a_pedestal_read_as_legs_is_the_robots(joints):
     mon.frame("cam0", depth, LabelFrame(wrong, 0, T0, "cam0"), T0)
     assert mon.decision(T0).decision.state == "clear"
     assert mon.views["cam0"].nearest is None
+
+
+def test_a_person_read_as_robot_away_from_the_robot_is_a_person(cell, robot, joints):
+    """The model read a whole person beside the robot as robot: with the robot placed by its
+    joint state, robot pixels outside its silhouette are not the robot, so the person stands."""
+    depth, lab = render(cell.cameras[0], robot, joints, [person(0.9, 0.6)], stamp_ns=T0)
+    wrong = lab.labels.copy()
+    wrong[np.isin(wrong, labels.HUMAN_IDS)] = labels.ROBOT
+    mon = monitor_with_joints(cell, robot, joints)
+    view = mon.frame("cam0", depth, LabelFrame(wrong, 0, T0, "cam0"), T0)
+    d = mon.decision(T0)
+    assert d.decision.state == "stop" and view.nearest is not None
+    assert d.decision.part == "body"
+    # a speck of stray robot pixels is not a person
+    speck = lab.labels.copy()
+    speck[np.isin(speck, labels.HUMAN_IDS)] = labels.BACKGROUND
+    speck[5:8, 5:8] = labels.ROBOT
+    mon.frame("cam0", depth, LabelFrame(speck, 1, T0, "cam0"), T0)
+    assert mon.views["cam0"].nearest is None

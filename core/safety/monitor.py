@@ -41,13 +41,23 @@ from topseg.core.resolution import decimate, decimated_mount
 from topseg.core.safety.cell import CameraPlacement, CellConfig
 from topseg.core.safety.decision import Decision, decide
 from topseg.core.safety.robot import CellRobot
-from topseg.core.safety.separation import Capsules, HumanPoints, Nearest, human_points, nearest
+from topseg.core.safety.separation import (
+    Capsules,
+    HumanPoints,
+    Nearest,
+    human_points,
+    label4,
+    nearest,
+)
 from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
 
 #: The services whose liveliness tokens the monitor follows per camera: one that goes away (a
 #: killed driver's token is dropped as soon as its link closes) stops the cell at once,
 #: without waiting for the frames' deadline.
 WATCHED_ROLES = ("driver", "worker")
+#: Blobs labelled robot outside the silhouette of a robot placed by its joint state are a
+#: person's body (`stray_robot_as_person`).
+STRAY_ROBOT_AS_PERSON = True
 #: The widest frame the monitor reads at its own resolution (pixels); wider ones are read at
 #: every n-th pixel (a 640x480 Kinect's at 320x240: 1.1 cm of floor a pixel from 3 m).
 WORKING_WIDTH = 320
@@ -201,6 +211,8 @@ class CellMonitor:
             margin = SILHOUETTE_MARGIN_M + age_s * self.cell.robot.max_speed_mps
             robot_depth, grown = silhouette(self.robot, joints, mount, placement, margin)
             lab = robot_pixels(lab, depth_mm, axis_depth(robot_depth, mount), grown, margin, mount)
+            if STRAY_ROBOT_AS_PERSON:
+                lab = stray_robot_as_person(lab, depth_mm, grown, mount)
             shadow = grown
             view.robot_source = "joints"
         elif self.robot is not None:
@@ -386,6 +398,28 @@ def robot_pixels(
     in_front = depth_mm.astype(np.float32) < nearest_robot - np.float32(IN_FRONT_M * 1000.0)
     take = grown & (depth_mm > 0) & ~in_front & (lab != label_table.BACKGROUND)
     out[take] = label_table.ROBOT
+    return out
+
+
+def stray_robot_as_person(
+    lab: np.ndarray, depth_mm: np.ndarray, grown: np.ndarray, mount: TopViewMount
+) -> np.ndarray:
+    """With the robot placed by its joint state, pixels labelled robot outside its grown
+    silhouette are not the robot: blobs of them that cover at least MIN_PERSON_AREA_M2 (a
+    person standing close to the robot is read as robot more often than anything else is)
+    are taken as a person's body; smaller ones are left as they are."""
+    stray = (lab == label_table.ROBOT) & ~grown & (depth_mm > 0)
+    if not stray.any():
+        return lab
+    blobs, count = label4(stray)
+    k = mount.intrinsics
+    z = depth_mm.astype(np.float64) / 1000.0
+    area = np.bincount(blobs[stray], weights=(z * z / (k.fx * k.fy))[stray], minlength=count)
+    big = area >= MIN_PERSON_AREA_M2
+    if not big.any():
+        return lab
+    out = lab.copy()
+    out[stray & big[np.maximum(blobs, 0)]] = label_table.BODY
     return out
 
 
