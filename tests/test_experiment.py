@@ -13,7 +13,7 @@ from topseg.services.batch.experiment import EXPERIMENTS, paper_results
 from topseg.services.cli import main
 
 #: the paper's experiments (`mounts` scores a given model and has its own test module)
-PAPER_EXPERIMENTS = tuple(e for e in EXPERIMENTS if e not in ("mounts", "open-world"))
+PAPER_EXPERIMENTS = tuple(e for e in EXPERIMENTS if e not in ("mounts", "open-world", "safety"))
 TEX = Path(__file__).resolve().parents[2] / "shared" / "paper" / "sharma2016.tex"
 
 
