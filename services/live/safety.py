@@ -92,7 +92,8 @@ class SafetyService:
         }
         self.seq = 0
         self.last_publish = 0.0
-        self.counts = {"decisions": 0, "frames": 0, "rejected": 0, "unpaired": 0}
+        self.counts = {"decisions": 0, "frames": 0, "skipped": 0, "rejected": 0, "unpaired": 0}
+        self.max_batch = PENDING_DEPTH * len(cell.cameras) * 4
         self.last_state = ""
         self._warned: dict[str, float] = {}
         self.keys = self._keys(ros_domain)
@@ -144,6 +145,31 @@ class SafetyService:
             )  # fmt: skip
         return False
 
+    def newest(self, first: tuple, inbox: Inbox) -> list[tuple]:
+        """`first` and what else waits in `inbox` now, in order, with only the newest labels of
+        each camera: a service that fell behind decides on the newest frame, never on a
+        backlog (the older labels are counted as skipped)."""
+        batch = [first]
+        for _ in range(self.max_batch):
+            got = inbox.get(0.0)
+            if got is None:
+                break
+            batch.append(got)
+        last = {}
+        for i, (key, _, _) in enumerate(batch):
+            what, camera = self.keys.get(key, ("", ""))
+            if what == "labels":
+                last[camera] = i
+        keep = set(last.values())
+        out = []
+        for i, item in enumerate(batch):
+            what, _ = self.keys.get(item[0], ("", ""))
+            if what == "labels" and i not in keep:
+                self.counts["skipped"] += 1
+                continue
+            out.append(item)
+        return out
+
     def _labels(self, camera: str, labels: wire.LabelFrame, received_ns: int) -> bool:
         depth = self.pending[camera].pop(labels.seq, None)
         if depth is None:
@@ -194,7 +220,8 @@ class SafetyService:
         c = self.counts
         return (
             f"cell {self.cell.cell}: {self.last_state or 'starting'}, {c['frames']} frames, "
-            f"{c['decisions']} decisions, {c['rejected']} rejected, {c['unpaired']} unpaired, "
+            f"{c['decisions']} decisions, {c['skipped']} skipped (behind), {c['rejected']} "
+            f"rejected, {c['unpaired']} unpaired, "
             f"{self.monitor.counts['joint_states']} joint states"
         )
 
@@ -289,8 +316,8 @@ def run(args: argparse.Namespace) -> int:
             item = inbox.get(max(0.0, wait))
             decided = tokens.take(monitor)
             if item is not None:
-                key, data, received_ns = item
-                decided = service.handle(key, data, received_ns) or decided
+                for key, data, received_ns in service.newest(item, inbox):
+                    decided = service.handle(key, data, received_ns) or decided
             if decided or time.monotonic() - service.last_publish >= period_s:
                 service.publish(time.time_ns())
     log.info("stopped: %s (%d dropped while the queue was full)", service.status(), inbox.dropped)
