@@ -11,7 +11,8 @@ import numpy as np
 import zenoh
 from netutil import free_port
 
-from topseg.core.formats import joint_states, safety_wire
+from topseg.core.camera import KINECT_V1, TopViewMount
+from topseg.core.formats import joint_states, safety_wire, wire
 from topseg.core.safety.cell import CameraPlacement, Zone
 from topseg.core.safety.separation import Capsules
 from topseg.services.live import safety_view
@@ -98,6 +99,9 @@ def test_viewer_shows_states_zones_nearest_pair_and_robot(tmp_path):
         safety = session.declare_publisher(safety_wire.safety_key("vsafe"), **block)
         other = session.declare_publisher(safety_wire.safety_key("vfree"), **block)
         joints = session.declare_publisher(joint_states.joints_key("vsafe", "arm"), **block)
+        depth = session.declare_publisher(wire.depth_key("vsafe", "cam0"), **block)
+        mount = TopViewMount(KINECT_V1.scaled_to(160, 120), 3000.0)
+        floor = np.full((120, 160), 3000, np.uint16)
         stop = safety_wire.SafetyState(
             seq=0, stamp_ns=10**18, state="stop", speed_scale=0.0, min_distance_m=0.4,
             part="hand", link="panda_link7", reaction_ms=42.0, reasons=("hand in zone guard",),
@@ -113,8 +117,10 @@ def test_viewer_shows_states_zones_nearest_pair_and_robot(tmp_path):
             "logging vsafe/safety",
             "logging vfree/safety",
             "logging vsafe/robot",
+            "logging vsafe/cam0/robot silhouette",
             "rejected)",
         ]
+        seq = 0
         deadline = time.monotonic() + 90
         while not all(w in "".join(lines) for w in wanted):
             assert time.monotonic() < deadline, f"viewer never logged {wanted}: {''.join(lines)}"
@@ -122,6 +128,12 @@ def test_viewer_shows_states_zones_nearest_pair_and_robot(tmp_path):
             safety.put(safety_wire.encode_safety(stop))
             other.put(safety_wire.encode_safety(free))
             joints.put(joint_states.encode_joint_state(pose))
+            seq += 1
+            depth.put(
+                wire.encode_depth(
+                    wire.DepthFrame(floor, mount.intrinsics, seq, 10**18, "cam0", mount)
+                )
+            )
             safety.put(b"\x81\xa1v\x02")  # a map of the wrong version: rejected, counted
             time.sleep(1)
         proc.send_signal(signal.SIGTERM)
@@ -142,6 +154,7 @@ def test_viewer_shows_states_zones_nearest_pair_and_robot(tmp_path):
         ("/world/vsafe/cam0/safety/zones/guard", "LineStrips3D"),
         ("/world/vsafe/cam0/safety/nearest", "LineStrips3D"),
         ("/world/vsafe/cam0/safety/robot", "Capsules3D"),
+        ("/world/vsafe/cam0/camera/image/robot_silhouette", "SegmentationImage"),
         ("/vfree/safety/state", "Scalars"),
         ("/world/vfree/safety/nearest", "LineStrips3D"),  # no cell file: the cell frame
     ]:

@@ -30,7 +30,9 @@ with its distance. With `--cell CELL.toml` (optional) the viewer also draws the 
 zones coloured by their newest state (clear green, warning amber, stop red, grey before the
 first) and the robot's bounding capsules at its joint states (`topseg/<cell>/robot/<name>/
 joints`, at most 30 a second), each in every camera's world frame of the cell file, where
-that camera's cloud is (`services/live/safety_view.py`).
+that camera's cloud is (`services/live/safety_view.py`), and the robot rendered as each
+camera sees it at its newest joint state over that camera's image (`robot_silhouette`, at
+most five times a second).
 """
 
 from __future__ import annotations
@@ -68,6 +70,9 @@ PAIR_WINDOW = 16
 QUEUE_SIZE = 64
 #: joint states are shown at most this often (s)
 JOINT_PERIOD_S = 1 / 30
+#: the robot's rendered silhouette is drawn over a camera's image at most this often (s): a
+#: ray cast of the robot a frame would cost the viewer as much as it costs the safety service
+SILHOUETTE_PERIOD_S = 0.2
 #: Rerun's own default ports of its web viewer and its gRPC server
 WEB_PORT, GRPC_PORT = 9090, 9876
 
@@ -240,6 +245,16 @@ class RerunSink:
                 ),
             )  # fmt: skip
 
+    def silhouette(self, cam: tuple[str, str], frame, mask: np.ndarray) -> None:
+        """The robot's rendered silhouette over the camera's image (robot where it is)."""
+        import rerun as rr
+
+        self._time(frame.seq, frame.stamp_ns)
+        self.rec.log(
+            f"{viewer_layout.image_entity(*cam)}/robot_silhouette",
+            rr.SegmentationImage(mask.astype(np.uint8) * np.uint8(labels.ROBOT)),
+        )
+
     def _time(self, seq: int, stamp_ns: int) -> None:
         self.rec.set_time("frame", sequence=seq)
         self.rec.set_time("sensor_time", timestamp=stamp_ns * 1e-9)
@@ -319,6 +334,8 @@ class Viewer:
         self.sinks, self.stride, self.cell = sinks, stride, cell
         self.joints_key = None if cell is None else cell.joints_key()
         self.next_joints = 0.0  # monotonic s: joint states before it are skipped
+        self.last_joints = None  # the newest joint state that fits the robot
+        self.next_silhouette: dict[tuple[str, str], float] = {}  # camera -> monotonic s
         #: the kinds the viewer subscribes to, and their decoders
         self.decoders = {
             "depth": wire.decode_depth,
@@ -395,19 +412,45 @@ class Viewer:
             self._reject(key, exc)
             return True
         self.next_joints = now + JOINT_PERIOD_S
+        self.last_joints = joints
         for sink in self.sinks:
             sink.robot(self.cell.name, capsules, stamp_ns)
         self._first(f"{self.cell.name}/robot")
         return True
 
     def on_depth(self, cam, frame) -> None:
-        """Show the depth frame and keep it for pairing with its labels."""
+        """Show the depth frame (and the robot's silhouette over it) and keep it for pairing
+        with its labels."""
         for sink in self.sinks:
             sink.depth(cam, frame)
+        self.robot_silhouette(cam, frame)
         frames = self.depth.setdefault(cam, OrderedDict())
         frames[frame.seq] = frame
         while len(frames) > PAIR_WINDOW:
             frames.popitem(last=False)
+
+    def robot_silhouette(self, cam, frame) -> None:
+        """With a cell file, its robot and a joint state, the robot rendered as this camera of
+        the cell sees it at the newest joint state (at most every SILHOUETTE_PERIOD_S)."""
+        if self.cell is None or self.cell.robot is None or self.last_joints is None:
+            return
+        placement = self.cell.config.camera(cam[1])
+        if cam[0] != self.cell.name or placement is None or frame.mount is None:
+            return
+        now = time.monotonic()
+        if now < self.next_silhouette.get(cam, 0.0):
+            return
+        self.next_silhouette[cam] = now + SILHOUETTE_PERIOD_S
+        try:
+            _, mask = self.cell.robot.silhouette(
+                self.last_joints.as_dict(), frame.mount, placement, 0.0
+            )
+        except ValueError as exc:
+            self._reject(f"{self.cell.name} robot", exc)
+            return
+        for sink in self.sinks:
+            sink.silhouette(cam, frame, mask)
+        self._first(f"{cam[0]}/{cam[1]}/robot silhouette")
 
     def on_labels(self, cam, frame) -> None:
         """Show the labels, with the labelled cloud when the depth frame of its seq is kept."""

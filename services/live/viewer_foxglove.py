@@ -424,6 +424,10 @@ class FoxgloveSink:
                 placements(self.cell.config, state.stamp_ns), log_time=log_time
             )
 
+    def silhouette(self, cam: tuple[str, str], frame, mask) -> None:
+        """The robot's rendered silhouette: not shown in Foxglove (the scene has the zones
+        and the nearest pair; the label image shows the robot's pixels)."""
+
     def robot(self, cell: str, capsules, stamp_ns: int) -> None:
         """The robot's capsules (shown in Rerun; not served to Foxglove)."""
 
