@@ -18,7 +18,7 @@ from typing import Any
 
 import msgpack
 
-from topseg.core.formats import joint_states
+from topseg.core.formats import joint_states, small_message
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import WireError
 
@@ -72,14 +72,7 @@ def in_cell(key: str, cell: str) -> str:
 
 
 def _unpack_map(data: bytes) -> dict[str, Any]:
-    if not isinstance(data, bytes | bytearray | memoryview) or len(data) > MAX_COMPANION_BYTES:
-        raise WireError("a companion message must be at most 1 MiB of msgpack")
-    try:
-        msg = msgpack.unpackb(data, raw=False, strict_map_key=True)
-    except Exception as exc:
-        raise WireError(f"not msgpack: {type(exc).__name__}") from None
-    if not isinstance(msg, dict):
-        raise WireError("a companion message must be a msgpack map")
+    msg = small_message.unpack_map(data, "companion", MAX_COMPANION_BYTES)
     stamp = msg.get("stamp_ns")
     if isinstance(stamp, bool) or not isinstance(stamp, int) or not 0 <= stamp <= _MAX_STAMP:
         raise WireError("a companion message needs an integer stamp_ns >= 0")

@@ -30,6 +30,7 @@ import numpy as np
 
 from topseg.core.errors import TopsegError
 from topseg.core.extras import import_failure
+from topseg.core.formats import small_message as sm
 from topseg.core.formats.wire import ROOT, WireError, _check_name, _short
 
 #: the version every joint-state message is written with, and the only one read
@@ -126,38 +127,16 @@ def encode_joint_state(js: JointState) -> bytes:
 
 def decode_joint_state(data: bytes) -> JointState:
     """The JointState of a msgpack message; WireError naming what is wrong with a bad one."""
-    msg = _unpack(data)
-    keys = set(msg)
-    if "v" in keys and msg["v"] != JOINT_STATE_VERSION:
+    msg = sm.unpack_map(
+        data, "joint state", MAX_JOINT_STATE_BYTES, max_items=MAX_JOINTS,
+        max_str_len=MAX_JOINT_NAME * 4, max_map_len=8,
+    )  # fmt: skip
+    if "v" in msg and msg["v"] != JOINT_STATE_VERSION:
         raise WireError(
             f"joint state schema version {_short(msg['v'])} is not {JOINT_STATE_VERSION}"
         )
-    if keys != _FIELDS:
-        missing, extra = sorted(_FIELDS - keys), sorted(map(_short, keys - _FIELDS))
-        parts = [f"missing {missing}" if missing else "", f"unknown {extra}" if extra else ""]
-        raise WireError("joint state message fields: " + "; ".join(p for p in parts if p))
+    sm.check_keys(msg, "joint state", _FIELDS, frozenset())
     return check_joint_state(msg["stamp_ns"], msg["name"], msg["position"])
-
-
-def _unpack(data: Any) -> dict:
-    """The msgpack map of a message, bounded in size; WireError for anything else."""
-    if not isinstance(data, bytes | bytearray | memoryview):
-        raise WireError(f"a joint state message must be bytes, got {type(data).__name__}")
-    if len(data) > MAX_JOINT_STATE_BYTES:
-        raise WireError(
-            f"joint state message of {len(data)} bytes exceeds the {MAX_JOINT_STATE_BYTES}-byte limit"
-        )
-    try:
-        obj = msgpack.unpackb(
-            data, raw=False, strict_map_key=True, use_list=False, max_bin_len=0,
-            max_str_len=MAX_JOINT_NAME * 4, max_array_len=MAX_JOINTS, max_map_len=8,
-            max_ext_len=0,
-        )  # fmt: skip
-    except Exception as exc:  # msgpack raises a zoo of types for bad input
-        raise WireError(f"not a msgpack joint state ({type(exc).__name__}: {exc})") from None
-    if not isinstance(obj, dict):
-        raise WireError(f"a joint state message must be a msgpack map, got {type(obj).__name__}")
-    return obj
 
 
 # ---------------------------------------------------------------------------- ROS 2

@@ -25,10 +25,16 @@ def short(value: Any, limit: int = 60) -> str:
 
 
 def unpack_map(
-    data: Any, what: str, max_bytes: int = MAX_SMALL_BYTES, max_items: int = 256
+    data: Any,
+    what: str,
+    max_bytes: int = MAX_SMALL_BYTES,
+    max_items: int = 256,
+    max_str_len: int = 4096,
+    max_map_len: int | None = None,
 ) -> dict:
     """The msgpack map in `data`; WireError for anything else (not bytes, too long, not
-    msgpack, not a map, arrays or strings over the limits)."""
+    msgpack, not a map, arrays, maps (`max_map_len`, default `max_items`) or strings over
+    the limits)."""
     if not isinstance(data, bytes | bytearray | memoryview):
         raise WireError(f"a {what} message must be bytes, got {type(data).__name__}")
     if len(data) > max_bytes:
@@ -40,9 +46,9 @@ def unpack_map(
             strict_map_key=True,
             use_list=True,
             max_bin_len=0,
-            max_str_len=4096,
+            max_str_len=max_str_len,
             max_array_len=max_items,
-            max_map_len=max_items,
+            max_map_len=max_items if max_map_len is None else max_map_len,
             max_ext_len=0,
         )
     except Exception as exc:  # msgpack raises a zoo of types for bad input
