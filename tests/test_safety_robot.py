@@ -3,7 +3,6 @@ base placement, joint-state checks, link speeds and the silhouette a camera sees
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -13,41 +12,20 @@ from reference import grow_mask_reference
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, TopViewMount, depth_to_range
 from topseg.core.errors import TopsegError
+from topseg.core.safety.cell import CameraPlacement, RobotSpec
 from topseg.core.safety.robot import CellRobot, ellipse_half_widths, grow_mask
 from topseg.core.safety.separation import human_points, nearest, point_distances
 from topseg.core.synth.geometry import BOX, CAPSULE, CYLINDER, SPHERE
 
 
-@dataclass(frozen=True)
-class Spec:
-    """A stand-in for cell.RobotSpec with the attributes CellRobot reads."""
-
-    name: str = "arm"
-    urdf: str = "panda"
-    base_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    base_yaw_deg: float = 0.0
-    upside_down: bool = False
-    pedestal: str = "none"
-    pedestal_size_m: float = 0.0
+def Spec(name: str = "arm", **fields) -> RobotSpec:
+    """The cell file's robot, named "arm" unless told."""
+    return RobotSpec(name=name, **fields)
 
 
-@dataclass(frozen=True)
-class Placement:
-    """A stand-in for cell.CameraPlacement: p_cell = Rz(yaw) p_world + (x, y, 0)."""
-
-    x_m: float = 0.0
-    y_m: float = 0.0
-    yaw_deg: float = 0.0
-
-    def _rz(self):
-        c, s = np.cos(np.radians(self.yaw_deg)), np.sin(np.radians(self.yaw_deg))
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-    def to_cell(self, points_world):
-        return np.asarray(points_world) @ self._rz().T + [self.x_m, self.y_m, 0.0]
-
-    def to_camera_world(self, points_cell):
-        return (np.asarray(points_cell) - [self.x_m, self.y_m, 0.0]) @ self._rz()
+def Placement(x_m: float = 0.0, y_m: float = 0.0, yaw_deg: float = 0.0) -> CameraPlacement:
+    """The cell file's camera placement, by position."""
+    return CameraPlacement(x_m=x_m, y_m=y_m, yaw_deg=yaw_deg)
 
 
 PRIMITIVE_URDF = """<?xml version="1.0"?>

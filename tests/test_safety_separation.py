@@ -4,14 +4,13 @@ reference (tests/reference.py)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 from reference import capsule_distances_reference, label4_reference
 
 from topseg.core import labels
 from topseg.core.camera import KINECT_V1, TopViewMount, depth_to_range
+from topseg.core.safety.cell import CameraPlacement
 from topseg.core.safety.separation import (
     Capsules,
     HumanPoints,
@@ -24,23 +23,9 @@ from topseg.core.synth.geometry import BOX, SPHERE
 from topseg.core.synth.render import Primitives, raycast
 
 
-@dataclass(frozen=True)
-class Placement:
-    """A stand-in for cell.CameraPlacement: p_cell = Rz(yaw) p_world + (x, y, 0)."""
-
-    x_m: float = 0.0
-    y_m: float = 0.0
-    yaw_deg: float = 0.0
-
-    def _rz(self):
-        c, s = np.cos(np.radians(self.yaw_deg)), np.sin(np.radians(self.yaw_deg))
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-    def to_cell(self, points_world):
-        return np.asarray(points_world) @ self._rz().T + [self.x_m, self.y_m, 0.0]
-
-    def to_camera_world(self, points_cell):
-        return (np.asarray(points_cell) - [self.x_m, self.y_m, 0.0]) @ self._rz()
+def Placement(x_m: float = 0.0, y_m: float = 0.0, yaw_deg: float = 0.0) -> CameraPlacement:
+    """The cell file's camera placement, by position."""
+    return CameraPlacement(x_m=x_m, y_m=y_m, yaw_deg=yaw_deg)
 
 
 def _random_capsules(rng, m):
