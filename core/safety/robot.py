@@ -26,7 +26,6 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from topseg.core import labels
 from topseg.core.camera import depth_to_range
 from topseg.core.safety.separation import Capsules
 from topseg.core.synth.geometry import (
@@ -39,7 +38,7 @@ from topseg.core.synth.geometry import (
     yaw_quat,
 )
 from topseg.core.synth.render import Primitives, Triangles, raycast
-from topseg.core.synth.robots import RANDOM, ROBOTS, robot_model
+from topseg.core.synth.robots import RANDOM, ROBOTS, pedestal_primitives, robot_model
 
 __all__ = ["Capsules", "CellRobot", "base_quat", "fit_capsule", "grow_mask"]
 
@@ -124,22 +123,13 @@ class CellRobot:
         height = float(self.base_pos[2])
         if self.spec.pedestal == "none" or height <= 0 or self.spec.upside_down:
             return Primitives.empty()
-        size = float(self.spec.pedestal_size_m)
-        x, y = float(self.base_pos[0]), float(self.base_pos[1])
-        yaw = math.radians(float(self.spec.base_yaw_deg))
-        c, s = math.cos(yaw), math.sin(yaw)
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        kind, dims = (
-            (CYLINDER, (size, height / 2, 0.0))
-            if self.spec.pedestal == "cylinder"
-            else (BOX, (size, size, height / 2))
-        )
-        return Primitives(
-            np.array([kind], np.int32),
-            np.array([dims], np.float64),
-            np.array([[x, y, height / 2]], np.float64),
-            rot[None],
-            np.array([labels.ROBOT], np.uint8),
+        return pedestal_primitives(
+            float(self.base_pos[0]),
+            float(self.base_pos[1]),
+            math.radians(float(self.spec.base_yaw_deg)),
+            height,
+            float(self.spec.pedestal_size_m),
+            self.spec.pedestal == "cylinder",
         )
 
     def silhouette(

@@ -698,9 +698,7 @@ class PlacedRobot:
         """The pedestal or the gantry's beam and posts; nothing on the floor or a table."""
         if self.mount == "pedestal" and self.pedestal[0] > 0 and self.base_z > 0:
             size, round_ = self.pedestal
-            h = self.base_z / 2
-            kind, dims = (CYLINDER, (size, h, 0.0)) if round_ else (BOX, (size, size, h))
-            return _boxes([kind], [dims], [(self.x, self.y, h)], self.yaw)
+            return pedestal_primitives(self.x, self.y, self.yaw, self.base_z, size, bool(round_))
         if self.mount == "gantry":
             half_span = self.model().reach_m + GANTRY_CLEARANCE
             top = self.base_z + GANTRY_BEAM
@@ -755,6 +753,17 @@ def _hull_vertices(triangles: np.ndarray) -> np.ndarray:
         return points[ConvexHull(points).vertices]
     except QhullError:  # a flat or degenerate link
         return points
+
+
+def pedestal_primitives(
+    x: float, y: float, yaw: float, height: float, size: float, round_: bool
+) -> Primitives:
+    """A pedestal from the floor up to `height` under (x, y), labelled robot: a square column
+    of half width `size` turned by `yaw` (radians), or with `round_` a cylinder of radius
+    `size`."""
+    h = height / 2
+    kind, dims = (CYLINDER, (size, h, 0.0)) if round_ else (BOX, (size, size, h))
+    return _boxes([kind], [dims], [(x, y, h)], yaw)
 
 
 def _boxes(kinds, sizes, centres, yaw: float) -> Primitives:
