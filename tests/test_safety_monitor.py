@@ -9,6 +9,7 @@ import pytest
 
 from tests.safety_scenes import MOUNT, person, render
 from topseg.core import labels
+from topseg.core.camera import depth_to_range
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.safety.cell import cell_from_dict
@@ -309,3 +310,18 @@ def test_a_person_read_as_robot_away_from_the_robot_is_a_person(cell, robot, joi
     speck[5:8, 5:8] = labels.ROBOT
     mon.frame("cam0", depth, LabelFrame(speck, 1, T0, "cam0"), T0)
     assert mon.views["cam0"].nearest is None
+
+
+def test_a_camera_that_sends_range_is_read_like_one_that_sends_depth(cell, robot, joints):
+    """The same frame sent as range along each ray by a `radial` camera: the same person at
+    the same distance (its frames are turned into depth once, not twice)."""
+    depth, lab = render(cell.cameras[0], robot, joints, [person(0.9, 0.6)], stamp_ns=T0)
+    plain = monitor_with_joints(cell, robot, joints)
+    plain.frame("cam0", depth, lab, T0)
+    radial = replace(MOUNT, radial=True)
+    ranged = depth_to_range(depth.depth, MOUNT.intrinsics)
+    mon = monitor_with_joints(cell, robot, joints)
+    mon.frame("cam0", DepthFrame(ranged, MOUNT.intrinsics, 0, T0, "cam0", radial), lab, T0)
+    assert mon.views["cam0"].faults == ()
+    a, b = plain.views["cam0"].nearest, mon.views["cam0"].nearest
+    assert b.distance_m == pytest.approx(a.distance_m, abs=0.005)

@@ -200,6 +200,7 @@ class CellMonitor:
         factor = working_factor(mount)
         mount = decimated_mount(mount, factor)
         depth_mm = axis_depth(decimate(depth.depth, factor), mount)
+        mount = replace(mount, radial=False)  # its frames are read as axis depth from here on
         lab = np.ascontiguousarray(labels.labels[::factor, ::factor])
         view.faults = camera_faults(camera, depth_mm, lab, mount)
         joints = self.fresh_joints(now_ns)
@@ -210,7 +211,7 @@ class CellMonitor:
             age_s = self.joints_age_s(now_ns)
             margin = SILHOUETTE_MARGIN_M + age_s * self.cell.robot.max_speed_mps
             robot_depth, grown = silhouette(self.robot, joints, mount, placement, margin)
-            lab = robot_pixels(lab, depth_mm, axis_depth(robot_depth, mount), grown, margin, mount)
+            lab = robot_pixels(lab, depth_mm, robot_depth, grown, margin, mount)
             if STRAY_ROBOT_AS_PERSON:
                 lab = stray_robot_as_person(lab, depth_mm, grown, mount)
             shadow = grown
@@ -344,9 +345,8 @@ def camera_faults(
 
 
 def floor_heights(depth_mm: np.ndarray, mask: np.ndarray, mount: TopViewMount) -> np.ndarray:
-    """Heights above the floor (m) through `mount` of the pixels of `mask` (axis depth)."""
-    flat = replace(mount, radial=False) if mount.radial else mount  # axis depth already
-    return flat.height_map_mm(depth_mm)[mask].astype(np.float64) / 1000.0
+    """Heights above the floor (m) through `mount` (not radial) of the pixels of `mask`."""
+    return mount.height_map_mm(depth_mm)[mask].astype(np.float64) / 1000.0
 
 
 def mount_points(
