@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from topseg.core import labels as label_table
-from topseg.core.camera import KINECT_V1, TopViewMount, axis_depth, backproject_pixels
+from topseg.core.camera import KINECT_V1, TopViewMount, axis_depth
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.resolution import decimate, decimated_mount
@@ -45,6 +45,8 @@ from topseg.core.safety.separation import (
     Capsules,
     HumanPoints,
     Nearest,
+    blob_areas_m2,
+    cell_points,
     human_points,
     label4,
     nearest,
@@ -349,13 +351,6 @@ def floor_heights(depth_mm: np.ndarray, mask: np.ndarray, mount: TopViewMount) -
     return mount.height_map_mm(depth_mm)[mask].astype(np.float64) / 1000.0
 
 
-def mount_points(
-    depth_mm: np.ndarray, v: np.ndarray, u: np.ndarray, mount: TopViewMount
-) -> np.ndarray:
-    """(n, 3) points in the camera's world frame (m) of pixels (v, u) of axis depth `depth_mm`."""
-    return mount.camera_to_world(backproject_pixels(depth_mm, v, u, mount.intrinsics))
-
-
 def silhouette(
     robot: CellRobot, joints: dict[str, float], mount: TopViewMount, placement, margin_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -412,9 +407,7 @@ def stray_robot_as_person(
     if not stray.any():
         return lab
     blobs, count = label4(stray)
-    k = mount.intrinsics
-    z = depth_mm.astype(np.float64) / 1000.0
-    area = np.bincount(blobs[stray], weights=(z * z / (k.fx * k.fy))[stray], minlength=count)
+    area = blob_areas_m2(blobs[stray], depth_mm[stray], mount.intrinsics, count)
     big = area >= MIN_PERSON_AREA_M2
     if not big.any():
         return lab
@@ -434,9 +427,8 @@ def people_points(
     people = human_points(depth_mm, lab, mount, placement)
     if not len(people):
         return None
-    k = mount.intrinsics
-    z = depth_mm[people.rows, people.cols].astype(np.float64) / 1000.0
-    area = np.bincount(people.blob, weights=z * z / (k.fx * k.fy), minlength=people.blob_count)
+    z_mm = depth_mm[people.rows, people.cols]
+    area = blob_areas_m2(people.blob, z_mm, mount.intrinsics, people.blob_count)
     keep = area[people.blob] >= MIN_PERSON_AREA_M2
     if keep.all():
         return people
@@ -460,7 +452,7 @@ def robot_points_as_capsules(
     v, u = np.nonzero((lab == label_table.ROBOT) & (depth_mm > 0))
     if not len(v):
         return None
-    points = placement.to_cell(mount_points(depth_mm, v, u, mount))
+    points = cell_points(depth_mm, v, u, mount, placement)
     cells = np.floor(points / ROBOT_POINT_GRID_M).astype(np.int64)
     _, first = np.unique(cells, axis=0, return_index=True)
     points = points[np.sort(first)]

@@ -112,11 +112,8 @@ def human_points(depth_mm: np.ndarray, label_img: np.ndarray, mount, placement) 
     human = _IS_HUMAN[label_img] & (depth_mm > 0)
     blob_img, blob_count = label4(human)
     rows, cols = np.nonzero(human)
-    camera_points = backproject_pixels(depth_mm, rows, cols, k).astype(np.float64)
-    world = mount.camera_to_world(camera_points)
-    cell = np.asarray(placement.to_cell(world), np.float64).reshape(-1, 3)
     return HumanPoints(
-        points_m=cell,
+        points_m=cell_points(depth_mm, rows, cols, mount, placement),
         part=label_img[rows, cols].astype(np.uint8),
         rows=rows.astype(np.int32),
         cols=cols.astype(np.int32),
@@ -124,6 +121,23 @@ def human_points(depth_mm: np.ndarray, label_img: np.ndarray, mount, placement) 
         blob_count=blob_count,
         shape=(int(k.height), int(k.width)),
     )
+
+
+def cell_points(
+    depth_mm: np.ndarray, rows: np.ndarray, cols: np.ndarray, mount, placement
+) -> np.ndarray:
+    """(n, 3) float64 cell-frame points (m) of the pixels (rows, cols) of an axis-depth frame
+    seen through `mount` from `placement`."""
+    camera = backproject_pixels(depth_mm, rows, cols, mount.intrinsics).astype(np.float64)
+    world = mount.camera_to_world(camera)
+    return np.asarray(placement.to_cell(world), np.float64).reshape(-1, 3)
+
+
+def blob_areas_m2(blob: np.ndarray, depth_mm: np.ndarray, intrinsics, count: int) -> np.ndarray:
+    """(count,) how much of a floor-parallel plane at their depth each blob's pixels cover (m²):
+    `blob` the blob id of each pixel, `depth_mm` its axis depth."""
+    z = np.asarray(depth_mm, np.float64) / 1000.0
+    return np.bincount(blob, weights=z * z / (intrinsics.fx * intrinsics.fy), minlength=count)
 
 
 def label4(mask: np.ndarray) -> tuple[np.ndarray, int]:
