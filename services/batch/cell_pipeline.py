@@ -32,7 +32,7 @@ from topseg.core.safety.agreement import (
 from topseg.core.safety.cell import CellConfig, load_cell
 from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
-from topseg.services.batch.pipeline import START_TIMEOUT_S, _Children, _cli, free_port
+from topseg.services.batch.pipeline import START_TIMEOUT_S, Children, cli_argv, free_port
 from topseg.services.runtime.zenoh_session import open_session
 
 #: frames kept for scoring (depth and truth, ~0.3 MB a 320x240 frame)
@@ -165,21 +165,21 @@ def run_cell_pipeline(
     if cell.robot is not None:
         subs.append(session.declare_subscriber(
             cell_truth.joints_key(cell.cell, cell.robot.name), col.on_joints))  # fmt: skip
-    kids = _Children(logs)
+    kids = Children(logs)
     codes: dict[str, int | None] = {}
     try:
-        kids.start("worker", _cli("worker", "--model", str(model), "--cameras",
+        kids.start("worker", cli_argv("worker", "--model", str(model), "--cameras",
                                   f"{cell.cell}/{camera}", *zenoh))  # fmt: skip
-        kids.start("safety", _cli("safety", "--cell", str(cell_file), *zenoh))
+        kids.start("safety", cli_argv("safety", "--cell", str(cell_file), *zenoh))
         if rrd is not None:
             kids.start(
-                "viewer", _cli("viewer", "--save", str(rrd), "--cell", str(cell_file), *zenoh)
+                "viewer", cli_argv("viewer", "--save", str(rrd), "--cell", str(cell_file), *zenoh)
             )
         kids.wait_ready("worker", "worker ready", START_TIMEOUT_S)
         kids.wait_ready("safety", "safety ready", START_TIMEOUT_S)
         if rrd is not None:
             kids.wait_ready("viewer", "viewer ready", START_TIMEOUT_S)
-        kids.start("driver", _cli("driver", "--source", f"replay:{recording}", "--cell",
+        kids.start("driver", cli_argv("driver", "--source", f"replay:{recording}", "--cell",
                                   cell.cell, "--camera", camera, *zenoh))  # fmt: skip
         driver = kids.procs["driver"]
         while driver.poll() is None:

@@ -158,11 +158,12 @@ def camera_names(cameras: int) -> list[str]:
     return [CAMERA] if cameras == 1 else [f"cam{i}" for i in range(cameras)]
 
 
-def _cli(*args: str) -> list[str]:
+def cli_argv(*args: str) -> list[str]:
+    """The command line of `topseg -v <args>` run by this Python."""
     return [sys.executable, "-m", "topseg.services.cli", "-v", *args]
 
 
-class _Children:
+class Children:
     """The started processes, their log files, and stopping them with SIGTERM."""
 
     def __init__(self, logs_dir: Path) -> None:
@@ -170,14 +171,17 @@ class _Children:
         self.procs: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, cmd: list[str]) -> None:
+        """Start `cmd` as `name`, its output to `name`.log."""
         log = (self.logs_dir / f"{name}.log").open("w")
         self.procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
         log.close()
 
     def log_text(self, name: str) -> str:
+        """What `name` has logged so far."""
         return (self.logs_dir / f"{name}.log").read_text(errors="replace")
 
     def wait_ready(self, name: str, marker: str, timeout_s: float) -> None:
+        """Wait until `name` logs `marker`; TopsegError when it exits or `timeout_s` passes."""
         deadline = time.monotonic() + timeout_s
         proc = self.procs[name]
         while marker not in self.log_text(name):
@@ -188,10 +192,12 @@ class _Children:
             time.sleep(0.05)
 
     def tail(self, name: str) -> str:
+        """The last line `name` logged."""
         lines = self.log_text(name).strip().splitlines()
         return lines[-1] if lines else "(no output)"
 
     def stop(self, name: str, timeout_s: float = 20.0) -> int | None:
+        """SIGTERM to `name`, then kill after `timeout_s`; its exit status (None: not started)."""
         proc = self.procs.get(name)
         if proc is None:
             return None
@@ -265,16 +271,16 @@ def run_pipeline(
         session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/labels", col.on_labels),
         session.declare_subscriber(f"{wire.ROOT}/{CELL}/*/stats", col.on_stats),
     ]
-    kids = _Children(logs)
+    kids = Children(logs)
     codes: dict[str, int | None] = {}
     try:
         worker = ["worker", "--model", str(model), *setting_argv(config or SegmenterConfig())]
         worker += ["--cameras", *(f"{CELL}/{name}" for name in names)]
-        kids.start("worker", _cli(*worker, *(["--lossless"] if lossless else []), *zenoh))
+        kids.start("worker", cli_argv(*worker, *(["--lossless"] if lossless else []), *zenoh))
         if rrd is not None:
-            kids.start("viewer", _cli("viewer", "--save", str(rrd), *zenoh))
+            kids.start("viewer", cli_argv("viewer", "--save", str(rrd), *zenoh))
         if web:
-            kids.start("web-viewer", _cli("viewer", "--web", *zenoh))
+            kids.start("web-viewer", cli_argv("viewer", "--web", *zenoh))
         kids.wait_ready("worker", "worker ready", START_TIMEOUT_S)
         if rrd is not None:
             kids.wait_ready("viewer", "viewer ready", START_TIMEOUT_S)
@@ -290,7 +296,7 @@ def run_pipeline(
             if lossless:  # lossless end to end: a real-time driver would DROP under load
                 driver += ["--congestion", "block"]
             kid = "driver" if cameras == 1 else f"driver-{name}"
-            kids.start(kid, _cli(*driver, *zenoh))
+            kids.start(kid, cli_argv(*driver, *zenoh))
             drivers[kid] = kids.procs[kid]
         while col.first_label_s is None and not stop.is_set():
             for kid, drv in drivers.items():

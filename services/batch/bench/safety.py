@@ -35,7 +35,7 @@ from topseg.core.metrics import percentile
 from topseg.core.safety.agreement import one_decision_per_frame
 from topseg.core.safety.cell import load_cell
 from topseg.services.batch.demo import REPO
-from topseg.services.batch.pipeline import START_TIMEOUT_S, _Children, _cli, free_port
+from topseg.services.batch.pipeline import START_TIMEOUT_S, Children, cli_argv, free_port
 from topseg.services.cli.options import finite
 from topseg.services.runtime.zenoh_session import open_session
 
@@ -138,20 +138,22 @@ def measure(args: argparse.Namespace) -> dict:
         session.declare_subscriber(safety_wire.safety_key(cell.cell), states.on_state),
         session.declare_subscriber(wire.depth_key(cell.cell, camera), states.on_depth),
     ]
-    kids = _Children(logs)
+    kids = Children(logs)
     driver = ["--cell", cell.cell, "--camera", camera, "--fps", str(args.fps), *zenoh]
     try:
-        kids.start("worker", _cli("worker", "--model", str(model), "--cameras",
+        kids.start("worker", cli_argv("worker", "--model", str(model), "--cameras",
                                   f"{cell.cell}/{camera}", *zenoh))  # fmt: skip
-        kids.start("safety", _cli("safety", "--cell", str(cell_file), *zenoh))
+        kids.start("safety", cli_argv("safety", "--cell", str(cell_file), *zenoh))
         if not args.no_viewer:
-            kids.start("viewer", _cli("viewer", "--save", str(logs / "bench.rrd"), "--cell",
+            kids.start("viewer", cli_argv("viewer", "--save", str(logs / "bench.rrd"), "--cell",
                                       str(cell_file), *zenoh))  # fmt: skip
         for name, marker in (("worker", "worker ready"), ("safety", "safety ready")):
             kids.wait_ready(name, marker, START_TIMEOUT_S)
         if not args.no_viewer:
             kids.wait_ready("viewer", "viewer ready", START_TIMEOUT_S)
-        kids.start("driver", _cli("driver", "--source", f"replay:{recording}", "--loop", *driver))
+        kids.start(
+            "driver", cli_argv("driver", "--source", f"replay:{recording}", "--loop", *driver)
+        )
         time.sleep(args.duration)
         with states.lock:
             running = list(states.got)
@@ -160,7 +162,7 @@ def measure(args: argparse.Namespace) -> dict:
         kids.procs["driver"].wait()
         killed_stop = _wait(lambda: states.first_stop_after(killed_ns), WAIT_STOP_S)
         time.sleep(0.5)  # the driver's token gone everywhere before the next one starts
-        kids.start("covered", _cli("driver", "--source", f"replay:{covered}", *driver))
+        kids.start("covered", cli_argv("driver", "--source", f"replay:{covered}", *driver))
         _wait(lambda: states.first_covered_ns, WAIT_STOP_S + COVERED_S)
         covered_stop = _wait(
             lambda: (
