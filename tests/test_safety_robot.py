@@ -222,11 +222,15 @@ def test_the_mask_grows_by_the_margin_at_the_robots_depth():
         robot.silhouette(joints, mount, Placement(), -0.1)
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", range(6))
 def test_grow_kernel_matches_the_numpy_reference(seed):
     rng = np.random.default_rng(seed)
-    mask = rng.random((50, 70)) < [0.002, 0.01, 0.05, 0.0][seed]
+    mask = rng.random((50, 70)) < [0.002, 0.01, 0.05, 0.0, 0.0, 0.0][seed]
     mask[0, 69] = seed == 3  # a pixel in a corner
+    if seed == 4:  # a robot-like blob well inside the image: only its box is grown
+        mask[20:26, 30:41] = rng.random((6, 11)) < 0.7
+    if seed == 5:  # a blob against the left edge
+        mask[5:40, 0:3] = True
     depth = np.where(mask, rng.integers(1500, 3000, mask.shape), 0).astype(np.uint16)
     margin = rng.uniform(0.02, 0.2)
     fx, fy = rng.uniform(50, 120, 2)

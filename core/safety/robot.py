@@ -268,8 +268,15 @@ def grow_mask(mask: np.ndarray, depth_mm: np.ndarray, margin_m: float, fx: float
     if z_m <= 0:
         raise ValueError("grow_mask needs the depth of every pixel under the mask")
     half_widths = ellipse_half_widths(margin_m * fx / z_m, margin_m * fy / z_m)
+    # only the mask's bounding box, widened by the ellipse, can grow: the kernel runs there
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    reach_v, reach_u = (len(half_widths) - 1) // 2, int(half_widths.max())
+    v0, v1 = max(rows[0] - reach_v, 0), min(rows[-1] + reach_v + 1, mask.shape[0])
+    u0, u1 = max(cols[0] - reach_u, 0), min(cols[-1] + reach_u + 1, mask.shape[1])
     out = np.zeros_like(mask)
-    _grow_kernel(mask, half_widths, out)
+    box = np.zeros((v1 - v0, u1 - u0), np.bool_)
+    _grow_kernel(np.ascontiguousarray(mask[v0:v1, u0:u1]), half_widths, box)
+    out[v0:v1, u0:u1] = box
     return out
 
 

@@ -375,6 +375,9 @@ class RobotModel:
         self._urdf = urdf
         self._scale = float(scale)
         self._lock = threading.Lock()  # posing sets the shared URDF's configuration
+        # the last posing asked for (its configuration and frames) and its poses: a frame's
+        # capsules, silhouette and hull ask for the same joints in turn
+        self._last_poses: tuple[bytes, tuple[str, ...], np.ndarray] | None = None
         label = name
         floating = [j.name for j in urdf.robot.joints if j.type in ("floating", "planar")]
         if floating:
@@ -462,11 +465,19 @@ class RobotModel:
         )
 
     def _poses(self, joints: dict[str, float], frames: list[str]) -> np.ndarray:
-        """(k, 4, 4) base-frame poses of `frames` at `joints`."""
+        """(k, 4, 4) base-frame poses of `frames` at `joints` (read-only; the last one asked
+        for is kept, so asking again for the same joints costs nothing)."""
         q = self._configuration(joints)
+        key, frames = q.tobytes(), tuple(frames)
         with self._lock:
+            last = self._last_poses
+            if last is not None and last[0] == key and last[1] == frames:
+                return last[2]
             self._urdf.update_cfg(q)
-            return np.array([self._urdf.get_transform(f) for f in frames]).reshape(-1, 4, 4)
+            poses = np.array([self._urdf.get_transform(f) for f in frames]).reshape(-1, 4, 4)
+            poses.setflags(write=False)
+            self._last_poses = (key, frames, poses)
+            return poses
 
     def _to_world(self, base_pos, base_quat) -> tuple[np.ndarray, np.ndarray]:
         """(R, p): world = p + R @ (scale * base-frame point)."""

@@ -68,6 +68,9 @@ class _States:
         self.lock = threading.Lock()
         self.got: list[safety_wire.SafetyState] = []
         self.first_covered_ns: int | None = None
+        # depth frames are decoded only once the covered camera's driver starts: decoding
+        # every frame before would take this process's share of the cores being measured
+        self.watch_depth = False
 
     def on_state(self, sample) -> None:
         try:
@@ -78,7 +81,7 @@ class _States:
             self.got.append(state)
 
     def on_depth(self, sample) -> None:
-        if self.first_covered_ns is not None:
+        if not self.watch_depth or self.first_covered_ns is not None:
             return
         frame = wire.decode_depth(sample.payload.to_bytes())
         if not frame.depth.any():
@@ -162,6 +165,7 @@ def measure(args: argparse.Namespace) -> dict:
         kids.procs["driver"].wait()
         killed_stop = _wait(lambda: states.first_stop_after(killed_ns), WAIT_STOP_S)
         time.sleep(0.5)  # the driver's token gone everywhere before the next one starts
+        states.watch_depth = True
         kids.start("covered", cli_argv("driver", "--source", f"replay:{covered}", *driver))
         _wait(lambda: states.first_covered_ns, WAIT_STOP_S + COVERED_S)
         covered_stop = _wait(
