@@ -258,7 +258,8 @@ def test_a_joint_state_that_misses_joints_is_refused(cell, robot, joints):
 
 def test_a_full_resolution_frame_is_read_at_the_working_resolution():
     big = replace(MOUNT, intrinsics=MOUNT.intrinsics.scaled_to(640, 480))
-    assert working_factor(big) == 2 and working_factor(MOUNT) == 1
+    small = replace(MOUNT, intrinsics=MOUNT.intrinsics.scaled_to(160, 120))
+    assert working_factor(big) == 4 and working_factor(MOUNT) == 2 and working_factor(small) == 1
 
 
 def test_a_driver_that_went_away_stops_the_cell_at_once(cell, robot, joints):
@@ -325,3 +326,14 @@ def test_a_camera_that_sends_range_is_read_like_one_that_sends_depth(cell, robot
     assert mon.views["cam0"].faults == ()
     a, b = plain.views["cam0"].nearest, mon.views["cam0"].nearest
     assert b.distance_m == pytest.approx(a.distance_m, abs=0.005)
+
+
+def test_set_joints_holds_an_older_state_that_joint_state_passes_over(cell, robot, joints):
+    mon = monitor_with_joints(cell, robot, joints)
+    older = JointState(T0 - 10**9, robot.joint_names, tuple(v + 0.1 for v in joints.values()))
+    mon.joint_state(older, T0)  # a late state: the newer one stays
+    assert mon.joints.stamp_ns == T0
+    mon.set_joints(older, T0)
+    assert mon.joints is older and mon.counts["joint_states"] == 2
+    mon.set_joints(None)
+    assert mon.joints is None and mon.fresh_joints(T0) is None

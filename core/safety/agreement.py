@@ -12,15 +12,20 @@ separation, not timing.
 `score` reads the decisions taken on frames (the first the service published for each) and
 gives: the share whose state equals the truth's, how often it said `clear` when the truth
 said `stop` (must be never), the separation error (|measured - true| where both saw a person
-and a robot) p50/p95, the share of frames with one person in view where the nearest part
-is the truth's, and the reaction time p50/p99.
+and a robot) p50/p95, and its p95 apart over the frames whose true nearest point the camera
+sees and those where it does not (out of the image, or hidden under the robot or the
+person's own body: no perception can measure those), the share of frames with one person in
+view where the nearest part is the truth's, and the reaction time p50/p99.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from topseg.core import labels as label_table
+from topseg.core.camera import axis_depth, project
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.metrics import percentile
 from topseg.core.safety.decision import Decision, decide
@@ -34,6 +39,7 @@ class TruthNearest:
     distance_m: float
     part: int
     link: str
+    point_m: tuple[float, float, float] | None = None  # the person's point, cell frame
 
 
 def truth_nearest(persons: list[dict]) -> tuple[TruthNearest | None, int]:
@@ -43,7 +49,9 @@ def truth_nearest(persons: list[dict]) -> tuple[TruthNearest | None, int]:
         return None, 0
     best = min(seen, key=lambda p: float(p["distance_m"]))
     part = label_table.by_name(str(best["part"])).id
-    return TruthNearest(float(best["distance_m"]), part, str(best["link"])), len(seen)
+    point = best.get("point_m")
+    point = None if point is None else tuple(float(v) for v in point)
+    return TruthNearest(float(best["distance_m"]), part, str(best["link"]), point), len(seen)
 
 
 def truth_decision(
@@ -62,6 +70,39 @@ def truth_decision(
     return decide(monitor.cell, nearest, sorted(view.occupied), view.unseen, reaction_s, faults)
 
 
+#: The truth's nearest point is seen when the camera's depth at its pixel is no nearer than
+#: the point by more than this (m): beyond it something (the robot, another body part) hides it.
+SEEN_TOLERANCE_M = 0.05
+
+
+def nearest_point_seen(point_cell, depth: DepthFrame, placement) -> bool:
+    """Whether the camera of `depth` (placed in the cell by `placement`) sees a cell-frame
+    point: it projects into the image, and the depth there is not nearer than the point by
+    more than SEEN_TOLERANCE_M. A separation the camera cannot see is not perception's to
+    measure: the experiment reports its error apart."""
+    mount = depth.mount or placement.mount
+    if mount is None:
+        return False
+    world = placement.to_camera_world(np.asarray(point_cell, np.float64).reshape(1, 3))
+    cam = mount.world_to_camera(world)[0]
+    if cam[2] <= 0:
+        return False
+    u, v = project(cam, mount.intrinsics)
+    k = mount.intrinsics
+    col, row = int(np.floor(u)), int(np.floor(v))
+    if not (0 <= col < k.width and 0 <= row < k.height):
+        return False
+    z_mm = float(axis_depth(depth.depth, mount)[row, col])
+    return bool(z_mm > 0 and z_mm / 1000.0 >= cam[2] - SEEN_TOLERANCE_M)
+
+
+def truth_point_seen(nearest: TruthNearest | None, depth: DepthFrame, placement) -> bool | None:
+    """`nearest_point_seen` of the truth's nearest point; None without one."""
+    if nearest is None or nearest.point_m is None:
+        return None
+    return nearest_point_seen(nearest.point_m, depth, placement)
+
+
 @dataclass
 class Compared:
     """One decision the service took on a frame, beside the truth's."""
@@ -74,6 +115,8 @@ class Compared:
     truth_part: str
     persons_in_view: int
     reaction_ms: float | None
+    #: whether the camera sees the truth's nearest point (None: not known)
+    truth_point_seen: bool | None = None
 
 
 def score(compared: list[Compared]) -> dict:
@@ -83,11 +126,10 @@ def score(compared: list[Compared]) -> dict:
         return {"frames": 0}
     equal = sum(c.state == c.truth_state for c in compared)
     unsafe = sum(c.state == "clear" and c.truth_state == "stop" for c in compared)
-    errors = [
-        abs(c.distance_m - c.truth_distance_m)
-        for c in compared
-        if c.distance_m is not None and c.truth_distance_m is not None
-    ]
+    both = [c for c in compared if c.distance_m is not None and c.truth_distance_m is not None]
+    errors = [abs(c.distance_m - c.truth_distance_m) for c in both]
+    seen = [abs(c.distance_m - c.truth_distance_m) for c in both if c.truth_point_seen]
+    hidden = [abs(c.distance_m - c.truth_distance_m) for c in both if c.truth_point_seen is False]
     single = [c for c in compared if c.persons_in_view == 1 and c.part and c.truth_part]
     reactions = [c.reaction_ms for c in compared if c.reaction_ms is not None]
     confusion = {
@@ -103,6 +145,10 @@ def score(compared: list[Compared]) -> dict:
         "distance_frames": len(errors),
         "distance_error_p50_m": percentile(errors, 50) if errors else None,
         "distance_error_p95_m": percentile(errors, 95) if errors else None,
+        "distance_frames_seen": len(seen),
+        "distance_error_p95_seen_m": percentile(seen, 95) if seen else None,
+        "distance_frames_hidden": len(hidden),
+        "distance_error_p95_hidden_m": percentile(hidden, 95) if hidden else None,
         "part_frames": len(single),
         "part_agreement": (
             sum(c.part == c.truth_part for c in single) / len(single) if single else None

@@ -28,6 +28,7 @@ from topseg.core.safety.agreement import (
     score,
     truth_decision,
     truth_nearest,
+    truth_point_seen,
 )
 from topseg.core.safety.cell import CellConfig, load_cell
 from topseg.core.safety.monitor import CellMonitor
@@ -110,8 +111,7 @@ def compare(
         frame = wire.decode_depth(depth[seq])
         if joints and robot is not None:
             i = min(range(len(stamps)), key=lambda k: abs(stamps[k] - frame.stamp_ns))
-            monitor.joints = None
-            monitor.joint_state(joints[i], frame.stamp_ns)
+            monitor.set_joints(joints[i], frame.stamp_ns)
         reaction_s = (state.reaction_ms or 0.0) / 1000.0
         expected = truth_decision(monitor, camera, frame, wire.decode_labels(truth[seq]),
                                   seps[seq], reaction_s)  # fmt: skip
@@ -126,6 +126,7 @@ def compare(
                 truth_part=expected.part,
                 persons_in_view=in_view,
                 reaction_ms=state.reaction_ms,
+                truth_point_seen=truth_point_seen(nearest, frame, cell.camera(camera)),
             )
         )
     return out
@@ -224,7 +225,11 @@ def cell_summary(figures: dict) -> str:
             f"truth says stop: {figures['clear_when_truth_stop']} frames",
             "truth -> service: " + ", ".join(f"{k} {v}" for k, v in moves.items() if v),
             f"separation error p50 / p95: {_cm(figures['distance_error_p50_m'])} / "
-            f"{_cm(figures['distance_error_p95_m'])} over {figures['distance_frames']} frames",
+            f"{_cm(figures['distance_error_p95_m'])} over {figures['distance_frames']} frames "
+            f"(p95 {_cm(figures['distance_error_p95_seen_m'])} over the "
+            f"{figures['distance_frames_seen']} whose nearest point the camera sees, "
+            f"{_cm(figures['distance_error_p95_hidden_m'])} over the "
+            f"{figures['distance_frames_hidden']} where it does not)",
             f"nearest part as the truth's (one person in view): {_pct(figures['part_agreement'])} "
             f"of {figures['part_frames']} frames",
             f"reaction time (depth stamp to decision) p50 / p99: {_ms(figures['reaction_p50_ms'])}"

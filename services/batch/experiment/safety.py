@@ -21,7 +21,13 @@ from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.joint_states import JointState
-from topseg.core.safety.agreement import Compared, score, truth_decision, truth_nearest
+from topseg.core.safety.agreement import (
+    Compared,
+    score,
+    truth_decision,
+    truth_nearest,
+    truth_point_seen,
+)
 from topseg.core.safety.cell import cell_from_dict
 from topseg.core.safety.decision import decide
 from topseg.core.safety.monitor import CellMonitor
@@ -71,8 +77,7 @@ def run_sequence(
         stamp = 1 + int(f.time_s * 1e9)
         state = JointState(stamp, tuple(f.joint_names), tuple(float(v) for v in f.joint_positions))
         for monitor in (live, exact):
-            monitor.joints = None
-            monitor.joint_state(state, stamp)
+            monitor.set_joints(state, stamp)
         depth = wire.DepthFrame(f.depth, mount.intrinsics, f.index, stamp, camera, mount)
         labels = segmenter.label(f.depth, mount.intrinsics, mount=mount).labels
         view = live.frame(camera, depth, wire.LabelFrame(labels, f.index, stamp, camera), stamp)
@@ -93,6 +98,7 @@ def run_sequence(
                 truth_part=truth.part,
                 persons_in_view=in_view,
                 reaction_ms=None,
+                truth_point_seen=truth_point_seen(nearest, depth, cell.cameras[0]),
             )
         )
     return out
@@ -144,7 +150,8 @@ def _f(x, scale=1.0, unit="", digits=1) -> str:
 def markdown(result: dict) -> str:
     """The table of OUT/safety.md: one row per sequence and the overall figures."""
     head = ("| seed | robot | sensor | height | people | frames | state equal | clear when stop "
-            "| separation error p50 / p95 | nearest part |\n|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+            "| separation error p50 / p95 | p95 where the nearest point is seen / hidden "
+            "| nearest part |\n|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     lines = [head]
     for r in [*result["sequences"], {"seed": "all", "robot": "", "sensor": "", "height_m": None,
                                      "people": "", **result["overall"]}]:  # fmt: skip
@@ -154,6 +161,10 @@ def markdown(result: dict) -> str:
             f"| {r.get('clear_when_truth_stop', '-')} "
             f"| {_f(r.get('distance_error_p50_m'), 100, ' cm')} / "
             f"{_f(r.get('distance_error_p95_m'), 100, ' cm')} "
+            f"| {_f(r.get('distance_error_p95_seen_m'), 100, ' cm')} of "
+            f"{r.get('distance_frames_seen', 0)} / "
+            f"{_f(r.get('distance_error_p95_hidden_m'), 100, ' cm')} of "
+            f"{r.get('distance_frames_hidden', 0)} "
             f"| {_f(r.get('part_agreement'), 100, ' %')} of {r.get('part_frames', 0)} |"
         )
     return (
