@@ -1,6 +1,7 @@
 """`topseg viewer --foxglove --cell` as a real process: a cell's safety state, its zones and
 nearest pair as a SceneUpdate and its cameras' placements reach a Foxglove client, decoded
-with the schemas the server advertises."""
+with the schemas the server advertises; and the sink's robot (its capsules as a SceneUpdate,
+its silhouette per camera as an image) the same way."""
 
 import threading
 
@@ -9,7 +10,10 @@ import zenoh
 from netutil import Service, free_port
 from test_viewer_live import SUBPROTOCOL, FoxgloveClient, stop
 
-from topseg.core.formats import safety_wire
+from topseg.core.camera import KINECT_V1
+from topseg.core.formats import safety_wire, wire
+from topseg.core.safety.separation import Capsules
+from topseg.services.live.viewer_foxglove import FoxgloveSink
 from topseg.services.runtime.zenoh_session import open_session
 
 CELL_TOML = """
@@ -97,3 +101,74 @@ def test_foxglove_serves_the_safety_state_zones_nearest_pair_and_placements(tmp_
     np.testing.assert_allclose(
         (placement.rotation.z, placement.rotation.w), (np.sqrt(0.5), np.sqrt(0.5))
     )
+
+
+def rotate_z(q) -> np.ndarray:
+    """+z turned by the quaternion q (x, y, z, w)."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+
+
+def test_foxglove_serves_the_robot_silhouette_and_capsules():
+    from websockets.sync.client import connect
+
+    cam, stamp = ("fxs", "cam0"), 10**18 + 123
+    k = KINECT_V1.scaled_to(16, 12)
+    frame = wire.DepthFrame(np.full(k.shape, 3000, np.uint16), k, 7, stamp, "cam0")
+    mask = np.random.default_rng(5).random(k.shape) < 0.3
+    a = np.array([[0.2, -0.1, 0.5], [0.2, -0.1, 1.0], [1.0, 1.0, 1.0]])
+    b = np.array([[0.2, -0.1, 1.0], [0.6, 0.2, 1.0], [1.0, 1.0, 1.0]])  # the last: a sphere
+    radius = np.array([0.1, 0.06, 0.08])
+    capsules = Capsules(a, b, radius, ("link1", "link2", "hand"))
+    sink = FoxgloveSink.start("127.0.0.1", 0)
+    done = threading.Event()
+
+    def log():  # the viewer's logging loop: a silhouette per depth frame, capsules per state
+        while not done.is_set():
+            sink.silhouette(cam, frame, mask)
+            sink.robot("fxs", capsules, stamp)
+            done.wait(0.05)
+
+    sink.cameras_changed([cam])
+    thread = threading.Thread(target=log, daemon=True)
+    thread.start()
+    try:
+        with connect(f"ws://127.0.0.1:{sink.server.port}", subprotocols=[SUBPROTOCOL]) as ws:
+            client = FoxgloveClient(ws)
+            topics = ["/topseg/fxs/cam0/robot_silhouette", "/topseg/fxs/safety/robot"]
+            client.wait_for_topics(set(topics), 30)
+            assert client.channels[topics[0]]["schemaName"] == "foxglove.RawImage"
+            assert client.channels[topics[1]]["schemaName"] == "foxglove.SceneUpdate"
+            got = client.first_messages(topics, 30)
+    finally:
+        done.set()
+        thread.join(10)
+        sink.close()
+
+    image = got["/topseg/fxs/cam0/robot_silhouette"]
+    assert (image.encoding, image.width, image.height, image.step) == ("mono8", 16, 12, 16)
+    assert image.frame_id == "fxs_cam0_optical_frame"
+    assert image.timestamp.seconds * 10**9 + image.timestamp.nanos == stamp
+    pixels = np.frombuffer(image.data, np.uint8).reshape(k.shape)
+    np.testing.assert_array_equal(pixels, np.where(mask, 255, 0))
+
+    (entity,) = got["/topseg/fxs/safety/robot"].entities
+    assert (entity.id, entity.frame_id) == ("robot", "fxs_floor")
+    assert entity.timestamp.seconds * 10**9 + entity.timestamp.nanos == stamp
+    # a cylinder between the ends of each capsule that has two, a sphere at each end
+    assert len(entity.cylinders) == 2 and len(entity.spheres) == 2 + 2 + 1
+    for cylinder, start, end, r in zip(entity.cylinders, a[:2], b[:2], radius[:2], strict=True):
+        centre, size = cylinder.pose.position, cylinder.size
+        centre = np.array([centre.x, centre.y, centre.z])
+        np.testing.assert_allclose(centre, (start + end) / 2)
+        length = np.linalg.norm(end - start)
+        np.testing.assert_allclose((size.x, size.y, size.z), (2 * r, 2 * r, length))
+        axis = rotate_z(cylinder.pose.orientation)  # a cylinder's axis is its local z
+        np.testing.assert_allclose(centre + axis * length / 2, end, atol=1e-9)
+    balls = entity.spheres
+    centres = np.array([(s.pose.position.x, s.pose.position.y, s.pose.position.z) for s in balls])
+    np.testing.assert_allclose(centres, [a[0], b[0], a[1], b[1], a[2]])
+    diameters = np.array([(s.size.x, s.size.y, s.size.z) for s in balls])
+    np.testing.assert_allclose(diameters, np.repeat(2 * radius[[0, 0, 1, 1, 2]], 3).reshape(5, 3))
+    colours = {(p.color.r, p.color.g, p.color.b, p.color.a) for p in (*entity.cylinders, *balls)}
+    assert len(colours) == 1 and 0.0 < colours.pop()[3] < 1.0  # one colour, see-through

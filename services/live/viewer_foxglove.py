@@ -26,6 +26,16 @@ with the nearest pair (`nearest`: a line and its distance) and, with `--cell`, t
 (`zone/<name>`: outlines coloured by their state); with `--cell`,
 `/topseg/<cell>/safety/placements`, `foxglove.FrameTransforms` `<cell>_floor` ->
 `<cell>_<camera>_floor` for the file's cameras, so the zones sit on the clouds.
+With `--cell` and a robot in it (shown as the Rerun sink shows it), also
+`/topseg/<cell>/safety/robot`, a `foxglove.SceneUpdate` in `<cell>_floor` on a channel of
+its own (so it and the zones' scene do not replace each other's entities): one entity
+`robot`, the robot's bounding capsules at its newest joint state, per capsule a cylinder
+between its ends, 2 * radius across, and a sphere at each end (one when the ends meet),
+grey-blue and half transparent; and, per camera of the file,
+`/topseg/<cell>/<camera>/robot_silhouette`, a `foxglove.RawImage` (`mono8`, 255 where the
+robot is, 0 elsewhere) in the camera's optical frame: the robot rendered as that camera sees
+it at its newest joint state, stamped with the depth frame it was rendered for.
+Both are advertised with their first message.
 Images and clouds are converted only while a client subscribes to them; each client's queue holds `CLIENT_BACKLOG` messages, the oldest dropped first.
 `docs/foxglove/topseg-layout.json` opens these topics laid out.
 """
@@ -54,6 +64,10 @@ CLIENT_BACKLOG = 32
 STREAMS = ("depth", "labels", "labels_color", "camera_info", "points", "mount")
 #: the JSON stream of stats messages (`wire.decode_stats`), advertised after STREAMS
 STATS_STREAM = "stats"
+#: a camera's image of the robot's rendered silhouette, advertised with the first one
+SILHOUETTE_STREAM = "robot_silhouette"
+#: the robot's capsules (r, g, b, a in 0..1): a neutral grey-blue, half transparent
+ROBOT_RGBA = (0.45, 0.55, 0.7, 0.5)
 #: the JSON schema of the stats channel: what Foxglove's panels offer to plot
 STATS_SCHEMA = {
     "type": "object",
@@ -189,6 +203,60 @@ def scene_update(cell: str, zones, state):
         SceneEntity(timestamp=stamp, frame_id=frame, id="nearest", lines=[line], texts=[label])
     )
     return SceneUpdate(entities=entities)
+
+
+def robot_scene(cell: str, capsules, stamp_ns: int):
+    """The robot's capsules (`Capsules`, cell frame) as one entity `robot` in `<cell>_floor`:
+    per capsule a cylinder from end a to end b, 2 * radius across, and a sphere at each end
+    (one sphere when a == b); grey-blue, half transparent (`ROBOT_RGBA`)."""
+    from foxglove.messages import (
+        Color,
+        CylinderPrimitive,
+        Pose,
+        Quaternion,
+        SceneEntity,
+        SceneUpdate,
+        SpherePrimitive,
+        Vector3,
+    )
+
+    r, g, b, a = ROBOT_RGBA
+    colour, upright = Color(r=r, g=g, b=b, a=a), Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+    posed = safety_view.posed_capsules(capsules)  # turned from +z onto b - a (`_z_to`)
+    ends_b = np.asarray(capsules.b, np.float64).reshape(-1, 3)
+    cylinders, spheres = [], []
+    for start, end, q, length, radius in zip(
+        posed.translation, ends_b, posed.quaternion, posed.length, posed.radius, strict=True
+    ):
+        width = 2.0 * float(radius)
+        ends = (start,) if np.array_equal(start, end) else (start, end)
+        spheres += [
+            SpherePrimitive(
+                pose=Pose(position=_vector(p), orientation=upright),
+                size=Vector3(x=width, y=width, z=width), color=colour,
+            )
+            for p in ends
+        ]  # fmt: skip
+        if len(ends) == 2:
+            turn = Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+            cylinders.append(
+                CylinderPrimitive(
+                    pose=Pose(position=_vector((start + end) / 2), orientation=turn),
+                    size=Vector3(x=width, y=width, z=float(length)),
+                    bottom_scale=1.0, top_scale=1.0, color=colour,
+                )
+            )  # fmt: skip
+    entity = SceneEntity(
+        timestamp=_timestamp(stamp_ns), frame_id=ros2_messages.cell_floor_frame(cell),
+        id="robot", spheres=spheres, cylinders=cylinders,
+    )  # fmt: skip
+    return SceneUpdate(entities=[entity])
+
+
+def _vector(point):
+    from foxglove.messages import Vector3
+
+    return Vector3(x=float(point[0]), y=float(point[1]), z=float(point[2]))
 
 
 def placements(config, stamp_ns: int):
@@ -425,11 +493,35 @@ class FoxgloveSink:
             )
 
     def silhouette(self, cam: tuple[str, str], frame, mask) -> None:
-        """The robot's rendered silhouette: not shown in Foxglove (the scene has the zones
-        and the nearest pair; the label image shows the robot's pixels)."""
+        """The robot's rendered silhouette as this camera sees it, on the camera's
+        `robot_silhouette` channel (advertised with the first one): `mono8`, 255 where the
+        robot is and 0 elsewhere, in the camera's optical frame at the depth frame's stamp."""
+        from foxglove import channels as fc
+
+        channels = self.channels[cam]
+        channel = channels.get(SILHOUETTE_STREAM)
+        if channel is None:
+            channel = channels[SILHOUETTE_STREAM] = fc.RawImageChannel(
+                topic(*cam, SILHOUETTE_STREAM), context=self.context
+            )
+        if channel.has_sinks():
+            image = np.where(np.asarray(mask, bool), np.uint8(255), np.uint8(0))
+            optical = ros2_messages.optical_frame(*cam)
+            channel.log(_raw_image(image, "mono8", frame.stamp_ns, optical))  # as the depth
 
     def robot(self, cell: str, capsules, stamp_ns: int) -> None:
-        """The robot's capsules (shown in Rerun; not served to Foxglove)."""
+        """The robot's capsules at its newest joint state (measured at `stamp_ns`) as the
+        entity `robot` (`robot_scene`) on the cell's `/topseg/<cell>/safety/robot`
+        SceneUpdate channel, advertised with the first capsules; a channel of its own, so
+        that the zones' scene and the robot's do not replace each other."""
+        from foxglove import channels as fc
+
+        channels = self.cell_channels(cell)
+        if "robot" not in channels:
+            channels["robot"] = fc.SceneUpdateChannel(
+                safety_topic(cell, "robot"), context=self.context
+            )
+        channels["robot"].log(robot_scene(cell, capsules, stamp_ns), log_time=int(stamp_ns))
 
     def close(self) -> None:
         """Stop the server (clients see it go)."""
