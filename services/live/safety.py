@@ -31,6 +31,8 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
+import numba
+
 from topseg.core.errors import TopsegError
 from topseg.core.formats import joint_states as joint_wire
 from topseg.core.formats import safety_wire, wire
@@ -54,6 +56,11 @@ WARN_EVERY_S = 10.0
 #: Token changes kept between two turns of the main loop, at most (a flood of tokens costs
 #: changes, never memory).
 MAX_TOKEN_CHANGES = 1024
+#: numba threads of the service's kernels: one. Its frames are small (160 pixels across) and
+#: the worker's parallel kernels share the same cores: a second process entering parallel
+#: regions stalls them (reaction p50 / p99 over two runs each on the cell recording: 47 / 87
+#: and 37 / 79 ms with one thread, 51 / 88 and 59 / 101 ms with two).
+THREADS = 1
 #: ROS 2 joint states: the type on the wire.
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
@@ -275,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
     if not cell.cameras:
         raise TopsegError(f"cell file {args.cell}: no [[camera]]: the service has nothing to watch")
     monitor = CellMonitor(cell, robot)
+    numba.set_num_threads(min(THREADS, numba.config.NUMBA_NUM_THREADS))
     t0 = time.monotonic()
     monitor.warm_up()
     log.info("kernels ready in %.1f s", time.monotonic() - t0)
