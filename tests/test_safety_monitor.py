@@ -311,6 +311,20 @@ def test_a_person_read_as_robot_away_from_the_robot_is_a_person(cell, robot, joi
     speck[5:8, 5:8] = labels.ROBOT
     mon.frame("cam0", depth, LabelFrame(speck, 1, T0, "cam0"), T0)
     assert mon.views["cam0"].nearest is None
+    # nor is a flat table top in a corner, 0.7 m above the floor, read as robot
+    table_depth = depth.depth.copy()
+    table_depth[190:230, 10:70] = 2300
+    table = speck.copy()
+    table[190:230, 10:70] = labels.ROBOT
+    flat = DepthFrame(table_depth, depth.intrinsics, 2, T0, "cam0", depth.mount)
+    mon.frame("cam0", flat, LabelFrame(table, 2, T0, "cam0"), T0)
+    assert mon.views["cam0"].nearest is None
+    # but the same patch with the heights of a person (head 1.7 m, shoulders 1.4 m) is one
+    person_depth = table_depth.copy()
+    person_depth[200:215, 30:50] = 1300
+    tall = DepthFrame(person_depth, depth.intrinsics, 3, T0, "cam0", depth.mount)
+    mon.frame("cam0", tall, LabelFrame(table, 3, T0, "cam0"), T0)
+    assert mon.views["cam0"].nearest is not None
 
 
 def test_a_camera_that_sends_range_is_read_like_one_that_sends_depth(cell, robot, joints):
