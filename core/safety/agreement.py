@@ -13,8 +13,9 @@ separation, not timing.
 gives: the share whose state equals the truth's, how often it said `clear` when the truth
 said `stop` (must be never), the separation error (|measured - true| where both saw a person
 and a robot) p50/p95, and its p95 apart over the frames whose true nearest point the camera
-sees and those where it does not (out of the image, or hidden under the robot or the
-person's own body: no perception can measure those), the share of frames with one person in
+sees and those where it does not (out of the image, under the robot or another body part, or
+on the person's own side, which a camera above sees past: no perception measures those
+exactly), the share of frames with one person in
 view where the nearest part is the truth's, and the reaction time p50/p99.
 """
 
