@@ -40,6 +40,7 @@ from topseg.core.formats.rmw_zenoh import topic_key
 from topseg.core.formats.wire import WireError
 from topseg.core.printable import printable
 from topseg.core.safety.cell import CellConfig, load_cell
+from topseg.core.safety.coverage import coverage
 from topseg.core.safety.monitor import CellDecision, CellMonitor
 from topseg.core.safety.robot import CellRobot
 from topseg.services.cli.options import positive_int
@@ -104,6 +105,10 @@ class SafetyService:
         self.last_state = ""
         self._warned: dict[str, float] = {}
         self.keys = self._keys(ros_domain)
+        # each camera's mount, from the cell file or its first frame, until the view of the
+        # space around the robot was said once (`say_coverage`)
+        self.mounts = {c.name: c.mount for c in cell.cameras if c.mount is not None}
+        self.coverage_said = False
 
     def _keys(self, ros_domain: int) -> dict[str, tuple[str, str]]:
         """Key expression -> (what, camera) for every subscription."""
@@ -189,7 +194,21 @@ class SafetyService:
             return False
         self.monitor.frame(camera, depth, labels, received_ns)
         self.counts["frames"] += 1
+        if not self.coverage_said and depth.mount is not None:
+            self.mounts.setdefault(camera, depth.mount)
+            self.say_coverage()
         return True
+
+    def say_coverage(self) -> None:
+        """Once every camera's mount is known: log how much of the space around the robot
+        the cameras see (`core.safety.coverage`), a warning when not all of it."""
+        if self.coverage_said or self.monitor.robot is None:
+            return
+        if any(c.name not in self.mounts for c in self.cell.cameras):
+            return
+        self.coverage_said = True
+        seen = coverage(self.cell, self.monitor.robot.model.reach_m, self.mounts)
+        (log.info if seen.worst() >= 1.0 else log.warning)("%s", seen.sentence())
 
     def publish(self, now_ns: int) -> CellDecision:
         """Decide now and publish the state."""
@@ -294,6 +313,7 @@ def run(args: argparse.Namespace) -> int:
         me = identity.Identity.of(session)
         publisher = svc.declare(session.declare_publisher(safety_wire.safety_key(cell.cell)))
         service = SafetyService(cell, monitor, publisher.put, args.ros_domain)
+        service.say_coverage()  # now when the cell file gives every camera's mount
         for key in service.keys:
             svc.declare(session.declare_subscriber(key, inbox.on_sample))
         svc.declare(
