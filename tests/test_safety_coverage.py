@@ -58,3 +58,11 @@ def test_a_high_wide_camera_over_a_slow_robot_sees_all_of_it():
 def test_no_robot_no_coverage():
     bare = cell_from_dict({"cell": "c", "camera": [{"name": "cam0"}]}, "test")
     assert coverage(bare, 1.0, {"cam0": MOUNT}) is None
+
+
+def test_a_huge_disc_is_sampled_coarsely_and_an_unbounded_one_is_unseen():
+    fast = cell([{"name": "cam0"}], max_speed_mps=200.0)
+    got = coverage(fast, 0.85, {"cam0": MOUNT})
+    assert got.radius_m > 20 and 0 < got.seen[0.0] < 0.05
+    unbounded = coverage(cell([{"name": "cam0"}]), float("inf"), {"cam0": MOUNT})
+    assert unbounded.seen == {0.0: 0.0, 1.5: 0.0} and "widen the view" in unbounded.sentence()

@@ -23,8 +23,10 @@ from topseg.core.safety.iso15066 import protective_distance
 
 #: the heights (m) the disc is looked at: the floor (feet) and shoulders
 HEIGHTS_M = (0.0, 1.5)
-#: the spacing (m) of the points the disc is sampled at
+#: the spacing (m) of the points the disc is sampled at, at least; a disc wider than
+#: MAX_STEPS spacings across is sampled at MAX_STEPS points across
 SPACING_M = 0.05
+MAX_STEPS = 200
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,9 @@ def coverage(cell: CellConfig, reach_m: float, mounts: dict[str, TopViewMount]) 
         protective_distance(cell.separation, robot, cell.deadline_ms / 1000.0, robot.max_speed_mps)
     )
     radius = reach_m + s_p
-    xy = disc_points(robot.base_xyz_m[:2], radius)
+    if not math.isfinite(radius):  # S_p has no bound: nothing is covered
+        return Coverage(radius, reach_m, s_p, {h: 0.0 for h in HEIGHTS_M})
+    xy = disc_points(robot.base_xyz_m[:2], radius, max(SPACING_M, 2 * radius / MAX_STEPS))
     seen = {}
     for height in HEIGHTS_M:
         points = np.column_stack([xy, np.full(len(xy), height)])
