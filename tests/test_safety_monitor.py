@@ -351,3 +351,22 @@ def test_set_joints_holds_an_older_state_that_joint_state_passes_over(cell, robo
     assert mon.joints is older and mon.counts["joint_states"] == 2
     mon.set_joints(None)
     assert mon.joints is None and mon.fresh_joints(T0) is None
+
+
+def test_a_sliver_of_a_person_at_the_image_edge_is_a_person_but_a_speck_inside_is_not(
+    cell, robot, joints
+):
+    """A person stepping into view shows a few leg pixels at the edge: too small to pass as a
+    person anywhere else, but the edge cuts them, so they stand; the same speck inside the
+    image is noise."""
+    depth, lab = render(cell.cameras[0], robot, joints, [], stamp_ns=T0)
+    legs_depth = depth.depth.copy()
+    mon = monitor_with_joints(cell, robot, joints)
+    for seq, cols in ((1, slice(0, 3)), (2, slice(40, 43))):  # at the edge, then inside
+        sliver = lab.labels.copy()
+        sliver[20:26, cols] = labels.LEGS
+        legs_depth[20:26, cols] = 2300
+        frame = DepthFrame(legs_depth, depth.intrinsics, seq, T0, "cam0", depth.mount)
+        mon.frame("cam0", frame, LabelFrame(sliver, seq, T0, "cam0"), T0)
+        at_edge = mon.views["cam0"].nearest is not None
+        assert at_edge == (seq == 1)

@@ -73,6 +73,10 @@ STRAY_MIN_SPAN_M = 0.25
 WORKING_WIDTH = 160
 #: A blob of human pixels smaller than this on the floor plane (m^2) is noise, not a person.
 MIN_PERSON_AREA_M2 = 0.01
+#: ... except a blob the image's edge cuts: its area in view says nothing of its size (a
+#: person stepping in shows a sliver of legs first). On 24 validation sequences (3600
+#: frames) clear-when-the-truth-says-stop 2 -> 1, states equal 98.61 -> 98.56 %.
+BORDER_BLOBS_KEPT = True
 #: A camera whose image has depth on less than this share of its pixels is blinded.
 MIN_DEPTH_SHARE = 0.3
 #: A camera whose median depth is nearer than this (m) has something on its lens.
@@ -450,8 +454,8 @@ def people_points(
     depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount, placement: CameraPlacement
 ) -> HumanPoints | None:
     """The human pixels in 3-D (`separation.human_points`), blobs whose pixels cover less
-    than MIN_PERSON_AREA_M2 of the floor-parallel plane at their depth left out; None when
-    no person is left."""
+    than MIN_PERSON_AREA_M2 of the floor-parallel plane at their depth left out unless the
+    image's edge cuts them (BORDER_BLOBS_KEPT); None when no person is left."""
     if not _HUMAN[lab].any():
         return None
     people = human_points(depth_mm, lab, mount, placement)
@@ -459,7 +463,19 @@ def people_points(
         return None
     z_mm = depth_mm[people.rows, people.cols]
     area = blob_areas_m2(people.blob, z_mm, mount.intrinsics, people.blob_count)
-    keep = area[people.blob] >= MIN_PERSON_AREA_M2
+    big = area >= MIN_PERSON_AREA_M2
+    if BORDER_BLOBS_KEPT:
+        h, w = lab.shape
+        edge = (
+            (people.rows == 0)
+            | (people.rows == h - 1)
+            | (people.cols == 0)
+            | (people.cols == w - 1)
+        )
+        cut = np.zeros(people.blob_count, bool)
+        cut[people.blob[edge]] = True
+        big |= cut
+    keep = big[people.blob]
     if keep.all():
         return people
     if not keep.any():
