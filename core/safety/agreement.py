@@ -26,11 +26,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from topseg.core import labels as label_table
-from topseg.core.camera import axis_depth, project
+from topseg.core.camera import axis_depth
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.metrics import percentile
 from topseg.core.safety.decision import Decision, decide
 from topseg.core.safety.monitor import CellMonitor
+from topseg.core.safety.separation import camera_pixels
 
 
 @dataclass(frozen=True)
@@ -84,17 +85,12 @@ def nearest_point_seen(point_cell, depth: DepthFrame, placement) -> bool:
     mount = depth.mount or placement.mount
     if mount is None:
         return False
-    world = placement.to_camera_world(np.asarray(point_cell, np.float64).reshape(1, 3))
-    cam = mount.world_to_camera(world)[0]
-    if cam[2] <= 0:
+    uv, z_m, inside = camera_pixels(point_cell, mount, placement)
+    if not inside[0]:
         return False
-    u, v = project(cam, mount.intrinsics)
-    k = mount.intrinsics
-    col, row = int(np.floor(u)), int(np.floor(v))
-    if not (0 <= col < k.width and 0 <= row < k.height):
-        return False
+    col, row = int(np.floor(uv[0, 0])), int(np.floor(uv[0, 1]))
     z_mm = float(axis_depth(depth.depth, mount)[row, col])
-    return bool(z_mm > 0 and z_mm / 1000.0 >= cam[2] - SEEN_TOLERANCE_M)
+    return bool(z_mm > 0 and z_mm / 1000.0 >= z_m[0] - SEEN_TOLERANCE_M)
 
 
 def truth_point_seen(nearest: TruthNearest | None, depth: DepthFrame, placement) -> bool | None:

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from topseg.core.camera import TopViewMount, project
+from topseg.core.camera import TopViewMount
 from topseg.core.safety.cell import CameraPlacement, CellConfig
 from topseg.core.safety.iso15066 import protective_distance
+from topseg.core.safety.separation import camera_pixels
 
 #: the heights (m) the disc is looked at: the floor (feet) and shoulders
 HEIGHTS_M = (0.0, 1.5)
@@ -70,11 +71,7 @@ def disc_points(centre_xy, radius_m: float, spacing_m: float = SPACING_M) -> np.
 
 def seen_by(points_cell: np.ndarray, placement: CameraPlacement, mount: TopViewMount):
     """(n,) bool: which (n, 3) cell-frame points lie inside the camera's image."""
-    cam = mount.world_to_camera(placement.to_camera_world(points_cell))
-    k = mount.intrinsics
-    ahead = cam[:, 2] > 0
-    uv = project(np.where(ahead[:, None], cam, 1.0), k)
-    return ahead & (uv[:, 0] >= 0) & (uv[:, 0] < k.width) & (uv[:, 1] >= 0) & (uv[:, 1] < k.height)
+    return camera_pixels(points_cell, mount, placement)[2]
 
 
 def coverage(cell: CellConfig, reach_m: float, mounts: dict[str, TopViewMount]) -> Coverage | None:

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 from topseg.core import labels
-from topseg.core.camera import backproject_pixels
+from topseg.core.camera import backproject_pixels, project
 from topseg.core.union_find import find_root
 
 _IS_HUMAN = np.zeros(256, bool)
@@ -131,6 +131,23 @@ def cell_points(
     camera = backproject_pixels(depth_mm, rows, cols, mount.intrinsics).astype(np.float64)
     world = mount.camera_to_world(camera)
     return np.asarray(placement.to_cell(world), np.float64).reshape(-1, 3)
+
+
+def camera_pixels(
+    points_cell: np.ndarray, mount, placement
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`cell_points`' inverse for (n, 3) cell-frame points (m): their (n, 2) pixel
+    coordinates (u, v), (n,) depths along the optical axis (m) and (n,) whether they lie in
+    front of the camera and inside its image."""
+    world = placement.to_camera_world(np.asarray(points_cell, np.float64).reshape(-1, 3))
+    cam = mount.world_to_camera(world)
+    k = mount.intrinsics
+    ahead = cam[:, 2] > 0
+    uv = project(np.where(ahead[:, None], cam, 1.0), k)
+    inside = (
+        ahead & (uv[:, 0] >= 0) & (uv[:, 0] < k.width) & (uv[:, 1] >= 0) & (uv[:, 1] < k.height)
+    )
+    return uv, cam[:, 2], inside
 
 
 def blob_areas_m2(blob: np.ndarray, depth_mm: np.ndarray, intrinsics, count: int) -> np.ndarray:
