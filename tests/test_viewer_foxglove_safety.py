@@ -30,8 +30,19 @@ polygon_m = [[-1.4, -1.0], [-0.8, -1.0], [-0.8, -0.4]]
 STOP = (220 / 255, 30 / 255, 30 / 255)
 
 
-def test_foxglove_serves_the_safety_state_zones_nearest_pair_and_placements(tmp_path):
+def first_served(port: int, topics: list[str], timeout: float) -> tuple[dict, dict]:
+    """Connect to the Foxglove server on `port`, wait for `topics`: each one's schema name
+    and its first message, decoded."""
     from websockets.sync.client import connect
+
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL]) as ws:
+        client = FoxgloveClient(ws)
+        client.wait_for_topics(set(topics), timeout)
+        schemas = {t: client.channels[t]["schemaName"] for t in topics}
+        return schemas, client.first_messages(topics, timeout)
+
+
+def test_foxglove_serves_the_safety_state_zones_nearest_pair_and_placements(tmp_path):
 
     cell_file = tmp_path / "cell.toml"
     cell_file.write_text(CELL_TOML)
@@ -59,16 +70,9 @@ def test_foxglove_serves_the_safety_state_zones_nearest_pair_and_placements(tmp_
     try:
         viewer.wait_line("viewer ready")
         thread.start()
-        with connect(f"ws://127.0.0.1:{fport}", subprotocols=[SUBPROTOCOL]) as ws:
-            client = FoxgloveClient(ws)
-            topics = [
-                "/topseg/fxs/safety",
-                "/topseg/fxs/safety/scene",
-                "/topseg/fxs/safety/placements",
-            ]
-            client.wait_for_topics(set(topics), 90)
-            assert client.channels[topics[1]]["schemaName"] == "foxglove.SceneUpdate"
-            got = client.first_messages(topics, 90)
+        topics = ["/topseg/fxs/safety", "/topseg/fxs/safety/scene", "/topseg/fxs/safety/placements"]
+        schemas, got = first_served(fport, topics, 90)
+        assert schemas[topics[1]] == "foxglove.SceneUpdate"
     finally:
         done.set()
         thread.join(10)
@@ -110,7 +114,6 @@ def rotate_z(q) -> np.ndarray:
 
 
 def test_foxglove_serves_the_robot_silhouette_and_capsules():
-    from websockets.sync.client import connect
 
     cam, stamp = ("fxs", "cam0"), 10**18 + 123
     k = KINECT_V1.scaled_to(16, 12)
@@ -133,13 +136,10 @@ def test_foxglove_serves_the_robot_silhouette_and_capsules():
     thread = threading.Thread(target=log, daemon=True)
     thread.start()
     try:
-        with connect(f"ws://127.0.0.1:{sink.server.port}", subprotocols=[SUBPROTOCOL]) as ws:
-            client = FoxgloveClient(ws)
-            topics = ["/topseg/fxs/cam0/robot_silhouette", "/topseg/fxs/safety/robot"]
-            client.wait_for_topics(set(topics), 30)
-            assert client.channels[topics[0]]["schemaName"] == "foxglove.RawImage"
-            assert client.channels[topics[1]]["schemaName"] == "foxglove.SceneUpdate"
-            got = client.first_messages(topics, 30)
+        topics = ["/topseg/fxs/cam0/robot_silhouette", "/topseg/fxs/safety/robot"]
+        schemas, got = first_served(sink.server.port, topics, 30)
+        assert schemas[topics[0]] == "foxglove.RawImage"
+        assert schemas[topics[1]] == "foxglove.SceneUpdate"
     finally:
         done.set()
         thread.join(10)
