@@ -224,7 +224,8 @@ class CellMonitor:
         depth_mm = axis_depth(decimate(depth.depth, factor), mount)
         mount = replace(mount, radial=False)  # its frames are read as axis depth from here on
         lab = np.ascontiguousarray(labels.labels[::factor, ::factor])
-        view.faults = camera_faults(camera, depth_mm, lab, mount)
+        heights_m = floor_heights(depth_mm, mount)
+        view.faults = camera_faults(camera, depth_mm, lab, heights_m)
         joints = self.fresh_joints(now_ns)
         capsules: Capsules | None = None
         shadow = np.zeros(lab.shape, bool)
@@ -235,7 +236,7 @@ class CellMonitor:
             robot_depth, grown = silhouette(self.robot, joints, mount, placement, margin)
             lab = robot_pixels(lab, depth_mm, robot_depth, grown, margin, mount)
             if STRAY_ROBOT_AS_PERSON:
-                lab = stray_robot_as_person(lab, depth_mm, grown, mount)
+                lab = stray_robot_as_person(lab, depth_mm, grown, mount, heights_m)
             shadow = grown
             view.robot_source = "joints"
         elif self.robot is not None:
@@ -342,9 +343,10 @@ def working_factor(mount: TopViewMount) -> int:
 
 
 def camera_faults(
-    camera: str, depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount
+    camera: str, depth_mm: np.ndarray, lab: np.ndarray, heights_m: np.ndarray
 ) -> tuple[str, ...]:
-    """Why this frame cannot be trusted: a blinded camera or one that moved; () when none."""
+    """Why this frame cannot be trusted: a blinded camera or one that moved; () when none.
+    `heights_m`: each pixel's height above the floor its mount predicts (`floor_heights`)."""
     valid = depth_mm > 0
     share = float(valid.mean())
     if share < MIN_DEPTH_SHARE:
@@ -355,7 +357,7 @@ def camera_faults(
     background = (lab == label_table.BACKGROUND) & valid
     if background.mean() < MIN_BACKGROUND_SHARE:
         return ()
-    heights = floor_heights(depth_mm, background, mount)
+    heights = heights_m[background]
     on_floor = float((np.abs(heights) <= FLOOR_TOLERANCE_M).mean())
     if on_floor < MIN_FLOOR_SHARE:
         off = float(np.median(heights))
@@ -366,9 +368,10 @@ def camera_faults(
     return ()
 
 
-def floor_heights(depth_mm: np.ndarray, mask: np.ndarray, mount: TopViewMount) -> np.ndarray:
-    """Heights above the floor (m) through `mount` (not radial) of the pixels of `mask`."""
-    return mount.height_map_mm(depth_mm)[mask].astype(np.float64) / 1000.0
+def floor_heights(depth_mm: np.ndarray, mount: TopViewMount) -> np.ndarray:
+    """(H, W) float64 height above the floor (m) of each pixel of axis depth `depth_mm`
+    through `mount` (not radial); computed once a frame for every step that reads it."""
+    return mount.height_map_mm(depth_mm).astype(np.float64) / 1000.0
 
 
 def silhouette(
@@ -426,7 +429,11 @@ def robot_pixels(
 
 
 def stray_robot_as_person(
-    lab: np.ndarray, depth_mm: np.ndarray, grown: np.ndarray, mount: TopViewMount
+    lab: np.ndarray,
+    depth_mm: np.ndarray,
+    grown: np.ndarray,
+    mount: TopViewMount,
+    heights_m: np.ndarray,
 ) -> np.ndarray:
     """With the robot placed by its joint state, pixels labelled robot outside its grown
     silhouette are not the robot: blobs of them that cover at least MIN_PERSON_AREA_M2 and
@@ -438,7 +445,7 @@ def stray_robot_as_person(
         return lab
     blobs, count = label4(stray)
     area = blob_areas_m2(blobs[stray], depth_mm[stray], mount.intrinsics, count)
-    heights = floor_heights(depth_mm, stray, mount)
+    heights = heights_m[stray]
     top, bottom = np.full(count, -np.inf), np.full(count, np.inf)
     np.maximum.at(top, blobs[stray], heights)
     np.minimum.at(bottom, blobs[stray], heights)
