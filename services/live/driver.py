@@ -569,6 +569,7 @@ def _serve(args, spec, options, mount, opened, judged: bool) -> int:
             depth = dataclasses.replace(
                 frame.depth, seq=seq, frame_id=args.camera, mount=frame_mount
             )
+            state.update(frames=seq + 1)  # counted before it leaves: no reader is ahead of info
             depth_pub.put(wire.encode_depth(depth), attachment=attachment)
             if frame.truth is not None:
                 truth = dataclasses.replace(frame.truth, seq=seq, frame_id=args.camera)
@@ -580,7 +581,6 @@ def _serve(args, spec, options, mount, opened, judged: bool) -> int:
             svc.beat()  # watchdog ping from the publishing loop, STATUS= every few s
             one_driver.poll()  # a driver that started first appeared: stop (exit 2)
             state.update(
-                frames=seq,
                 truth_frames=truth_count,
                 companions=companions.sent,
                 intrinsics=depth.intrinsics.to_dict(),
