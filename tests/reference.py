@@ -36,6 +36,8 @@ bit (as stumpy keeps its naive versions in one test module).
   (`background.gate_background`).
 - `vote_surfaces_reference`: robot and object pixels on one continuous surface take its
   majority class (`surfaces.vote_surfaces`), with scipy's connected components of a graph.
+- `triangle_distances_reference`, `primitive_distances_reference`: a point's distance to a
+  robot's triangle and to its boxes, cylinders, spheres and capsules (`safety.surface`).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from topseg.core.camera import PAPER_MOUNT, TopViewMount, check_depth, metres_to
 from topseg.core.crf.realtime import SETTLED_MARGIN
 from topseg.core.forest.tree import Forest
 from topseg.core.synth import noise
-from topseg.core.synth.geometry import BOX, CAPSULE, SPHERE
+from topseg.core.synth.geometry import BOX, CAPSULE, CYLINDER, SPHERE
 from topseg.core.synth.render import Primitives, Triangles, front_to_back, to_camera
 
 # --- the ray caster (render.raycast) in plain numpy ----------------------------------------
@@ -1333,3 +1335,52 @@ def grow_mask_reference(mask, ru, rv):
             if (du / ru) ** 2 + (dv / rv) ** 2 <= 1 + 1e-12:
                 out |= padded[h - dv : 2 * h - dv, w - du : 2 * w - du]
     return out
+
+
+def _segment_closest_reference(points, a, b):
+    """(n, m, 3) closest points of segments a..b (m, 3) to points (n, 3)."""
+    axis = (b - a)[None]
+    length2 = np.einsum("...i,...i->...", axis, axis)
+    along = np.einsum("...i,...i->...", points[:, None] - a[None], axis)
+    t = np.clip(np.divide(along, length2, out=np.zeros_like(along), where=length2 > 0), 0, 1)
+    return a[None] + t[..., None] * axis
+
+
+def triangle_distances_reference(points, triangles):
+    """`surface.triangle_closest` in numpy: (n, m) distance of every point to every
+    triangle, as the nearer of the point's projection on the face (when it falls inside)
+    and the three edges."""
+    points = np.asarray(points, np.float64)
+    a, b, c = (np.asarray(triangles, np.float64)[:, k] for k in range(3))
+    edges = [
+        np.linalg.norm(points[:, None] - _segment_closest_reference(points, p, q), axis=-1)
+        for p, q in ((a, b), (b, c), (c, a))
+    ]
+    best = np.minimum(np.minimum(edges[0], edges[1]), edges[2])
+    normal = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(normal, axis=1)
+    ok = area2 > 1e-12
+    unit = np.divide(normal, area2[:, None], out=np.zeros_like(normal), where=ok[:, None])
+    height = np.einsum("nmi,mi->nm", points[:, None] - a[None], unit)
+    foot = points[:, None] - height[..., None] * unit[None]
+    inside = np.ones(height.shape, bool)
+    for p, q in ((a, b), (b, c), (c, a)):  # the foot is on the inner side of every edge
+        side = np.einsum("nmi,mi->nm", np.cross(q - p, foot - p[None]), unit)
+        inside &= side >= 0
+    face = np.where(inside & ok[None], np.abs(height), np.inf)
+    return np.minimum(best, face)
+
+
+def primitive_distances_reference(points, kind, size, center, rot):
+    """`surface.primitive_closest` in numpy: (n,) distance of every point to one primitive
+    (0 inside), from the point's coordinates in the primitive's frame."""
+    local = (np.asarray(points, np.float64) - center) @ rot  # rows: rot.T @ (p - c)
+    if kind == BOX:
+        return np.linalg.norm(np.maximum(np.abs(local) - size[:3], 0.0), axis=1)
+    if kind == CYLINDER:
+        radial = np.maximum(np.hypot(local[:, 0], local[:, 1]) - size[0], 0.0)
+        axial = np.maximum(np.abs(local[:, 2]) - size[1], 0.0)
+        return np.hypot(radial, axial)
+    half = size[1] if kind == CAPSULE else 0.0
+    along = local[:, 2] - np.clip(local[:, 2], -half, half)
+    return np.maximum(np.sqrt(local[:, 0] ** 2 + local[:, 1] ** 2 + along**2) - size[0], 0.0)

@@ -14,7 +14,8 @@ Per labelled frame of a camera (`CellMonitor.frame`):
    are.
 3. People: every human pixel in 3-D, in the cell frame; blobs smaller than
    `MIN_PERSON_AREA_M2` on the floor are dropped as noise. Their separation from the robot
-   (its capsules, or its pixels' points), the zones they are in, and how much of each
+   (its own shapes posed by the joint state, found through its bounding capsules; or its
+   pixels' points), the zones they are in, and how much of each
    protective zone the camera does not see.
 
 `CellMonitor.decision(now)` combines every camera's newest frame (the nearest person over all,
@@ -51,6 +52,7 @@ from topseg.core.safety.separation import (
     label4,
     nearest,
 )
+from topseg.core.safety.surface import RobotSurface
 from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
 
 #: The services whose liveliness tokens the monitor follows per camera: one that goes away (a
@@ -228,9 +230,11 @@ class CellMonitor:
         view.faults = camera_faults(camera, depth_mm, lab, heights_m)
         joints = self.fresh_joints(now_ns)
         capsules: Capsules | None = None
+        surface: RobotSurface | None = None
         shadow = np.zeros(lab.shape, bool)
         if self.robot is not None and joints is not None:
             capsules = self.robot.capsules(joints)
+            surface = self.robot.surface(joints)
             age_s = self.joints_age_s(now_ns)
             margin = SILHOUETTE_MARGIN_M + age_s * self.cell.robot.max_speed_mps
             robot_depth, grown = silhouette(self.robot, joints, mount, placement, margin)
@@ -246,7 +250,7 @@ class CellMonitor:
         view.labels = lab
         people = people_points(depth_mm, lab, mount, placement)
         if capsules is not None and people is not None:
-            view.nearest = nearest(people, capsules)
+            view.nearest = nearest(people, capsules, surface)
         elif self.robot is not None and people is not None:
             view.faults += (
                 f"{camera}: a person in view and robot {self.cell.robot.name} nowhere known "

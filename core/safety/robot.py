@@ -28,6 +28,7 @@ import numpy as np
 
 from topseg.core.camera import depth_to_range
 from topseg.core.safety.separation import Capsules
+from topseg.core.safety.surface import RobotSurface, posed_surface, surface_layout
 from topseg.core.synth.geometry import (
     BOX,
     CAPSULE,
@@ -83,6 +84,13 @@ class CellRobot:
         self._local_a = np.array([a for a, _, _ in fits]).reshape(-1, 3)
         self._local_b = np.array([b for _, b, _ in fits]).reshape(-1, 3)
         self._radius = np.array([r for _, _, r in fits], np.float64)
+        links, tri_link, prim_link = self.model.shape_links()
+        zero = {n: 0.0 for n in self.joint_names}
+        prims, tris = self.model.link_geometry(zero, self.base_pos, self.base_quat)
+        self._layout = surface_layout(prims, prim_link, tris, tri_link, links, self.links)
+        #: the last posing's shapes: (joint values, (primitives, triangles)), read by
+        #: `geometry` and `surface` alike (one frame asks both for the same joints)
+        self._last_shapes: tuple[tuple[float, ...], tuple[Primitives, Triangles]] | None = None
 
     def check_joints(self, joints: dict[str, float]) -> dict[str, float]:
         """`joints` as {name: float}; ValueError naming a missing, unknown or not finite joint."""
@@ -112,10 +120,25 @@ class CellRobot:
     def geometry(self, joints: dict[str, float]) -> tuple[Primitives, Triangles]:
         """The posed robot's shapes in the cell frame with its pedestal (what `silhouette`
         renders)."""
-        prims, tris = self.model.link_geometry(
-            self.check_joints(joints), self.base_pos, self.base_quat
-        )
+        prims, tris = self._link_shapes(joints)
         return Primitives.concat([prims, self.pedestal()]), tris
+
+    def surface(self, joints: dict[str, float]) -> RobotSurface:
+        """The posed robot's links as a surface to measure separations to (no pedestal: it
+        does not move), each link with its capsule (`surface.posed_surface`)."""
+        prims, tris = self._link_shapes(joints)
+        return posed_surface(self._layout, prims, tris, self.capsules(joints))
+
+    def _link_shapes(self, joints: dict[str, float]) -> tuple[Primitives, Triangles]:
+        """The links' shapes posed at `joints`, in the cell frame (the last posing kept)."""
+        values = self.check_joints(joints)
+        key = tuple(values[n] for n in self.joint_names)
+        last = self._last_shapes
+        if last is not None and last[0] == key:
+            return last[1]
+        shapes = self.model.link_geometry(values, self.base_pos, self.base_quat)
+        self._last_shapes = (key, shapes)
+        return shapes
 
     def pedestal(self) -> Primitives:
         """The pedestal of the spec, from the floor to the base, labelled robot; none for a

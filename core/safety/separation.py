@@ -9,8 +9,10 @@ touch in the image are one blob).
 
 `nearest` measures each point's distance to the surface of the nearest capsule (0 inside
 one, never negative) with a numba kernel, then the overall nearest pair and the nearest per
-blob. The capsules bound the robot's links (`robot.CellRobot.capsules`), so the distance is
-never more than the true one.
+blob. The capsules bound the robot's links (`robot.CellRobot.capsules`), so that distance is
+never more than the true one; given the robot's posed surface (`surface.RobotSurface`), the
+capsule distances only bound the search and the nearest pairs are measured to the robot's
+own shapes.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 
 from topseg.core import labels
 from topseg.core.camera import backproject_pixels, project
+from topseg.core.safety.surface import RobotSurface, refine, segment_distance
 from topseg.core.union_find import find_root
 
 _IS_HUMAN = np.zeros(256, bool)
@@ -216,25 +219,12 @@ def _nearest_kernel(points, a, b, radius, distance, capsule):
         best = np.inf
         best_j = -1
         for j in range(m):
-            d = _segment_distance(px, py, pz, a[j], b[j]) - radius[j]
+            d = segment_distance(px, py, pz, a[j], b[j]) - radius[j]
             if d < best:
                 best = d
                 best_j = j
         distance[i] = max(best, 0.0)
         capsule[i] = best_j
-
-
-@numba.njit(cache=True, inline="always")
-def _segment_distance(px, py, pz, a, b):
-    """Distance from (px, py, pz) to the segment a..b (a point when a == b)."""
-    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    wx, wy, wz = px - a[0], py - a[1], pz - a[2]
-    length2 = ex * ex + ey * ey + ez * ez
-    t = 0.0
-    if length2 > 0.0:
-        t = min(max((wx * ex + wy * ey + wz * ez) / length2, 0.0), 1.0)
-    dx, dy, dz = wx - t * ex, wy - t * ey, wz - t * ez
-    return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 def point_distances(points_m: np.ndarray, capsules: Capsules) -> tuple[np.ndarray, np.ndarray]:
@@ -254,22 +244,37 @@ def point_distances(points_m: np.ndarray, capsules: Capsules) -> tuple[np.ndarra
     return distance, capsule
 
 
-def nearest(points: HumanPoints, capsules: Capsules) -> Nearest | None:
-    """The nearest pair of a human point and a robot capsule, overall and per blob; None
-    when there is no human point or no capsule."""
+def nearest(
+    points: HumanPoints, capsules: Capsules, surface: RobotSurface | None = None
+) -> Nearest | None:
+    """The nearest pair of a human point and the robot, overall and per blob; None when
+    there is no human point or no capsule. With the robot's `surface` (posed as the
+    capsules are) the distances are to the robot itself, the capsules' only bounding the
+    search (`surface.refine`); without it, to the capsules."""
     if len(points) == 0 or len(capsules) == 0:
         return None
     distance, capsule = point_distances(points.points_m, capsules)
+    if surface is None:
+        links = np.asarray(capsules.link, dtype=object)[capsule]
+        on_robot = None
+    else:
+        exact = refine(surface, points.points_m, points.blob, distance)
+        distance = exact.distance_m
+        links = np.asarray(surface.links, dtype=object)[np.maximum(exact.link, 0)]
+        on_robot = exact.surface_point_m
     i = int(np.argmin(distance))
-    j = int(capsule[i])
     point = points.points_m[i].copy()
+    if on_robot is None:
+        link_point = surface_point(point, capsules, int(capsule[i]))
+    else:
+        link_point = on_robot[i].copy()
     return Nearest(
         distance_m=float(distance[i]),
         part=int(points.part[i]),
-        link=capsules.link[j],
+        link=str(links[i]),
         point_m=point,
-        link_point_m=surface_point(point, capsules, j),
-        per_person=_per_person(points, distance, capsule, capsules.link),
+        link_point_m=link_point,
+        per_person=_per_person(points, distance, links),
     )
 
 
@@ -288,7 +293,7 @@ def surface_point(point: np.ndarray, capsules: Capsules, j: int) -> np.ndarray:
     return centre + offset * (r / dist)
 
 
-def _per_person(points: HumanPoints, distance, capsule, links) -> tuple[PersonSeparation, ...]:
+def _per_person(points: HumanPoints, distance, links) -> tuple[PersonSeparation, ...]:
     """The nearest point of every blob, in blob order."""
     order = np.lexsort((distance, points.blob))  # by blob, nearest first within it
     blobs = points.blob[order]
@@ -302,7 +307,7 @@ def _per_person(points: HumanPoints, distance, capsule, links) -> tuple[PersonSe
                 blob=int(points.blob[i]),
                 distance_m=float(distance[i]),
                 part=int(points.part[i]),
-                link=links[int(capsule[i])],
+                link=str(links[i]),
                 pixel_count=int(count),
             )
         )
