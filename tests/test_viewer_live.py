@@ -127,6 +127,10 @@ def decoder(channel: dict):
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
 
 
+#: seconds a subscribed topic may stay silent before `FoxgloveClient` subscribes to it again
+RESUBSCRIBE_S = 5.0
+
+
 class FoxgloveClient:
     """What a Foxglove client does on an open WebSocket: collect the advertised channels,
     subscribe, and decode the first message of each subscription with its schema."""
@@ -142,16 +146,33 @@ class FoxgloveClient:
                 self.channels.update({c["topic"]: c for c in json.loads(message)["channels"]})
 
     def first_messages(self, topics: list[str], timeout: float) -> dict:
-        subs = {i: self.channels[t] for i, t in enumerate(topics)}
-        ws_subs = [{"id": i, "channelId": c["id"]} for i, c in subs.items()]
-        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": ws_subs}))
-        got = {}
+        """The first message of each topic. A topic still silent after RESUBSCRIBE_S is
+        subscribed again under a new id, as a client does when a server drops a subscription
+        (a subscription that reaches a loaded server as it advertises the channel can be)."""
+        subs: dict[int, dict] = {}
+        got, statuses = {}, []
         deadline = time.monotonic() + timeout
-        while len(got) < len(subs):
-            missing = sorted({c["topic"] for c in subs.values()} - set(got))
-            assert time.monotonic() < deadline, f"no message in {timeout} s on {missing}"
-            data = self.ws.recv(timeout=timeout)
-            if isinstance(data, bytes):
+        asked = -RESUBSCRIBE_S
+        while len(got) < len(topics):
+            missing = [t for t in topics if t not in got]
+            assert time.monotonic() < deadline, (
+                f"no message in {timeout} s on {missing}; server status: {statuses[-3:]}"
+            )
+            if time.monotonic() - asked >= RESUBSCRIBE_S:
+                asked = time.monotonic()
+                fresh = {len(subs) + i: self.channels[t] for i, t in enumerate(missing)}
+                ws_subs = [{"id": i, "channelId": c["id"]} for i, c in fresh.items()]
+                self.ws.send(json.dumps({"op": "subscribe", "subscriptions": ws_subs}))
+                subs.update(fresh)
+            try:
+                data = self.ws.recv(timeout=RESUBSCRIBE_S)
+            except TimeoutError:
+                continue
+            if isinstance(data, str):
+                message = json.loads(data)
+                if message.get("op") == "status":
+                    statuses.append(message.get("message"))
+            else:
                 op, sub = struct.unpack_from("<BI", data)
                 assert op == 1  # MessageData: op, subscription id, log time, payload
                 channel, payload = subs[sub], data[13:]

@@ -342,6 +342,8 @@ class FoxgloveSink:
         self.server, self.context, self.cell = server, context, cell
         self.channels: dict[tuple[str, str], dict] = {}
         self.cell_streams: dict[str, dict] = {}
+        if cell is not None:  # advertised before any client connects, not with the first state
+            self.cell_channels(cell.name)
 
     @classmethod
     def start(cls, host: str, port: int, cell=None) -> FoxgloveSink:
@@ -459,9 +461,9 @@ class FoxgloveSink:
             channel.log(stats, log_time=int(stats["stamp_ns"]))
 
     def cell_channels(self, cell: str) -> dict:
-        """A cell's safety channels, advertised with its first camera or state: the state
-        as JSON, its zones and nearest pair as a SceneUpdate and, with a cell file, where
-        its cameras hang."""
+        """A cell's safety channels: the state as JSON, its zones and nearest pair as a
+        SceneUpdate and, with a cell file, where its cameras hang. The cell file's cell has
+        them from the start; another cell with its first state."""
         import foxglove
         from foxglove import channels as fc
 
