@@ -3,6 +3,10 @@ decisions scored against the truth."""
 
 import json
 
+import numpy as np
+
+from topseg.core import labels
+from topseg.services.batch.experiment import safety
 from topseg.services.cli import main
 
 
@@ -19,3 +23,32 @@ def test_safety_experiment_scores_a_sequence(tmp_path):
     assert overall["clear_when_truth_stop"] >= 0
     md = (out / "safety.md").read_text()
     assert "| all |" in md and "state equal" in md
+
+
+def test_a_sequences_static_background_is_its_table_without_people_or_robot():
+    """What `--background` gates with: the table's pixels match it, the robot's and the
+    people's do not (they stand in front of it)."""
+    config = safety.sequence_config(0, 2.0, 15.0)
+    seq = safety.draw_sequence(config, safety.VALIDATION_SEED)
+    bg = safety.sequence_background(seq)
+    frame = next(iter(seq.frames(20, 21)))
+    depth = frame.depth.astype(np.float32)
+    gated = bg.valid & (np.abs(depth - bg.depth_mm) <= 3 * bg.sigma_mm + 10)
+    table = frame.labels == labels.TABLE
+    robot = frame.labels == labels.ROBOT
+    assert table.any() and robot.any()
+    assert gated[table].mean() > 0.9
+    assert gated[robot].mean() < 0.05
+    people = np.isin(frame.labels, list(labels.HUMAN_IDS))
+    if people.any():
+        assert gated[people].mean() < 0.05
+
+
+def test_the_experiment_says_when_a_background_gated(tmp_path):
+    out = tmp_path / "safety"
+    args = ["-q", "experiment", "safety", "--sequences", "1", "--sequence-seconds", "1",
+            "--validation", "--background", "--out", str(out)]  # fmt: skip
+    assert main(args) == 0
+    doc = json.loads((out / "safety.json").read_text())
+    assert doc["background"] is True and doc["overall"]["frames"] == 15
+    assert "static background gating" in (out / "safety.md").read_text()

@@ -108,7 +108,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--background",
         action="store_true",
-        help="open-world: also score each cell with its static background recorded and gating",
+        help="open-world: also score each cell with its static background recorded and gating;"
+        " safety: label every sequence with its static background gating",
     )
     parser.add_argument(
         "--cells",
@@ -243,7 +244,8 @@ def _run_safety(args, out: Path) -> int:
     if args.sequences < 1 or not 1 <= args.sequence_seconds <= 600:
         raise TopsegError("--sequences must be >= 1 and --sequence-seconds within 1..600")
     seed = safety.VALIDATION_SEED if args.validation else safety.TEST_SEED
-    result = safety.run(out, args.model, args.sequences, args.sequence_seconds, 15.0, seed)
+    result = safety.run(out, args.model, args.sequences, args.sequence_seconds, 15.0, seed,
+                        background=args.background)  # fmt: skip
     print(safety.markdown(result))
     return 0
 

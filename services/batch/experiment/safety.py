@@ -8,7 +8,10 @@ recording (`recordings/cell.mcap`, seed 3) and the validation seeds do not use. 
 the model labels the depth, the cell monitor decides with the robot's exact joint state, and
 the truth's decision is the same rules on the exact separation and labels
 (`core/safety/agreement.py`), at the same reaction time (`REACTION_S`, the live path's
-typical one). Writes OUT/safety.md and OUT/safety.json.
+typical one). With `background`, each sequence's labels are made with its static cell
+recorded as `topseg calibrate --background` would (the table and the parts on it, without
+people or the robot: `open_world.static_background`) gating them. Writes OUT/safety.md and
+OUT/safety.json.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import time
 from pathlib import Path
 
 from topseg.core.atomic import atomic_write
+from topseg.core.background import BackgroundModel
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.joint_states import JointState
@@ -34,7 +38,9 @@ from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
 from topseg.core.segmenter import Segmenter
 from topseg.core.synth.sequences import CellSequence, CellSequenceConfig
+from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
 from topseg.services.batch.datagen.cell_sequence import cell_toml
+from topseg.services.batch.experiment.open_world import static_background
 
 #: the first seed of the held-out sequences (validation sequences start at VALIDATION_SEED)
 TEST_SEED = 9100
@@ -43,8 +49,10 @@ VALIDATION_SEED = 7100
 ROBOTS = ("panda", "kuka_iiwa", "abb_irb140", "kuka_kr6", "puma560", "interbotix_vx300s")
 SENSORS = ("kinect_v1", "kinect_v2", "oak_d", "realsense_d435")
 HEIGHTS_M = (2.8, 3.0, 3.2, 3.4)
-#: the step to the next seed when a sequence cannot be drawn for a seed
-SEED_STEP = 1000
+#: the step to the next seed when a sequence cannot be drawn for a seed: large enough that a
+#: validation sequence's steps never reach a held-out seed (a step of 1000 took validation
+#: 7107 to held-out 9107)
+SEED_STEP = 100_000
 #: the reaction time both decisions are taken at (s): the live path's typical one
 REACTION_S = 0.06
 
@@ -115,9 +123,18 @@ def draw_sequence(config: CellSequenceConfig, seed: int, tries: int = 5) -> Cell
     raise last
 
 
+def sequence_background(seq: CellSequence) -> BackgroundModel:
+    """The static cell of `seq` as its camera records it: the scene at its start without
+    people or the robot, rendered with the sequence's noise and fitted."""
+    config = SynthesisConfig(noise=seq.config.noise, camera=seq.mount, seed=seq.seed)
+    with Synthesizer(config, warm=False) as synth:
+        return static_background(synth, seq.scene_at(0.0).to_dict(), seq.mount, seed=seq.seed)
+
+
 def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: float,
-        first_seed: int = TEST_SEED, report=print) -> dict:  # fmt: skip
-    """Score `sequences` sequences; write OUT/safety.md and .json; the figures."""
+        first_seed: int = TEST_SEED, report=print, background: bool = False) -> dict:  # fmt: skip
+    """Score `sequences` sequences (their labels gated by each one's static background with
+    `background`); write OUT/safety.md and .json; the figures."""
     out.mkdir(parents=True, exist_ok=True)
     segmenter = Segmenter.from_file(model)
     rows, everything = [], []
@@ -125,7 +142,11 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
         config = sequence_config(i, duration_s, fps)
         t0 = time.perf_counter()
         seq = draw_sequence(config, first_seed + i)
-        compared = run_sequence(seq, segmenter)
+        labeller = segmenter
+        if background:
+            labeller = Segmenter(segmenter.forest, segmenter.header, segmenter.config,
+                                 path=segmenter.path, background=sequence_background(seq))  # fmt: skip
+        compared = run_sequence(seq, labeller)
         everything += compared
         figures = score(compared)
         rows.append({"seed": seq.seed, "robot": config.robot, "sensor": config.sensor,
@@ -135,7 +156,8 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
             f" states {100 * figures['state_agreement']:.1f} % equal, "
             f"{figures['clear_when_truth_stop']} clear-when-stop, {time.perf_counter() - t0:.0f} s"
         )
-    result = {"model": segmenter.model_id, "overall": score(everything), "sequences": rows}
+    result = {"model": segmenter.model_id, "background": background,
+              "overall": score(everything), "sequences": rows}  # fmt: skip
     with atomic_write(out / "safety.json") as f:
         f.write(json.dumps(result, indent=2).encode())
     with atomic_write(out / "safety.md") as f:
@@ -168,7 +190,9 @@ def markdown(result: dict) -> str:
             f"| {_f(r.get('part_agreement'), 100, ' %')} of {r.get('part_frames', 0)} |"
         )
     return (
-        f"# Safety decisions on rendered cell sequences\n\nmodel: {result['model']}\n\n"
+        f"# Safety decisions on rendered cell sequences\n\nmodel: {result['model']}"
+        + (", each sequence's static background gating" if result.get("background") else "")
+        + "\n\n"
         + "\n".join(lines)
         + "\n"
     )
