@@ -112,6 +112,7 @@ def test_the_service_decides_from_frames_and_stops_when_they_stop(run, cell_file
         clear = send_until([], "clear", "clear with nobody in view")
         # with the camera's mount from its first frame: how much of the robot's space it sees
         svc.wait_line("of the floor within")
+        svc.wait_line("cam0: its labels are made without a recorded static background")
         assert clear.speed_scale == 1.0 and clear.min_distance_m is None
         assert clear.reaction_ms is not None and clear.reaction_ms < 5000
         near = send_until([person(0.9, 0.6)], "stop", "stop with a person at the robot")

@@ -109,6 +109,8 @@ class SafetyService:
         # space around the robot was said once (`say_coverage`)
         self.mounts = {c.name: c.mount for c in cell.cameras if c.mount is not None}
         self.coverage_said = False
+        # cameras whose labels came without a recorded background, said once each
+        self.no_background_said: set[str] = set()
 
     def _keys(self, ros_domain: int) -> dict[str, tuple[str, str]]:
         """Key expression -> (what, camera) for every subscription."""
@@ -194,6 +196,13 @@ class SafetyService:
             return False
         self.monitor.frame(camera, depth, labels, received_ns)
         self.counts["frames"] += 1
+        if labels.background is None and camera not in self.no_background_said:
+            self.no_background_said.add(camera)
+            log.warning(
+                "%s: its labels are made without a recorded static background, so a table "
+                "with parts on it can read as a person beside the robot: record one "
+                "(topseg calibrate --background) and give it to the camera's worker", camera,
+            )  # fmt: skip
         if not self.coverage_said and depth.mount is not None:
             self.mounts.setdefault(camera, depth.mount)
             self.say_coverage()
