@@ -44,7 +44,8 @@ model: install
 recording: install
 	bash scripts/make_recording.sh
 
-## rebuild the rendered robot-cell recording with its truth (recordings/cell.mcap, cell.toml)
+## rebuild the rendered robot-cell recording with its truth (recordings/cell.mcap, cell.toml,
+## cell.background.npz)
 cell-recording: install
 	$(TOPSEG) datagen cell-sequence --out recordings/cell.mcap --seed 3 --duration 20 --fps 15 --size 320x240
 

@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from topseg.core import labels
+from topseg.core.synth.static_cell import sequence_background
 from topseg.services.batch.experiment import safety
 from topseg.services.cli import main
 
@@ -30,7 +31,7 @@ def test_a_sequences_static_background_is_its_table_without_people_or_robot():
     people's do not (they stand in front of it)."""
     config = safety.sequence_config(0, 2.0, 15.0)
     seq = safety.draw_sequence(config, safety.VALIDATION_SEED)
-    bg = safety.sequence_background(seq)
+    bg = sequence_background(seq)
     frame = next(iter(seq.frames(20, 21)))
     depth = frame.depth.astype(np.float32)
     gated = bg.valid & (np.abs(depth - bg.depth_mm) <= 3 * bg.sigma_mm + 10)
@@ -52,3 +53,15 @@ def test_the_experiment_says_when_a_background_gated(tmp_path):
     doc = json.loads((out / "safety.json").read_text())
     assert doc["background"] is True and doc["overall"]["frames"] == 15
     assert "static background gating" in (out / "safety.md").read_text()
+
+
+def test_a_cell_recording_comes_with_its_cell_file_and_static_background(tmp_path):
+    from topseg.core.background import load_background
+
+    out = tmp_path / "cell.mcap"
+    args = ["-q", "datagen", "cell-sequence", "--out", str(out), "--duration", "0.5",
+            "--fps", "4", "--seed", "3", "--size", "160x120"]  # fmt: skip
+    assert main(args) == 0
+    bg = load_background(tmp_path / "cell.background.npz")
+    assert (bg.intrinsics.width, bg.intrinsics.height) == (160, 120)
+    assert bg.valid_share > 0.9 and (tmp_path / "cell.toml").is_file()

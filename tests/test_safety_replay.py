@@ -40,6 +40,7 @@ def test_the_cell_recording_through_the_services(tmp_path):
         sub.undeclare()
         session.close()
     assert figures["exit_codes"]["driver"] == 0
+    assert figures["background"] == str(RECORDING.with_suffix(".background.npz"))
     with lock:
         states = list(seen)
     assert len(states) > 100

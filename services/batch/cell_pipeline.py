@@ -38,6 +38,24 @@ from topseg.services.runtime.zenoh_session import open_session
 
 #: frames kept for scoring (depth and truth, ~0.3 MB a 320x240 frame)
 MAX_FRAMES = 4000
+#: what the static cell's background of a recording CELL.mcap is called, beside it
+BACKGROUND_SUFFIX = ".background.npz"
+
+
+def recording_background(recording: Path) -> Path | None:
+    """The recorded static background beside a cell recording (`datagen cell-sequence`
+    writes it), None without one."""
+    path = Path(recording).with_suffix(BACKGROUND_SUFFIX)
+    return path if path.is_file() else None
+
+
+def worker_argv(model: Path, cell: str, camera: str, zenoh: list[str], background: Path | None):
+    """The worker's command line for a cell recording's camera, gated by `background`."""
+    gate = [] if background is None else ["--background", str(background)]
+    return cli_argv("worker", "--model", str(model), "--cameras", f"{cell}/{camera}", *gate,
+                    *zenoh)  # fmt: skip
+
+
 #: states kept
 MAX_STATES = 100_000
 DRAIN_S = 1.0
@@ -140,14 +158,17 @@ def run_cell_pipeline(
     *,
     port: int | None = None,
     logs_dir: Path | None = None,
+    background: bool = True,
 ) -> dict:
     """Replay `recording` through driver, worker and safety (and a viewer when `rrd` is
-    given) and return the scores (`agreement.score`) with the run's counts."""
+    given) and return the scores (`agreement.score`) with the run's counts. The worker is
+    gated by the recording's static background when one lies beside it and `background`."""
     recording, cell_file = Path(recording), Path(cell_file)
     for path, what in ((recording, "recording"), (cell_file, "cell file")):
         if not path.is_file():
             raise TopsegError(f"{what} {path} does not exist (make one: make cell-recording)")
     cell = load_cell(cell_file)
+    background = recording_background(recording) if background else None
     robot = None if cell.robot is None else CellRobot(cell.robot, cell_file.resolve().parent)
     camera = cell.cameras[0].name
     model = bundled_model_path() if model is None else Path(model)
@@ -169,8 +190,7 @@ def run_cell_pipeline(
     kids = Children(logs)
     codes: dict[str, int | None] = {}
     try:
-        kids.start("worker", cli_argv("worker", "--model", str(model), "--cameras",
-                                  f"{cell.cell}/{camera}", *zenoh))  # fmt: skip
+        kids.start("worker", worker_argv(model, cell.cell, camera, zenoh, background))
         kids.start("safety", cli_argv("safety", "--cell", str(cell_file), *zenoh))
         if rrd is not None:
             kids.start(
@@ -197,7 +217,8 @@ def run_cell_pipeline(
             sub.undeclare()
         session.close()
     figures = score(compare(cell, robot, camera, col))
-    figures.update(states=len(col.states), exit_codes=codes, logs=str(logs))
+    figures.update(states=len(col.states), exit_codes=codes, logs=str(logs),
+                   background=None if background is None else str(background))  # fmt: skip
     return figures
 
 
@@ -220,7 +241,12 @@ def cell_summary(figures: dict) -> str:
     moves = figures["states_truth_to_service"]
     return "\n".join(
         [
-            f"{figures['frames']} frames decided on ({figures['states']} states published)",
+            f"{figures['frames']} frames decided on ({figures['states']} states published), "
+            + (
+                "labelled without a static background"
+                if not figures.get("background")
+                else f"labelled with the static background {Path(figures['background']).name}"
+            ),
             f"state equal to the truth's: {_pct(figures['state_agreement'])}; clear when the "
             f"truth says stop: {figures['clear_when_truth_stop']} frames",
             "truth -> service: " + ", ".join(f"{k} {v}" for k, v in moves.items() if v),

@@ -34,6 +34,7 @@ from topseg.core.formats.recording import RecordingWriter, read_messages
 from topseg.core.metrics import percentile
 from topseg.core.safety.agreement import one_decision_per_frame
 from topseg.core.safety.cell import load_cell
+from topseg.services.batch.cell_pipeline import recording_background, worker_argv
 from topseg.services.batch.demo import REPO
 from topseg.services.batch.pipeline import START_TIMEOUT_S, Children, cli_argv, free_port
 from topseg.services.cli.options import finite
@@ -59,6 +60,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--model", type=Path, default=None, metavar="PATH", help=MODEL_HELP)
     parser.add_argument("--no-viewer", action="store_true", help="without the viewer")
+    parser.add_argument(
+        "--no-background", action="store_true",
+        help="the worker without the recording's static background (CELL.background.npz "
+        "beside it), which gates it by default",
+    )  # fmt: skip
 
 
 class _States:
@@ -142,10 +148,10 @@ def measure(args: argparse.Namespace) -> dict:
         session.declare_subscriber(wire.depth_key(cell.cell, camera), states.on_depth),
     ]
     kids = Children(logs)
+    background = None if args.no_background else recording_background(recording)
     driver = ["--cell", cell.cell, "--camera", camera, "--fps", str(args.fps), *zenoh]
     try:
-        kids.start("worker", cli_argv("worker", "--model", str(model), "--cameras",
-                                  f"{cell.cell}/{camera}", *zenoh))  # fmt: skip
+        kids.start("worker", worker_argv(model, cell.cell, camera, zenoh, background))
         kids.start("safety", cli_argv("safety", "--cell", str(cell_file), *zenoh))
         if not args.no_viewer:
             kids.start("viewer", cli_argv("viewer", "--save", str(logs / "bench.rrd"), "--cell",
@@ -189,6 +195,7 @@ def measure(args: argparse.Namespace) -> dict:
     return {
         "fps": args.fps,
         "viewer": not args.no_viewer,
+        "background": background is not None,
         "decisions_per_s": len(running) / span_s if span_s else 0.0,
         "frames_decided_per_s": len(decided) / span_s if span_s else 0.0,
         "reaction_p50_ms": percentile(reactions, 50) if reactions else None,

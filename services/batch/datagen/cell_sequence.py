@@ -1,6 +1,8 @@
 """`topseg datagen cell-sequence --out FILE.mcap`: a rendered robot-cell sequence with its
 truth, as a msgpack recording the safety service can be replayed against
-(`topseg driver --source replay:FILE.mcap`), and the cell file `FILE.toml` beside it.
+(`topseg driver --source replay:FILE.mcap`), the cell file `FILE.toml` beside it, and the
+static cell's background `FILE.background.npz` (the table and its parts without people or the
+robot, as `topseg calibrate --background` records it) for the camera's worker.
 
 The recording holds, per frame at the sequence's rate: depth (with the camera's mount) on
 `topseg/<cell>/<camera>/depth`, exact labels on `.../truth`, the robot's joint state on
@@ -21,10 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from topseg.core.atomic import atomic_write
+from topseg.core.background import save_background
 from topseg.core.errors import TopsegError
 from topseg.core.formats import cell_truth, wire
 from topseg.core.formats.recording import RecordingWriter
 from topseg.core.synth.sequences import CellSequence, CellSequenceConfig
+from topseg.core.synth.static_cell import sequence_background
+from topseg.services.batch.cell_pipeline import BACKGROUND_SUFFIX
 from topseg.services.cli.options import finite, int_range, non_negative_int
 
 log = logging.getLogger("topseg.datagen")
@@ -157,6 +162,7 @@ def write_recording(seq: CellSequence, out: Path) -> dict:
                 closest, farthest = min(closest, p.distance_m), max(farthest, p.distance_m)
     with atomic_write(out.with_suffix(".toml")) as f:
         f.write(cell_toml(seq).encode())
+    save_background(out.with_suffix(BACKGROUND_SUFFIX), sequence_background(seq))
     return {
         "frames": c.frame_count,
         "seconds": time.perf_counter() - t0,
@@ -180,7 +186,8 @@ def run(args: argparse.Namespace) -> int:
     done = write_recording(seq, out)
     print(
         f"wrote {done['frames']} frames to {out} ({out.stat().st_size / 1e6:.1f} MB) and "
-        f"{out.with_suffix('.toml')} in {done['seconds']:.1f} s; people came within "
+        f"{out.with_suffix('.toml')} and {out.with_suffix(BACKGROUND_SUFFIX)} in "
+        f"{done['seconds']:.1f} s; people came within "
         f"{done['closest_m']:.2f} m of the robot, and went {done['farthest_m']:.2f} m away"
     )
     return 0

@@ -38,13 +38,12 @@ from scipy import ndimage
 
 from topseg.core import labels as L
 from topseg.core.atomic import atomic_write
-from topseg.core.background import BackgroundModel, fit_background
 from topseg.core.camera import project
 from topseg.core.metrics import ConfusionAccumulator, person_scores
 from topseg.core.segmenter import Segmenter, SegmenterConfig
 from topseg.core.synth.cell_scenes import CellConfig
 from topseg.core.synth.density import DensityConfig
-from topseg.core.synth.scene import Scene
+from topseg.core.synth.static_cell import BACKGROUND_FRAMES, static_background
 from topseg.core.synth.synthesis import SENSOR_NOISE, SynthesisConfig, Synthesizer
 from topseg.services.batch.experiment.mounts import MOUNTS, cell_mount
 
@@ -58,8 +57,6 @@ PHANTOM_CM2 = 150.0
 MIN_VISIBLE_CM2 = 150.0
 #: share of a person's pixels that must be labelled as body parts for them to be found
 FOUND_SHARE = 0.5
-#: noisy frames of a held-out cell's empty scene its background is fitted from (--background)
-BACKGROUND_FRAMES = 8
 #: dataset seed of the `generated` cells (the pair of index k: GENERATED_SEED + k)
 GENERATED_SEED = 535353
 #: what each kind of held-out cell changes in the density function's cells
@@ -206,18 +203,6 @@ def render_cells(
             bg = static_background(synth, f.scene, m, seed=i) if background else None
             out.append((f.depth, f.labels, m, f.scene, bg))
         return out
-
-
-def static_background(synth: Synthesizer, scene: dict, mount, seed: int = 0) -> BackgroundModel:
-    """The background `topseg calibrate --background` would record of this cell: its scene
-    without people and robots (a robot arm moves), BACKGROUND_FRAMES frames with noise."""
-    empty = Scene.from_dict(scene)
-    empty.human, empty.extra_humans, empty.robots = None, [], []
-    empty.relations = []
-    rng = np.random.default_rng([seed, 0x6267])
-    frames = [synth.render_scene(Scene.from_dict(empty.to_dict()), rng).depth
-              for _ in range(BACKGROUND_FRAMES)]  # fmt: skip
-    return fit_background(frames, mount.intrinsics, sensor=mount.sensor, mount=mount)
 
 
 def verdict(figures: dict) -> dict:

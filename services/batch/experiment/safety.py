@@ -10,7 +10,7 @@ the truth's decision is the same rules on the exact separation and labels
 (`core/safety/agreement.py`), at the same reaction time (`REACTION_S`, the live path's
 typical one). With `background`, each sequence's labels are made with its static cell
 recorded as `topseg calibrate --background` would (the table and the parts on it, without
-people or the robot: `open_world.static_background`) gating them. Writes OUT/safety.md and
+people or the robot: `static_cell.sequence_background`) gating them. Writes OUT/safety.md and
 OUT/safety.json.
 """
 
@@ -21,7 +21,6 @@ import time
 from pathlib import Path
 
 from topseg.core.atomic import atomic_write
-from topseg.core.background import BackgroundModel
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.joint_states import JointState
@@ -38,9 +37,8 @@ from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
 from topseg.core.segmenter import Segmenter
 from topseg.core.synth.sequences import CellSequence, CellSequenceConfig
-from topseg.core.synth.synthesis import SynthesisConfig, Synthesizer
+from topseg.core.synth.static_cell import sequence_background
 from topseg.services.batch.datagen.cell_sequence import cell_toml
-from topseg.services.batch.experiment.open_world import static_background
 
 #: the first seed of the held-out sequences (validation sequences start at VALIDATION_SEED)
 TEST_SEED = 9100
@@ -121,14 +119,6 @@ def draw_sequence(config: CellSequenceConfig, seed: int, tries: int = 5) -> Cell
         except TopsegError as exc:
             last = exc
     raise last
-
-
-def sequence_background(seq: CellSequence) -> BackgroundModel:
-    """The static cell of `seq` as its camera records it: the scene at its start without
-    people or the robot, rendered with the sequence's noise and fitted."""
-    config = SynthesisConfig(noise=seq.config.noise, camera=seq.mount, seed=seq.seed)
-    with Synthesizer(config, warm=False) as synth:
-        return static_background(synth, seq.scene_at(0.0).to_dict(), seq.mount, seed=seq.seed)
 
 
 def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: float,
