@@ -1,5 +1,5 @@
 """The separation of people from the robot: human pixels as cell-frame points, and the
-nearest pair of a human point and the robot's bounding capsules.
+nearest pair of a human point and the robot (its own shapes, or its bounding capsules).
 
 `human_points` back-projects every pixel labelled as a human part (`labels.HUMAN_IDS`) that
 has depth, through the camera's mount (a `radial` camera's frame read as depth first) into
@@ -87,8 +87,9 @@ class PersonSeparation:
 @dataclass(frozen=True, eq=False)
 class Nearest:
     """The nearest pair of a human point and the robot (cell frame, metres): its distance
-    (0 when the point is inside a capsule), the point's part (label id), the link,
-    the human point and the nearest point of that link's capsule; and the same per blob."""
+    (0 when the point is inside the robot's shape, or its capsule when measured to
+    capsules), the point's part (label id), the link, the human point and the nearest
+    point of that link (of its capsule when measured to capsules); and the same per blob."""
 
     distance_m: float
     part: int
