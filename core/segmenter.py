@@ -225,6 +225,14 @@ class Segmenter:
         forest, header = load_model(path)
         return cls(forest, header, config, crf=crf, path=path)
 
+    def with_background(self, background: BackgroundModel) -> Segmenter:
+        """The same model and settings, gated by `background` (a static cell recorded for
+        one camera): a new Segmenter, this one unchanged."""
+        return Segmenter(
+            self.forest, self.header, self.config, model_id=self.model_id, path=self.path,
+            background=background,
+        )  # fmt: skip
+
     @property
     def crf_config(self) -> CRFConfig:
         """The CRF settings every frame is smoothed with (before a noisy camera's weight)."""

@@ -276,6 +276,14 @@ def segmenters(background_file):
     return without, Segmenter.from_file(None, config)
 
 
+def test_a_segmenter_given_a_background_labels_as_one_loaded_with_it(segmenters):
+    without, with_bg = segmenters
+    gated = without.with_background(with_bg.background)
+    assert without.background is None and gated.model_id == without.model_id
+    frame = noisy(cell_depth(), np.random.default_rng(3))
+    np.testing.assert_array_equal(gated.label(frame).labels, with_bg.label(frame).labels)
+
+
 def test_a_person_on_a_background_table_stays_foreground(segmenters):
     without, with_bg = segmenters
     rng = np.random.default_rng(7)

@@ -41,7 +41,7 @@ from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.resolution import decimate, decimated_mount
 from topseg.core.safety.cell import CameraPlacement, CellConfig
 from topseg.core.safety.decision import Decision, decide
-from topseg.core.safety.robot import CellRobot
+from topseg.core.safety.robot import CellRobot, padded_box
 from topseg.core.safety.separation import (
     Capsules,
     HumanPoints,
@@ -418,13 +418,9 @@ def robot_pixels(
     reach_px = math.ceil(margin_m * max(k.fx, k.fy) / max(near_m, 0.1)) + 1
     reach = min(reach_px, MAX_REACH_PX)
     # the filter only matters under the grown silhouette: it runs on that box (and the reach)
-    rows, cols = np.flatnonzero(grown.any(axis=1)), np.flatnonzero(grown.any(axis=0))
-    if not len(rows):
+    box = padded_box(grown, reach, reach)
+    if box is None:
         return out
-    h, w = lab.shape
-    v0, v1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h)
-    u0, u1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
-    box = (slice(v0, v1), slice(u0, u1))
     nearest_robot = ndimage.minimum_filter(rendered[box], size=2 * reach + 1)
     in_front = depth_mm[box].astype(np.float32) < nearest_robot - np.float32(IN_FRONT_M * 1000.0)
     take = grown[box] & (depth_mm[box] > 0) & ~in_front & (lab[box] != label_table.BACKGROUND)

@@ -41,7 +41,7 @@ from topseg.core.synth.geometry import (
 from topseg.core.synth.render import Primitives, Triangles, raycast
 from topseg.core.synth.robots import RANDOM, ROBOTS, pedestal_primitives, robot_model
 
-__all__ = ["Capsules", "CellRobot", "base_quat", "fit_capsule", "grow_mask"]
+__all__ = ["Capsules", "CellRobot", "base_quat", "fit_capsule", "grow_mask", "padded_box"]
 
 #: sides of the polygon that stands in for a cylinder's end circle (circumscribing it)
 _CIRCLE_SIDES = 16
@@ -292,15 +292,25 @@ def grow_mask(mask: np.ndarray, depth_mm: np.ndarray, margin_m: float, fx: float
         raise ValueError("grow_mask needs the depth of every pixel under the mask")
     half_widths = ellipse_half_widths(margin_m * fx / z_m, margin_m * fy / z_m)
     # only the mask's bounding box, widened by the ellipse, can grow: the kernel runs there
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    reach_v, reach_u = (len(half_widths) - 1) // 2, int(half_widths.max())
-    v0, v1 = max(rows[0] - reach_v, 0), min(rows[-1] + reach_v + 1, mask.shape[0])
-    u0, u1 = max(cols[0] - reach_u, 0), min(cols[-1] + reach_u + 1, mask.shape[1])
+    box = padded_box(mask, (len(half_widths) - 1) // 2, int(half_widths.max()))
     out = np.zeros_like(mask)
-    box = np.zeros((v1 - v0, u1 - u0), np.bool_)
-    _grow_kernel(np.ascontiguousarray(mask[v0:v1, u0:u1]), half_widths, box)
-    out[v0:v1, u0:u1] = box
+    grown = np.zeros(out[box].shape, np.bool_)
+    _grow_kernel(np.ascontiguousarray(mask[box]), half_widths, grown)
+    out[box] = grown
     return out
+
+
+def padded_box(mask: np.ndarray, reach_rows: int, reach_cols: int) -> tuple[slice, slice] | None:
+    """The bounding box of `mask`'s True pixels widened by `reach_rows` rows and
+    `reach_cols` columns on each side, clipped to the image; None when `mask` is empty."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return None
+    h, w = mask.shape
+    return (
+        slice(max(rows[0] - reach_rows, 0), min(rows[-1] + reach_rows + 1, h)),
+        slice(max(cols[0] - reach_cols, 0), min(cols[-1] + reach_cols + 1, w)),
+    )
 
 
 def ellipse_half_widths(ru: float, rv: float) -> np.ndarray:

@@ -63,7 +63,7 @@ class SurfaceLayout:
     radius (posing moves a triangle rigidly) and each link's capsule index."""
 
     links: tuple[str, ...]
-    tri_order: np.ndarray
+    tri_order: np.ndarray | None  # None: the triangles come grouped by link already
     tri_start: np.ndarray
     tri_radius: np.ndarray
     prim_order: np.ndarray
@@ -105,9 +105,10 @@ def surface_layout(
     centre = triangles.mean(axis=1)
     radius = np.linalg.norm(triangles - centre[:, None, :], axis=2).max(axis=1, initial=0.0)
     bounds = np.arange(len(keep) + 1)
+    in_order = np.array_equal(tri_order, np.arange(len(tri_order)))
     return SurfaceLayout(
         links=tuple(links[i] for i in keep),
-        tri_order=tri_order,
+        tri_order=None if in_order else tri_order,
         tri_start=np.searchsorted(np.sort(new_index[tri_link]), bounds).astype(np.int64),
         tri_radius=radius,
         prim_order=prim_order,
@@ -122,7 +123,7 @@ def posed_surface(
     """The surface of the robot's shapes at one posing (`layout`'s shapes, in its order of
     `link_geometry`), with its capsules at the same posing (`separation.Capsules`)."""
     triangles = np.asarray(tris.vertices, np.float64)
-    if not np.array_equal(layout.tri_order, np.arange(len(triangles))):
+    if layout.tri_order is not None:
         triangles = triangles[layout.tri_order]
     o, cap = layout.prim_order, layout.capsule
     return RobotSurface(

@@ -246,8 +246,7 @@ def run_open_world(
                 tally.add(truth, pred, depth, m, scene)
                 total.add(truth, pred, depth, m, scene)
                 if bg is not None:
-                    gated = Segmenter(seg.forest, seg.header, seg.config, path=seg.path,
-                                      background=bg)  # fmt: skip
+                    gated = seg.with_background(bg)
                     total_bg.add(truth, gated.label(depth, mount=m).labels, depth, m, scene)
         per_sensor[sensor] = tally.figures()
         f = per_sensor[sensor]

@@ -134,8 +134,7 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
         seq = draw_sequence(config, first_seed + i)
         labeller = segmenter
         if background:
-            labeller = Segmenter(segmenter.forest, segmenter.header, segmenter.config,
-                                 path=segmenter.path, background=sequence_background(seq))  # fmt: skip
+            labeller = segmenter.with_background(sequence_background(seq))
         compared = run_sequence(seq, labeller)
         everything += compared
         figures = score(compared)
