@@ -320,15 +320,22 @@ class PersonCheck:
                 "the model's person check reads other blob features than this topseg "
                 "computes (refit it: `topseg person-check`)"
             )
-        try:
-            threshold = float(entry["threshold"])
-        except (KeyError, TypeError, ValueError):
-            raise TopsegError("the model's person check has no threshold") from None
-        if not math.isfinite(threshold):
-            raise TopsegError("the model's person check threshold is not finite")
-        trees = TreeEnsemble.from_dict(entry.get("trees"), len(FEATURES))
-        validation = entry.get("validation", {})
-        return cls(trees, threshold, validation if isinstance(validation, dict) else {})
+        return cls(*check_entry(entry, "person check", len(FEATURES)))
+
+
+def check_entry(entry: dict, what: str, n_features: int) -> tuple[TreeEnsemble, float, dict]:
+    """The trees, threshold and validation of a check's model header entry (`what` names the
+    check in errors); TopsegError when the threshold is missing or not finite, or the trees
+    are malformed."""
+    try:
+        threshold = float(entry["threshold"])
+    except (KeyError, TypeError, ValueError):
+        raise TopsegError(f"the model's {what} has no threshold") from None
+    if not math.isfinite(threshold):
+        raise TopsegError(f"the model's {what} threshold is not finite")
+    trees = TreeEnsemble.from_dict(entry.get("trees"), n_features)
+    validation = entry.get("validation", {})
+    return trees, threshold, validation if isinstance(validation, dict) else {}
 
 
 def relabel_blobs(
@@ -369,6 +376,7 @@ __all__ = [
     "PersonCheck",
     "TreeEnsemble",
     "blob_features",
+    "check_entry",
     "relabel_blobs",
     "warm_up_check",
 ]

@@ -243,13 +243,14 @@ def component_sums(comp, m, image, n, labels, kinds, depth, fx, fy):
     return sums, which
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def tree_sums(x, feature, threshold, left, right, value, roots):
     """(n,) the sum over the trees starting at `roots` of the leaf value each row of `x`
-    reaches (feature -1: a leaf; x[f] <= threshold goes left)."""
+    reaches (feature -1: a leaf; x[f] <= threshold goes left); rows in parallel, each
+    summed in tree order."""
     n = x.shape[0]
     out = np.zeros(n)
-    for i in range(n):
+    for i in numba.prange(n):
         total = 0.0
         for root in roots:
             node = root

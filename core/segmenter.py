@@ -28,6 +28,7 @@ from topseg.core.background import (
 )
 from topseg.core.bundled_model import bundled_model_path
 from topseg.core.camera import Intrinsics, TopViewMount
+from topseg.core.context_check import ContextCheck, warm_up_context
 from topseg.core.crf import CRFConfig, realtime, segment_crf
 from topseg.core.denoise import edge_table, smooth_depth
 from topseg.core.errors import TopsegError
@@ -159,19 +160,20 @@ class Segmenter:
         else:
             self.reader = DepthReader(self.camera, self.header)
         self.background = background or self._load_background(config)
-        self.person_check = self._person_check(self.header, path)
-        self.stages = build_stages(
-            StageModel(forest, self.reader, config, self.background, self.person_check)
-        )
+        self.person_check = self._check(PersonCheck, self.header, path)
+        self.context_check = self._check(ContextCheck, self.header, path)
+        model = StageModel(forest, self.reader, config, self.background, self.person_check,
+                           self.context_check)  # fmt: skip
+        self.stages = build_stages(model)
         # the stages whose time is the CRF's headline share; the rest (and the plan) the forest's
         self._crf_share = {stage.name for stage in self.stages if stage.share == CRFS_SHARE}
 
     @staticmethod
-    def _person_check(header: dict[str, Any], path: Path | None) -> PersonCheck | None:
-        """The person check the model header carries (None: none); ModelFileError naming
-        the model when it is malformed."""
+    def _check(kind, header: dict[str, Any], path: Path | None):
+        """The check of `kind` (PersonCheck or ContextCheck) the model header carries
+        (None: none); ModelFileError naming the model when it is malformed."""
         try:
-            return PersonCheck.from_header(header)
+            return kind.from_header(header)
         except TopsegError as exc:
             raise ModelFileError(f"{path or 'model'}: {exc}") from None
 
@@ -365,5 +367,7 @@ class Segmenter:
             warm_up_gate(depth)
         if self.person_check is not None:
             warm_up_check(depth, self.person_check)
+        if self.context_check is not None:
+            warm_up_context(depth, self.context_check)
         if voting_table(self.n_classes).any():
             warm_up_surfaces(depth.shape)

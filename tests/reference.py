@@ -28,6 +28,8 @@ bit (as stumpy keeps its naive versions in one test module).
   connected components.
 - `upsample_labels_reference`: labels of a decimated frame brought back to the frame's
   resolution by depth (`resolution.upsample_labels`).
+- `cell_channels_reference`, `cell_features_reference`: the context check's cells and their
+  ring features (`context_check_kernels`), block by block and box by box.
 - `smooth_depth_reference`: the edge-preserving smoothing of noisy depth
   (`denoise.smooth_depth`).
 - `thin_edges_reference`: a stereo camera's fattened edges thinned
@@ -1384,3 +1386,58 @@ def primitive_distances_reference(points, kind, size, center, rot):
     half = size[1] if kind == CAPSULE else 0.0
     along = local[:, 2] - np.clip(local[:, 2], -half, half)
     return np.maximum(np.sqrt(local[:, 0] ** 2 + local[:, 1] ** 2 + along**2) - size[0], 0.0)
+
+
+def cell_channels_reference(labels, valid, heights_mm, depth, cell, table):
+    """`context_check_kernels.cell_channels`, one cell at a time with numpy."""
+    hc, wc = labels.shape[0] // cell, labels.shape[1] // cell
+    n_cols = table.shape[1]
+    chan = np.zeros((hc, wc, n_cols + 1), np.float32)
+    depth_sum = np.zeros((hc, wc))
+    n_valid = np.zeros((hc, wc), np.int32)
+    parts = np.zeros((hc, wc), np.int32)
+    for i in range(hc):
+        for j in range(wc):
+            block = (slice(i * cell, (i + 1) * cell), slice(j * cell, (j + 1) * cell))
+            lab, ok = labels[block].ravel(), valid[block].ravel()
+            rows = table[lab].astype(np.float64)
+            rows[~ok] = 0.0
+            rows[~ok, n_cols - 1] = 1.0  # no depth or the floor gate: background
+            chan[i, j, :n_cols] = rows.sum(0) / (cell * cell)
+            n_valid[i, j] = ok.sum()
+            parts[i, j] = (table[lab, 0] > 0).sum()
+            depth_sum[i, j] = depth[block].ravel()[ok].astype(np.float64).sum()
+            h = heights_mm[block].ravel()[ok].astype(np.float64)
+            h = h[np.isfinite(h)]
+            if h.size:
+                chan[i, j, n_cols] = h.mean() / 1000.0
+    return chan, depth_sum, n_valid, parts
+
+
+def cell_features_reference(chan, cells_per_cm, rows, cols, rings_cm, boxes_cm, sines, cosines):
+    """`context_check_kernels.cell_features`, every box summed directly over its cells."""
+    hc, wc, nc = chan.shape
+    height = nc - 1
+
+    def box_mean(r, c, k):
+        r0, r1 = np.clip([r - k, r + k + 1], 0, hc)
+        c0, c1 = np.clip([c - k, c + k + 1], 0, wc)
+        area = max((r1 - r0) * (c1 - c0), 1)
+        return chan[r0:r1, c0:c1].astype(np.float64).sum((0, 1)) / area
+
+    out = []
+    for r, c in zip(rows, cols, strict=True):
+        s = cells_per_cm[r, c]
+        row = [chan[r, c].astype(np.float64), box_mean(r, c, 1)]
+        for ring, box in zip(rings_cm, boxes_cm, strict=True):
+            k = int(np.floor(box * 0.5 * s + 0.5))
+            boxes = []
+            for sn, cs in zip(sines, cosines, strict=True):
+                b = box_mean(r + int(np.floor(ring * s * sn + 0.5)),
+                             c + int(np.floor(ring * s * cs + 0.5)), k)  # fmt: skip
+                b[height] -= chan[r, c, height]
+                boxes.append(b)
+            boxes = np.array(boxes)
+            row += [boxes.mean(0), boxes.max(0), boxes.min(0)]
+        out.append(np.concatenate(row))
+    return np.array(out, np.float32).reshape(len(rows), nc * (2 + 3 * len(rings_cm)))

@@ -2,7 +2,16 @@
 rebuild its labels from the forest or the CRF (legacy path, segmenter, worker, segment) share
 this one call, so a new rule argument is added in one place."""
 
+import numpy as np
+
 from topseg.core import segmenter_config as S
+from topseg.core.context_check import (
+    REPLACEMENT,
+    cell_features,
+    cell_grid,
+    part_cells,
+    rejected_pixels,
+)
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
     ISLAND_EDGE_PX,
@@ -12,6 +21,7 @@ from topseg.core.islands import (
     relabel_islands,
 )
 from topseg.core.person_check import blob_features, relabel_blobs
+from topseg.core.person_check_kernels import relabel_rejected
 from topseg.core.surfaces import surface_step_mm, vote_surfaces, voting_table
 
 #: the Segmenter's default minimum areas, per class
@@ -25,6 +35,19 @@ def relabel_as_the_segmenter(labels, depth, k):
         labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM,
         ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
     )  # fmt: skip
+
+
+def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):
+    """The Segmenter's context check on `labels` after its CRF, in place (working-resolution
+    depth, model input, posteriors and mount): pixels relabelled."""
+    valid = (inp.values > 0) & ~inp.floor
+    grid = cell_grid(labels, valid, mount.height_map_mm(depth), depth, mount.intrinsics.fx)
+    if grid is None:
+        return 0
+    rows, cols = part_cells(grid)
+    people = check.people(cell_features(grid, rows, cols))
+    marked = rejected_pixels(grid, rows, cols, people, labels)
+    return relabel_rejected(labels, marked, np.array([False, True]), proba, REPLACEMENT)
 
 
 def check_people_as_the_segmenter(labels, depth, proba, mount, check):

@@ -218,7 +218,8 @@ def test_rejected_blobs_take_their_best_class_that_is_not_a_body_part_nor_backgr
 
 
 def with_check(model_path, tmp_path, threshold, features=None):
-    """The model at `model_path` with a one-tree check scoring 0 everywhere."""
+    """The model at `model_path` with a one-tree check scoring 0 everywhere (and no context
+    check)."""
     forest, header = load_model(model_path)
     trees = TreeEnsemble(np.array([-1], np.int32), np.zeros(1), np.array([-1], np.int32),
                          np.array([-1], np.int32), np.zeros(1), np.zeros(1, np.int32),
@@ -226,7 +227,8 @@ def with_check(model_path, tmp_path, threshold, features=None):
     entry = PersonCheck(trees, threshold, {}).to_header()
     if features is not None:
         entry["features"] = features
-    keep = caller_header(header)
+    # without the bundled model's context check, which the same switch turns off
+    keep = {k: v for k, v in caller_header(header).items() if k != "context_check"}
     out = tmp_path / f"checked-{threshold}.npz"
     save_model(out, forest, {**keep, "person_check": entry})
     return out
@@ -304,17 +306,20 @@ def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
     )  # fmt: skip
     assert fit.returncode == 0, fit.stderr
     assert "person check, held-out frames" in fit.stdout
+    assert "context check, held-out frames" in fit.stdout
     forest, header = load_model(out)
     original, original_header = load_model(bundled_model_path())
     np.testing.assert_array_equal(forest.posteriors, original.posteriors)
     assert header["person_check"]["validation"]["frames"] == 16
+    assert header["context_check"]["validation"]["frames"] == 16
 
-    def without_check(h):
-        return {k: v for k, v in h.items() if k != "person_check"}
+    def without_checks(h):
+        return {k: v for k, v in h.items() if k not in ("person_check", "context_check")}
 
-    assert without_check(header) == without_check(original_header)
+    assert without_checks(header) == without_checks(original_header)
     seg = Segmenter.from_file(out)
     assert seg.person_check is not None and seg.person_check.validation["blobs"] > 0
+    assert seg.context_check is not None and seg.context_check.validation["cells"] > 0
 
 
 def test_person_check_refuses_a_dataset_too_small_in_one_line(tmp_path, data):

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from segmenter_rules import (
+    check_context_as_the_segmenter,
     check_people_as_the_segmenter,
     relabel_as_the_segmenter,
     vote_as_the_segmenter,
@@ -137,6 +138,7 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         )
         want = crf.segment_crf(proba, depth, seg.config.crf)
         if mode != "none":
+            check_context_as_the_segmenter(want, depth, inp, proba, mount, seg.context_check)
             check_people_as_the_segmenter(want, depth, proba, mount, seg.person_check)
             vote_as_the_segmenter(want, depth, mount, seg.n_classes)
             relabel_as_the_segmenter(want, depth, k)

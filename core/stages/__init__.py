@@ -8,6 +8,8 @@ adapter in `readers.py`), then runs `STAGES` in order over one `FrameState`:
   background   pixels that match the static cell's recorded background join the floor gate
   forest       the forest's posteriors (lazy on a grid)
   crf          the Potts CRF
+  context_check body-part pixels of cells the model's context check says are not a person's
+               take another class
   person_check body-part blobs the model's person check says are not people take another class
   surfaces     robot and object pixels on one continuous surface take its majority class
   post         island rules, labels brought back to the frame's resolution
@@ -23,6 +25,7 @@ import time
 
 from topseg.core.stages.background import BackgroundStage
 from topseg.core.stages.base import FORESTS_SHARE, Stage, StageModel
+from topseg.core.stages.context_check import ContextCheckStage
 from topseg.core.stages.crf import CRFStage
 from topseg.core.stages.forest import ForestStage
 from topseg.core.stages.model_input import ModelInputStage
@@ -39,6 +42,7 @@ STAGES: tuple[type[Stage], ...] = (
     BackgroundStage,
     ForestStage,
     CRFStage,
+    ContextCheckStage,
     PersonCheckStage,
     SurfaceVoteStage,
     PostStage,

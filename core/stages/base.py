@@ -9,6 +9,7 @@ from topseg.core.segmenter_config import SegmenterConfig
 
 if TYPE_CHECKING:
     from topseg.core.background import BackgroundModel
+    from topseg.core.context_check import ContextCheck
     from topseg.core.forest.tree import Forest
     from topseg.core.person_check import PersonCheck
     from topseg.core.stages.plan import FrameState
@@ -23,13 +24,15 @@ CRFS_SHARE = "crf"
 @dataclass(frozen=True)
 class StageModel:
     """What stages are built from: the loaded forest, its input adapter, the run settings,
-    the recorded background of a static cell and the model's person check (None: none)."""
+    the recorded background of a static cell and the model's context and person checks
+    (None: none)."""
 
     forest: Forest
     reader: ModelReader
     config: SegmenterConfig
     background: BackgroundModel | None = None
     person_check: PersonCheck | None = None
+    context_check: ContextCheck | None = None
 
 
 class Stage:

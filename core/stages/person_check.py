@@ -54,7 +54,7 @@ def frame_blobs(frame: FrameState) -> tuple[Blobs, np.ndarray] | None:
         return None
     mount = frame.plan.work_mount
     proba = frame.fill(human)
-    heights = mount.height_map_mm(frame.depth)
+    heights = frame.heights()
     blobs = blob_features(
         frame.labels, frame.depth, heights, proba, mount.intrinsics, mount.height_mm, human
     )

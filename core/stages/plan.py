@@ -70,6 +70,8 @@ class FrameState:
                    own share before it did; None: `inp.floor_share()`
     background_valid_px  after `background`: the background's pixels on the working grid
                    (0 without one)
+    heights_mm     the working frame's heights above the floor, once a stage asked for them
+                   (`heights`)
     """
 
     plan: FramePlan
@@ -86,6 +88,14 @@ class FrameState:
     counts: dict[str, int] = field(default_factory=dict)
     floor_share: float | None = None
     background_valid_px: int = 0
+    heights_mm: np.ndarray | None = None
+
+    def heights(self) -> np.ndarray:
+        """(h, w) float32 height above the floor (mm) of each working pixel (NaN without
+        depth), computed once for the stages after the CRF (which leave `depth` as it is)."""
+        if self.heights_mm is None:
+            self.heights_mm = self.plan.work_mount.height_map_mm(self.depth)
+        return self.heights_mm
 
     def posteriors(self) -> np.ndarray:
         """Every posterior of this frame, the ones a grid left out stored first."""

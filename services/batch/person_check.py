@@ -1,12 +1,21 @@
-"""Fit a model's person check (`core.person_check`) on a dataset from `topseg datagen` and
-write it into the model file.
+"""Fit a model's two person checks (`core.context_check`, then `core.person_check`) on a
+dataset from `topseg datagen` and write them into the model file.
 
-The model labels every frame (its forest and CRF, as the worker does); every blob of body-part
-labels is described by the check's features and marked a person when most of its pixels are
-a person in the truth. Three frames in four fit scikit-learn's gradient-boosted trees
-(weighted by each blob's area, so a blob counts by how much of the frame it is); the fourth
-chooses the threshold: the strictest that still keeps `--keep` of the person pixels that lie
-in body-part blobs. The trees and threshold go into the model header (`person_check`), with
+The context check first. The model labels every frame (its forest and CRF, as the worker
+does); every cell holding body-part labels is described by the context check's features and
+marked a person's when most of its body-part pixels are a person in the truth. Three frames in
+four fit scikit-learn's histogram gradient boosting (weighted by each cell's body-part
+pixels); the fourth chooses the threshold: the strictest that still keeps `--context-keep` of
+the person pixels that lie in body-part cells.
+
+Then the person check, on the labels the context check leaves: every blob of body-part labels
+is described by the check's features and marked a person when most of its pixels are a person
+in the truth. Three frames in four fit scikit-learn's gradient-boosted trees (weighted by each
+blob's area, so a blob counts by how much of the frame it is); the fourth chooses the
+threshold: the strictest that still keeps `--keep` of the person pixels that lie in body-part
+blobs.
+
+The trees and thresholds go into the model header (`context_check`, `person_check`), with
 what the held-out frames measured; the forest is unchanged. Render the dataset from another
 seed than the forest's training set, with the scenes the model will see (`--mode cell`).
 """
@@ -20,12 +29,15 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
+from topseg.core.context_check import IS_PART as IS_CELL_PART
+from topseg.core.context_check import ContextCheck
 from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import caller_header, load_model, save_model
 from topseg.core.formats.dataset import open_dataset
 from topseg.core.person_check import PersonCheck, TreeEnsemble
 from topseg.core.scoring import dataset_frames
 from topseg.core.segmenter import Segmenter
+from topseg.core.stages.context_check import frame_cells
 from topseg.core.stages.person_check import frame_blobs
 from topseg.core.stages.plan import FrameState
 from topseg.services.cli.options import (
@@ -41,6 +53,8 @@ HOLD_OUT = 4
 PERSON_SHARE = 0.5
 #: the boosted trees: how many, how deep, the learning rate
 N_TREES, TREE_DEPTH, RATE = 150, 3, 0.1
+#: the context check's boosted trees: how many, how deep, the learning rate
+CONTEXT_TREES, CONTEXT_DEPTH, CONTEXT_RATE = 150, 4, 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,6 +75,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--keep", type=finite(0.5, 1.0), default=0.98, metavar="P",
         help="the threshold keeps this share of the held-out frames' person pixels that lie "
         "in body-part blobs (default: %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--context-keep", type=finite(0.5, 1.0), default=0.98, metavar="P",
+        help="the context check's threshold keeps this share of the held-out frames' person "
+        "pixels that lie in body-part cells (default: %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--context", choices=("on", "off"), default="on",
+        help="fit the context check (off: the person check alone, as models before it)",
     )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="the boosted trees' seed")
     # the check is fitted on labels as the CRF leaves them: the island rules, the check
@@ -83,31 +106,106 @@ def run(args: argparse.Namespace) -> int:
     n = len(ds) if args.frames is None else min(args.frames, len(ds))
     if n < HOLD_OUT:
         raise TopsegError(f"{args.data} has {n} frames; the check needs at least {HOLD_OUT}")
-    frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label", unit="frame",
+    fitted = {k: v for k, v in caller_header(header).items() if k != ContextCheck.HEADER_KEY}
+    if args.context == "on":
+        frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label (cells)",
+                      unit="frame", disable=None)  # fmt: skip
+        context = fit_context(gather_cells(Segmenter(forest, fitted, config, path=model), frames),
+                              args.context_keep, args.seed)  # fmt: skip
+        context.validation.update(dataset=str(args.data), frames=n)
+        fitted[ContextCheck.HEADER_KEY] = context.to_header()
+        print(describe_context(context.validation))
+    segmenter = Segmenter(forest, fitted, config, path=model)
+    frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label (blobs)", unit="frame",
                   disable=None)  # fmt: skip
     rows = gather_blobs(segmenter, frames)
     check = fit_check(rows, args.keep, args.seed)
     check.validation["dataset"] = str(args.data)
     check.validation["frames"] = n
-    save_model(out, forest, {**caller_header(header), PersonCheck.HEADER_KEY: check.to_header()})
+    save_model(out, forest, {**fitted, PersonCheck.HEADER_KEY: check.to_header()})
     print(describe(check.validation))
     print(f"wrote {out}")
     return 0
 
 
-def gather_blobs(segmenter: Segmenter, frames) -> dict[str, np.ndarray]:
-    """The body-part blobs of every (depth, truth, mount) frame after the model's CRF: their
-    features, area (cm2), person share in the truth and frame number."""
-    features, area, share, frame_no = [], [], [], []
+def gather_cells(segmenter: Segmenter, frames) -> dict[str, np.ndarray]:
+    """The cells holding body-part labels of every (depth, truth, mount) frame after the
+    model's CRF: their features, body-part pixels, the share of those that are a person in
+    the truth and the frame number."""
+    features, parts, share, frame_no = [], [], [], []
+    for i, frame, person in labelled(segmenter, frames, "crf"):
+        found = frame_cells(frame)
+        if found is None:
+            continue
+        grid, rows, cols, x = found
+        cell, (hc, wc) = grid.cell, grid.parts.shape
+        labels = frame.labels[: hc * cell, : wc * cell]
+        person = person[: hc * cell, : wc * cell]
+        hits = (IS_CELL_PART[labels] & person).reshape(hc, cell, wc, cell).sum((1, 3))
+        features.append(x)
+        parts.append(grid.parts[rows, cols])
+        share.append(hits[rows, cols] / np.maximum(grid.parts[rows, cols], 1))
+        frame_no.append(np.full(rows.size, i))
+    if not features:
+        raise TopsegError("the model labelled no body part in these frames")
+    return {
+        "features": np.concatenate(features),
+        "parts": np.concatenate(parts).astype(np.float64),
+        "share": np.concatenate(share),
+        "frame": np.concatenate(frame_no),
+    }
+
+
+def fit_context(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> ContextCheck:
+    """Histogram boosted trees fitted on three frames in four, the threshold chosen on the
+    fourth to keep `keep` of its person pixels in body-part cells; the check with what the
+    fourth measured."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    x, weight = rows["features"], rows["parts"]
+    person = rows["share"] >= PERSON_SHARE
+    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
+    if person[~held].all() or not person[~held].any():
+        raise TopsegError("the fitting frames need cells that are people's and cells that are not")
+    clf = HistGradientBoostingClassifier(
+        max_iter=CONTEXT_TREES, max_depth=CONTEXT_DEPTH, learning_rate=CONTEXT_RATE,
+        early_stopping=False, random_state=seed,
+    )  # fmt: skip
+    clf.fit(x[~held], person[~held], sample_weight=weight[~held])
+    trees = ensemble_from_histogram(clf, x[held][:10_000])
+    scores = trees.score(x[held])
+    person_px = weight[held] * rows["share"][held]
+    other_px = weight[held] * (1 - rows["share"][held])
+    threshold = choose_threshold(scores, person_px, keep)
+    passed = scores >= threshold
+    validation = {
+        "keep": keep,
+        "cells": int(held.sum()),
+        "person_px_kept": _share(person_px[passed], person_px),
+        "other_px_removed": _share(other_px[~passed], other_px),
+    }
+    return ContextCheck(trees, float(threshold), validation)
+
+
+def labelled(segmenter: Segmenter, frames, upto: str):
+    """(frame number, the frame after the stage `upto`, its truth's person pixels at the
+    working resolution) of every (depth, truth, mount) frame."""
     for i, (depth, truth, mount) in enumerate(frames):
         frame = FrameState(segmenter.plan(depth, None, f"frame {i}", mount), depth)
-        segmenter.run(frame, upto="crf")
+        segmenter.run(frame, upto=upto)
+        step = frame.plan.downsample
+        yield i, frame, np.isin(truth[::step, ::step], L.HUMAN_IDS)
+
+
+def gather_blobs(segmenter: Segmenter, frames) -> dict[str, np.ndarray]:
+    """The body-part blobs of every (depth, truth, mount) frame after the model's CRF and
+    context check: their features, area (cm2), person share in the truth and frame number."""
+    features, area, share, frame_no = [], [], [], []
+    for i, frame, person in labelled(segmenter, frames, "context_check"):
         found = frame_blobs(frame)
         if found is None:
             continue
         blobs = found[0]
-        step = frame.plan.downsample
-        person = np.isin(truth[::step, ::step], L.HUMAN_IDS)
         counts = np.bincount(blobs.image.ravel(), minlength=blobs.count + 1)[1:]
         hits = np.bincount(blobs.image.ravel(), person.ravel(), blobs.count + 1)[1:]
         features.append(blobs.features)
@@ -166,6 +264,37 @@ def choose_threshold(scores: np.ndarray, person_area: np.ndarray, keep: float) -
     return float(scores[order][min(first, len(order) - 1)])
 
 
+def ensemble_from_histogram(clf, check_rows: np.ndarray) -> TreeEnsemble:
+    """A fitted binary HistGradientBoostingClassifier (numeric features, no missing values)
+    as a `TreeEnsemble`; its scores on `check_rows` must equal `decision_function`'s
+    (TopsegError otherwise: the exported trees are read from the estimator's fitted
+    predictors, which scikit-learn does not promise to keep)."""
+    fields: dict[str, list] = {k: [] for k in ("feature", "threshold", "left", "right", "value")}
+    roots, depth, base = [], 0, 0
+    for (predictor,) in clf._predictors:
+        nodes = predictor.nodes
+        roots.append(base)
+        leaf = nodes["is_leaf"].astype(bool)
+        fields["feature"].append(np.where(leaf, -1, nodes["feature_idx"]))
+        fields["threshold"].append(np.where(leaf, 0.0, nodes["num_threshold"]))
+        fields["left"].append(np.where(leaf, -1, nodes["left"].astype(np.int64) + base))
+        fields["right"].append(np.where(leaf, -1, nodes["right"].astype(np.int64) + base))
+        fields["value"].append(np.where(leaf, nodes["value"], 0.0))
+        depth = max(depth, int(nodes["depth"].max()))
+        base += len(nodes)
+    arrays = {k: np.concatenate(v) for k, v in fields.items()}
+    trees = TreeEnsemble(
+        arrays["feature"].astype(np.int32), arrays["threshold"].astype(np.float64),
+        arrays["left"].astype(np.int32), arrays["right"].astype(np.int32),
+        arrays["value"].astype(np.float64), np.asarray(roots, np.int32),
+        float(np.ravel(clf._baseline_prediction)[0]), 1.0, depth,
+    )  # fmt: skip
+    reference = clf.decision_function(check_rows)
+    if np.size(reference) and np.max(np.abs(trees.score(check_rows) - reference)) > 1e-6:
+        raise TopsegError("the exported trees do not reproduce scikit-learn's scores")
+    return trees
+
+
 def ensemble_from_sklearn(clf, check_rows: np.ndarray) -> TreeEnsemble:
     """A fitted binary GradientBoostingClassifier as a `TreeEnsemble`; its scores on
     `check_rows` must equal `decision_function`'s (TopsegError otherwise)."""
@@ -209,10 +338,29 @@ def describe(validation: dict) -> str:
     )
 
 
+def describe_context(validation: dict) -> str:
+    """What the context check's held-out frames measured, in one line."""
+    v = validation
+    return (
+        f"context check, held-out frames ({v['cells']} cells): keeps {v['person_px_kept']:.1%} "
+        f"of person pixels in body-part cells; removes {v['other_px_removed']:.1%} of the "
+        "other pixels labelled as body parts"
+    )
+
+
 def _share(part: np.ndarray, whole: np.ndarray) -> float:
     """sum(part) / sum(whole), NaN-free (0 for an empty whole)."""
     total = float(np.sum(whole))
     return float(np.sum(part)) / total if total > 0 else 0.0
 
 
-__all__ = ["choose_threshold", "ensemble_from_sklearn", "fit_check", "gather_blobs"]
+__all__ = [
+    "choose_threshold",
+    "ensemble_from_histogram",
+    "ensemble_from_sklearn",
+    "fit_check",
+    "fit_context",
+    "gather_blobs",
+    "gather_cells",
+    "labelled",
+]

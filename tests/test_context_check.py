@@ -1,0 +1,169 @@
+"""The context check: its cell kernels against numpy references on random frames, the
+exported histogram trees against scikit-learn, the model header and the stage."""
+
+import numpy as np
+import pytest
+from reference import cell_channels_reference, cell_features_reference
+from sklearn.ensemble import HistGradientBoostingClassifier
+
+from topseg.core import context_check as C
+from topseg.core import context_check_kernels as K
+from topseg.core import labels as L
+from topseg.core.errors import TopsegError
+from topseg.core.forest.model_file import ModelFileError, caller_header, load_model, save_model
+from topseg.core.person_check import TreeEnsemble
+from topseg.core.segmenter import Segmenter
+from topseg.services.batch.person_check import ensemble_from_histogram, fit_context
+
+
+def random_cells_frame(seed, shape=(50, 66)):
+    """Random labels (blocky, with body parts), validity, heights (mm, a few NaN) and depth (mm)."""
+    rng = np.random.default_rng(seed)
+    coarse = rng.choice([0, 1, 2, 5, 6, 7, 9, 11, 12], size=(shape[0] // 5 + 1, shape[1] // 5 + 1))
+    labels = np.kron(coarse, np.ones((5, 5), np.uint8))[: shape[0], : shape[1]].astype(np.uint8)
+    flip = rng.random(shape) < 0.1
+    labels[flip] = rng.integers(0, 13, size=flip.sum())
+    valid = rng.random(shape) < 0.8
+    heights = rng.uniform(0.0, 2000.0, shape).astype(np.float32)
+    heights[rng.random(shape) < 0.05] = np.nan  # no height
+    depth = rng.integers(1500, 4000, shape).astype(np.uint16)
+    return labels, valid, heights, depth
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("cell", [1, 2, 4])
+def test_cell_channels_match_the_block_reference(seed, cell):
+    labels, valid, heights, depth = random_cells_frame(seed)
+    got = K.cell_channels(labels, valid, heights, depth, cell, C.CHANNEL_TABLE)
+    want = cell_channels_reference(labels, valid, heights, depth, cell, C.CHANNEL_TABLE)
+    for g, w in zip(got, want, strict=True):
+        assert g.shape == w.shape
+        np.testing.assert_allclose(g, w, rtol=1e-5, atol=1e-6)
+    assert got[0].shape[2] == K.CHANNELS
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_cell_features_match_the_box_reference(seed):
+    rng = np.random.default_rng(seed)
+    chan = rng.random((23, 31, K.CHANNELS)).astype(np.float32)
+    per_cm = rng.uniform(0.05, 0.6, (23, 31)).astype(np.float32)  # rings reach off the grid
+    rows, cols = rng.integers(0, 23, 40), rng.integers(0, 31, 40)
+    rings, boxes = np.asarray(C.RINGS_CM), np.asarray(C.BOXES_CM)
+    got = K.cell_features(chan, per_cm, rows, cols, rings, boxes, C._SINES, C._COSINES)
+    want = cell_features_reference(chan, per_cm, rows, cols, rings, boxes, C._SINES, C._COSINES)
+    assert got.shape == (40, len(C.FEATURES))
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
+def test_cell_grid_scales_cells_by_depth_and_marks_rejected_body_parts():
+    labels, valid, heights, depth = random_cells_frame(7, (48, 64))
+    grid = C.cell_grid(labels, valid, heights, depth, C.REFERENCE_FOCAL_PX / 2)
+    assert grid.cell == C.CELL_PX // 2 and grid.channels.shape[:2] == (24, 32)
+    assert [C.cell_side(f) for f in (570.3, 365.0, 285.0, 100.0)] == [4, 3, 2, 1]
+    block = depth[:2, :2][valid[:2, :2]].astype(float)
+    if block.size:
+        assert grid.cells_per_cm[0, 0] == pytest.approx(
+            C.REFERENCE_FOCAL_PX / 2 * 10.0 / block.mean() / 2, rel=1e-5
+        )
+    rows, cols = C.part_cells(grid)
+    assert (grid.parts[rows, cols] > 0).all() and rows.size == (grid.parts > 0).sum()
+    people = np.arange(rows.size) % 3 > 0
+    marked = C.rejected_pixels(grid, rows, cols, people, labels)
+    want = np.zeros(labels.shape, bool)
+    for r, c in zip(rows[~people], cols[~people], strict=True):
+        want[2 * r : 2 * r + 2, 2 * c : 2 * c + 2] = True
+    np.testing.assert_array_equal(marked.astype(bool), want & np.isin(labels, L.HUMAN_IDS))
+    assert C.cell_grid(labels, np.zeros_like(valid), heights, depth, 500.0) is None
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_exported_histogram_trees_score_as_scikit_learn(seed):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(3000, 9)).astype(np.float32)
+    y = x[:, 0] + 0.5 * x[:, 3] ** 2 > 0.4
+    clf = HistGradientBoostingClassifier(max_iter=30, max_depth=4, random_state=seed).fit(x, y)
+    trees = ensemble_from_histogram(clf, x[:100])
+    fresh = rng.normal(size=(500, 9)).astype(np.float32)
+    np.testing.assert_allclose(trees.score(fresh), clf.decision_function(fresh), atol=1e-9)
+    again = TreeEnsemble.from_dict(trees.to_dict(), 9)
+    np.testing.assert_array_equal(again.score(fresh), trees.score(fresh))
+
+
+def test_fit_context_keeps_the_asked_share_on_held_out_frames():
+    rng = np.random.default_rng(1)
+    n = 4000
+    x = rng.normal(size=(n, len(C.FEATURES))).astype(np.float32)
+    share = (x[:, 0] > 0).astype(float)
+    rows = {"features": x, "parts": rng.integers(1, 16, n).astype(float), "share": share,
+            "frame": np.arange(n) // 10}  # fmt: skip
+    check = fit_context(rows, keep=0.95)
+    v = check.validation
+    assert v["person_px_kept"] >= 0.95 and v["other_px_removed"] > 0.9
+    assert v["cells"] == (rows["frame"] % 4 == 3).sum()
+    with pytest.raises(TopsegError, match="cells that are people's and cells that are not"):
+        fit_context({**rows, "share": np.ones(n)}, keep=0.95)
+
+
+def constant_check(threshold):
+    """A one-leaf check scoring 0 everywhere."""
+    trees = TreeEnsemble(np.array([-1], np.int32), np.zeros(1), np.array([-1], np.int32),
+                         np.array([-1], np.int32), np.zeros(1), np.zeros(1, np.int32),
+                         0.0, 1.0, 0)  # fmt: skip
+    return C.ContextCheck(trees, threshold, {})
+
+
+def with_context(tmp_path, score_threshold, **entry_changes):
+    from topseg.core.bundled_model import bundled_model_path
+
+    forest, header = load_model(bundled_model_path())
+    entry = {**constant_check(score_threshold).to_header(), **entry_changes}
+    keep = {k: v for k, v in caller_header(header).items() if k != "person_check"}
+    out = tmp_path / f"context-{score_threshold}-{len(entry_changes)}.npz"
+    save_model(out, forest, {**keep, C.ContextCheck.HEADER_KEY: entry})
+    return out
+
+
+def test_the_stage_relabels_the_body_parts_of_cells_the_check_rejects(tmp_path):
+    from topseg.services.batch.experiment.mounts import cell_mount
+    from topseg.services.batch.experiment.open_world import render_cells
+
+    reject_all = Segmenter.from_file(with_context(tmp_path, 1.0), crf="realtime")
+    keep_all = Segmenter.from_file(with_context(tmp_path, -1.0), crf="realtime")
+    header = {k: v for k, v in keep_all.header.items() if k != C.ContextCheck.HEADER_KEY}
+    unchecked = Segmenter(keep_all.forest, header, crf="realtime")
+    assert reject_all.context_check is not None and unchecked.context_check is None
+    assert "context_check" in reject_all.stage_names
+    seen = 0
+    for depth, _, mount, _, _ in render_cells(cell_mount("kinect_v1", 3.0, 0.0), 3, seed=99):
+        base = unchecked.label(depth, mount=mount)
+        np.testing.assert_array_equal(keep_all.label(depth, mount=mount).labels, base.labels)
+        before, after = (upto(seg, depth, mount, stage)
+                         for seg, stage in ((reject_all, "crf"), (reject_all, "context_check")))  # fmt: skip
+        # every body-part pixel lies in a cell the check scores, so none is left; each takes
+        # a class that is neither a body part nor background
+        assert not np.isin(after.labels, L.HUMAN_IDS).any()
+        changed = after.labels != before.labels
+        np.testing.assert_array_equal(changed, np.isin(before.labels, L.HUMAN_IDS))
+        assert not np.isin(after.labels[changed], (L.BACKGROUND, *L.HUMAN_IDS)).any()
+        assert after.counts["not_person_cell_px"] == changed.sum()
+        seen += changed.sum()
+        assert base.counts["not_person_cells"] == 0
+    assert seen > 0
+
+
+def upto(seg, depth, mount, stage):
+    """The frame after `stage`."""
+    from topseg.core.stages.plan import FrameState
+
+    frame = FrameState(seg.plan(depth, None, "frame", mount), depth)
+    seg.run(frame, upto=stage)
+    return frame
+
+
+def test_a_model_whose_context_check_reads_other_features_is_refused(tmp_path):
+    with pytest.raises(ModelFileError, match="other cell features"):
+        Segmenter.from_file(with_context(tmp_path, 0.0, features=["a", "b"]))
+    with pytest.raises(ModelFileError, match="other cell features"):
+        Segmenter.from_file(with_context(tmp_path, 0.0, cell_px=C.CELL_PX + 1))
+    with pytest.raises(ModelFileError, match="threshold"):
+        Segmenter.from_file(with_context(tmp_path, 0.0, threshold="x"))
