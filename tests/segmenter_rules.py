@@ -39,7 +39,10 @@ def relabel_as_the_segmenter(labels, depth, k):
 
 def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):
     """The Segmenter's context check on `labels` after its CRF, in place (working-resolution
-    depth, model input, posteriors and mount): pixels relabelled."""
+    depth, model input, posteriors and mount; None: a model without one): pixels
+    relabelled."""
+    if check is None:
+        return 0
     valid = (inp.values > 0) & ~inp.floor
     grid = cell_grid(labels, valid, mount.height_map_mm(depth), depth, mount.intrinsics.fx)
     if grid is None:
