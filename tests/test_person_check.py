@@ -320,6 +320,17 @@ def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
     seg = Segmenter.from_file(out)
     assert seg.person_check is not None and seg.person_check.validation["blobs"] > 0
     assert seg.context_check is not None and seg.context_check.validation["cells"] > 0
+    # --context off: the person check alone, and the input model's context check dropped
+    alone = tmp_path / "alone.npz"
+    fit = subprocess.run(
+        [topseg, "-q", "person-check", "--model", str(out), "--data", str(data), "--out",
+         str(alone), "--context", "off"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert fit.returncode == 0, fit.stderr
+    assert "context check" not in fit.stdout
+    seg = Segmenter.from_file(alone)
+    assert seg.context_check is None and seg.person_check is not None
 
 
 def test_person_check_refuses_a_dataset_too_small_in_one_line(tmp_path, data):
