@@ -27,7 +27,7 @@ import numpy as np
 from topseg.core import context_check_kernels as K
 from topseg.core import labels as L
 from topseg.core.errors import TopsegError
-from topseg.core.person_check import TreeEnsemble, check_entry
+from topseg.core.person_check import IS_PART, TreeEnsemble, check_entry
 
 #: a cell is this many pixels square at a focal length of REFERENCE_FOCAL_PX (a Kinect v1's
 #: 640 x 480), and proportionally fewer at a shorter working focal length (at least 1)
@@ -50,11 +50,6 @@ CHANNEL_TABLE[L.OBJECT, 3] = 1.0
 CHANNEL_TABLE[list(L.FURNITURE_IDS), 4] = 1.0
 CHANNEL_TABLE[L.BACKGROUND, K.BACKGROUND_COLUMN] = 1.0
 _CHANNEL_NAMES = ("person", "head", "robot", "object", "furniture", "background", "height")
-#: label -> whether it is a body part
-IS_PART = CHANNEL_TABLE[:, 0] > 0
-#: the classes a rejected body-part pixel may take: neither a body part nor background
-REPLACEMENT = np.ones(L.NUM_CLASSES, bool)
-REPLACEMENT[[L.BACKGROUND, *L.HUMAN_IDS]] = False
 #: what each feature row holds, in order; a model file's check names them and must match
 FEATURES: tuple[str, ...] = (
     *(f"cell_{n}" for n in _CHANNEL_NAMES),

@@ -46,8 +46,8 @@ _PARTS = tuple(L.HUMAN_IDS)
 _PART_OF = np.full(256, -1, np.int64)
 _PART_OF[list(_PARTS)] = np.arange(len(_PARTS))
 #: label -> whether a rejected blob's pixel may take it: neither a body part nor background
-_REPLACEMENT = np.ones(L.NUM_CLASSES, bool)
-_REPLACEMENT[[L.BACKGROUND, *_PARTS]] = False
+REPLACEMENT = np.ones(L.NUM_CLASSES, bool)
+REPLACEMENT[[L.BACKGROUND, *_PARTS]] = False
 #: label -> whether it is a body part
 IS_PART = _PART_OF >= 0
 #: label -> what it is to the ring and component sums (`person_check_kernels`)
@@ -349,7 +349,7 @@ def relabel_blobs(
         return 0, 0
     is_rejected = np.zeros(blobs.count + 1, bool)
     is_rejected[rejected + 1] = True
-    pixels = K.relabel_rejected(labels, blobs.image, is_rejected, proba, _REPLACEMENT)
+    pixels = K.relabel_rejected(labels, blobs.image, is_rejected, proba, REPLACEMENT)
     return int(rejected.size), int(pixels)
 
 
@@ -372,6 +372,8 @@ def warm_up_check(depth: np.ndarray, check: PersonCheck) -> None:
 
 __all__ = [
     "FEATURES",
+    "IS_PART",
+    "REPLACEMENT",
     "Blobs",
     "PersonCheck",
     "TreeEnsemble",

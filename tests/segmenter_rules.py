@@ -5,13 +5,7 @@ this one call, so a new rule argument is added in one place."""
 import numpy as np
 
 from topseg.core import segmenter_config as S
-from topseg.core.context_check import (
-    REPLACEMENT,
-    cell_features,
-    cell_grid,
-    part_cells,
-    rejected_pixels,
-)
+from topseg.core.context_check import cell_features, cell_grid, part_cells, rejected_pixels
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
     ISLAND_EDGE_PX,
@@ -20,7 +14,7 @@ from topseg.core.islands import (
     island_areas,
     relabel_islands,
 )
-from topseg.core.person_check import blob_features, relabel_blobs
+from topseg.core.person_check import REPLACEMENT, blob_features, relabel_blobs
 from topseg.core.person_check_kernels import relabel_rejected
 from topseg.core.surfaces import surface_step_mm, vote_surfaces, voting_table
 

@@ -6,16 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from topseg.core.context_check import (
-    IS_PART,
-    REPLACEMENT,
-    cell_features,
-    cell_grid,
-    part_cells,
-    rejected_pixels,
-)
+from topseg.core.context_check import cell_features, cell_grid, part_cells, rejected_pixels
+from topseg.core.person_check import IS_PART, REPLACEMENT
 from topseg.core.person_check_kernels import relabel_rejected
 from topseg.core.stages.base import CRFS_SHARE, Stage
+from topseg.core.stages.person_check import checks_run
 from topseg.core.stages.plan import FrameState
 
 #: `relabel_rejected`'s table for a 0/1 image: pixels marked 1 are relabelled
@@ -39,12 +34,7 @@ class ContextCheckStage(Stage):
 
     def active(self, frame: FrameState) -> bool:
         """Whether this frame gets the check."""
-        return (
-            self.model.context_check is not None
-            and self.model.config.post.person_check == "on"
-            and self.model.config.crf.mode != "none"
-            and frame.plan.work_mount is not None
-        )
+        return self.model.context_check is not None and checks_run(self.model, frame)
 
 
 def frame_cells(frame: FrameState):

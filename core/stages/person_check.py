@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from topseg.core.person_check import IS_PART, Blobs, blob_features, relabel_blobs
-from topseg.core.stages.base import CRFS_SHARE, Stage
+from topseg.core.stages.base import CRFS_SHARE, Stage, StageModel
 from topseg.core.stages.plan import FrameState
 
 
@@ -28,12 +28,17 @@ class PersonCheckStage(Stage):
 
     def active(self, frame: FrameState) -> bool:
         """Whether this frame gets the check."""
-        return (
-            self.model.person_check is not None
-            and self.model.config.post.person_check == "on"
-            and self.model.config.crf.mode != "none"
-            and frame.plan.work_mount is not None
-        )
+        return self.model.person_check is not None and checks_run(self.model, frame)
+
+
+def checks_run(model: StageModel, frame: FrameState) -> bool:
+    """Whether the model's checks (context and person) run on `frame`, when the model has
+    them: switched on, after a CRF, on a frame with a mount (heights)."""
+    return (
+        model.config.post.person_check == "on"
+        and model.config.crf.mode != "none"
+        and frame.plan.work_mount is not None
+    )
 
 
 def check_people(frame: FrameState, check) -> tuple[int, int]:

@@ -29,12 +29,11 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
-from topseg.core.context_check import IS_PART as IS_CELL_PART
 from topseg.core.context_check import ContextCheck
 from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import caller_header, load_model, save_model
 from topseg.core.formats.dataset import open_dataset
-from topseg.core.person_check import PersonCheck, TreeEnsemble
+from topseg.core.person_check import IS_PART, PersonCheck, TreeEnsemble
 from topseg.core.scoring import dataset_frames
 from topseg.core.segmenter import Segmenter
 from topseg.core.stages.context_check import frame_cells
@@ -141,7 +140,7 @@ def gather_cells(segmenter: Segmenter, frames) -> dict[str, np.ndarray]:
         cell, (hc, wc) = grid.cell, grid.parts.shape
         labels = frame.labels[: hc * cell, : wc * cell]
         person = person[: hc * cell, : wc * cell]
-        hits = (IS_CELL_PART[labels] & person).reshape(hc, cell, wc, cell).sum((1, 3))
+        hits = (IS_PART[labels] & person).reshape(hc, cell, wc, cell).sum((1, 3))
         features.append(x)
         parts.append(grid.parts[rows, cols])
         share.append(hits[rows, cols] / np.maximum(grid.parts[rows, cols], 1))
@@ -163,10 +162,7 @@ def fit_context(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> Cont
     from sklearn.ensemble import HistGradientBoostingClassifier
 
     x, weight = rows["features"], rows["parts"]
-    person = rows["share"] >= PERSON_SHARE
-    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
-    if person[~held].all() or not person[~held].any():
-        raise TopsegError("the fitting frames need cells that are people's and cells that are not")
+    person, held = held_out(rows, "cells that are people's and cells that are not")
     clf = HistGradientBoostingClassifier(
         max_iter=CONTEXT_TREES, max_depth=CONTEXT_DEPTH, learning_rate=CONTEXT_RATE,
         early_stopping=False, random_state=seed,
@@ -174,17 +170,9 @@ def fit_context(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> Cont
     clf.fit(x[~held], person[~held], sample_weight=weight[~held])
     trees = ensemble_from_histogram(clf, x[held][:10_000])
     scores = trees.score(x[held])
-    person_px = weight[held] * rows["share"][held]
-    other_px = weight[held] * (1 - rows["share"][held])
-    threshold = choose_threshold(scores, person_px, keep)
-    passed = scores >= threshold
-    validation = {
-        "keep": keep,
-        "cells": int(held.sum()),
-        "person_px_kept": _share(person_px[passed], person_px),
-        "other_px_removed": _share(other_px[~passed], other_px),
-    }
-    return ContextCheck(trees, float(threshold), validation)
+    threshold, _, kept = threshold_kept(scores, weight[held], rows["share"][held], keep)
+    validation = {"keep": keep, "cells": int(held.sum()), **kept}
+    return ContextCheck(trees, threshold, validation)
 
 
 def labelled(segmenter: Segmenter, frames, upto: str):
@@ -228,29 +216,50 @@ def fit_check(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> Person
     from sklearn.ensemble import GradientBoostingClassifier
 
     x = rows["features"]  # finite: `blob_features` makes them so
-    person = rows["share"] >= PERSON_SHARE
-    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
-    if person[~held].all() or not person[~held].any():
-        raise TopsegError("the fitting frames need blobs that are people and blobs that are not")
+    person, held = held_out(rows, "blobs that are people and blobs that are not")
     clf = GradientBoostingClassifier(
         n_estimators=N_TREES, max_depth=TREE_DEPTH, learning_rate=RATE, random_state=seed
     )
     clf.fit(x[~held], person[~held], sample_weight=np.maximum(rows["area"][~held], 1e-3))
     trees = ensemble_from_sklearn(clf, x[held])
     scores = trees.score(x[held])
-    person_area = rows["area"][held] * rows["share"][held]
-    other_area = rows["area"][held] * (1 - rows["share"][held])
-    threshold = choose_threshold(scores, person_area, keep)
-    passed = scores >= threshold
+    threshold, passed, kept = threshold_kept(scores, rows["area"][held], rows["share"][held], keep)
     validation = {
         "keep": keep,
         "blobs": int(held.sum()),
-        "person_px_kept": _share(person_area[passed], person_area),
-        "other_px_removed": _share(other_area[~passed], other_area),
+        **kept,
         "other_blobs_removed": _share(~person[held][~passed], ~person[held]),
         "person_blobs_kept": _share(person[held][passed], person[held]),
     }
-    return PersonCheck(trees, float(threshold), validation)
+    return PersonCheck(trees, threshold, validation)
+
+
+def held_out(rows: dict[str, np.ndarray], kinds: str) -> tuple[np.ndarray, np.ndarray]:
+    """(person, held): which rows are a person's (`PERSON_SHARE` of their pixels or more in
+    the truth) and which lie in the held-out frames (every HOLD_OUT-th); TopsegError when
+    the fitting frames lack either kind (`kinds` names both in the message)."""
+    person = rows["share"] >= PERSON_SHARE
+    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
+    if person[~held].all() or not person[~held].any():
+        raise TopsegError(f"the fitting frames need {kinds}")
+    return person, held
+
+
+def threshold_kept(
+    scores: np.ndarray, size: np.ndarray, share: np.ndarray, keep: float
+) -> tuple[float, np.ndarray, dict]:
+    """On held-out rows of `size` pixels (or area), `share` of them a person's: the threshold
+    that keeps `keep` of the person's (`choose_threshold`), which rows pass it, and the shares
+    of person pixels it keeps and of the others it removes."""
+    person = size * share
+    other = size * (1 - share)
+    threshold = choose_threshold(scores, person, keep)
+    passed = scores >= threshold
+    kept = {
+        "person_px_kept": _share(person[passed], person),
+        "other_px_removed": _share(other[~passed], other),
+    }
+    return float(threshold), passed, kept
 
 
 def choose_threshold(scores: np.ndarray, person_area: np.ndarray, keep: float) -> float:
@@ -362,5 +371,7 @@ __all__ = [
     "fit_context",
     "gather_blobs",
     "gather_cells",
+    "held_out",
     "labelled",
+    "threshold_kept",
 ]
