@@ -16,7 +16,7 @@ working resolution's arrays.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -202,6 +202,51 @@ def _component_features(image, n, labels, depth_mm, k, blob_area) -> np.ndarray:
     return np.column_stack([ratio, *shares])
 
 
+#: the deepest tree a `TreeEnsemble` scores (laid out complete: 2**depth leaves a tree)
+MAX_TREE_DEPTH = 12
+
+
+def complete_trees(feature, threshold, left, right, value, roots):
+    """Linked trees (`TreeEnsemble`'s node arrays) as complete binary trees of the deepest
+    one's depth D: ((T, 2**D - 1) int32 features, float64 thresholds; (T, 2**D) float64 leaf
+    values), node k's children at 2k + 1 (x <= threshold) and 2k + 2. A leaf above depth D
+    gives its value to every complete leaf below its place, so any way down the padding
+    (feature 0, threshold 0) ends on it: each row reaches the same leaf value as by the links.
+    TopsegError when a node has two parents or a tree is deeper than `MAX_TREE_DEPTH`."""
+    n = feature.size
+    inner = feature >= 0
+    children = np.concatenate([roots, left[inner], right[inner]])
+    if np.unique(children).size != children.size:
+        raise TopsegError("the check's trees share nodes: each node must have one parent")
+    tree = np.full(n, -1, np.int64)
+    place = np.zeros(n, np.int64)  # the node's index in its complete tree
+    level = np.zeros(n, np.int64)
+    tree[roots] = np.arange(roots.size)
+    for k in range(n):  # children come after their parent (`from_dict` checks it)
+        if inner[k] and tree[k] >= 0:
+            for child, side in ((left[k], 1), (right[k], 2)):
+                tree[child], place[child] = tree[k], 2 * place[k] + side
+                level[child] = level[k] + 1
+    walked = tree >= 0
+    depth = int(level[walked].max())
+    if depth > MAX_TREE_DEPTH:
+        raise TopsegError(
+            f"the check's trees are {depth} deep: at most {MAX_TREE_DEPTH} are scored"
+        )
+    first = 2**depth - 1
+    c_feature = np.zeros((roots.size, first), np.int32)
+    c_threshold = np.zeros((roots.size, first), np.float64)
+    c_value = np.zeros((roots.size, 2**depth), np.float64)
+    nodes = np.flatnonzero(walked & inner)
+    c_feature[tree[nodes], place[nodes]] = feature[nodes]
+    c_threshold[tree[nodes], place[nodes]] = threshold[nodes]
+    for k in np.flatnonzero(walked & ~inner):
+        below = 2 ** (depth - level[k])  # complete leaves under this leaf's place
+        start = (place[k] + 1) * below - 1 - first
+        c_value[tree[k], start : start + below] = value[k]
+    return c_feature, c_threshold, c_value
+
+
 @dataclass(frozen=True)
 class TreeEnsemble:
     """Boosted regression trees in flat arrays: score = offset + rate * sum of each tree's
@@ -218,13 +263,20 @@ class TreeEnsemble:
     offset: float
     rate: float
     depth: int
+    #: the same trees laid out complete for scoring (`complete_trees`)
+    complete: tuple[np.ndarray, np.ndarray, np.ndarray] = field(
+        init=False, repr=False, compare=False
+    )
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "complete", complete_trees(
+            self.feature, self.threshold, self.left, self.right, self.value, self.roots
+        ))  # fmt: skip
 
     def score(self, x: np.ndarray) -> np.ndarray:
         """(n,) scores of the (n, F) feature rows `x`."""
         x = np.ascontiguousarray(np.asarray(x, np.float32), np.float64)
-        sums = K.tree_sums(x, self.feature, self.threshold, self.left, self.right, self.value,
-                           self.roots)  # fmt: skip
-        return self.offset + self.rate * sums
+        return self.offset + self.rate * K.complete_tree_sums(x, *self.complete)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON lists and numbers (what a model header holds)."""
@@ -373,12 +425,14 @@ def warm_up_check(depth: np.ndarray, check: PersonCheck) -> None:
 __all__ = [
     "FEATURES",
     "IS_PART",
+    "MAX_TREE_DEPTH",
     "REPLACEMENT",
     "Blobs",
     "PersonCheck",
     "TreeEnsemble",
     "blob_features",
     "check_entry",
+    "complete_trees",
     "relabel_blobs",
     "warm_up_check",
 ]

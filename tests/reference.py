@@ -30,6 +30,8 @@ bit (as stumpy keeps its naive versions in one test module).
   resolution by depth (`resolution.upsample_labels`).
 - `cell_channels_reference`, `cell_features_reference`: the context check's cells and their
   ring features (`context_check_kernels`), block by block and box by box.
+- `tree_ensemble_reference`: the checks' boosted trees (`complete_tree_sums`), walked by
+  their links one row at a time.
 - `smooth_depth_reference`: the edge-preserving smoothing of noisy depth
   (`denoise.smooth_depth`).
 - `thin_edges_reference`: a stereo camera's fattened edges thinned
@@ -1441,3 +1443,19 @@ def cell_features_reference(chan, cells_per_cm, rows, cols, rings_cm, boxes_cm, 
             row += [boxes.mean(0), boxes.max(0), boxes.min(0)]
         out.append(np.concatenate(row))
     return np.array(out, np.float32).reshape(len(rows), nc * (2 + 3 * len(rings_cm)))
+
+
+def tree_ensemble_reference(x, feature, threshold, left, right, value, roots):
+    """(n,) each row's sum over the trees, in tree order, of the leaf it reaches by walking
+    the linked nodes (`TreeEnsemble`'s arrays): x[feature] <= threshold goes left, the rest
+    (NaN too) right, feature -1 is a leaf."""
+    out = np.zeros(len(x))
+    for i, row in enumerate(np.asarray(x, np.float64)):
+        total = 0.0
+        for root in roots:
+            node = root
+            while feature[node] >= 0:
+                node = left[node] if row[feature[node]] <= threshold[node] else right[node]
+            total += value[node]
+        out[i] = total
+    return out

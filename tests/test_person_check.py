@@ -6,12 +6,14 @@ import pytest
 from scipy import ndimage
 from sklearn.ensemble import GradientBoostingClassifier
 
+from tests.reference import tree_ensemble_reference
 from topseg.core import labels as L
 from topseg.core.camera import Intrinsics
 from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import ModelFileError, caller_header, load_model, save_model
 from topseg.core.person_check import (
     FEATURES,
+    MAX_TREE_DEPTH,
     MIN_EXTENT_M,
     NO_HEAD_MM,
     RING_PX,
@@ -158,6 +160,58 @@ def test_exported_trees_score_as_scikit_learn(seed):
     np.testing.assert_allclose(trees.score(fresh), clf.decision_function(fresh), atol=1e-9)
     again = TreeEnsemble.from_dict(trees.to_dict(), x.shape[1])
     np.testing.assert_array_equal(again.score(fresh), trees.score(fresh))
+
+
+def random_trees(seed, n_trees=6, n_features=5, max_depth=5):
+    """Linked trees of uneven depth (leaves at every level) in `TreeEnsemble`'s arrays."""
+    rng = np.random.default_rng(seed)
+    feature, threshold, left, right, value, roots = [], [], [], [], [], []
+
+    def grow(level):
+        node = len(feature)
+        for column in (feature, threshold, left, right, value):
+            column.append(-1 if column in (feature, left, right) else 0.0)
+        if level < max_depth and rng.random() < 0.75:
+            feature[node] = int(rng.integers(n_features))
+            threshold[node] = float(rng.choice([rng.normal(), 0.0]))  # ties with x too
+            left[node] = grow(level + 1)
+            right[node] = grow(level + 1)
+        else:
+            value[node] = float(rng.normal())
+        return node
+
+    for _ in range(n_trees):
+        roots.append(grow(0))
+    i32 = lambda a: np.asarray(a, np.int32)  # noqa: E731
+    return (i32(feature), np.asarray(threshold), i32(left), i32(right), np.asarray(value),
+            i32(roots))  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_scores_equal_a_walk_of_the_linked_trees(seed):
+    arrays = random_trees(seed)
+    trees = TreeEnsemble(*arrays, 0.25, 0.5, 5)
+    rng = np.random.default_rng(seed + 100)
+    x = rng.choice([-1.0, 0.0, 1.0], size=(200, 5)) * rng.random((200, 5))
+    x[rng.random(x.shape) < 0.1] = np.nan  # missing features go right, as scikit-learn's
+    x[rng.random(x.shape) < 0.1] = 0.0  # on a threshold: goes left
+    expected = 0.25 + 0.5 * tree_ensemble_reference(x, *arrays)
+    np.testing.assert_array_equal(trees.score(x), expected)
+    np.testing.assert_array_equal(trees.score(x[:0]), np.zeros(0))
+
+
+def test_trees_sharing_nodes_or_too_deep_are_refused():
+    feature, threshold, left, right, value, roots = random_trees(0, n_trees=2, max_depth=3)
+    with pytest.raises(TopsegError, match="share nodes"):
+        TreeEnsemble(feature, threshold, left, right, value, np.array([roots[0], roots[0]]),
+                     0.0, 1.0, 3)  # fmt: skip
+    n = MAX_TREE_DEPTH + 2  # a chain: each inner node's left child is the next inner node
+    feature = np.r_[np.zeros(n - 1, np.int32), -1, -np.ones(n - 1, np.int32)].astype(np.int32)
+    left = np.r_[np.arange(1, n), -1, -np.ones(n - 1)].astype(np.int32)
+    right = np.r_[np.arange(n, 2 * n - 1), -1, -np.ones(n - 1)].astype(np.int32)
+    chain = (feature, np.zeros(2 * n - 1), left, right, np.ones(2 * n - 1), np.array([0], np.int32))
+    with pytest.raises(TopsegError, match="deep"):
+        TreeEnsemble(*chain, 0.0, 1.0, n - 1)
 
 
 def test_trees_that_read_out_of_bounds_are_refused():

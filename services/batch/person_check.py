@@ -23,6 +23,7 @@ seed than the forest's training set, with the scenes the model will see (`--mode
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -330,7 +331,7 @@ def ensemble_from_sklearn(clf, check_rows: np.ndarray) -> TreeEnsemble:
     reference = clf.decision_function(check_rows)
     offsets = reference - partial.score(check_rows)
     offset = float(np.median(offsets)) if offsets.size else 0.0
-    trees = TreeEnsemble(**{**partial.__dict__, "offset": offset})
+    trees = dataclasses.replace(partial, offset=offset)
     if offsets.size and np.max(np.abs(trees.score(check_rows) - reference)) > 1e-6:
         raise TopsegError("the exported trees do not reproduce scikit-learn's scores")
     return trees
