@@ -16,6 +16,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from netutil import free_port, wait_for
 from rosbags.highlevel import AnyReader
+from test_systemd_notify import NotifySocket
 
 from topseg.core.camera import KINECT_V1, TopViewMount
 from topseg.core.formats import recording, wire
@@ -26,12 +27,19 @@ from topseg.services.runtime.zenoh_session import open_session
 K = KINECT_V1.scaled_to(160, 120)
 
 
-def start_recorder(port, out, *extra, preexec_fn=None):
+def start_recorder(port, out, *extra, preexec_fn=None, notify=None):
+    """The recorder as a process; with `notify` (a NotifySocket) as its systemd socket, whose
+    STATUS= line counts what it recorded."""
     cmd = [sys.executable, "-m", "topseg.services.cli", "-v", "record", "--out", str(out)]
     cmd += ["--zenoh-port", str(port), *extra]
+    env = None
+    if notify is not None:
+        env = dict(os.environ, NOTIFY_SOCKET=notify.address, WATCHDOG_USEC="200000")
+        env.pop("WATCHDOG_PID", None)
     return subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=preexec_fn
-    )
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=preexec_fn,
+        env=env,
+    )  # fmt: skip
 
 
 class Publisher:
@@ -87,7 +95,8 @@ def messages(cell, n=4, seed=0):
 def test_msgpack_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_path, publisher):
     port, cell = free_port(), "rec1"
     out = tmp_path / "session.mcap"
-    proc = start_recorder(port, out, "--format", "msgpack")
+    notify = NotifySocket(str(tmp_path / "notify.sock"))
+    proc = start_recorder(port, out, "--format", "msgpack", notify=notify)
     pub = publisher(port, cell)
     msgs = messages(cell)
     stats = (
@@ -99,12 +108,15 @@ def test_msgpack_records_exact_bytes_of_default_keys_and_stops_on_sigterm(tmp_pa
         pub.wait_matched([k for k, _ in [*msgs, stats]])
         for key, data in [*msgs, stats, junk]:
             pub.pub(key).put(data)
-        # still recording, under a temporary name beside the final one
-        wait_for(lambda: any(p != out for p in tmp_path.iterdir()), 20, "the temporary file")
-        assert not out.exists()
+        # every message arrived (the heartbeat's STATUS= counts them, every 5 s): still
+        # recording, under a temporary name beside the final one
+        recorded = f": {len(msgs) + 2} messages,"
+        wait_for(lambda: any(recorded in v for v in notify.values("STATUS")), 30, recorded)
+        assert not out.exists() and any(p.suffix == ".partial" for p in tmp_path.iterdir())
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=20)
     finally:
+        notify.close()
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0, err
