@@ -10,7 +10,7 @@ from topseg.core import context_check as C
 from topseg.core import context_check_kernels as K
 from topseg.core import labels as L
 from topseg.core.errors import TopsegError
-from topseg.core.forest.model_file import ModelFileError, caller_header, load_model, save_model
+from topseg.core.forest.model_file import ModelFileError, load_model
 from topseg.core.person_check import TreeEnsemble
 from topseg.core.segmenter import Segmenter
 from topseg.services.batch.person_check import ensemble_from_histogram, fit_context
@@ -112,23 +112,29 @@ def constant_check(threshold):
     return C.ContextCheck(trees, threshold, {})
 
 
-def with_context(tmp_path, score_threshold, **entry_changes):
+@pytest.fixture(scope="module")
+def bundled():
+    """The bundled model's forest and header, loaded once."""
     from topseg.core.bundled_model import bundled_model_path
 
-    forest, header = load_model(bundled_model_path())
+    return load_model(bundled_model_path())
+
+
+def with_context(bundled, score_threshold, **entry_changes):
+    """A Segmenter of the bundled forest with a constant context check (and no person check,
+    which would judge what the context check leaves)."""
+    forest, header = bundled
     entry = {**constant_check(score_threshold).to_header(), **entry_changes}
-    keep = {k: v for k, v in caller_header(header).items() if k != "person_check"}
-    out = tmp_path / f"context-{score_threshold}-{len(entry_changes)}.npz"
-    save_model(out, forest, {**keep, C.ContextCheck.HEADER_KEY: entry})
-    return out
+    keep = {k: v for k, v in header.items() if k != "person_check"}
+    return Segmenter(forest, {**keep, C.ContextCheck.HEADER_KEY: entry}, crf="realtime")
 
 
-def test_the_stage_relabels_the_body_parts_of_cells_the_check_rejects(tmp_path):
+def test_the_stage_relabels_the_body_parts_of_cells_the_check_rejects(bundled):
     from topseg.services.batch.experiment.mounts import cell_mount
     from topseg.services.batch.experiment.open_world import render_cells
 
-    reject_all = Segmenter.from_file(with_context(tmp_path, 1.0), crf="realtime")
-    keep_all = Segmenter.from_file(with_context(tmp_path, -1.0), crf="realtime")
+    reject_all = with_context(bundled, 1.0)
+    keep_all = with_context(bundled, -1.0)
     header = {k: v for k, v in keep_all.header.items() if k != C.ContextCheck.HEADER_KEY}
     unchecked = Segmenter(keep_all.forest, header, crf="realtime")
     assert reject_all.context_check is not None and unchecked.context_check is None
@@ -160,10 +166,10 @@ def upto(seg, depth, mount, stage):
     return frame
 
 
-def test_a_model_whose_context_check_reads_other_features_is_refused(tmp_path):
+def test_a_model_whose_context_check_reads_other_features_is_refused(bundled):
     with pytest.raises(ModelFileError, match="other cell features"):
-        Segmenter.from_file(with_context(tmp_path, 0.0, features=["a", "b"]))
+        with_context(bundled, 0.0, features=["a", "b"])
     with pytest.raises(ModelFileError, match="other cell features"):
-        Segmenter.from_file(with_context(tmp_path, 0.0, cell_px=C.CELL_PX + 1))
+        with_context(bundled, 0.0, cell_px=C.CELL_PX + 1)
     with pytest.raises(ModelFileError, match="threshold"):
-        Segmenter.from_file(with_context(tmp_path, 0.0, threshold="x"))
+        with_context(bundled, 0.0, threshold="x")

@@ -10,7 +10,7 @@ from tests.reference import tree_ensemble_reference
 from topseg.core import labels as L
 from topseg.core.camera import Intrinsics
 from topseg.core.errors import TopsegError
-from topseg.core.forest.model_file import ModelFileError, caller_header, load_model, save_model
+from topseg.core.forest.model_file import ModelFileError, load_model
 from topseg.core.person_check import (
     FEATURES,
     MAX_TREE_DEPTH,
@@ -271,21 +271,26 @@ def test_rejected_blobs_take_their_best_class_that_is_not_a_body_part_nor_backgr
     assert out[r, c] == others[int(np.argmax(proba[r, c, others]))]
 
 
-def with_check(model_path, tmp_path, threshold, features=None):
-    """The model at `model_path` with a one-tree check scoring 0 everywhere (and no context
-    check)."""
-    forest, header = load_model(model_path)
+@pytest.fixture(scope="module")
+def bundled():
+    """The bundled model's forest and header, loaded once."""
+    from topseg.core.bundled_model import bundled_model_path
+
+    return load_model(bundled_model_path())
+
+
+def with_check(bundled, threshold, features=None):
+    """A Segmenter of the bundled forest with a one-tree check scoring 0 everywhere (and no
+    context check, which the same switch turns off)."""
+    forest, header = bundled
     trees = TreeEnsemble(np.array([-1], np.int32), np.zeros(1), np.array([-1], np.int32),
                          np.array([-1], np.int32), np.zeros(1), np.zeros(1, np.int32),
                          0.0, 1.0, 0)  # fmt: skip
     entry = PersonCheck(trees, threshold, {}).to_header()
     if features is not None:
         entry["features"] = features
-    # without the bundled model's context check, which the same switch turns off
-    keep = {k: v for k, v in caller_header(header).items() if k != "context_check"}
-    out = tmp_path / f"checked-{threshold}.npz"
-    save_model(out, forest, {**keep, "person_check": entry})
-    return out
+    keep = {k: v for k, v in header.items() if k != "context_check"}
+    return Segmenter(forest, {**keep, "person_check": entry}, crf="realtime")
 
 
 @pytest.fixture(scope="module")
@@ -297,13 +302,9 @@ def cell_frame():
     return frames
 
 
-def test_the_stage_relabels_blobs_the_check_rejects(tmp_path, cell_frame):
-    from topseg.core.bundled_model import bundled_model_path
-
-    reject_all = Segmenter.from_file(with_check(bundled_model_path(), tmp_path, 1.0),
-                                     crf="realtime")  # fmt: skip
-    keep_all = Segmenter.from_file(with_check(bundled_model_path(), tmp_path, -1.0),
-                                   crf="realtime")  # fmt: skip
+def test_the_stage_relabels_blobs_the_check_rejects(bundled, cell_frame):
+    reject_all = with_check(bundled, 1.0)
+    keep_all = with_check(bundled, -1.0)
     off = SegmenterConfig(crf=reject_all.config.crf, post=_post(person_check="off"))
     plain = Segmenter(reject_all.forest, reject_all.header, off)  # no check
     header = {k: v for k, v in reject_all.header.items() if k != "person_check"}
@@ -330,12 +331,9 @@ def _post(**kw):
     return replace(SegmenterConfig().post, **kw)
 
 
-def test_a_model_whose_check_reads_other_features_is_refused(tmp_path):
-    from topseg.core.bundled_model import bundled_model_path
-
-    path = with_check(bundled_model_path(), tmp_path, 0.0, features=["something", "else"])
+def test_a_model_whose_check_reads_other_features_is_refused(bundled):
     with pytest.raises(ModelFileError, match="other blob features"):
-        Segmenter.from_file(path)
+        with_check(bundled, 0.0, features=["something", "else"])
 
 
 def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
