@@ -31,6 +31,7 @@ demo: install
 bench: install
 	$(TOPSEG) bench forest
 	$(TOPSEG) bench crf
+	$(TOPSEG) bench stages
 	$(TOPSEG) bench synthesis
 	$(TOPSEG) bench datagen
 	$(TOPSEG) bench transport

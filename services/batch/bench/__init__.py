@@ -1,5 +1,5 @@
 """Measure a stage's speed and memory: `topseg bench
-forest|crf|synthesis|datagen|transport|pipeline|safety|train|calibrate`, printed as a table or, with
+forest|crf|stages|synthesis|datagen|transport|pipeline|safety|train|calibrate`, printed as a table or, with
 `--json`, as one JSON object.
 
 Each benchmark lives in its own module with `add_arguments(parser)` and
@@ -30,6 +30,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "transport": ("topseg.services.batch.bench.transport", "depth frames over loopback Zenoh"),
     "synthesis": ("topseg.services.batch.bench.synthesis", "synthetic frames, stage by stage"),
     "crf": ("topseg.services.batch.bench.crf", "Potts CRF: realtime vs exact, time and energy"),
+    "stages": (
+        "topseg.services.batch.bench.stages",
+        "every stage of labelling a recording's frames in one process: ms p50/p90/p99, CPU ms",
+    ),
     "pipeline": (
         "topseg.services.batch.bench.pipeline",
         "driver -> worker over Zenoh: fps, latency p50/p99, F1",
