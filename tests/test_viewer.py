@@ -18,6 +18,7 @@ from topseg.core import labels
 from topseg.core.camera import KINECT_V1, PAPER_MOUNT, TopViewMount
 from topseg.core.formats import wire
 from topseg.core.synth.procedural import procedural_frame
+from topseg.services.live.viewer import VIEWER_NICE
 from topseg.services.runtime.zenoh_session import open_session
 
 K = KINECT_V1.scaled_to(160, 120)
@@ -63,6 +64,9 @@ def test_viewer_saves_every_cameras_entities_and_flushes_on_sigterm(tmp_path):
         }
         for pub in pubs.values():
             wait_for(lambda p=pub: p.matching_status.matching, 60, "the viewer's subscribers")
+        # below the safety path's priority by default (--nice 10)
+        mine = os.getpriority(os.PRIO_PROCESS, 0)
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == min(19, mine + VIEWER_NICE)
 
         def send_round(first_seq):
             for seq in range(first_seq, first_seq + 3):
@@ -165,6 +169,7 @@ def test_the_annotation_context_names_and_colours_every_label():
     ("option", "error"),
     [
         (["--stride", "0"], "--stride must be >= 1, got 0"),
+        (["--nice", "20"], "--nice must be in [0, 19], got 20"),
         (["--web", "--web-port", "0"], "--web-port must be a port 1-65535, got 0"),
         (
             ["--foxglove", "--foxglove-port", "70000"],

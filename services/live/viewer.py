@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import time
 import urllib.parse
 from collections import OrderedDict
@@ -54,7 +55,7 @@ from topseg.core.formats import safety_wire, wire
 from topseg.core.formats.ros2_messages import mount_pose
 from topseg.core.labelled_cloud import labelled_cloud
 from topseg.core.printable import printable
-from topseg.services.cli.options import finite
+from topseg.services.cli.options import finite, int_range
 from topseg.services.live import safety_view, viewer_layout
 from topseg.services.live.safety_view import CellView
 from topseg.services.live.viewer_foxglove import FoxgloveSink, add_foxglove_arguments
@@ -75,6 +76,8 @@ JOINT_PERIOD_S = 1 / 30
 SILHOUETTE_PERIOD_S = 0.2
 #: Rerun's own default ports of its web viewer and its gRPC server
 WEB_PORT, GRPC_PORT = 9090, 9876
+#: how much the viewer lowers its CPU priority by default (nice): a view may lag, a decision not
+VIEWER_NICE = 10
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -114,6 +117,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=4,
         metavar="N",
         help="point cloud: every N-th pixel and row (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--nice",
+        type=int_range(0, 19),
+        default=VIEWER_NICE,
+        metavar="N",
+        help="lower the viewer's CPU priority by N (default: %(default)s), so that on a cell "
+        "PC it never takes the cores from the driver, worker and safety service; 0 keeps it",
     )
     zenoh_session.add_arguments(parser)
 
@@ -511,6 +522,8 @@ def run(args: argparse.Namespace) -> int:
             option = f"--{name.replace('_', '-')}"
             raise TopsegError(f"{option} must be a port {lowest}-65535, got {port}")
     cell = safety_view.load_cell_view(args.cell)  # a bad cell file: one line, exit 2
+    if args.nice:
+        os.nice(args.nice)  # before Rerun starts its threads (and a spawned viewer)
     svc = ServiceLifecycle("viewer", args)
     sinks: list = []
     inbox = Inbox(QUEUE_SIZE)
