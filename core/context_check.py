@@ -5,8 +5,9 @@ The forest reads a pixel's depth within a hand's width, so the top of a robot's 
 drum's rim or a box's corner can come out as a body part, and a crouching person's back as a
 box. After the CRF, the frame is cut into cells (`CELL_PX` pixels square at a Kinect v1's
 focal length, `cell_side`), each
-described by what its labels are (person, head, robot, object, furniture, background) and how
-high it stands (`context_check_kernels.cell_channels`). A cell holding body-part labels is
+described by what its labels are (person, head, robot, object, furniture, background), how
+high it stands and what the forest's posteriors over it say, before the CRF chose one label
+(`context_check_kernels.cell_channels`). A cell holding body-part labels is
 then described by its own channels and, on rings 12 to 75 cm around it, the mean, highest and
 lowest of the same channels in eight directions (`cell_features`, distances measured on the
 floor at the cell's depth), and scored by a boosted tree ensemble the model file carries
@@ -49,7 +50,17 @@ CHANNEL_TABLE[L.ROBOT, 2] = 1.0
 CHANNEL_TABLE[L.OBJECT, 3] = 1.0
 CHANNEL_TABLE[list(L.FURNITURE_IDS), 4] = 1.0
 CHANNEL_TABLE[L.BACKGROUND, K.BACKGROUND_COLUMN] = 1.0
-_CHANNEL_NAMES = ("person", "head", "robot", "object", "furniture", "background", "height")
+#: class -> the five posterior columns (person, head, robot, object, furniture)
+POSTERIOR_TABLE = np.zeros((L.NUM_CLASSES, K.POSTERIOR_COLUMNS), np.float32)
+POSTERIOR_TABLE[list(L.HUMAN_IDS), 0] = 1.0
+POSTERIOR_TABLE[L.HEAD, 1] = 1.0
+POSTERIOR_TABLE[L.ROBOT, 2] = 1.0
+POSTERIOR_TABLE[L.OBJECT, 3] = 1.0
+POSTERIOR_TABLE[list(L.FURNITURE_IDS), 4] = 1.0
+_CHANNEL_NAMES = (
+    "person", "head", "robot", "object", "furniture", "background", "height",
+    "p_person", "p_head", "p_robot", "p_object", "p_furniture",
+)  # fmt: skip
 #: what each feature row holds, in order; a model file's check names them and must match
 FEATURES: tuple[str, ...] = (
     *(f"cell_{n}" for n in _CHANNEL_NAMES),
@@ -85,14 +96,16 @@ def cell_grid(
     valid: np.ndarray,
     heights_mm: np.ndarray,
     depth_mm: np.ndarray,
+    proba: np.ndarray,
     fx: float,
 ) -> CellGrid | None:
     """The cells of a working frame: its labels, which pixels have depth above the floor
-    gate (`valid`), their heights above the floor (NaN: none) and depth (mm), and the working
-    focal length. None without a valid pixel in a whole cell."""
+    gate (`valid`), their heights above the floor (NaN: none), depth (mm) and the forest's
+    posteriors (H, W, classes), and the working focal length. None without a valid pixel in
+    a whole cell."""
     cell = cell_side(fx)
     chan, depth_sum, n_valid, parts = K.cell_channels(
-        labels, valid, heights_mm, depth_mm, cell, CHANNEL_TABLE
+        labels, valid, heights_mm, depth_mm, proba, cell, CHANNEL_TABLE, POSTERIOR_TABLE
     )
     if not n_valid.any():
         return None
@@ -177,10 +190,11 @@ def warm_up_context(depth: np.ndarray, check: ContextCheck) -> None:
     labels[: depth.shape[0] // 2, : depth.shape[1] // 2] = L.BODY
     valid = np.ones(depth.shape, np.bool_)
     heights = np.full(depth.shape, 1000.0, np.float32)
+    proba = np.full((*depth.shape, L.NUM_CLASSES), 1.0 / L.NUM_CLASSES, np.float32)
     read_only = np.full(depth.shape, 2000, np.uint16)
     read_only.flags.writeable = False
     for frame in (np.full(depth.shape, 2000, np.uint16), read_only):
-        grid = cell_grid(labels, valid, heights, frame, 500.0)
+        grid = cell_grid(labels, valid, heights, frame, proba, 500.0)
         rows, cols = part_cells(grid)
         people = check.people(cell_features(grid, rows, cols))
         rejected_pixels(grid, rows, cols, people, labels)

@@ -4,10 +4,12 @@ its cells' features). Their numpy references are in `tests/reference.py`
 
 A cell is a `cell` x `cell` block of working pixels. Its channels (`CHANNELS` columns):
 
-  0..5  the share of its pixels whose label falls in each of `table`'s six columns (a pixel
-        without depth or under the floor gate counts in column BACKGROUND_COLUMN)
-  6     the mean height above the floor (m) of its pixels with depth above the floor gate
-        and a height (0 without one)
+  0..5   the share of its pixels whose label falls in each of `table`'s six columns (a pixel
+         without depth or under the floor gate counts in column BACKGROUND_COLUMN)
+  6      the mean height above the floor (m) of its pixels with depth above the floor gate
+         and a height (0 without one)
+  7..11  the forest's posteriors summed into `posterior_table`'s five columns, averaged over
+         its pixels with depth above the floor gate (0 without one)
 """
 
 from __future__ import annotations
@@ -17,21 +19,24 @@ import math
 import numba
 import numpy as np
 
-#: label columns of a cell's channels, then its mean height
+#: label columns of a cell's channels, then its mean height, then its posterior columns
 LABEL_COLUMNS = 6
 HEIGHT = LABEL_COLUMNS
-CHANNELS = LABEL_COLUMNS + 1
+POSTERIOR_COLUMNS = 5
+CHANNELS = LABEL_COLUMNS + 1 + POSTERIOR_COLUMNS
 #: the label column a pixel without depth or under the floor gate counts in
 BACKGROUND_COLUMN = 5
 
 
 @numba.njit(cache=True, parallel=True)
-def cell_channels(labels, valid, heights_mm, depth, cell, table):
+def cell_channels(labels, valid, heights_mm, depth, proba, cell, table, posterior_table):
     """(hc, wc, CHANNELS) float32 channels of every whole cell (see the module; heights in
-    mm, NaN read as none), with the (hc, wc) float64 sum of depth and int32 count of its
-    `valid` pixels, and the int32 count of its pixels whose label has table[label, 0] (body
-    parts)."""
+    mm, NaN read as none; `proba` (H, W, classes) the forest's posteriors,
+    `posterior_table` (classes, POSTERIOR_COLUMNS)), with the (hc, wc) float64 sum of depth
+    and int32 count of its `valid` pixels, and the int32 count of its pixels whose label has
+    table[label, 0] (body parts)."""
     hc, wc = labels.shape[0] // cell, labels.shape[1] // cell
+    classes = min(proba.shape[2], posterior_table.shape[0])
     chan = np.zeros((hc, wc, CHANNELS), np.float32)
     depth_sum = np.zeros((hc, wc))
     n_valid = np.zeros((hc, wc), np.int32)
@@ -39,8 +44,10 @@ def cell_channels(labels, valid, heights_mm, depth, cell, table):
     inv = 1.0 / (cell * cell)
     for i in numba.prange(hc):
         acc = np.zeros(LABEL_COLUMNS)
+        post = np.zeros(POSTERIOR_COLUMNS)
         for j in range(wc):
             acc[:] = 0.0
+            post[:] = 0.0
             h_sum, h_n = 0.0, 0
             for r in range(i * cell, (i + 1) * cell):
                 for c in range(j * cell, (j + 1) * cell):
@@ -50,6 +57,10 @@ def cell_channels(labels, valid, heights_mm, depth, cell, table):
                     if valid[r, c]:
                         for q in range(LABEL_COLUMNS):
                             acc[q] += table[lab, q]
+                        for k in range(classes):
+                            p = proba[r, c, k]
+                            for q in range(POSTERIOR_COLUMNS):
+                                post[q] += p * posterior_table[k, q]
                         h = heights_mm[r, c]
                         if h == h:
                             h_sum += h
@@ -62,6 +73,9 @@ def cell_channels(labels, valid, heights_mm, depth, cell, table):
                 chan[i, j, q] = acc[q] * inv
             if h_n > 0:
                 chan[i, j, HEIGHT] = h_sum / h_n / 1000.0
+            if n_valid[i, j] > 0:
+                for q in range(POSTERIOR_COLUMNS):
+                    chan[i, j, HEIGHT + 1 + q] = post[q] / n_valid[i, j]
     return chan, depth_sum, n_valid, parts
 
 

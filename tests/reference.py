@@ -1390,11 +1390,12 @@ def primitive_distances_reference(points, kind, size, center, rot):
     return np.maximum(np.sqrt(local[:, 0] ** 2 + local[:, 1] ** 2 + along**2) - size[0], 0.0)
 
 
-def cell_channels_reference(labels, valid, heights_mm, depth, cell, table):
+def cell_channels_reference(labels, valid, heights_mm, depth, proba, cell, table, posterior_table):
     """`context_check_kernels.cell_channels`, one cell at a time with numpy."""
     hc, wc = labels.shape[0] // cell, labels.shape[1] // cell
-    n_cols = table.shape[1]
-    chan = np.zeros((hc, wc, n_cols + 1), np.float32)
+    n_cols, n_post = table.shape[1], posterior_table.shape[1]
+    classes = min(proba.shape[2], posterior_table.shape[0])
+    chan = np.zeros((hc, wc, n_cols + 1 + n_post), np.float32)
     depth_sum = np.zeros((hc, wc))
     n_valid = np.zeros((hc, wc), np.int32)
     parts = np.zeros((hc, wc), np.int32)
@@ -1413,13 +1414,18 @@ def cell_channels_reference(labels, valid, heights_mm, depth, cell, table):
             h = h[np.isfinite(h)]
             if h.size:
                 chan[i, j, n_cols] = h.mean() / 1000.0
+            p = proba[block].reshape(-1, proba.shape[2])[ok, :classes].astype(np.float64)
+            if p.size:
+                chan[i, j, n_cols + 1 :] = (p @ posterior_table[:classes]).mean(0)
     return chan, depth_sum, n_valid, parts
 
 
-def cell_features_reference(chan, cells_per_cm, rows, cols, rings_cm, boxes_cm, sines, cosines):
-    """`context_check_kernels.cell_features`, every box summed directly over its cells."""
+def cell_features_reference(
+    chan, cells_per_cm, rows, cols, rings_cm, boxes_cm, sines, cosines, height
+):
+    """`context_check_kernels.cell_features`, every box summed directly over its cells;
+    channel `height` is read relative to the cell's own."""
     hc, wc, nc = chan.shape
-    height = nc - 1
 
     def box_mean(r, c, k):
         r0, r1 = np.clip([r - k, r + k + 1], 0, hc)

@@ -38,7 +38,7 @@ def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):
     if check is None:
         return 0
     valid = (inp.values > 0) & ~inp.floor
-    grid = cell_grid(labels, valid, mount.height_map_mm(depth), depth, mount.intrinsics.fx)
+    grid = cell_grid(labels, valid, mount.height_map_mm(depth), depth, proba, mount.intrinsics.fx)
     if grid is None:
         return 0
     rows, cols = part_cells(grid)

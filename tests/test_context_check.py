@@ -27,19 +27,27 @@ def random_cells_frame(seed, shape=(50, 66)):
     heights = rng.uniform(0.0, 2000.0, shape).astype(np.float32)
     heights[rng.random(shape) < 0.05] = np.nan  # no height
     depth = rng.integers(1500, 4000, shape).astype(np.uint16)
-    return labels, valid, heights, depth
+    proba = rng.dirichlet(np.ones(L.NUM_CLASSES), shape).astype(np.float32)
+    return labels, valid, heights, depth, proba
 
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("cell", [1, 2, 4])
 def test_cell_channels_match_the_block_reference(seed, cell):
-    labels, valid, heights, depth = random_cells_frame(seed)
-    got = K.cell_channels(labels, valid, heights, depth, cell, C.CHANNEL_TABLE)
-    want = cell_channels_reference(labels, valid, heights, depth, cell, C.CHANNEL_TABLE)
+    frame = random_cells_frame(seed)
+    tables = (C.CHANNEL_TABLE, C.POSTERIOR_TABLE)
+    got = K.cell_channels(*frame, cell, *tables)
+    want = cell_channels_reference(*frame, cell, *tables)
     for g, w in zip(got, want, strict=True):
         assert g.shape == w.shape
         np.testing.assert_allclose(g, w, rtol=1e-5, atol=1e-6)
     assert got[0].shape[2] == K.CHANNELS
+    # a model of fewer classes: the posterior columns read the classes it has
+    fewer = K.cell_channels(*frame[:4], frame[4][..., :10].copy(), cell, *tables)
+    np.testing.assert_allclose(
+        fewer[0], cell_channels_reference(*frame[:4], frame[4][..., :10], cell, *tables)[0],
+        rtol=1e-5, atol=1e-6,
+    )  # fmt: skip
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -50,14 +58,16 @@ def test_cell_features_match_the_box_reference(seed):
     rows, cols = rng.integers(0, 23, 40), rng.integers(0, 31, 40)
     rings, boxes = np.asarray(C.RINGS_CM), np.asarray(C.BOXES_CM)
     got = K.cell_features(chan, per_cm, rows, cols, rings, boxes, C._SINES, C._COSINES)
-    want = cell_features_reference(chan, per_cm, rows, cols, rings, boxes, C._SINES, C._COSINES)
+    want = cell_features_reference(
+        chan, per_cm, rows, cols, rings, boxes, C._SINES, C._COSINES, K.HEIGHT
+    )
     assert got.shape == (40, len(C.FEATURES))
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
 
 
 def test_cell_grid_scales_cells_by_depth_and_marks_rejected_body_parts():
-    labels, valid, heights, depth = random_cells_frame(7, (48, 64))
-    grid = C.cell_grid(labels, valid, heights, depth, C.REFERENCE_FOCAL_PX / 2)
+    labels, valid, heights, depth, proba = random_cells_frame(7, (48, 64))
+    grid = C.cell_grid(labels, valid, heights, depth, proba, C.REFERENCE_FOCAL_PX / 2)
     assert grid.cell == C.CELL_PX // 2 and grid.channels.shape[:2] == (24, 32)
     assert [C.cell_side(f) for f in (570.3, 365.0, 285.0, 100.0)] == [4, 3, 2, 1]
     block = depth[:2, :2][valid[:2, :2]].astype(float)
@@ -73,7 +83,7 @@ def test_cell_grid_scales_cells_by_depth_and_marks_rejected_body_parts():
     for r, c in zip(rows[~people], cols[~people], strict=True):
         want[2 * r : 2 * r + 2, 2 * c : 2 * c + 2] = True
     np.testing.assert_array_equal(marked.astype(bool), want & np.isin(labels, L.HUMAN_IDS))
-    assert C.cell_grid(labels, np.zeros_like(valid), heights, depth, 500.0) is None
+    assert C.cell_grid(labels, np.zeros_like(valid), heights, depth, proba, 500.0) is None
 
 
 @pytest.mark.parametrize("seed", range(2))

@@ -10,7 +10,7 @@ from tests.reference import tree_ensemble_reference
 from topseg.core import labels as L
 from topseg.core.camera import Intrinsics
 from topseg.core.errors import TopsegError
-from topseg.core.forest.model_file import ModelFileError, load_model
+from topseg.core.forest.model_file import ModelFileError, caller_header, load_model, save_model
 from topseg.core.person_check import (
     FEATURES,
     MAX_TREE_DEPTH,
@@ -372,10 +372,15 @@ def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
     seg = Segmenter.from_file(out)
     assert seg.person_check is not None and seg.person_check.validation["blobs"] > 0
     assert seg.context_check is not None and seg.context_check.validation["cells"] > 0
-    # --context off: the person check alone, and the input model's context check dropped
-    alone = tmp_path / "alone.npz"
+    # --context off: the person check alone, and the input model's context check dropped,
+    # even one that reads other features than this topseg computes (an older version's)
+    stale, alone = tmp_path / "stale.npz", tmp_path / "alone.npz"
+    old_entry = {**header["context_check"], "features": ["an", "older", "set"]}
+    save_model(stale, forest, {**caller_header(header), "context_check": old_entry})
+    with pytest.raises(ModelFileError, match="other cell features"):
+        Segmenter.from_file(stale)
     fit = subprocess.run(
-        [topseg, "-q", "person-check", "--model", str(out), "--data", str(data), "--out",
+        [topseg, "-q", "person-check", "--model", str(stale), "--data", str(data), "--out",
          str(alone), "--context", "off"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip

@@ -47,7 +47,8 @@ def frame_cells(frame: FrameState):
     mount = frame.plan.work_mount
     valid = (frame.inp.values > 0) & ~frame.inp.floor
     heights = frame.heights()
-    grid = cell_grid(labels, valid, heights, frame.depth, mount.intrinsics.fx)
+    proba = frame.fill(None)  # every posterior: the rings read cells all over the frame
+    grid = cell_grid(labels, valid, heights, frame.depth, proba, mount.intrinsics.fx)
     if grid is None:
         return None
     rows, cols = part_cells(grid)

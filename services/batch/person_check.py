@@ -55,6 +55,8 @@ PERSON_SHARE = 0.5
 N_TREES, TREE_DEPTH, RATE = 150, 3, 0.1
 #: the context check's boosted trees: how many, how deep, the learning rate
 CONTEXT_TREES, CONTEXT_DEPTH, CONTEXT_RATE = 150, 4, 0.1
+#: the header entries this command fits
+CHECK_KEYS = (ContextCheck.HEADER_KEY, PersonCheck.HEADER_KEY)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -99,19 +101,20 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or model
     forest, header = load_model(model)
     config = segmenter_config(args, check_camera=False)
-    segmenter = Segmenter(forest, header, config, path=model)
+    # the model's own checks are refitted, so they are not read: one that reads other features
+    # than this topseg computes (a model from an earlier version) is refitted too
+    fitted = {k: v for k, v in caller_header(header).items() if k not in CHECK_KEYS}
+    segmenter = Segmenter(forest, fitted, config, path=model)
     if segmenter.features is None:
         raise TopsegError(f"{model} reads raw depth: the person check needs heights")
     ds = open_dataset(args.data)
     n = len(ds) if args.frames is None else min(args.frames, len(ds))
     if n < HOLD_OUT:
         raise TopsegError(f"{args.data} has {n} frames; the check needs at least {HOLD_OUT}")
-    fitted = {k: v for k, v in caller_header(header).items() if k != ContextCheck.HEADER_KEY}
     if args.context == "on":
         frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label (cells)",
                       unit="frame", disable=None)  # fmt: skip
-        context = fit_context(gather_cells(Segmenter(forest, fitted, config, path=model), frames),
-                              args.context_keep, args.seed)  # fmt: skip
+        context = fit_context(gather_cells(segmenter, frames), args.context_keep, args.seed)
         context.validation.update(dataset=str(args.data), frames=n)
         fitted[ContextCheck.HEADER_KEY] = context.to_header()
         print(describe_context(context.validation))
