@@ -50,13 +50,8 @@ CHANNEL_TABLE[L.ROBOT, 2] = 1.0
 CHANNEL_TABLE[L.OBJECT, 3] = 1.0
 CHANNEL_TABLE[list(L.FURNITURE_IDS), 4] = 1.0
 CHANNEL_TABLE[L.BACKGROUND, K.BACKGROUND_COLUMN] = 1.0
-#: class -> the five posterior columns (person, head, robot, object, furniture)
-POSTERIOR_TABLE = np.zeros((L.NUM_CLASSES, K.POSTERIOR_COLUMNS), np.float32)
-POSTERIOR_TABLE[list(L.HUMAN_IDS), 0] = 1.0
-POSTERIOR_TABLE[L.HEAD, 1] = 1.0
-POSTERIOR_TABLE[L.ROBOT, 2] = 1.0
-POSTERIOR_TABLE[L.OBJECT, 3] = 1.0
-POSTERIOR_TABLE[list(L.FURNITURE_IDS), 4] = 1.0
+#: class -> the five posterior columns: the label columns but background
+POSTERIOR_TABLE = CHANNEL_TABLE[: L.NUM_CLASSES, : K.POSTERIOR_COLUMNS].copy()
 _CHANNEL_NAMES = (
     "person", "head", "robot", "object", "furniture", "background", "height",
     "p_person", "p_head", "p_robot", "p_object", "p_furniture",

@@ -65,6 +65,6 @@ def check_cells(frame: FrameState, check) -> tuple[int, int]:
     if people.all():
         return 0, 0
     marked = rejected_pixels(grid, rows, cols, people, frame.labels)
-    proba = frame.fill(marked.astype(bool))
+    proba = frame.fill(None)  # every posterior, filled already by `frame_cells`
     px = relabel_rejected(frame.labels, marked, _MARKED, proba, REPLACEMENT)
     return int((~people).sum()), int(px)
