@@ -64,6 +64,12 @@ def test_a_recording_without_depth_or_none_at_all_is_refused(tmp_path):
         w.write(wire.stats_key("c1"), wire.encode_stats({"stamp_ns": 1, "timings_ms": {},
                                                          "counts": {}}), 1)  # fmt: skip
     done = bench("--recording", str(stats_only), "--frames", "2")
+    assert done.returncode != 0 and "holds no depth channel" in done.stderr  # the replay reader's
+    assert "Traceback" not in done.stderr
+    damaged = tmp_path / "damaged.mcap"
+    with RecordingWriter(damaged) as w:
+        w.write(first_depth(1)[0].key, b"\xc1 not a depth frame", 1)
+    done = bench("--recording", str(damaged), "--frames", "2")
     assert done.returncode != 0 and "no depth frames to label" in done.stderr
     assert "Traceback" not in done.stderr
     done = bench("--recording", str(tmp_path / "missing.mcap"))

@@ -27,11 +27,10 @@ import numpy as np
 
 from topseg.core.bundled_model import MODEL_HELP
 from topseg.core.errors import TopsegError
-from topseg.core.formats import wire
-from topseg.core.formats.recording import read_messages
 from topseg.core.metrics import percentile
 from topseg.core.segmenter import Segmenter
 from topseg.core.segmenter_config import BackgroundConfig, SegmenterConfig
+from topseg.drivers.replay import RecordingFrames, ReplayFrame
 from topseg.services.batch.cell_pipeline import recording_background
 from topseg.services.batch.demo import REPO
 from topseg.services.cli.options import int_range
@@ -64,33 +63,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def recording_depth(path: Path) -> Iterator[wire.DepthFrame]:
-    """The depth frames of the first camera with depth in a recording, in order; the frames
-    that do not decode are skipped."""
-    key = None
-    for message in read_messages(path):
-        if key is None:
-            try:
-                if wire.parse_key(message.key).kind != "depth":
-                    continue
-            except wire.WireError:
-                continue
-            key = message.key
-        if message.key != key:
-            continue
-        try:
-            yield wire.decode_depth(message.data)
-        except wire.WireError:
-            continue
-
-
-def looped(path: Path, count: int) -> Iterator[wire.DepthFrame]:
-    """`count` depth frames of the recording, from its start again when it runs out;
-    TopsegError when it holds none."""
+def looped(path: Path, count: int) -> Iterator[ReplayFrame]:
+    """`count` depth frames of the recording's first camera (`RecordingFrames`: frames that
+    do not decode are skipped), from its start again when it runs out; TopsegError when it
+    holds none."""
+    frames = RecordingFrames(path)
     given = 0
     while given < count:
         before = given
-        for frame in recording_depth(path):
+        for frame in frames:
             yield frame
             given += 1
             if given == count:
