@@ -13,7 +13,11 @@ lowest of the same channels in eight directions (`cell_features`, distances meas
 floor at the cell's depth), and scored by a boosted tree ensemble the model file carries
 (`ContextCheck`, fitted by `topseg person-check` on the model's own labels of rendered cells).
 The body-part pixels of a cell scoring under `threshold` take their most probable class that
-is neither a body part nor background. The blob-level person check runs after it.
+is neither a body part nor background. The same trees also score the cells that hold no body
+part but robot, object or furniture labels where the forest's mean person posterior is at
+least `RESTORE_FLOOR` (`restore_cells`: a crouching back the CRF called a box): with a
+`restore_threshold`, those scoring at or above it give their robot, object and furniture
+pixels their most probable body part. The blob-level person check runs after it.
 
 Everything here is pure: numpy and the kernels of `context_check_kernels`.
 """
@@ -28,7 +32,7 @@ import numpy as np
 from topseg.core import context_check_kernels as K
 from topseg.core import labels as L
 from topseg.core.errors import TopsegError
-from topseg.core.person_check import IS_PART, TreeEnsemble, check_entry
+from topseg.core.person_check import IS_PART, TreeEnsemble, check_entry, finite_threshold
 
 #: a cell is this many pixels square at a focal length of REFERENCE_FOCAL_PX (a Kinect v1's
 #: 640 x 480), and proportionally fewer at a shorter working focal length (at least 1)
@@ -41,6 +45,15 @@ BOXES_CM = (6.0, 10.0, 16.0, 24.0)
 DIRECTIONS = 8
 _ANGLES = np.arange(DIRECTIONS) * (2 * np.pi / DIRECTIONS)
 _SINES, _COSINES = np.sin(_ANGLES), np.cos(_ANGLES)
+#: a cell without body-part labels is scored for restoring when the forest's mean person
+#: posterior over it is at least this
+RESTORE_FLOOR = 0.1
+#: label -> whether the check may restore it to a body part (robot, object, furniture)
+IS_RESTORABLE = np.zeros(256, np.bool_)
+IS_RESTORABLE[[L.ROBOT, L.OBJECT, *L.FURNITURE_IDS]] = True
+#: class -> whether a restored pixel may take it (the body parts)
+BODY_PARTS = np.zeros(L.NUM_CLASSES, np.bool_)
+BODY_PARTS[list(L.HUMAN_IDS)] = True
 #: label -> the six label columns of a cell's channels (person, head, robot, object,
 #: furniture, background)
 CHANNEL_TABLE = np.zeros((256, K.LABEL_COLUMNS), np.float32)
@@ -52,6 +65,8 @@ CHANNEL_TABLE[list(L.FURNITURE_IDS), 4] = 1.0
 CHANNEL_TABLE[L.BACKGROUND, K.BACKGROUND_COLUMN] = 1.0
 #: class -> the five posterior columns: the label columns but background
 POSTERIOR_TABLE = CHANNEL_TABLE[: L.NUM_CLASSES, : K.POSTERIOR_COLUMNS].copy()
+#: the channels `restore_cells` reads: robot to furniture labels, the person posterior
+_ROBOT_COLUMN, _FURNITURE_COLUMN, _PERSON_POSTERIOR = 2, 4, K.HEIGHT + 1
 _CHANNEL_NAMES = (
     "person", "head", "robot", "object", "furniture", "background", "height",
     "p_person", "p_head", "p_robot", "p_object", "p_furniture",
@@ -123,33 +138,52 @@ def part_cells(grid: CellGrid) -> tuple[np.ndarray, np.ndarray]:
     return np.nonzero(grid.parts > 0)
 
 
+def restore_cells(grid: CellGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the cells the check scores for restoring: no body-part label, some
+    robot, object or furniture label, and a mean person posterior of RESTORE_FLOOR or more."""
+    chan = grid.channels
+    restorable = chan[..., _ROBOT_COLUMN : _FURNITURE_COLUMN + 1].sum(axis=2) > 0
+    person = chan[..., _PERSON_POSTERIOR] >= RESTORE_FLOOR
+    return np.nonzero((grid.parts == 0) & restorable & person)
+
+
 @dataclass(frozen=True)
 class ContextCheck:
     """A fitted context check: the body-part pixels of a cell whose `TreeEnsemble` score is
-    below `threshold` (a logit) are not a person's. `validation` holds what the fit
-    measured on its held-out frames."""
+    below `threshold` (a logit) are not a person's; the cells of `restore_cells` scoring at
+    or above `restore_threshold` are (None: none is restored, as checks fitted before
+    restoring). `validation` holds what the fit measured on its held-out frames."""
 
     trees: TreeEnsemble
     threshold: float
     validation: dict
+    restore_threshold: float | None = None
 
     #: the model header's key
     HEADER_KEY = "context_check"
 
-    def people(self, features: np.ndarray) -> np.ndarray:
-        """(n,) bool: which cells of these feature rows are a person's."""
-        return self.trees.score(features) >= self.threshold
+    def judge(self, features: np.ndarray, restorable: np.ndarray) -> np.ndarray:
+        """(n,) bool: which cells of these feature rows are a person's, a row of a cell of
+        `restore_cells` (`restorable` True) only when it passes `restore_threshold`; one
+        scoring pass over both kinds."""
+        scores = self.trees.score(features)
+        if self.restore_threshold is None:
+            return np.where(restorable, False, scores >= self.threshold)
+        return np.where(restorable, scores >= self.restore_threshold, scores >= self.threshold)
 
     def to_header(self) -> dict[str, Any]:
         """The header entry (`HEADER_KEY`): cell size, features named, trees, threshold,
         validation."""
-        return {
+        entry = {
             "cell_px": CELL_PX,
             "features": list(FEATURES),
             "threshold": self.threshold,
             "trees": self.trees.to_dict(),
             "validation": self.validation,
         }
+        if self.restore_threshold is not None:
+            entry.update(restore_threshold=self.restore_threshold, restore_floor=RESTORE_FLOOR)
+        return entry
 
     @classmethod
     def from_header(cls, header: dict[str, Any]) -> ContextCheck | None:
@@ -165,17 +199,37 @@ class ContextCheck:
                 "the model's context check reads other cell features than this topseg "
                 "computes (refit it: `topseg person-check`)"
             )
-        return cls(*check_entry(entry, "context check", len(FEATURES)))
+        restore = entry.get("restore_threshold")
+        if restore is not None:
+            if entry.get("restore_floor") != RESTORE_FLOOR:
+                raise TopsegError(
+                    "the model's context check restores other cells than this topseg scores "
+                    "(refit it: `topseg person-check`)"
+                )
+            restore = finite_threshold(restore, "context check restore threshold")
+        return cls(*check_entry(entry, "context check", len(FEATURES)), restore)
+
+
+def restored_pixels(
+    grid: CellGrid, rows: np.ndarray, cols: np.ndarray, labels: np.ndarray
+) -> np.ndarray:
+    """(H, W) uint8: 1 at the robot, object and furniture pixels of the cells (rows, cols),
+    0 elsewhere."""
+    return K.cells_to_pixels(_chosen(grid, rows, cols), labels, grid.cell, IS_RESTORABLE)
 
 
 def rejected_pixels(
-    grid: CellGrid, rows: np.ndarray, cols: np.ndarray, people: np.ndarray, labels: np.ndarray
+    grid: CellGrid, rows: np.ndarray, cols: np.ndarray, labels: np.ndarray
 ) -> np.ndarray:
-    """(H, W) uint8: 1 at the body-part pixels of the scored cells (rows, cols) that are not
-    a person's (`people` False), 0 elsewhere."""
+    """(H, W) uint8: 1 at the body-part pixels of the cells (rows, cols), 0 elsewhere."""
+    return K.cells_to_pixels(_chosen(grid, rows, cols), labels, grid.cell, IS_PART)
+
+
+def _chosen(grid: CellGrid, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(hc, wc) bool: True at the cells (rows, cols)."""
     chosen = np.zeros(grid.parts.shape, np.bool_)
-    chosen[rows[~people], cols[~people]] = True
-    return K.cells_to_pixels(chosen, labels, grid.cell, IS_PART)
+    chosen[rows, cols] = True
+    return chosen
 
 
 def warm_up_context(depth: np.ndarray, check: ContextCheck) -> None:
@@ -191,5 +245,6 @@ def warm_up_context(depth: np.ndarray, check: ContextCheck) -> None:
     for frame in (np.full(depth.shape, 2000, np.uint16), read_only):
         grid = cell_grid(labels, valid, heights, frame, proba, 500.0)
         rows, cols = part_cells(grid)
-        people = check.people(cell_features(grid, rows, cols))
-        rejected_pixels(grid, rows, cols, people, labels)
+        people = check.judge(cell_features(grid, rows, cols), np.zeros(rows.size, np.bool_))
+        rejected_pixels(grid, rows[~people], cols[~people], labels)
+        restored_pixels(grid, rows[people], cols[people], labels)

@@ -375,16 +375,23 @@ class PersonCheck:
         return cls(*check_entry(entry, "person check", len(FEATURES)))
 
 
+def finite_threshold(value: Any, what: str) -> float:
+    """`value` as a finite float; TopsegError otherwise, naming `what` (e.g. "person check
+    threshold")."""
+    try:
+        threshold = float(value)
+    except (TypeError, ValueError):
+        raise TopsegError(f"the model's {what} is missing or not a number") from None
+    if not math.isfinite(threshold):
+        raise TopsegError(f"the model's {what} is not finite")
+    return threshold
+
+
 def check_entry(entry: dict, what: str, n_features: int) -> tuple[TreeEnsemble, float, dict]:
     """The trees, threshold and validation of a check's model header entry (`what` names the
     check in errors); TopsegError when the threshold is missing or not finite, or the trees
     are malformed."""
-    try:
-        threshold = float(entry["threshold"])
-    except (KeyError, TypeError, ValueError):
-        raise TopsegError(f"the model's {what} has no threshold") from None
-    if not math.isfinite(threshold):
-        raise TopsegError(f"the model's {what} threshold is not finite")
+    threshold = finite_threshold(entry.get("threshold"), f"{what} threshold")
     trees = TreeEnsemble.from_dict(entry.get("trees"), n_features)
     validation = entry.get("validation", {})
     return trees, threshold, validation if isinstance(validation, dict) else {}
@@ -433,6 +440,7 @@ __all__ = [
     "blob_features",
     "check_entry",
     "complete_trees",
+    "finite_threshold",
     "relabel_blobs",
     "warm_up_check",
 ]

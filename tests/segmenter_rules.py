@@ -5,7 +5,15 @@ this one call, so a new rule argument is added in one place."""
 import numpy as np
 
 from topseg.core import segmenter_config as S
-from topseg.core.context_check import cell_features, cell_grid, part_cells, rejected_pixels
+from topseg.core.context_check import (
+    BODY_PARTS,
+    cell_features,
+    cell_grid,
+    part_cells,
+    rejected_pixels,
+    restore_cells,
+    restored_pixels,
+)
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
     ISLAND_EDGE_PX,
@@ -14,7 +22,7 @@ from topseg.core.islands import (
     island_areas,
     relabel_islands,
 )
-from topseg.core.person_check import REPLACEMENT, blob_features, relabel_blobs
+from topseg.core.person_check import IS_PART, REPLACEMENT, blob_features, relabel_blobs
 from topseg.core.person_check_kernels import relabel_rejected
 from topseg.core.surfaces import surface_step_mm, vote_surfaces, voting_table
 
@@ -34,17 +42,23 @@ def relabel_as_the_segmenter(labels, depth, k):
 def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):
     """The Segmenter's context check on `labels` after its CRF, in place (working-resolution
     depth, model input, posteriors and mount; None: a model without one): pixels
-    relabelled."""
-    if check is None:
+    relabelled (rejected and restored; none in a frame without a body-part label)."""
+    if check is None or not IS_PART[labels].any():
         return 0
     valid = (inp.values > 0) & ~inp.floor
     grid = cell_grid(labels, valid, mount.height_map_mm(depth), depth, proba, mount.intrinsics.fx)
     if grid is None:
         return 0
-    rows, cols = part_cells(grid)
-    people = check.people(cell_features(grid, rows, cols))
-    marked = rejected_pixels(grid, rows, cols, people, labels)
-    return relabel_rejected(labels, marked, np.array([False, True]), proba, REPLACEMENT)
+    (part_rows, part_cols), (more_rows, more_cols) = part_cells(grid), restore_cells(grid)
+    rows, cols = np.r_[part_rows, more_rows], np.r_[part_cols, more_cols]
+    restorable = np.arange(rows.size) >= part_rows.size
+    people = check.judge(cell_features(grid, rows, cols), restorable)
+    out, marks = ~people & ~restorable, np.array([False, True])
+    rejected = rejected_pixels(grid, rows[out], cols[out], labels)
+    n = relabel_rejected(labels, rejected, marks, proba, REPLACEMENT)
+    back = people & restorable
+    restored = restored_pixels(grid, rows[back], cols[back], labels)
+    return n + relabel_rejected(labels, restored, marks, proba, BODY_PARTS)
 
 
 def check_people_as_the_segmenter(labels, depth, proba, mount, check):

@@ -13,7 +13,11 @@ from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import ModelFileError, load_model
 from topseg.core.person_check import TreeEnsemble
 from topseg.core.segmenter import Segmenter
-from topseg.services.batch.person_check import ensemble_from_histogram, fit_context
+from topseg.services.batch.person_check import (
+    ensemble_from_histogram,
+    fit_context,
+    threshold_restoring,
+)
 
 
 def random_cells_frame(seed, shape=(50, 66)):
@@ -78,12 +82,50 @@ def test_cell_grid_scales_cells_by_depth_and_marks_rejected_body_parts():
     rows, cols = C.part_cells(grid)
     assert (grid.parts[rows, cols] > 0).all() and rows.size == (grid.parts > 0).sum()
     people = np.arange(rows.size) % 3 > 0
-    marked = C.rejected_pixels(grid, rows, cols, people, labels)
+    marked = C.rejected_pixels(grid, rows[~people], cols[~people], labels)
     want = np.zeros(labels.shape, bool)
     for r, c in zip(rows[~people], cols[~people], strict=True):
         want[2 * r : 2 * r + 2, 2 * c : 2 * c + 2] = True
     np.testing.assert_array_equal(marked.astype(bool), want & np.isin(labels, L.HUMAN_IDS))
     assert C.cell_grid(labels, np.zeros_like(valid), heights, depth, proba, 500.0) is None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_restore_cells_are_the_cells_without_body_parts_the_forest_finds_person_like(seed):
+    labels, valid, heights, depth, proba = random_cells_frame(seed, (48, 64))
+    person = proba[..., list(L.HUMAN_IDS)].sum(axis=2)
+    grid = C.cell_grid(labels, valid, heights, depth, proba, C.REFERENCE_FOCAL_PX / 2)
+    rows, cols = C.restore_cells(grid)
+    want = set()
+    for r in range(0, 48, 2):
+        for c in range(0, 64, 2):
+            lab, ok = labels[r : r + 2, c : c + 2], valid[r : r + 2, c : c + 2]
+            mean_person = person[r : r + 2, c : c + 2][ok].mean() if ok.any() else 0.0
+            if (
+                not np.isin(lab, L.HUMAN_IDS).any()
+                and C.IS_RESTORABLE[lab[ok]].any()
+                and mean_person >= C.RESTORE_FLOOR - 1e-6
+            ):
+                want.add((r // 2, c // 2))
+    assert set(zip(rows.tolist(), cols.tolist(), strict=True)) == want and want
+    marked = C.restored_pixels(grid, rows, cols, labels)
+    chosen = np.zeros(labels.shape, bool)
+    for r, c in want:
+        chosen[2 * r : 2 * r + 2, 2 * c : 2 * c + 2] = True
+    np.testing.assert_array_equal(marked.astype(bool), chosen & C.IS_RESTORABLE[labels])
+
+
+def test_the_restore_threshold_is_the_most_lenient_at_the_asked_precision():
+    # scores high to low: person shares 1, 1, 0.5, 0, 1 over cells of 10 pixels each
+    scores = np.array([0.1, 3.0, 2.0, 1.0, 0.5])
+    size = np.full(5, 10.0)
+    share = np.array([1.0, 1.0, 1.0, 0.5, 0.0])
+    threshold, v = threshold_restoring(scores, size, share, precision=0.8)
+    assert threshold == 1.0  # 25 of 30 pixels down to 1.0; 25 of 40 below
+    assert v["person_px_restored"] == pytest.approx(25 / 35)
+    assert v["restored_px_person"] == pytest.approx(25 / 30)
+    threshold, v = threshold_restoring(scores, size, np.zeros(5), precision=0.8)
+    assert threshold > scores.max() and v["person_px_restored"] == 0.0
 
 
 @pytest.mark.parametrize("seed", range(2))
@@ -104,12 +146,22 @@ def test_fit_context_keeps_the_asked_share_on_held_out_frames():
     n = 4000
     x = rng.normal(size=(n, len(C.FEATURES))).astype(np.float32)
     share = (x[:, 0] > 0).astype(float)
-    rows = {"features": x, "parts": rng.integers(1, 16, n).astype(float), "share": share,
-            "frame": np.arange(n) // 10}  # fmt: skip
+    restore = np.arange(n) % 3 == 0
+    rows = {"features": x, "weight": rng.integers(1, 16, n).astype(float), "share": share,
+            "frame": np.arange(n) // 10, "restore": restore}  # fmt: skip
     check = fit_context(rows, keep=0.95)
     v = check.validation
     assert v["person_px_kept"] >= 0.95 and v["other_px_removed"] > 0.9
-    assert v["cells"] == (rows["frame"] % 4 == 3).sum()
+    held = rows["frame"] % 4 == 3
+    assert v["cells"] == (held & ~restore).sum()
+    assert check.restore_threshold is None and "restore_cells" not in v
+    restoring = fit_context(rows, keep=0.95, restore=0.9)
+    v = restoring.validation
+    assert v["restore_cells"] == (held & restore).sum() and v["restored_px_person"] >= 0.9
+    assert v["person_px_restored"] > 0.8
+    judged = restoring.judge(x[held], restore[held])
+    assert (judged[restore[held]] == (restoring.trees.score(x[held & restore])
+                                      >= restoring.restore_threshold)).all()  # fmt: skip
     with pytest.raises(TopsegError, match="cells that are people's and cells that are not"):
         fit_context({**rows, "share": np.ones(n)}, keep=0.95)
 
@@ -167,6 +219,37 @@ def test_the_stage_relabels_the_body_parts_of_cells_the_check_rejects(bundled):
     assert seen > 0
 
 
+def test_the_stage_restores_the_cells_the_check_finds_a_persons(bundled):
+    from topseg.services.batch.experiment.mounts import cell_mount
+    from topseg.services.batch.experiment.open_world import render_cells
+
+    restore = {"restore_threshold": -1.0, "restore_floor": C.RESTORE_FLOOR}
+    restore_all = with_context(bundled, -1.0, **restore)  # keeps every body part too
+    no_restore = with_context(bundled, -1.0)
+    assert restore_all.context_check.restore_threshold == -1.0
+    assert no_restore.context_check.restore_threshold is None
+    seen = 0
+    for depth, _, mount, _, _ in render_cells(cell_mount("kinect_v1", 3.0, 0.0), 3, seed=99):
+        before = upto(restore_all, depth, mount, "crf")
+        grid = C.cell_grid(before.labels, (before.inp.values > 0) & ~before.inp.floor,
+                           before.heights(), before.depth, before.fill(None),
+                           before.plan.work_mount.intrinsics.fx)  # fmt: skip
+        rows, cols = C.restore_cells(grid)
+        want = C.restored_pixels(grid, rows, cols, before.labels).astype(bool)
+        after = upto(restore_all, depth, mount, "context_check")
+        changed = after.labels != before.labels
+        np.testing.assert_array_equal(changed, want)
+        assert np.isin(after.labels[changed], L.HUMAN_IDS).all()
+        assert after.counts["restored_cell_px"] == changed.sum()
+        assert after.counts["restored_cells"] == rows.size
+        assert after.counts["not_person_cells"] == 0
+        unchanged = upto(no_restore, depth, mount, "context_check")
+        np.testing.assert_array_equal(unchanged.labels, before.labels)
+        assert unchanged.counts["restored_cells"] == 0
+        seen += changed.sum()
+    assert seen > 0
+
+
 def upto(seg, depth, mount, stage):
     """The frame after `stage`."""
     from topseg.core.stages.plan import FrameState
@@ -183,3 +266,18 @@ def test_a_model_whose_context_check_reads_other_features_is_refused(bundled):
         with_context(bundled, 0.0, cell_px=C.CELL_PX + 1)
     with pytest.raises(ModelFileError, match="threshold"):
         with_context(bundled, 0.0, threshold="x")
+    with pytest.raises(ModelFileError, match="restores other cells"):
+        with_context(bundled, 0.0, restore_threshold=1.0, restore_floor=C.RESTORE_FLOOR / 2)
+    with pytest.raises(ModelFileError, match="restore threshold"):
+        with_context(bundled, 0.0, restore_threshold="x", restore_floor=C.RESTORE_FLOOR)
+
+
+def test_a_restoring_check_round_trips_through_the_header():
+    check = constant_check(0.5)
+    again = C.ContextCheck.from_header({"context_check": check.to_header()})
+    assert again.restore_threshold is None and "restore_threshold" not in check.to_header()
+    restoring = C.ContextCheck(check.trees, 0.5, {"a": 1}, restore_threshold=1.25)
+    entry = restoring.to_header()
+    assert entry["restore_floor"] == C.RESTORE_FLOOR
+    again = C.ContextCheck.from_header({"context_check": entry})
+    assert (again.threshold, again.restore_threshold, again.validation) == (0.5, 1.25, {"a": 1})

@@ -2,11 +2,14 @@
 dataset from `topseg datagen` and write them into the model file.
 
 The context check first. The model labels every frame (its forest and CRF, as the worker
-does); every cell holding body-part labels is described by the context check's features and
-marked a person's when most of its body-part pixels are a person in the truth. Three frames in
-four fit scikit-learn's histogram gradient boosting (weighted by each cell's body-part
-pixels); the fourth chooses the threshold: the strictest that still keeps `--context-keep` of
-the person pixels that lie in body-part cells.
+does); every cell holding body-part labels, and every cell it may restore
+(`context_check.restore_cells`), is described by the context check's features and marked a
+person's when most of the pixels the check would change (its body-part pixels; a restore
+cell's robot, object and furniture pixels) are a person in the truth. Three frames in four fit
+scikit-learn's histogram gradient boosting (weighted by those pixels); the fourth chooses the
+thresholds: the strictest that still keeps `--context-keep` of the person pixels that lie in
+body-part cells, and the most lenient at which the restore cells passing it are at least
+`--restore-precision` a person's (pixel-weighted; `--restore off`: none is restored).
 
 Then the person check, on the labels the context check leaves: every blob of body-part labels
 is described by the check's features and marked a person when most of its pixels are a person
@@ -30,7 +33,7 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
-from topseg.core.context_check import ContextCheck
+from topseg.core.context_check import IS_RESTORABLE, ContextCheck
 from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import caller_header, load_model, save_model
 from topseg.core.formats.dataset import open_dataset
@@ -55,6 +58,9 @@ PERSON_SHARE = 0.5
 N_TREES, TREE_DEPTH, RATE = 150, 3, 0.1
 #: the context check's boosted trees: how many, how deep, the learning rate
 CONTEXT_TREES, CONTEXT_DEPTH, CONTEXT_RATE = 150, 4, 0.1
+#: the share of restored pixels that must be a person's on the held-out frames (chosen on the
+#: validation cells: docs/results.md, "Choices measured")
+RESTORE_PRECISION = 0.75
 #: the header entries this command fits
 CHECK_KEYS = (ContextCheck.HEADER_KEY, PersonCheck.HEADER_KEY)
 
@@ -87,6 +93,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--context", choices=("on", "off"), default="on",
         help="fit the context check (off: the person check alone, as models before it)",
     )  # fmt: skip
+    parser.add_argument(
+        "--restore", choices=("on", "off"), default="on",
+        help="the context check also restores robot, object and furniture cells it finds a "
+        "person's (off: it only rejects body-part cells, as checks before it)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--restore-precision", type=finite(0.5, 1.0), default=RESTORE_PRECISION, metavar="P",
+        help="the restore threshold is the most lenient at which this share of the held-out "
+        "frames' restored pixels are a person's (default: %(default)s)",
+    )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="the boosted trees' seed")
     # the check is fitted on labels as the CRF leaves them: the island rules, the check
     # itself and a background come after it or not at all
@@ -114,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
     if args.context == "on":
         frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label (cells)",
                       unit="frame", disable=None)  # fmt: skip
-        context = fit_context(gather_cells(segmenter, frames), args.context_keep, args.seed)
+        restore = args.restore_precision if args.restore == "on" else None
+        cells = gather_cells(segmenter, frames, restore is not None)
+        context = fit_context(cells, args.context_keep, args.seed, restore)
         context.validation.update(dataset=str(args.data), frames=n)
         fitted[ContextCheck.HEADER_KEY] = context.to_header()
         print(describe_context(context.validation))
@@ -131,52 +149,91 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def gather_cells(segmenter: Segmenter, frames) -> dict[str, np.ndarray]:
-    """The cells holding body-part labels of every (depth, truth, mount) frame after the
-    model's CRF: their features, body-part pixels, the share of those that are a person in
-    the truth and the frame number."""
-    features, parts, share, frame_no = [], [], [], []
+def gather_cells(segmenter: Segmenter, frames, restoring: bool = True) -> dict[str, np.ndarray]:
+    """The cells the context check scores (`restoring`: restore cells too) in every (depth,
+    truth, mount) frame after the model's CRF: their features, the pixels the check would
+    change (`weight`), the share of those that are a person in the truth, the frame number
+    and whether each is a restore cell."""
+    columns: dict[str, list] = {k: [] for k in ("features", "weight", "share", "frame", "restore")}
     for i, frame, person in labelled(segmenter, frames, "crf"):
-        found = frame_cells(frame)
+        found = frame_cells(frame, restoring)
         if found is None:
             continue
-        grid, rows, cols, x = found
+        grid, rows, cols, x, restorable = found
         cell, (hc, wc) = grid.cell, grid.parts.shape
         labels = frame.labels[: hc * cell, : wc * cell]
         person = person[: hc * cell, : wc * cell]
-        hits = (IS_PART[labels] & person).reshape(hc, cell, wc, cell).sum((1, 3))
-        features.append(x)
-        parts.append(grid.parts[rows, cols])
-        share.append(hits[rows, cols] / np.maximum(grid.parts[rows, cols], 1))
-        frame_no.append(np.full(rows.size, i))
-    if not features:
+        changed = np.where(IS_RESTORABLE[labels], 2, IS_PART[labels].astype(np.int8))
+        weight, share = np.zeros(rows.size), np.zeros(rows.size)
+        for code, kind in ((1, ~restorable), (2, restorable)):
+            mine = (changed == code).reshape(hc, cell, wc, cell).sum((1, 3))
+            hits = ((changed == code) & person).reshape(hc, cell, wc, cell).sum((1, 3))
+            weight[kind] = mine[rows[kind], cols[kind]]
+            share[kind] = hits[rows[kind], cols[kind]] / np.maximum(weight[kind], 1)
+        for key, value in (("features", x), ("weight", weight), ("share", share),
+                           ("frame", np.full(rows.size, i)), ("restore", restorable)):  # fmt: skip
+            columns[key].append(value)
+    if not columns["features"]:
         raise TopsegError("the model labelled no body part in these frames")
-    return {
-        "features": np.concatenate(features),
-        "parts": np.concatenate(parts).astype(np.float64),
-        "share": np.concatenate(share),
-        "frame": np.concatenate(frame_no),
-    }
+    return {k: np.concatenate(v) for k, v in columns.items()}
 
 
-def fit_context(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> ContextCheck:
+def fit_context(
+    rows: dict[str, np.ndarray], keep: float, seed: int = 0, restore: float | None = None
+) -> ContextCheck:
     """Histogram boosted trees fitted on three frames in four, the threshold chosen on the
-    fourth to keep `keep` of its person pixels in body-part cells; the check with what the
-    fourth measured."""
+    fourth to keep `keep` of its person pixels in body-part cells and, with `restore`, the
+    restore threshold at which its restored pixels are `restore` a person's; the check with
+    what the fourth measured."""
     from sklearn.ensemble import HistGradientBoostingClassifier
 
-    x, weight = rows["features"], rows["parts"]
+    x, weight = rows["features"], rows["weight"]
+    restorable = rows["restore"] if restore is not None else np.zeros(len(x), bool)
+    use = ~rows["restore"] | restorable  # restore cells are fitted on only when restoring
     person, held = held_out(rows, "cells that are people's and cells that are not")
+    fit = use & ~held
     clf = HistGradientBoostingClassifier(
         max_iter=CONTEXT_TREES, max_depth=CONTEXT_DEPTH, learning_rate=CONTEXT_RATE,
         early_stopping=False, random_state=seed,
     )  # fmt: skip
-    clf.fit(x[~held], person[~held], sample_weight=weight[~held])
-    trees = ensemble_from_histogram(clf, x[held][:10_000])
-    scores = trees.score(x[held])
-    threshold, _, kept = threshold_kept(scores, weight[held], rows["share"][held], keep)
-    validation = {"keep": keep, "cells": int(held.sum()), **kept}
-    return ContextCheck(trees, threshold, validation)
+    clf.fit(x[fit], person[fit], sample_weight=weight[fit])
+    trees = ensemble_from_histogram(clf, x[held & use][:10_000])
+    parts, more = held & ~rows["restore"], held & restorable
+    threshold, _, kept = threshold_kept(
+        trees.score(x[parts]), weight[parts], rows["share"][parts], keep
+    )
+    validation = {"keep": keep, "cells": int(parts.sum()), **kept}
+    restore_threshold = None
+    if restore is not None:
+        restore_threshold, restored = threshold_restoring(
+            trees.score(x[more]), weight[more], rows["share"][more], restore
+        )
+        validation.update(restore_precision=restore, restore_cells=int(more.sum()), **restored)
+    return ContextCheck(trees, threshold, validation, restore_threshold)
+
+
+def threshold_restoring(
+    scores: np.ndarray, size: np.ndarray, share: np.ndarray, precision: float
+) -> tuple[float, dict]:
+    """On held-out restore cells of `size` pixels, `share` of them a person's: the lowest
+    score threshold at which the pixels of the cells at or above it are at least `precision`
+    a person's (above every score when no threshold reaches it), and what it restores: the
+    share of the cells' person pixels and the share of the restored pixels that are a
+    person's."""
+    person = size * share
+    order = np.argsort(-scores, kind="stable")
+    hits, total = np.cumsum(person[order]), np.cumsum(size[order])
+    good = np.flatnonzero(hits >= precision * np.maximum(total, 1e-12))
+    if good.size == 0 or scores.size == 0:
+        threshold = float(np.max(scores, initial=0.0)) + 1.0
+    else:
+        threshold = float(scores[order][good[-1]])
+    passed = scores >= threshold
+    restored = {
+        "person_px_restored": _share(person[passed], person),
+        "restored_px_person": _share(person[passed], size[passed]),
+    }
+    return threshold, restored
 
 
 def labelled(segmenter: Segmenter, frames, upto: str):
@@ -354,11 +411,18 @@ def describe(validation: dict) -> str:
 def describe_context(validation: dict) -> str:
     """What the context check's held-out frames measured, in one line."""
     v = validation
-    return (
+    line = (
         f"context check, held-out frames ({v['cells']} cells): keeps {v['person_px_kept']:.1%} "
         f"of person pixels in body-part cells; removes {v['other_px_removed']:.1%} of the "
         "other pixels labelled as body parts"
     )
+    if "restore_cells" in v:
+        line += (
+            f"; restores {v['person_px_restored']:.1%} of the person pixels in the "
+            f"{v['restore_cells']} cells it may restore, {v['restored_px_person']:.1%} of what "
+            "it restores a person's"
+        )
+    return line
 
 
 def _share(part: np.ndarray, whole: np.ndarray) -> float:
@@ -378,4 +442,5 @@ __all__ = [
     "held_out",
     "labelled",
     "threshold_kept",
+    "threshold_restoring",
 ]
