@@ -6,7 +6,8 @@
 # often, with that sensor's noise; `topseg train` fits 4 trees of 6000 frames, depth 19, a
 # fifth of the feature pool reading absolute height; then `topseg person-check` fits the
 # model's two checks (the context check, then the person check) on CHECK_FRAMES more cells from
-# another seed, each keeping 98 % of the person pixels of its held-out frames. Every step resumes after an interruption, and the same
+# another seed, each keeping 98 % of the person pixels of its held-out frames (the context check
+# also restores cells it finds a person's, at 75 % precision). Every step resumes after an interruption, and the same
 # datasets give the same model. Why these numbers: docs/results.md ("Choices measured").
 # About 55 minutes on 2 quiet cores (~15 GB at the peak).
 # Every variable below can be set, e.g.
