@@ -86,6 +86,7 @@ def test_report_from_stats_messages():
                 "rejected": 0,
                 "small_heads": 3 * i,
                 "small_furniture": i,
+                "restored_cell_px": 5 * i,
             },
         }
         for i in range(11)
@@ -100,6 +101,7 @@ def test_report_from_stats_messages():
     assert cam["worker"]["dropped"] == 20 and cam["worker"]["dropped_in_window"] == 20
     assert cam["worker"]["small_heads"] == 30 and cam["worker"]["small_heads_in_window"] == 30
     assert cam["worker"]["small_furniture"] == 10
+    assert cam["worker"]["restored_cell_px"] == 50 and cam["worker"]["not_person_cells"] == 0
     assert cam["driver"]["fps"] == pytest.approx(20.0) and cam["driver"]["reconnects"] == 1
 
 
