@@ -187,18 +187,17 @@ def fit_context(
     what the fourth measured."""
     from sklearn.ensemble import HistGradientBoostingClassifier
 
+    if restore is None:  # restore cells are fitted on only when restoring
+        rows = {k: v[~rows["restore"]] for k, v in rows.items()}
     x, weight = rows["features"], rows["weight"]
-    restorable = rows["restore"] if restore is not None else np.zeros(len(x), bool)
-    use = ~rows["restore"] | restorable  # restore cells are fitted on only when restoring
     person, held = held_out(rows, "cells that are people's and cells that are not")
-    fit = use & ~held
     clf = HistGradientBoostingClassifier(
         max_iter=CONTEXT_TREES, max_depth=CONTEXT_DEPTH, learning_rate=CONTEXT_RATE,
         early_stopping=False, random_state=seed,
     )  # fmt: skip
-    clf.fit(x[fit], person[fit], sample_weight=weight[fit])
-    trees = ensemble_from_histogram(clf, x[held & use][:10_000])
-    parts, more = held & ~rows["restore"], held & restorable
+    clf.fit(x[~held], person[~held], sample_weight=weight[~held])
+    trees = ensemble_from_histogram(clf, x[held][:10_000])
+    parts, more = held & ~rows["restore"], held & rows["restore"]
     threshold, _, kept = threshold_kept(
         trees.score(x[parts]), weight[parts], rows["share"][parts], keep
     )
