@@ -58,13 +58,14 @@ class CellPeer:
         with self.lock:
             return [s for when, s in self.states if when >= t]
 
-    def send(self, placement, robot, joints, people, seq: int) -> None:
+    def send(self, placement, robot, joints, people, seq: int, labels: bool = True) -> None:
         now = time.time_ns()
         self.joints.put(joint_states.encode_joint_state(
             joint_states.JointState(now, tuple(joints), tuple(joints.values()))))  # fmt: skip
         depth, lab = render(placement, robot, joints, people, seq=seq, stamp_ns=now)
         self.depth.put(wire.encode_depth(depth))
-        self.labels.put(wire.encode_labels(lab))
+        if labels:
+            self.labels.put(wire.encode_labels(lab))
 
     def close(self) -> None:
         self.session.close()
@@ -96,18 +97,21 @@ def test_the_service_decides_from_frames_and_stops_when_they_stop(run, cell_file
         joints["panda_joint4"] = -1.5
         seq = 0
 
-        def send_until(people, state, what):
+        def send_until(people, state, what, parts=None):
             nonlocal seq
             t = time.monotonic()
+
+            def said(s):
+                return s.state == state and s.frame is not None and (not parts or s.part in parts)
 
             def got():
                 nonlocal seq
                 seq += 1
                 peer.send(cell.cameras[0], robot, joints, people, seq)
-                return any(s.state == state and s.frame is not None for s in peer.since(t))
+                return any(said(s) for s in peer.since(t))
 
             wait_for(got, 30, what)
-            return [s for s in peer.since(t) if s.state == state and s.frame is not None][-1]
+            return [s for s in peer.since(t) if said(s)][-1]
 
         clear = send_until([], "clear", "clear with nobody in view")
         # with the camera's mount from its first frame: how much of the robot's space it sees
@@ -117,7 +121,12 @@ def test_the_service_decides_from_frames_and_stops_when_they_stop(run, cell_file
         assert clear.reaction_ms is not None and clear.reaction_ms < 5000
         near = send_until([person(0.9, 0.6)], "stop", "stop with a person at the robot")
         assert near.min_distance_m is not None and near.min_distance_m < 0.5
-        assert near.link.startswith("panda_") and near.part in ("head", "body", "legs")
+        # decided on before its labels came, the person is one of unknown part
+        assert near.link.startswith("panda_")
+        assert near.part in ("head", "body", "legs", "unidentified")
+        named = send_until([person(0.9, 0.6)], "stop", "the nearest part named by the labels",
+                           parts=("head", "body", "legs"))  # fmt: skip
+        assert named.min_distance_m is not None and named.min_distance_m < 0.5
         assert near.nearest_m is not None and near.zones == {"guard": "clear"}
         send_until([], "clear", "clear again once the person left")
 
@@ -147,6 +156,22 @@ def test_the_service_decides_from_frames_and_stops_when_they_stop(run, cell_file
         peer.joints.put(b"not msgpack at all")
         svc.wait_line("dropped a message on topseg/safetytest/cam0/labels")
         send_until([], "clear", "clear after the garbage")
+
+        # the worker goes quiet while the driver goes on: every depth frame is still decided
+        # on (the newest labels carried onto it) until those are older than the deadline
+        labelled_seq, quiet = seq, time.monotonic()
+
+        def depth_only():
+            nonlocal seq
+            seq += 1
+            peer.send(cell.cameras[0], robot, joints, [], seq, labels=False)
+            return any("no labelled frame for" in " ".join(s.reasons) for s in peer.since(quiet))
+
+        wait_for(depth_only, 10, "stop once the labels are older than the deadline")
+        carried = {s.frame[1] for s in peer.since(quiet) if s.frame is not None}
+        assert carried & set(range(labelled_seq + 1, seq + 1))  # frames without labels decided
+        stale = [s for s in peer.since(quiet) if "no labelled" in " ".join(s.reasons)]
+        assert stale and all(s.state == "stop" and s.speed_scale == 0.0 for s in stale)
         assert svc.alive()
     finally:
         peer.close()

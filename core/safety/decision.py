@@ -25,7 +25,10 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from topseg.core import labels
+from topseg.core.safety.carry import UNIDENTIFIED
 from topseg.core.safety.cell import CellConfig
 from topseg.core.safety.iso15066 import (
     allowed_robot_speed,
@@ -58,7 +61,10 @@ def stricter(a: str, b: str) -> str:
 
 
 def part_name(part: Any) -> str:
-    """A part's label name, or `part <id>` for an id the label table does not have."""
+    """A part's label name, `unidentified` for something new the labels have not caught up
+    with (`carry.UNIDENTIFIED`), or `part <id>` for an id the label table does not have."""
+    if isinstance(part, int | np.integer) and part == UNIDENTIFIED:
+        return "unidentified"
     try:
         return labels.name_of(int(part))
     except (KeyError, TypeError, ValueError, OverflowError):

@@ -2,7 +2,8 @@
 state and the clock. Pure state, no I/O: the safety service feeds it and publishes what it
 says (`topseg.services.live.safety`).
 
-Per labelled frame of a camera (`CellMonitor.frame`):
+Per depth frame of a camera with its labels (`CellMonitor.frame`), or with an earlier frame's
+labels carried onto it (`carry.carry_labels`: what appeared since is a person of unknown part):
 
 1. Faults of the frame itself: no mount to place its pixels, a blinded camera (too little of
    the image has depth, or what it sees is at the lens), a camera that moved (the pixels
@@ -21,8 +22,8 @@ Per labelled frame of a camera (`CellMonitor.frame`):
 `CellMonitor.decision(now)` combines every camera's newest frame (the nearest person over all,
 zones occupied by any, a protective zone unseen only when no camera sees it) and decides with
 the reaction time measured now: depth stamp of the oldest frame in use to this moment. A
-camera whose last labelled frame is older than the cell's deadline, or that sent none yet, is
-a fault: `stop`; so is a camera whose driver or worker went away (its liveliness token was
+camera whose labels in use arrived longer ago than the cell's deadline, or that sent none yet,
+is a fault: `stop`; so is a camera whose driver or worker went away (its liveliness token was
 dropped: a killed process's is as soon as its link closes), at once.
 """
 
@@ -39,6 +40,7 @@ from topseg.core.camera import KINECT_V1, TopViewMount, axis_depth
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.resolution import decimate, decimated_mount
+from topseg.core.safety.carry import UNIDENTIFIED, carry_labels
 from topseg.core.safety.cell import CameraPlacement, CellConfig
 from topseg.core.safety.decision import Decision, decide
 from topseg.core.safety.robot import CellRobot, padded_box
@@ -54,6 +56,7 @@ from topseg.core.safety.separation import (
 )
 from topseg.core.safety.surface import RobotSurface
 from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
+from topseg.core.sensors import depth_sigma_mm
 
 #: The services whose liveliness tokens the monitor follows per camera: one that goes away (a
 #: killed driver's token is dropped as soon as its link closes) stops the cell at once,
@@ -102,7 +105,7 @@ MAX_REACH_PX = 60
 ROBOT_POINT_GRID_M = 0.03
 
 _HUMAN = np.zeros(256, bool)
-_HUMAN[list(label_table.HUMAN_IDS)] = True
+_HUMAN[[*label_table.HUMAN_IDS, UNIDENTIFIED]] = True
 
 
 @dataclass
@@ -111,7 +114,7 @@ class CameraView:
 
     seq: int
     stamp_ns: int
-    received_ns: int
+    received_ns: int  # when the labels in use arrived (the deadline runs from it)
     faults: tuple[str, ...] = ()
     nearest: Nearest | None = None
     occupied: frozenset[str] = frozenset()
@@ -188,6 +191,12 @@ class CellMonitor:
         """The roles of `camera` whose every instance went away."""
         return [role for role, ids in sorted(self.alive.get(camera, {}).items()) if not ids]
 
+    def decides_on_depth(self, now_ns: int) -> bool:
+        """Whether a depth frame can be decided on before its own labels come, with an earlier
+        frame's carried onto it: with the robot posed by a fresh joint state (its silhouette
+        explains what its moving links cover) or in a cell without a robot."""
+        return self.robot is None or self.fresh_joints(now_ns) is not None
+
     def joints_age_s(self, now_ns: int) -> float:
         """Seconds since the joint state in use was measured (its stamp); inf with none."""
         if self.joints is None:
@@ -203,8 +212,19 @@ class CellMonitor:
         values = dict(zip(self.joints.name, self.joints.position, strict=True))
         return {n: values[n] for n in self.robot.joint_names}
 
-    def frame(self, camera: str, depth: DepthFrame, labels: LabelFrame, now_ns: int) -> CameraView:
-        """Judge one camera's labelled frame and keep it as that camera's newest view."""
+    def frame(
+        self,
+        camera: str,
+        depth: DepthFrame,
+        labels: LabelFrame,
+        now_ns: int,
+        labels_depth: DepthFrame | None = None,
+        labels_received_ns: int | None = None,
+    ) -> CameraView:
+        """Judge one camera's depth frame with its labels and keep it as that camera's newest
+        view. Labels of an earlier frame come with that frame's depth (`labels_depth`) and
+        are carried onto this one (`carry.carry_labels`); `labels_received_ns` is when they
+        arrived (default `now_ns`), which the deadline runs from."""
         placement = self.placements.get(camera)
         if placement is None:
             raise ValueError(f"camera {camera!r} is not in cell file {self.cell.source}")
@@ -214,7 +234,8 @@ class CellMonitor:
                 f"{depth.depth.shape}"
             )
         self.counts["frames"] += 1
-        view = CameraView(seq=labels.seq, stamp_ns=depth.stamp_ns, received_ns=now_ns)
+        received = now_ns if labels_received_ns is None else labels_received_ns
+        view = CameraView(seq=depth.seq, stamp_ns=depth.stamp_ns, received_ns=received)
         mount = depth.mount or placement.mount
         if mount is None:
             view.faults = (f"{camera}: no mount (the frames carry none and the cell file "
@@ -224,9 +245,20 @@ class CellMonitor:
         factor = working_factor(mount)
         mount = decimated_mount(mount, factor)
         depth_mm = axis_depth(decimate(depth.depth, factor), mount)
-        mount = replace(mount, radial=False)  # its frames are read as axis depth from here on
+        # its frames are read as axis depth from here on
+        radial_mount, mount = mount, replace(mount, radial=False)
         lab = np.ascontiguousarray(labels.labels[::factor, ::factor])
         heights_m = floor_heights(depth_mm, mount)
+        if labels_depth is not None:
+            if labels_depth.depth.shape != depth.depth.shape:
+                raise ValueError(
+                    f"camera {camera}: the labels' depth {labels_depth.depth.shape} does not "
+                    f"match the depth {depth.depth.shape}"
+                )
+            then_mm = axis_depth(decimate(labels_depth.depth, factor), radial_mount)
+            pixels_per_m = 1000.0 * mount.intrinsics.fx / max(float(mount.height_mm), 1.0)
+            noise_mm = depth_sigma_mm(then_mm, mount.sensor) * np.float32(mount.noise_scale)
+            lab = carry_labels(lab, then_mm, depth_mm, heights_m, pixels_per_m, noise_mm)
         view.faults = camera_faults(camera, depth_mm, lab, heights_m)
         joints = self.fresh_joints(now_ns)
         capsules: Capsules | None = None

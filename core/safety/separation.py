@@ -1,8 +1,8 @@
 """The separation of people from the robot: human pixels as cell-frame points, and the
 nearest pair of a human point and the robot (its own shapes, or its bounding capsules).
 
-`human_points` back-projects every pixel labelled as a human part (`labels.HUMAN_IDS`) that
-has depth, through the camera's mount (a `radial` camera's frame read as depth first) into
+`human_points` back-projects every pixel labelled as a human part (`labels.HUMAN_IDS`, and
+`carry.UNIDENTIFIED`: something new the labels have not caught up with) that has depth, through the camera's mount (a `radial` camera's frame read as depth first) into
 the camera's world frame and by the camera's placement into the cell frame; its blobs are
 the 4-connected components of those pixels (one blob is roughly one person: two people who
 touch in the image are one blob).
@@ -24,11 +24,12 @@ import numpy as np
 
 from topseg.core import labels
 from topseg.core.camera import backproject_pixels, project
+from topseg.core.safety.carry import UNIDENTIFIED
 from topseg.core.safety.surface import RobotSurface, refine, segment_distance
 from topseg.core.union_find import find_root
 
 _IS_HUMAN = np.zeros(256, bool)
-_IS_HUMAN[list(labels.HUMAN_IDS)] = True
+_IS_HUMAN[[*labels.HUMAN_IDS, UNIDENTIFIED]] = True
 
 
 @dataclass(frozen=True, eq=False)

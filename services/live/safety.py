@@ -11,10 +11,13 @@ camera in it the service takes the depth (`topseg/<cell>/<camera>/depth`) and th
 labels (`.../labels`) and pairs them by `seq`; the robot's joint states come from
 `topseg/<cell>/robot/<name>/joints` (msgpack) or ROS 2 `/joint_states` over rmw_zenoh.
 
-Every labelled frame is decided on at once (`core/safety/monitor.py`) and published; between
-frames the last decision is published again, re-decided with the reaction time measured
-then (depth stamp to now). No labelled frame from a camera within `deadline_ms` (100 ms), a
-blinded camera, one that moved, or a camera that never sent anything gives `stop` with the
+Every depth frame is decided on as it arrives (`core/safety/monitor.py`) and published: with
+the robot posed by a fresh joint state (or in a cell without a robot), the newest labels the
+worker sent are carried onto it (`core/safety/carry.py`: what appeared since they were made
+is a person of unknown part), so the decision waits for no worker; when a frame's own labels
+come while it is still the newest, it is decided on again with them. Without a fresh joint
+state each labelled frame is decided on as its labels come. Between frames the last decision
+is published again, re-decided with the reaction time measured then (depth stamp to now). No labels from a camera within `deadline_ms` (100 ms), a blinded camera, one that moved, or a camera that never sent anything gives `stop` with the
 reason. The robot's joint state may be missing or stale: then the model's `robot` class
 stands for the robot.
 
@@ -29,6 +32,7 @@ import logging
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numba
@@ -87,6 +91,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     zenoh_session.add_arguments(parser)
 
 
+@dataclass(frozen=True)
+class Labelled:
+    """A camera's newest labels, the depth frame they were made on and when they came."""
+
+    labels: wire.LabelFrame
+    depth: wire.DepthFrame
+    received_ns: int
+
+
 class SafetyService:
     """The service's state between messages: the monitor, depth frames waiting for their
     labels, the counts, and the publisher of the decisions."""
@@ -98,9 +111,15 @@ class SafetyService:
         self.pending: dict[str, OrderedDict[int, wire.DepthFrame]] = {
             c.name: OrderedDict() for c in cell.cameras
         }
+        # per camera: its newest labels, its newest depth frame (and when it came), and the
+        # frame last decided on (seq, stamp, whether with its own labels)
+        self.labelled: dict[str, Labelled] = {}
+        self.newest_depth: dict[str, tuple[wire.DepthFrame, int]] = {}
+        self.decided: dict[str, tuple[int, int, bool]] = {}
         self.seq = 0
         self.last_publish = 0.0
-        self.counts = {"decisions": 0, "frames": 0, "skipped": 0, "rejected": 0, "unpaired": 0}
+        self.counts = {"decisions": 0, "frames": 0, "carried": 0, "skipped": 0, "rejected": 0,
+                       "unpaired": 0}  # fmt: skip
         self.max_batch = PENDING_DEPTH * len(cell.cameras) * 4
         self.last_state = ""
         self._warned: dict[str, float] = {}
@@ -133,8 +152,8 @@ class SafetyService:
             self._warned[what] = now
             log.warning(message, *args)
 
-    def handle(self, key: str, data: bytes, received_ns: int) -> bool:
-        """Take one message; True when it was a labelled frame that was decided on."""
+    def handle(self, key: str, data: bytes, received_ns: int) -> None:
+        """Take one message: keep a depth frame or labels for `decide`, pass joint states on."""
         what, camera = self.keys.get(key, ("", ""))
         try:
             if what == "depth":
@@ -143,21 +162,50 @@ class SafetyService:
                 pending[frame.seq] = frame
                 while len(pending) > PENDING_DEPTH:
                     pending.popitem(last=False)
-                return False
-            if what == "labels":
-                return self._labels(camera, wire.decode_labels(data), received_ns)
-            if what in ("joints", "ros2"):
+                self.newest_depth[camera] = (frame, received_ns)
+            elif what == "labels":
+                self._labels(camera, wire.decode_labels(data), received_ns)
+            elif what in ("joints", "ros2"):
                 decode = joint_wire.decode_joint_state if what == "joints" else (
                     joint_wire.decode_ros2_joint_state)  # fmt: skip
                 self.monitor.joint_state(decode(data), received_ns)
-                return False
         except (WireError, ValueError) as exc:
             self.counts["rejected"] += 1
             self.warn(
                 f"rejected {what}", "dropped a message on %s: %s (%d dropped so far)",
                 printable(key), printable(exc), self.counts["rejected"],
             )  # fmt: skip
-        return False
+
+    def decide(self) -> bool:
+        """Judge each camera's newest depth frame not judged yet: with its own labels when
+        they came, else (`CellMonitor.decides_on_depth`) with the newest labels carried onto
+        it; and judge it again once its own labels come. True when any frame was judged."""
+        judged = False
+        for camera, (depth, received_ns) in self.newest_depth.items():
+            pair = self.labelled.get(camera)
+            if pair is None:
+                continue
+            frame_id = (depth.seq, depth.stamp_ns)
+            last = self.decided.get(camera)
+            own = (pair.depth.seq, pair.depth.stamp_ns) == frame_id
+            if own:
+                if last == (*frame_id, True):
+                    continue
+                self.monitor.frame(camera, depth, pair.labels, pair.received_ns)
+            elif (
+                (last is None or last[:2] != frame_id)
+                and pair.depth.stamp_ns < depth.stamp_ns
+                and self.monitor.decides_on_depth(received_ns)
+            ):
+                self.monitor.frame(camera, depth, pair.labels, received_ns,
+                                   labels_depth=pair.depth, labels_received_ns=pair.received_ns)  # fmt: skip
+                self.counts["carried"] += 1
+            else:
+                continue
+            self.decided[camera] = (*frame_id, own)
+            self.counts["frames"] += 1
+            judged = True
+        return judged
 
     def newest(self, first: tuple, inbox: Inbox) -> list[tuple]:
         """`first` and what else waits in `inbox` now, in order, with only the newest labels of
@@ -184,7 +232,8 @@ class SafetyService:
             out.append(item)
         return out
 
-    def _labels(self, camera: str, labels: wire.LabelFrame, received_ns: int) -> bool:
+    def _labels(self, camera: str, labels: wire.LabelFrame, received_ns: int) -> None:
+        """Pair labels with their depth frame and keep them as the camera's newest."""
         depth = self.pending[camera].pop(labels.seq, None)
         if depth is None:
             self.counts["unpaired"] += 1
@@ -193,9 +242,13 @@ class SafetyService:
                 "(%d so far): is the worker labelling another driver's frames?",
                 camera, labels.seq, self.counts["unpaired"],
             )  # fmt: skip
-            return False
-        self.monitor.frame(camera, depth, labels, received_ns)
-        self.counts["frames"] += 1
+            return
+        if labels.labels.shape != depth.depth.shape:
+            raise ValueError(
+                f"labels of {camera} seq {labels.seq} are {labels.labels.shape}, their depth "
+                f"frame {depth.depth.shape}"
+            )
+        self.labelled[camera] = Labelled(labels, depth, received_ns)
         if labels.background is None and camera not in self.no_background_said:
             self.no_background_said.add(camera)
             log.warning(
@@ -206,7 +259,6 @@ class SafetyService:
         if not self.coverage_said and depth.mount is not None:
             self.mounts.setdefault(camera, depth.mount)
             self.say_coverage()
-        return True
 
     def say_coverage(self) -> None:
         """Once every camera's mount is known: log how much of the space around the robot
@@ -254,8 +306,8 @@ class SafetyService:
         """One line for systemd and the log."""
         c = self.counts
         return (
-            f"cell {self.cell.cell}: {self.last_state or 'starting'}, {c['frames']} frames, "
-            f"{c['decisions']} decisions, {c['skipped']} skipped (behind), {c['rejected']} "
+            f"cell {self.cell.cell}: {self.last_state or 'starting'}, {c['frames']} frames "
+            f"({c['carried']} before their labels), {c['decisions']} decisions, {c['skipped']} skipped (behind), {c['rejected']} "
             f"rejected, {c['unpaired']} unpaired, "
             f"{self.monitor.counts['joint_states']} joint states"
         )
@@ -354,7 +406,8 @@ def run(args: argparse.Namespace) -> int:
             decided = tokens.take(monitor)
             if item is not None:
                 for key, data, received_ns in service.newest(item, inbox):
-                    decided = service.handle(key, data, received_ns) or decided
+                    service.handle(key, data, received_ns)
+                decided = service.decide() or decided
             if decided or time.monotonic() - service.last_publish >= period_s:
                 service.publish(time.time_ns())
     log.info("stopped: %s (%d dropped while the queue was full)", service.status(), inbox.dropped)
