@@ -55,6 +55,17 @@ def test_the_experiment_says_when_a_background_gated(tmp_path):
     assert "static background gating" in (out / "safety.md").read_text()
 
 
+def test_with_labels_a_frame_late_each_frame_is_decided_with_the_earlier_labels(tmp_path):
+    out = tmp_path / "safety"
+    args = ["-q", "experiment", "safety", "--sequences", "1", "--sequence-seconds", "1",
+            "--validation", "--labels-lag", "2", "--out", str(out)]  # fmt: skip
+    assert main(args) == 0
+    doc = json.loads((out / "safety.json").read_text())
+    assert doc["labels_lag"] == 2 and doc["overall"]["frames"] == 15
+    assert "labels 2 frames old carried" in (out / "safety.md").read_text()
+    assert main([*args[:-2], "--labels-lag", "31", "--out", str(out)]) == 2
+
+
 def test_a_cell_recording_comes_with_its_cell_file_and_static_background(tmp_path):
     from topseg.core.background import load_background
 

@@ -128,6 +128,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="safety: each sequence's length at 15 fps (default %(default)s)",
     )  # fmt: skip
     parser.add_argument(
+        "--labels-lag", type=int, default=0, metavar="N",
+        help="safety: decide on each frame with the labels of the frame N frames before it "
+        "carried onto it, as the live service does before a frame's own labels come "
+        "(default %(default)s: its own)",
+    )  # fmt: skip
+    parser.add_argument(
         "--validation", action="store_true",
         help="safety: the validation sequences (other seeds), for choosing thresholds",
     )  # fmt: skip
@@ -243,9 +249,11 @@ def _run_safety(args, out: Path) -> int:
 
     if args.sequences < 1 or not 1 <= args.sequence_seconds <= 600:
         raise TopsegError("--sequences must be >= 1 and --sequence-seconds within 1..600")
+    if not 0 <= args.labels_lag <= 30:
+        raise TopsegError("--labels-lag must be within 0..30 frames")
     seed = safety.VALIDATION_SEED if args.validation else safety.TEST_SEED
     result = safety.run(out, args.model, args.sequences, args.sequence_seconds, 15.0, seed,
-                        background=args.background)  # fmt: skip
+                        background=args.background, lag=args.labels_lag)  # fmt: skip
     print(safety.markdown(result))
     return 0
 

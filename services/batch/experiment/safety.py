@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from pathlib import Path
 
 from topseg.core.atomic import atomic_write
@@ -68,9 +69,12 @@ def sequence_config(i: int, duration_s: float, fps: float) -> CellSequenceConfig
 
 
 def run_sequence(
-    seq: CellSequence, segmenter: Segmenter, reaction_s: float = REACTION_S
+    seq: CellSequence, segmenter: Segmenter, reaction_s: float = REACTION_S, lag: int = 0
 ) -> list[Compared]:
-    """Every frame of `seq`: the model's labels decided on beside the truth's decision."""
+    """Every frame of `seq`: the model's labels decided on beside the truth's decision. With
+    `lag`, each frame is decided on with the labels of the frame `lag` frames before it
+    carried onto it, as the live service does before a frame's own labels come (the first
+    `lag` frames with their own)."""
     import tomllib
 
     cell = cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
@@ -79,14 +83,18 @@ def run_sequence(
     live, exact = CellMonitor(cell, robot), CellMonitor(cell, robot)
     camera = cell.cameras[0].name
     out = []
+    earlier: deque[tuple[wire.DepthFrame, wire.LabelFrame]] = deque(maxlen=lag + 1)
     for f in seq.frames():
         stamp = 1 + int(f.time_s * 1e9)
         state = JointState(stamp, tuple(f.joint_names), tuple(float(v) for v in f.joint_positions))
         for monitor in (live, exact):
             monitor.set_joints(state, stamp)
         depth = wire.DepthFrame(f.depth, mount.intrinsics, f.index, stamp, camera, mount)
-        labels = segmenter.label(f.depth, mount.intrinsics, mount=mount).labels
-        view = live.frame(camera, depth, wire.LabelFrame(labels, f.index, stamp, camera), stamp)
+        labels = segmenter.label(f.depth, mount.intrinsics, mount=mount).labels.copy()
+        earlier.append((depth, wire.LabelFrame(labels, f.index, stamp, camera)))
+        then, then_labels = earlier[0]
+        carried = then if then is not depth else None
+        view = live.frame(camera, depth, then_labels, stamp, labels_depth=carried)
         said = decide(
             cell, view.nearest, sorted(view.occupied), view.unseen, reaction_s, view.faults
         )
@@ -122,9 +130,11 @@ def draw_sequence(config: CellSequenceConfig, seed: int, tries: int = 5) -> Cell
 
 
 def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: float,
-        first_seed: int = TEST_SEED, report=print, background: bool = False) -> dict:  # fmt: skip
+        first_seed: int = TEST_SEED, report=print, background: bool = False,
+        lag: int = 0) -> dict:  # fmt: skip
     """Score `sequences` sequences (their labels gated by each one's static background with
-    `background`); write OUT/safety.md and .json; the figures."""
+    `background`, carried `lag` frames on: `run_sequence`); write OUT/safety.md and .json;
+    the figures."""
     out.mkdir(parents=True, exist_ok=True)
     segmenter = Segmenter.from_file(model)
     rows, everything = [], []
@@ -135,7 +145,7 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
         labeller = segmenter
         if background:
             labeller = segmenter.with_background(sequence_background(seq))
-        compared = run_sequence(seq, labeller)
+        compared = run_sequence(seq, labeller, lag=lag)
         everything += compared
         figures = score(compared)
         rows.append({"seed": seq.seed, "robot": config.robot, "sensor": config.sensor,
@@ -145,7 +155,7 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
             f" states {100 * figures['state_agreement']:.1f} % equal, "
             f"{figures['clear_when_truth_stop']} clear-when-stop, {time.perf_counter() - t0:.0f} s"
         )
-    result = {"model": segmenter.model_id, "background": background,
+    result = {"model": segmenter.model_id, "background": background, "labels_lag": lag,
               "overall": score(everything), "sequences": rows}  # fmt: skip
     with atomic_write(out / "safety.json") as f:
         f.write(json.dumps(result, indent=2).encode())
@@ -181,6 +191,11 @@ def markdown(result: dict) -> str:
     return (
         f"# Safety decisions on rendered cell sequences\n\nmodel: {result['model']}"
         + (", each sequence's static background gating" if result.get("background") else "")
+        + (
+            f", labels {result['labels_lag']} frames old carried onto each frame"
+            if result.get("labels_lag")
+            else ""
+        )
         + "\n\n"
         + "\n".join(lines)
         + "\n"
