@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml scripts/install.sh
 	bash scripts/install.sh
 	touch $(STAMP)
 
-## the whole test suite but the slow soaks, two processes (~8 min of pytest on 2 cores)
+## the whole test suite but the slow soaks, two processes (~16 min of pytest on 2 cores)
 test: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
