@@ -3,13 +3,13 @@
 The safety service decides on every depth frame as it arrives, without waiting for the
 worker's labels of that frame (which come a frame or more later): its geometry is the new
 frame's, and what each pixel is comes from the newest labels the worker sent, carried over
-by `carry_labels`. A pixel keeps its earlier label where nothing new appeared on it; a pixel
+by `carry_labels`. A pixel keeps its earlier label where nothing new appeared on it. A pixel
 where something stands nearer the camera than it did then (by more than `APPEARED_MM` and
-than the sensor's noise allows, above the floor) is taken as a person's: of the part of the nearest body-part pixel within
-`PART_REACH_M` (a hand reaching on, a leg stepping forward), or of unknown part
-(`UNIDENTIFIED`) where there is none. A person walking or reaching in is one the moment the
-depth shows it, and the labels of the next frames say what it was. The decision therefore
-fails towards `stop` while labels lag, never towards `clear`.
+than the sensor's noise allows, above the floor) is taken as a person's: of the part of the
+nearest body-part pixel within `PART_REACH_M` (a hand reaching on, a leg stepping forward),
+or of unknown part (`UNIDENTIFIED`) where there is none. A person walking or reaching in is
+one the moment the depth shows it, and the labels of the next frames say what it was. The
+decision therefore fails towards `stop` while labels lag, never towards `clear`.
 
 Every other pixel keeps its label, a robot label too: with the robot posed by its joint state
 the monitor judges robot labels outside the robot's silhouette as it does a frame's own (a
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from topseg.core import labels as label_table
+from topseg.core.person_check import IS_PART
 
 #: A pseudo-label for a pixel where something appeared since the labels were made: counted
 #: as a person's, of a part without body-region limits (the strictest: `decision._contact`
@@ -38,9 +38,6 @@ APPEARED_FLOOR_M = 0.05
 #: pixel is of that part: a person at 1.6 m/s moves 13 cm in the 80 ms labels typically lag.
 PART_REACH_M = 0.15
 
-_HUMAN = np.zeros(256, bool)
-_HUMAN[list(label_table.HUMAN_IDS)] = True
-
 
 def carry_labels(
     labels: np.ndarray,
@@ -55,9 +52,9 @@ def carry_labels(
     heights above the floor; `pixels_per_m` pixels a metre spans at the frame's depth;
     `noise_mm` one frame's depth noise, 1 sigma, per pixel or one for all). Where something
     appeared (nearer by more than APPEARED_MM and APPEARED_SIGMAS sigma of the difference,
-    higher than APPEARED_FLOOR_M; a pixel without depth then never counts) and the label was not a person's: the part of the
-    nearest body-part pixel within PART_REACH_M, else `UNIDENTIFIED`. The earlier label
-    elsewhere."""
+    higher than APPEARED_FLOOR_M; a pixel without depth then never counts) and the label was
+    not a person's: the part of the nearest body-part pixel within PART_REACH_M, else
+    `UNIDENTIFIED`. The earlier label elsewhere."""
     if not (labels.shape == labels_depth_mm.shape == depth_mm.shape == heights_m.shape):
         raise ValueError(
             f"labels {labels.shape}, their depth {labels_depth_mm.shape}, the new depth "
@@ -70,7 +67,7 @@ def carry_labels(
     # a pixel without depth then (a shadow, a dark surface: they flicker) says nothing new
     appeared = has_new & (old > 0) & (new < old - step) & (heights_m > APPEARED_FLOOR_M)
     out = labels.copy()
-    human = _HUMAN[labels]
+    human = IS_PART[labels]
     new_thing = appeared & ~human
     out[new_thing] = UNIDENTIFIED
     reach_px = PART_REACH_M * pixels_per_m

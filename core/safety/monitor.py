@@ -40,11 +40,12 @@ from topseg.core.camera import KINECT_V1, TopViewMount, axis_depth
 from topseg.core.formats.joint_states import JointState
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.resolution import decimate, decimated_mount
-from topseg.core.safety.carry import UNIDENTIFIED, carry_labels
+from topseg.core.safety.carry import carry_labels
 from topseg.core.safety.cell import CameraPlacement, CellConfig
 from topseg.core.safety.decision import Decision, decide
 from topseg.core.safety.robot import CellRobot, padded_box
 from topseg.core.safety.separation import (
+    IS_HUMAN,
     Capsules,
     HumanPoints,
     Nearest,
@@ -103,9 +104,6 @@ MAX_REACH_PX = 60
 #: Without a joint state the robot's pixels stand for it, thinned to one point per cell of
 #: this side (m).
 ROBOT_POINT_GRID_M = 0.03
-
-_HUMAN = np.zeros(256, bool)
-_HUMAN[[*label_table.HUMAN_IDS, UNIDENTIFIED]] = True
 
 
 @dataclass
@@ -495,7 +493,7 @@ def people_points(
     """The human pixels in 3-D (`separation.human_points`), blobs whose pixels cover less
     than MIN_PERSON_AREA_M2 of the floor-parallel plane at their depth left out unless the
     image's edge cuts them (BORDER_BLOBS_KEPT); None when no person is left."""
-    if not _HUMAN[lab].any():
+    if not IS_HUMAN[lab].any():
         return None
     people = human_points(depth_mm, lab, mount, placement)
     if not len(people):

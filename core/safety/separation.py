@@ -2,8 +2,9 @@
 nearest pair of a human point and the robot (its own shapes, or its bounding capsules).
 
 `human_points` back-projects every pixel labelled as a human part (`labels.HUMAN_IDS`, and
-`carry.UNIDENTIFIED`: something new the labels have not caught up with) that has depth, through the camera's mount (a `radial` camera's frame read as depth first) into
-the camera's world frame and by the camera's placement into the cell frame; its blobs are
+`carry.UNIDENTIFIED`: something new the labels have not caught up with; `IS_HUMAN`) that has
+depth, through the camera's mount (a `radial` camera's frame read as depth first) into the
+camera's world frame and by the camera's placement into the cell frame; its blobs are
 the 4-connected components of those pixels (one blob is roughly one person: two people who
 touch in the image are one blob).
 
@@ -28,8 +29,10 @@ from topseg.core.safety.carry import UNIDENTIFIED
 from topseg.core.safety.surface import RobotSurface, refine, segment_distance
 from topseg.core.union_find import find_root
 
-_IS_HUMAN = np.zeros(256, bool)
-_IS_HUMAN[[*labels.HUMAN_IDS, UNIDENTIFIED]] = True
+#: label -> whether the safety path counts it as a person's: the body parts, and what
+#: appeared since the labels were made
+IS_HUMAN = np.zeros(256, bool)
+IS_HUMAN[[*labels.HUMAN_IDS, UNIDENTIFIED]] = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,7 +117,7 @@ def human_points(depth_mm: np.ndarray, label_img: np.ndarray, mount, placement) 
             f"{k.shape} (height, width)"
         )
     depth_mm = mount.z_depth(depth_mm)
-    human = _IS_HUMAN[label_img] & (depth_mm > 0)
+    human = IS_HUMAN[label_img] & (depth_mm > 0)
     blob_img, blob_count = label4(human)
     rows, cols = np.nonzero(human)
     return HumanPoints(

@@ -17,9 +17,10 @@ worker sent are carried onto it (`core/safety/carry.py`: what appeared since the
 is a person of unknown part), so the decision waits for no worker; when a frame's own labels
 come while it is still the newest, it is decided on again with them. Without a fresh joint
 state each labelled frame is decided on as its labels come. Between frames the last decision
-is published again, re-decided with the reaction time measured then (depth stamp to now). No labels from a camera within `deadline_ms` (100 ms), a blinded camera, one that moved, or a camera that never sent anything gives `stop` with the
-reason. The robot's joint state may be missing or stale: then the model's `robot` class
-stands for the robot.
+is published again, re-decided with the reaction time measured then (depth stamp to now). No
+labels from a camera within `deadline_ms` (100 ms), a blinded camera, one that moved, or a
+camera that never sent anything gives `stop` with the reason. The robot's joint state may
+be missing or stale: then the model's `robot` class stands for the robot.
 
 Messages that do not decode are dropped, counted and logged at most every 10 s; a queue of
 `--queue` messages bounds what waits. A monitoring aid, not a certified safety device.
@@ -197,8 +198,10 @@ class SafetyService:
                 and pair.depth.stamp_ns < depth.stamp_ns
                 and self.monitor.decides_on_depth(received_ns)
             ):
-                self.monitor.frame(camera, depth, pair.labels, received_ns,
-                                   labels_depth=pair.depth, labels_received_ns=pair.received_ns)  # fmt: skip
+                self.monitor.frame(
+                    camera, depth, pair.labels, received_ns,
+                    labels_depth=pair.depth, labels_received_ns=pair.received_ns,
+                )  # fmt: skip
                 self.counts["carried"] += 1
             else:
                 continue
@@ -307,8 +310,8 @@ class SafetyService:
         c = self.counts
         return (
             f"cell {self.cell.cell}: {self.last_state or 'starting'}, {c['frames']} frames "
-            f"({c['carried']} before their labels), {c['decisions']} decisions, {c['skipped']} skipped (behind), {c['rejected']} "
-            f"rejected, {c['unpaired']} unpaired, "
+            f"({c['carried']} before their labels), {c['decisions']} decisions, "
+            f"{c['skipped']} skipped (behind), {c['rejected']} rejected, {c['unpaired']} unpaired, "
             f"{self.monitor.counts['joint_states']} joint states"
         )
 
