@@ -96,9 +96,10 @@ class CellGrid:
     cell: int
 
 
-def cell_side(fx: float) -> int:
-    """Working pixels a cell's side spans at the working focal length `fx` (px)."""
-    return max(1, round(CELL_PX * fx / REFERENCE_FOCAL_PX))
+def cell_side(fx: float, cell_px: int = CELL_PX) -> int:
+    """Working pixels a cell's side spans at the working focal length `fx` (px), for cells
+    `cell_px` pixels square at REFERENCE_FOCAL_PX."""
+    return max(1, round(cell_px * fx / REFERENCE_FOCAL_PX))
 
 
 def cell_grid(
@@ -108,12 +109,13 @@ def cell_grid(
     depth_mm: np.ndarray,
     proba: np.ndarray,
     fx: float,
+    cell_px: int = CELL_PX,
 ) -> CellGrid | None:
     """The cells of a working frame: its labels, which pixels have depth above the floor
     gate (`valid`), their heights above the floor (NaN: none), depth (mm) and the forest's
-    posteriors (H, W, classes), and the working focal length. None without a valid pixel in
-    a whole cell."""
-    cell = cell_side(fx)
+    posteriors (H, W, classes), and the working focal length; cells `cell_px` pixels square
+    at REFERENCE_FOCAL_PX. None without a valid pixel in a whole cell."""
+    cell = cell_side(fx, cell_px)
     chan, depth_sum, n_valid, parts = K.cell_channels(
         labels, valid, heights_mm, depth_mm, proba, cell, CHANNEL_TABLE, POSTERIOR_TABLE
     )

@@ -29,6 +29,7 @@ from topseg.core.background import (
 from topseg.core.bundled_model import bundled_model_path
 from topseg.core.camera import Intrinsics, TopViewMount
 from topseg.core.context_check import ContextCheck, warm_up_context
+from topseg.core.context_prior import ContextPrior
 from topseg.core.crf import CRFConfig, realtime, segment_crf
 from topseg.core.denoise import edge_table, smooth_depth
 from topseg.core.errors import TopsegError
@@ -70,7 +71,7 @@ class Segmentation:
 
     labels       (H, W) uint8 class ids, NO_DEPTH (255) where there is no depth (after
                  small holes inside one surface were filled: counts["filled_holes"])
-    proba        (h, w, C) float32 forest posteriors (a property, see there)
+    proba        (h, w, C) float32 forest posteriors, after the context prior (a property)
     timings      per-stage milliseconds
     floor_share  share of the pixels with depth the floor gate sent to background without
                  the forest (0 for a model that reads depth)
@@ -94,9 +95,10 @@ class Segmentation:
     @property
     def proba(self) -> np.ndarray:
         """(h, w, C) float32 forest posteriors at the working resolution (the frame's size
-        divided by `downsample`): the Segmenter's reused buffer, valid until its next call
-        (copy it to keep it). On a grid the Segmenter stores only the ones the CRF reads;
-        the first read of `proba` stores the rest (~1.5 ms a 640x480 frame)."""
+        divided by `downsample`), moved by the model's context prior when it has one: the
+        Segmenter's reused buffer, valid until its next call (copy it to keep it). On a grid
+        the Segmenter stores only the ones the CRF reads; the first read of `proba` stores
+        the rest (~1.5 ms a 640x480 frame)."""
         return self._frame.posteriors()
 
     @property
@@ -162,15 +164,16 @@ class Segmenter:
         self.background = background or self._load_background(config)
         self.person_check = self._check(PersonCheck, self.header, path)
         self.context_check = self._check(ContextCheck, self.header, path)
+        self.context_prior = self._check(ContextPrior, self.header, path)
         model = StageModel(forest, self.reader, config, self.background, self.person_check,
-                           self.context_check)  # fmt: skip
+                           self.context_check, self.context_prior)  # fmt: skip
         self.stages = build_stages(model)
         # the stages whose time is the CRF's headline share; the rest (and the plan) the forest's
         self._crf_share = {stage.name for stage in self.stages if stage.share == CRFS_SHARE}
 
     @staticmethod
     def _check(kind, header: dict[str, Any], path: Path | None):
-        """The check of `kind` (PersonCheck or ContextCheck) the model header carries
+        """The check of `kind` (PersonCheck, ContextCheck or ContextPrior) the model header carries
         (None: none); ModelFileError naming the model when it is malformed."""
         try:
             return kind.from_header(header)

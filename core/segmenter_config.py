@@ -110,6 +110,9 @@ class GridConfig:
     adaptive    on a grid, levels of coarser grids walked first; 0 walks every grid pixel
     early_exit  a walked pixel stops walking trees once its first two (or more) give one
                 class this average posterior; None walks every tree
+    context_prior  `on`: the model's context prior folds what each cell is, judged from
+                the posteriors up to 75 cm around it, into the posteriors before the CRF
+                (`core.context_prior`; a model without one has none); `off`: none
     Models that read raw depth work at their camera's resolution (downsample 1).
     """
 
@@ -151,6 +154,16 @@ class GridConfig:
         help="a pixel stops walking trees once its first two (or more) give one class an "
         "average posterior >= P; off walks every tree (default: %(default)s)",
     )
+    context_prior: str = setting(
+        "on",
+        flag="context-prior",
+        kind="choice",
+        choices=("on", "off"),
+        help="before the CRF, the model's context prior (fitted by `topseg person-check`) "
+        "judges what each 5 cm cell is (a person, the robot, an object, furniture, "
+        "background) from the forest's posteriors up to 75 cm around it and folds that into "
+        "the posteriors; off keeps the forest's own (default: %(default)s)",
+    )
 
     def __post_init__(self) -> None:
         if self.stride is not None and (isinstance(self.stride, bool) or self.stride < 1):
@@ -166,6 +179,8 @@ class GridConfig:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
         if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
             raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
+        if self.context_prior not in ("on", "off"):
+            raise TopsegError(f"context_prior must be on or off, got {self.context_prior!r}")
 
 
 @dataclass(frozen=True)

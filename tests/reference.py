@@ -1465,3 +1465,30 @@ def tree_ensemble_reference(x, feature, threshold, left, right, value, roots):
             total += value[node]
         out[i] = total
     return out
+
+
+def fold_prior_reference(proba, valid, cell, groups, has_prior, class_group, alpha, eps):
+    """`context_prior_kernels.fold_prior` by blocks: (posteriors after, argmax after); the
+    posteriors of valid pixels in cells with a prior weighted by ((q_g + eps) / (m_g +
+    eps)) ** alpha and normalised, m_g the cell's mean posterior mass in group g."""
+    proba = proba.astype(np.float64)
+    hc, wc = has_prior.shape
+    n_groups = groups.shape[2]
+    onehot = np.zeros((proba.shape[2], n_groups))
+    onehot[np.arange(proba.shape[2]), class_group[: proba.shape[2]]] = 1.0
+    for i in range(hc):
+        for j in range(wc):
+            block = np.s_[i * cell : (i + 1) * cell, j * cell : (j + 1) * cell]
+            v = valid[block]
+            if not has_prior[i, j] or not v.any():
+                continue
+            p = proba[block][v]
+            mass = (p @ onehot).mean(axis=0)
+            weight = ((groups[i, j] + eps) / (mass + eps)) ** alpha
+            p = p * (onehot @ weight)
+            total = p.sum(axis=1, keepdims=True)
+            p = np.where(total > 0, p / np.where(total > 0, total, 1.0), p)
+            sub = proba[block]
+            sub[v] = p
+            proba[block] = sub
+    return proba.astype(np.float32), proba.argmax(axis=2)

@@ -359,20 +359,24 @@ def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
     assert fit.returncode == 0, fit.stderr
     assert "person check, held-out frames" in fit.stdout
     assert "context check, held-out frames" in fit.stdout and "restores" in fit.stdout
+    assert "context prior: on" in fit.stdout
     forest, header = load_model(out)
     original, original_header = load_model(bundled_model_path())
     np.testing.assert_array_equal(forest.posteriors, original.posteriors)
     assert header["person_check"]["validation"]["frames"] == 16
     assert header["context_check"]["validation"]["frames"] == 16
+    assert header["context_prior"]["validation"]["frames"] == 16
 
     def without_checks(h):
-        return {k: v for k, v in h.items() if k not in ("person_check", "context_check")}
+        fitted = ("person_check", "context_check", "context_prior")
+        return {k: v for k, v in h.items() if k not in fitted}
 
     assert without_checks(header) == without_checks(original_header)
     seg = Segmenter.from_file(out)
     assert seg.person_check is not None and seg.person_check.validation["blobs"] > 0
     assert seg.context_check is not None and seg.context_check.validation["cells"] > 0
     assert seg.context_check.restore_threshold is not None
+    assert seg.context_prior is not None and seg.context_prior.validation["cells"] > 0
     # (a check fitted with --restore off, that only rejects: test_context_check's fit; one
     # more fit here costs half a minute whatever its size, sklearn binning weighted rows)
     # --context off: the person check alone, and the input model's context check dropped,
@@ -384,13 +388,14 @@ def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
         Segmenter.from_file(stale)
     fit = subprocess.run(
         [topseg, "-q", "person-check", "--model", str(stale), "--data", str(data), "--out",
-         str(alone), "--context", "off"],
+         str(alone), "--context", "off", "--prior", "off"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert fit.returncode == 0, fit.stderr
-    assert "context check" not in fit.stdout
+    assert "context check" not in fit.stdout and "context prior" not in fit.stdout
     seg = Segmenter.from_file(alone)
     assert seg.context_check is None and seg.person_check is not None
+    assert seg.context_prior is None
 
 
 def test_person_check_refuses_a_dataset_too_small_in_one_line(tmp_path, data):

@@ -158,6 +158,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
     assert last["counts"] == {
         "processed": 6, "dropped": 2, "rejected": 0, "small_heads": small_heads,
         "small_furniture": small_furniture, "satellite_heads": satellite_heads,
+        "prior_cells": 0, "prior_changed_px": 0,
         "not_person_cells": 0, "not_person_cell_px": 0, "restored_cells": 0, "restored_cell_px": 0, "not_people_blobs": 0, "not_people_px": 0, "surface_votes_px": 0,
         "filled_holes": 0,  # a model that reads depth: no holes filled
         "background_px": 0, "background_missing_px": 0,  # no recorded background
@@ -173,6 +174,7 @@ def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_pa
             "model_input",
             "background",
             "forest",
+            "context_prior",
             "crf",
             "context_check",
             "person_check",
@@ -238,6 +240,8 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
         "small_heads": 0,
         "small_furniture": 0,
         "satellite_heads": 0,
+        "prior_cells": 0,
+        "prior_changed_px": 0,
         "not_person_cells": 0,
         "not_person_cell_px": 0,
         "restored_cells": 0,
@@ -380,6 +384,7 @@ def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prom
     assert counts == {
         "processed": n, "dropped": 0, "rejected": 0, "small_heads": mock.ANY,
         "small_furniture": mock.ANY, "satellite_heads": mock.ANY, "filled_holes": mock.ANY,
+        "prior_cells": 0, "prior_changed_px": 0,
         "not_person_cells": 0, "not_person_cell_px": 0, "restored_cells": 0, "restored_cell_px": 0, "not_people_blobs": 0, "not_people_px": 0, "surface_votes_px": 0,
         "background_px": 0, "background_missing_px": 0,
         "seq_resets": 0, "seq_jumps": 0, "stamps_out_of_window": 0,
@@ -592,6 +597,7 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
     assert counts == {
         "processed": n - first, "dropped": 0, "rejected": 0, "small_heads": 0,
         "small_furniture": 0, "satellite_heads": 0, "filled_holes": mock.ANY,
+        "prior_cells": 0, "prior_changed_px": 0,
         "not_person_cells": 0, "not_person_cell_px": 0, "restored_cells": 0, "restored_cell_px": 0, "not_people_blobs": 0, "not_people_px": 0, "surface_votes_px": 0,
         "background_px": 0, "background_missing_px": 0,
         "seq_resets": 0, "seq_jumps": 0, "stamps_out_of_window": 0,

@@ -7,6 +7,7 @@ adapter in `readers.py`), then runs `STAGES` in order over one `FrameState`:
   model_input  heights, offset scales and the floor gate (or a depth model's raw depth)
   background   pixels that match the static cell's recorded background join the floor gate
   forest       the forest's posteriors (lazy on a grid)
+  context_prior what each cell is, judged from the posteriors around it, folded into them
   crf          the Potts CRF
   context_check body-part pixels of cells the model's context check says are not a person's
                take another class
@@ -26,6 +27,7 @@ import time
 from topseg.core.stages.background import BackgroundStage
 from topseg.core.stages.base import FORESTS_SHARE, Stage, StageModel
 from topseg.core.stages.context_check import ContextCheckStage
+from topseg.core.stages.context_prior import ContextPriorStage
 from topseg.core.stages.crf import CRFStage
 from topseg.core.stages.forest import ForestStage
 from topseg.core.stages.model_input import ModelInputStage
@@ -41,6 +43,7 @@ STAGES: tuple[type[Stage], ...] = (
     ModelInputStage,
     BackgroundStage,
     ForestStage,
+    ContextPriorStage,
     CRFStage,
     ContextCheckStage,
     PersonCheckStage,

@@ -10,6 +10,7 @@ from topseg.core.segmenter_config import SegmenterConfig
 if TYPE_CHECKING:
     from topseg.core.background import BackgroundModel
     from topseg.core.context_check import ContextCheck
+    from topseg.core.context_prior import ContextPrior
     from topseg.core.forest.tree import Forest
     from topseg.core.person_check import PersonCheck
     from topseg.core.stages.plan import FrameState
@@ -24,8 +25,8 @@ CRFS_SHARE = "crf"
 @dataclass(frozen=True)
 class StageModel:
     """What stages are built from: the loaded forest, its input adapter, the run settings,
-    the recorded background of a static cell and the model's context and person checks
-    (None: none)."""
+    the recorded background of a static cell, the model's context and person checks and its
+    context prior (None: none)."""
 
     forest: Forest
     reader: ModelReader
@@ -33,6 +34,7 @@ class StageModel:
     background: BackgroundModel | None = None
     person_check: PersonCheck | None = None
     context_check: ContextCheck | None = None
+    context_prior: ContextPrior | None = None
 
 
 class Stage:

@@ -1,7 +1,16 @@
-"""Fit a model's two person checks (`core.context_check`, then `core.person_check`) on a
-dataset from `topseg datagen` and write them into the model file.
+"""Fit a model's context prior (`core.context_prior`) and its two person checks
+(`core.context_check`, then `core.person_check`) on a dataset from `topseg datagen` and write
+them into the model file.
 
-The context check first. The model labels every frame (its forest and CRF, as the worker
+The context prior first. The model's forest labels every frame; up to PRIOR_CELLS_PER_FRAME
+of its prior cells (those above the floor gate) are described by the context check's
+features, each marked with the group (person, robot, object, furniture, background) most of
+its pixels are in the truth. Three frames in four fit scikit-learn's histogram gradient
+boosting, one set of trees per group (weighted by the cells' pixels); the fourth measures how
+many of its cells' pixels the prior puts in the right group, against the forest's argmax.
+`--prior off` fits none (the checks then judge the forest's own posteriors).
+
+Then the context check, on the labels the CRF makes of the posteriors the prior leaves. The model labels every frame (its forest and CRF, as the worker
 does); every cell holding body-part labels, and every cell it may restore
 (`context_check.restore_cells`), is described by the context check's features and marked a
 person's when most of the pixels the check would change (its body-part pixels; a restore
@@ -18,9 +27,10 @@ blob's area, so a blob counts by how much of the frame it is); the fourth choose
 threshold: the strictest that still keeps `--keep` of the person pixels that lie in body-part
 blobs.
 
-The trees and thresholds go into the model header (`context_check`, `person_check`), with
-what the held-out frames measured; the forest is unchanged. Render the dataset from another
-seed than the forest's training set, with the scenes the model will see (`--mode cell`).
+The trees and thresholds go into the model header (`context_prior`, `context_check`,
+`person_check`), with what the held-out frames measured; the forest is unchanged. Render the
+dataset from another seed than the forest's training set, with the scenes the model will see
+(`--mode cell`).
 """
 
 from __future__ import annotations
@@ -33,7 +43,15 @@ import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
-from topseg.core.context_check import IS_RESTORABLE, ContextCheck
+from topseg.core.context_check import IS_RESTORABLE, ContextCheck, cell_features
+from topseg.core.context_prior import (
+    ALPHA,
+    GROUPS,
+    ContextPrior,
+    group_truth,
+    prior_cells,
+    prior_grid,
+)
 from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import caller_header, load_model, save_model
 from topseg.core.formats.dataset import open_dataset
@@ -61,8 +79,12 @@ CONTEXT_TREES, CONTEXT_DEPTH, CONTEXT_RATE = 150, 4, 0.1
 #: the share of restored pixels that must be a person's on the held-out frames (chosen on the
 #: validation cells: docs/results.md, "Choices measured")
 RESTORE_PRECISION = 0.75
+#: the context prior's boosted trees (one set per group): how many, how deep, the learning
+#: rate; and how many cells of each frame it is fitted on at most (drawn at random)
+PRIOR_TREES, PRIOR_DEPTH, PRIOR_RATE = 100, 6, 0.1
+PRIOR_CELLS_PER_FRAME = 400
 #: the header entries this command fits
-CHECK_KEYS = (ContextCheck.HEADER_KEY, PersonCheck.HEADER_KEY)
+CHECK_KEYS = (ContextPrior.HEADER_KEY, ContextCheck.HEADER_KEY, PersonCheck.HEADER_KEY)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -88,6 +110,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--context-keep", type=finite(0.5, 1.0), default=0.98, metavar="P",
         help="the context check's threshold keeps this share of the held-out frames' person "
         "pixels that lie in body-part cells (default: %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--prior", choices=("on", "off"), default="on",
+        help="fit the context prior first, which the checks are then fitted after (off: "
+        "none, as models before it)",
     )  # fmt: skip
     parser.add_argument(
         "--context", choices=("on", "off"), default="on",
@@ -127,6 +154,17 @@ def run(args: argparse.Namespace) -> int:
     n = len(ds) if args.frames is None else min(args.frames, len(ds))
     if n < HOLD_OUT:
         raise TopsegError(f"{args.data} has {n} frames; the check needs at least {HOLD_OUT}")
+    if args.prior == "on":
+        config = dataclasses.replace(
+            config, grid=dataclasses.replace(config.grid, context_prior="on")
+        )
+        frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label (prior cells)",
+                      unit="frame", disable=None)  # fmt: skip
+        prior = fit_prior(gather_prior_cells(segmenter, frames, args.seed), args.seed)
+        prior.validation.update(dataset=str(args.data), frames=n)
+        fitted[ContextPrior.HEADER_KEY] = prior.to_header()
+        print(describe_prior(prior.validation))
+        segmenter = Segmenter(forest, fitted, config, path=model)
     if args.context == "on":
         frames = tqdm(dataset_frames(ds, range(n)), total=n, desc="label (cells)",
                       unit="frame", disable=None)  # fmt: skip
@@ -147,6 +185,75 @@ def run(args: argparse.Namespace) -> int:
     print(describe(check.validation))
     print(f"wrote {out}")
     return 0
+
+
+def gather_prior_cells(segmenter: Segmenter, frames, seed: int = 0) -> dict[str, np.ndarray]:
+    """The context prior's cells of every (depth, truth, mount) frame after the model's
+    forest, at most PRIOR_CELLS_PER_FRAME of each drawn at random: their features, the truth
+    group most of their valid pixels are of (`group`), those pixels' count (`weight`), the
+    forest argmax's group of the most of them (`forest`) and the frame number."""
+    columns: dict[str, list] = {k: [] for k in ("features", "group", "weight", "forest", "frame")}
+    for i, (depth, truth, mount) in enumerate(frames):
+        frame = FrameState(segmenter.plan(depth, None, f"frame {i}", mount), depth)
+        segmenter.run(frame, upto="forest")
+        inp, step = frame.inp, frame.plan.downsample
+        valid = (inp.values > 0) & ~inp.floor
+        forest = frame.summary.amax
+        grid = prior_grid(forest, valid, frame.heights(), frame.depth, frame.fill(None),
+                          frame.plan.work_mount.intrinsics.fx)  # fmt: skip
+        if grid is None:
+            continue
+        rows, cols = prior_cells(grid)
+        rng = np.random.default_rng([seed, i])
+        pick = np.sort(rng.choice(rows.size, min(PRIOR_CELLS_PER_FRAME, rows.size), replace=False))
+        rows, cols = rows[pick], cols[pick]
+        counts = group_truth(truth[::step, ::step], valid, grid)[rows, cols]
+        forest_counts = group_truth(forest, valid, grid)[rows, cols]
+        for key, value in (("features", cell_features(grid, rows, cols)),
+                           ("group", counts.argmax(axis=1)), ("weight", counts.sum(axis=1)),
+                           ("forest", forest_counts.argmax(axis=1)),
+                           ("frame", np.full(rows.size, i))):  # fmt: skip
+            columns[key].append(value)
+    if not columns["features"]:
+        raise TopsegError("these frames hold no pixel above the floor")
+    return {k: np.concatenate(v) for k, v in columns.items()}
+
+
+def fit_prior(rows: dict[str, np.ndarray], seed: int = 0) -> ContextPrior:
+    """Histogram boosted trees (one set per group, softmax) fitted on three frames in four,
+    weighted by each cell's valid pixels; the prior with what the fourth measured: the share
+    of its cells' pixels whose cell the prior and the forest's argmax put in the right group."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    x, group, weight = rows["features"], rows["group"], rows["weight"]
+    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
+    missing = sorted(set(range(len(GROUPS))) - set(np.unique(group[~held]).tolist()))
+    if missing:
+        names = ", ".join(GROUPS[g] for g in missing)
+        raise TopsegError(f"the fitting frames hold no cell of {names}: the prior needs all")
+    clf = HistGradientBoostingClassifier(
+        max_iter=PRIOR_TREES, max_depth=PRIOR_DEPTH, learning_rate=PRIOR_RATE,
+        early_stopping=False, random_state=seed,
+    )  # fmt: skip
+    clf.fit(x[~held], group[~held], sample_weight=weight[~held])
+    check_rows = x[held][:10_000]
+    prior = ContextPrior(
+        tuple(ensemble_from_histogram(clf, check_rows, k) for k in range(len(GROUPS))), ALPHA, {}
+    )
+    chosen = prior.probabilities(x[held]).argmax(axis=1)
+    validation = {
+        "cells": int(held.sum()),
+        "cell_px_right": _share(weight[held] * (chosen == group[held]), weight[held]),
+        "forest_cell_px_right": _share(weight[held] * (rows["forest"][held] == group[held]),
+                                       weight[held]),
+        "person_cell_px_right": _share(
+            weight[held] * ((chosen == 0) & (group[held] == 0)), weight[held] * (group[held] == 0)
+        ),
+        "not_person_cell_px_called_person": _share(
+            weight[held] * ((chosen == 0) & (group[held] != 0)), weight[held] * (group[held] != 0)
+        ),
+    }  # fmt: skip
+    return dataclasses.replace(prior, validation=validation)
 
 
 def gather_cells(segmenter: Segmenter, frames, restoring: bool = True) -> dict[str, np.ndarray]:
@@ -333,15 +440,16 @@ def choose_threshold(scores: np.ndarray, person_area: np.ndarray, keep: float) -
     return float(scores[order][min(first, len(order) - 1)])
 
 
-def ensemble_from_histogram(clf, check_rows: np.ndarray) -> TreeEnsemble:
-    """A fitted binary HistGradientBoostingClassifier (numeric features, no missing values)
-    as a `TreeEnsemble`; its scores on `check_rows` must equal `decision_function`'s
-    (TopsegError otherwise: the exported trees are read from the estimator's fitted
+def ensemble_from_histogram(clf, check_rows: np.ndarray, k: int = 0) -> TreeEnsemble:
+    """Class `k`'s trees of a fitted HistGradientBoostingClassifier (numeric features, no
+    missing values; a binary one has one class of trees) as a `TreeEnsemble`; its scores on
+    `check_rows` must equal `decision_function`'s (column k for more than two classes;
+    TopsegError otherwise: the exported trees are read from the estimator's fitted
     predictors, which scikit-learn does not promise to keep)."""
     fields: dict[str, list] = {k: [] for k in ("feature", "threshold", "left", "right", "value")}
     roots, depth, base = [], 0, 0
-    for (predictor,) in clf._predictors:
-        nodes = predictor.nodes
+    for predictors in clf._predictors:
+        nodes = predictors[k].nodes
         roots.append(base)
         leaf = nodes["is_leaf"].astype(bool)
         fields["feature"].append(np.where(leaf, -1, nodes["feature_idx"]))
@@ -356,9 +464,11 @@ def ensemble_from_histogram(clf, check_rows: np.ndarray) -> TreeEnsemble:
         arrays["feature"].astype(np.int32), arrays["threshold"].astype(np.float64),
         arrays["left"].astype(np.int32), arrays["right"].astype(np.int32),
         arrays["value"].astype(np.float64), np.asarray(roots, np.int32),
-        float(np.ravel(clf._baseline_prediction)[0]), 1.0, depth,
+        float(np.ravel(clf._baseline_prediction)[k]), 1.0, depth,
     )  # fmt: skip
     reference = clf.decision_function(check_rows)
+    if reference.ndim == 2:
+        reference = reference[:, k]
     if np.size(reference) and np.max(np.abs(trees.score(check_rows) - reference)) > 1e-6:
         raise TopsegError("the exported trees do not reproduce scikit-learn's scores")
     return trees
@@ -394,6 +504,17 @@ def ensemble_from_sklearn(clf, check_rows: np.ndarray) -> TreeEnsemble:
     if offsets.size and np.max(np.abs(trees.score(check_rows) - reference)) > 1e-6:
         raise TopsegError("the exported trees do not reproduce scikit-learn's scores")
     return trees
+
+
+def describe_prior(validation: dict) -> str:
+    """What the held-out frames measured of the context prior, in one line."""
+    return (
+        f"context prior: on {validation['cells']} held-out cells, "
+        f"{validation['cell_px_right']:.1%} of their pixels in cells put in the right group "
+        f"(the forest's argmax {validation['forest_cell_px_right']:.1%}); person cells "
+        f"found {validation['person_cell_px_right']:.1%}, other cells called a person "
+        f"{validation['not_person_cell_px_called_person']:.1%}"
+    )
 
 
 def describe(validation: dict) -> str:
@@ -436,8 +557,10 @@ __all__ = [
     "ensemble_from_sklearn",
     "fit_check",
     "fit_context",
+    "fit_prior",
     "gather_blobs",
     "gather_cells",
+    "gather_prior_cells",
     "held_out",
     "labelled",
     "threshold_kept",

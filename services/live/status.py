@@ -213,6 +213,8 @@ def _worker_report(alive: bool, stats: list[dict]) -> dict:
         "dropped",
         "rejected",
         "foreign",
+        "prior_cells",
+        "prior_changed_px",
         "not_person_cells",
         "not_person_cell_px",
         "restored_cells",
