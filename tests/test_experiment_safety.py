@@ -24,6 +24,9 @@ def test_safety_experiment_scores_a_sequence(tmp_path):
     assert overall["clear_when_truth_stop"] >= 0
     md = (out / "safety.md").read_text()
     assert "| all |" in md and "state equal" in md
+    # labelled as the safety service's worker labels: without the model's context prior and
+    # checks
+    assert doc["precision_stages"] == "off"
 
 
 def test_a_sequences_static_background_is_its_table_without_people_or_robot():
@@ -48,10 +51,11 @@ def test_a_sequences_static_background_is_its_table_without_people_or_robot():
 def test_the_experiment_says_when_a_background_gated(tmp_path):
     out = tmp_path / "safety"
     args = ["-q", "experiment", "safety", "--sequences", "1", "--sequence-seconds", "1",
-            "--validation", "--background", "--out", str(out)]  # fmt: skip
+            "--validation", "--background", "--precision-stages", "on", "--out", str(out)]  # fmt: skip
     assert main(args) == 0
     doc = json.loads((out / "safety.json").read_text())
     assert doc["background"] is True and doc["overall"]["frames"] == 15
+    assert doc["precision_stages"] == "on"
     assert "static background gating" in (out / "safety.md").read_text()
 
 
@@ -62,6 +66,7 @@ def test_with_labels_a_frame_late_each_frame_is_decided_with_the_earlier_labels(
     assert main(args) == 0
     doc = json.loads((out / "safety.json").read_text())
     assert doc["labels_lag"] == 2 and doc["overall"]["frames"] == 15
+    assert doc["precision_stages"] == "off"
     assert "labels 2 frames old carried" in (out / "safety.md").read_text()
     assert main([*args[:-2], "--labels-lag", "31", "--out", str(out)]) == 2
 

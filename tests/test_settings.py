@@ -41,7 +41,7 @@ def parse(command: str, *argv: str):
 #: a configuration unlike the defaults in every setting that has an option
 ODD = SegmenterConfig(
     pre=PreConfig(fill_holes_cm2=7.5),
-    grid=GridConfig(downsample=1, stride=3, adaptive=0, early_exit=None),
+    grid=GridConfig(downsample=1, stride=3, adaptive=0, early_exit=None, context_prior="off"),
     crf=CRFConfig(mode="exact", smoothness=2.5, noisy_smoothness=4.0),
     post=PostConfig(min_head_cm2=10.0, min_furniture_cm2=0.0, min_plant_cm2=20.0,
                     satellite_head_cm2=30.0, person_check="off", surface_vote="off"),
@@ -53,7 +53,7 @@ ODD = SegmenterConfig(
 def test_every_setting_has_a_unique_flag_in_its_group():
     paths = [p for p, _, _ in options_of(SegmenterConfig)]
     flags = [o.flag for _, _, o in options_of(SegmenterConfig)]
-    assert len(set(flags)) == len(flags) == 18
+    assert len(set(flags)) == len(flags) == 19
     assert {p.split(".")[0] for p in paths} == set(SEGMENTER_GROUPS)
     for _, f, option in options_of(SegmenterConfig):
         assert option.help and f.name  # every option says what it does

@@ -22,6 +22,7 @@ from topseg.core.bundled_model import bundled_model_path
 from topseg.core.errors import TopsegError
 from topseg.core.formats import cell_truth, safety_wire, wire
 from topseg.core.formats.joint_states import decode_joint_state
+from topseg.core.safety import WORKER_OPTIONS
 from topseg.core.safety.agreement import (
     Compared,
     one_decision_per_frame,
@@ -50,10 +51,11 @@ def recording_background(recording: Path) -> Path | None:
 
 
 def worker_argv(model: Path, cell: str, camera: str, zenoh: list[str], background: Path | None):
-    """The worker's command line for a cell recording's camera, gated by `background`."""
+    """The worker's command line for a cell recording's camera, gated by `background`, with
+    the settings the safety decision's labels take (`core.safety.WORKER_OPTIONS`)."""
     gate = [] if background is None else ["--background", str(background)]
     return cli_argv("worker", "--model", str(model), "--cameras", f"{cell}/{camera}", *gate,
-                    *zenoh)  # fmt: skip
+                    *WORKER_OPTIONS, *zenoh)  # fmt: skip
 
 
 #: states kept

@@ -138,6 +138,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="safety: the validation sequences (other seeds), for choosing thresholds",
     )  # fmt: skip
     parser.add_argument(
+        "--precision-stages", choices=("on", "off"), default=None,
+        help="safety: label with the model's context prior and checks on or off (default: as "
+        "the safety service's worker does, off)",
+    )  # fmt: skip
+    parser.add_argument(
         "--report-only",
         action="store_true",
         help="rewrite OUT/<experiment>.md/.json/.png from the finished points; run none",
@@ -253,7 +258,8 @@ def _run_safety(args, out: Path) -> int:
         raise TopsegError("--labels-lag must be within 0..30 frames")
     seed = safety.VALIDATION_SEED if args.validation else safety.TEST_SEED
     result = safety.run(out, args.model, args.sequences, args.sequence_seconds, 15.0, seed,
-                        background=args.background, lag=args.labels_lag)  # fmt: skip
+                        background=args.background, lag=args.labels_lag,
+                        precision=args.precision_stages)  # fmt: skip
     print(safety.markdown(result))
     return 0
 

@@ -19,12 +19,14 @@ from __future__ import annotations
 import json
 import time
 from collections import deque
+from dataclasses import replace
 from pathlib import Path
 
 from topseg.core.atomic import atomic_write
 from topseg.core.errors import TopsegError
 from topseg.core.formats import wire
 from topseg.core.formats.joint_states import JointState
+from topseg.core.safety import PRECISION_STAGES
 from topseg.core.safety.agreement import (
     Compared,
     score,
@@ -36,7 +38,7 @@ from topseg.core.safety.cell import cell_from_dict
 from topseg.core.safety.decision import decide
 from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
-from topseg.core.segmenter import Segmenter
+from topseg.core.segmenter import Segmenter, SegmenterConfig
 from topseg.core.synth.sequences import CellSequence, CellSequenceConfig
 from topseg.core.synth.static_cell import sequence_background
 from topseg.services.batch.datagen.cell_sequence import cell_toml
@@ -131,12 +133,17 @@ def draw_sequence(config: CellSequenceConfig, seed: int, tries: int = 5) -> Cell
 
 def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: float,
         first_seed: int = TEST_SEED, report=print, background: bool = False,
-        lag: int = 0) -> dict:  # fmt: skip
+        lag: int = 0, precision: str | None = None) -> dict:  # fmt: skip
     """Score `sequences` sequences (their labels gated by each one's static background with
-    `background`, carried `lag` frames on: `run_sequence`); write OUT/safety.md and .json;
-    the figures."""
+    `background`, carried `lag` frames on: `run_sequence`; the model's context prior and
+    checks `precision`, on or off, None: as the safety service's worker,
+    `core.safety.PRECISION_STAGES`); write OUT/safety.md and .json; the figures."""
     out.mkdir(parents=True, exist_ok=True)
-    segmenter = Segmenter.from_file(model)
+    precision = precision or PRECISION_STAGES
+    config = SegmenterConfig()
+    config = replace(config, grid=replace(config.grid, context_prior=precision),
+                     post=replace(config.post, person_check=precision))  # fmt: skip
+    segmenter = Segmenter.from_file(model, config)
     rows, everything = [], []
     for i in range(sequences):
         config = sequence_config(i, duration_s, fps)
@@ -156,7 +163,8 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
             f"{figures['clear_when_truth_stop']} clear-when-stop, {time.perf_counter() - t0:.0f} s"
         )
     result = {"model": segmenter.model_id, "background": background, "labels_lag": lag,
-              "overall": score(everything), "sequences": rows}  # fmt: skip
+              "precision_stages": precision, "overall": score(everything),
+              "sequences": rows}  # fmt: skip
     with atomic_write(out / "safety.json") as f:
         f.write(json.dumps(result, indent=2).encode())
     with atomic_write(out / "safety.md") as f:
@@ -190,6 +198,7 @@ def markdown(result: dict) -> str:
         )
     return (
         f"# Safety decisions on rendered cell sequences\n\nmodel: {result['model']}"
+        + f", context prior and checks {result.get('precision_stages', 'on')}"
         + (", each sequence's static background gating" if result.get("background") else "")
         + (
             f", labels {result['labels_lag']} frames old carried onto each frame"
