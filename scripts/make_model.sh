@@ -5,11 +5,12 @@
 # mount (2.4-4.5 m, pitch and roll up to 10 deg) and sensor, the stereo cameras drawn more
 # often, with that sensor's noise; `topseg train` fits 4 trees of 6000 frames, depth 19, a
 # fifth of the feature pool reading absolute height; then `topseg person-check` fits the
-# model's two checks (the context check, then the person check) on CHECK_FRAMES more cells from
-# another seed, each keeping 98 % of the person pixels of its held-out frames (the context check
-# also restores cells it finds a person's, at 75 % precision). Every step resumes after an interruption, and the same
-# datasets give the same model. Why these numbers: docs/results.md ("Choices measured").
-# About 55 minutes on 2 quiet cores (~15 GB at the peak).
+# model's context prior and its two checks (the context check, then the person check) on
+# CHECK_FRAMES more cells from another seed, each check keeping 98 % of the person pixels of its
+# held-out frames (the context check also restores cells it finds a person's, at 75 %
+# precision). Every step resumes after an interruption, and the same datasets give the same
+# model. Why these numbers: docs/results.md ("Choices measured").
+# About 70 minutes on 2 quiet cores (~15 GB at the peak).
 # Every variable below can be set, e.g.
 #   FRAMES=9000 MODE=cell MOUNTS=random NOISE=sensor SENSORS=kinect_v1,kinect_v2,oak_d:2,realsense_d435:3 \
 #   TREES=4 DEPTH=19 FRAMES_PER_TREE=6000 CHECK_FRAMES=2400 scripts/make_model.sh

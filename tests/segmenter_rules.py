@@ -14,6 +14,8 @@ from topseg.core.context_check import (
     restore_cells,
     restored_pixels,
 )
+from topseg.core.context_prior import apply_prior
+from topseg.core.crf.argmax import Summary, argmax_confidence
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
     ISLAND_EDGE_PX,
@@ -37,6 +39,17 @@ def relabel_as_the_segmenter(labels, depth, k):
         labels, depth, k, AREAS, S.SATELLITE_HEAD_CM2, SATELLITE_RADIUS_CM,
         ISLAND_EDGE_PX, edge_shares(EDGE_HEAD_SHARE),
     )  # fmt: skip
+
+
+def prior_as_the_segmenter(proba, depth, inp, mount, prior):
+    """The Segmenter's context prior on the forest's posteriors, in place (working-resolution
+    depth, model input and mount; None: a model without one): pixels whose argmax moved."""
+    if prior is None:
+        return 0
+    valid = (inp.values > 0) & ~inp.floor
+    summary = Summary(*argmax_confidence(proba, depth > 0))
+    return apply_prior(prior, proba, valid, summary.amax, mount.height_map_mm(depth), depth,
+                       mount.intrinsics.fx, summary)[1]  # fmt: skip
 
 
 def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):

@@ -8,6 +8,7 @@ import pytest
 from segmenter_rules import (
     check_context_as_the_segmenter,
     check_people_as_the_segmenter,
+    prior_as_the_segmenter,
     relabel_as_the_segmenter,
     vote_as_the_segmenter,
 )
@@ -136,6 +137,7 @@ def test_a_grid_labels_as_the_eager_path_and_fills_its_posteriors_when_read(mode
         proba = forest.predict_proba(
             seg.forest, inp, stride=2, adaptive=ADAPTIVE_LEVELS, early_exit=EARLY_EXIT
         )
+        prior_as_the_segmenter(proba, depth, inp, mount, seg.context_prior)
         want = crf.segment_crf(proba, depth, seg.config.crf)
         if mode != "none":
             check_context_as_the_segmenter(want, depth, inp, proba, mount, seg.context_check)
