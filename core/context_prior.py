@@ -149,8 +149,6 @@ class ContextPrior:
             alpha = float(entry["alpha"])
         except (KeyError, TypeError, ValueError):
             raise TopsegError("the model's context prior has no alpha") from None
-        if not np.isfinite(alpha):
-            raise TopsegError("the model's context prior's alpha is not a number")
         ensembles = tuple(TreeEnsemble.from_dict(t, len(FEATURES)) for t in trees)
         validation = entry.get("validation") or {}
         if not isinstance(validation, dict):
@@ -160,23 +158,16 @@ class ContextPrior:
 
 def apply_prior(
     prior: ContextPrior,
+    grid: CellGrid,
+    rows: np.ndarray,
+    cols: np.ndarray,
     proba: np.ndarray,
     valid: np.ndarray,
-    labels: np.ndarray,
-    heights_mm: np.ndarray,
-    depth_mm: np.ndarray,
-    fx: float,
     summary: Summary,
-) -> tuple[int, int]:
-    """Score the cells of a working frame (its forest argmax `labels`, `valid` pixels above
-    the floor gate, heights, depth, every posterior) and fold their group probabilities into
-    `proba` and its `summary`, in place: (cells scored, pixels whose argmax changed)."""
-    grid = prior_grid(labels, valid, heights_mm, depth_mm, proba, fx)
-    if grid is None:
-        return 0, 0
-    rows, cols = prior_cells(grid)
-    if rows.size == 0:
-        return 0, 0
+) -> int:
+    """Score the prior's cells (rows, cols) of `grid` (`prior_grid`, `prior_cells`) and fold
+    their group probabilities into the posteriors `proba` of the `valid` pixels and into
+    their `summary`, in place: how many pixels' argmax changed."""
     groups = np.zeros((*grid.parts.shape, len(GROUPS)), np.float32)
     groups[rows, cols] = prior.probabilities(cell_features(grid, rows, cols))
     has_prior = np.zeros(grid.parts.shape, np.bool_)
@@ -185,4 +176,4 @@ def apply_prior(
         proba, valid, grid.cell, groups, has_prior, CLASS_GROUP, np.float64(prior.alpha),
         np.float64(EPS), summary.amax, summary.pmax, summary.psecond,
     )  # fmt: skip
-    return int(rows.size), int(changed)
+    return int(changed)

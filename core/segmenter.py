@@ -173,8 +173,8 @@ class Segmenter:
 
     @staticmethod
     def _check(kind, header: dict[str, Any], path: Path | None):
-        """The check of `kind` (PersonCheck, ContextCheck or ContextPrior) the model header carries
-        (None: none); ModelFileError naming the model when it is malformed."""
+        """The check of `kind` (PersonCheck, ContextCheck or ContextPrior) the model header
+        carries (None: none); ModelFileError naming the model when it is malformed."""
         try:
             return kind.from_header(header)
         except TopsegError as exc:

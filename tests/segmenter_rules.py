@@ -14,7 +14,7 @@ from topseg.core.context_check import (
     restore_cells,
     restored_pixels,
 )
-from topseg.core.context_prior import apply_prior
+from topseg.core.context_prior import apply_prior, prior_cells, prior_grid
 from topseg.core.crf.argmax import Summary, argmax_confidence
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
@@ -46,10 +46,14 @@ def prior_as_the_segmenter(proba, depth, inp, mount, prior):
     depth, model input and mount; None: a model without one): pixels whose argmax moved."""
     if prior is None:
         return 0
-    valid = (inp.values > 0) & ~inp.floor
+    valid = inp.above_floor()
     summary = Summary(*argmax_confidence(proba, depth > 0))
-    return apply_prior(prior, proba, valid, summary.amax, mount.height_map_mm(depth), depth,
-                       mount.intrinsics.fx, summary)[1]  # fmt: skip
+    grid = prior_grid(summary.amax, valid, mount.height_map_mm(depth), depth, proba,
+                      mount.intrinsics.fx)  # fmt: skip
+    rows, cols = prior_cells(grid) if grid is not None else ((), ())
+    if len(rows) == 0:
+        return 0
+    return apply_prior(prior, grid, rows, cols, proba, valid, summary)
 
 
 def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):
@@ -58,7 +62,7 @@ def check_context_as_the_segmenter(labels, depth, inp, proba, mount, check):
     relabelled (rejected and restored; none in a frame without a body-part label)."""
     if check is None or not IS_PART[labels].any():
         return 0
-    valid = (inp.values > 0) & ~inp.floor
+    valid = inp.above_floor()
     grid = cell_grid(labels, valid, mount.height_map_mm(depth), depth, proba, mount.intrinsics.fx)
     if grid is None:
         return 0

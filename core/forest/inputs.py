@@ -87,6 +87,11 @@ class ModelInput:
         """The image feature probes read: `probes`, or `values` when there is none."""
         return self.values if self.probes is None else self.probes
 
+    def above_floor(self) -> np.ndarray:
+        """(H, W) bool: the pixels with depth that the floor gate did not take (the ones the
+        forest labels)."""
+        return (self.values > 0) & ~self.floor
+
     def floor_share(self) -> float:
         """Share of the pixels with depth that the floor gate skipped (0 with no depth)."""
         n = int(np.count_nonzero(self.values))

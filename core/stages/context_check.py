@@ -73,7 +73,7 @@ def frame_cells(frame: FrameState, restoring: bool):
     if not IS_PART[labels].any():
         return None
     mount = frame.plan.work_mount
-    valid = (frame.inp.values > 0) & ~frame.inp.floor
+    valid = frame.inp.above_floor()
     heights = frame.heights()
     proba = frame.fill(None)  # every posterior: the rings read cells all over the frame
     grid = cell_grid(labels, valid, heights, frame.depth, proba, mount.intrinsics.fx)

@@ -5,7 +5,10 @@ a model that reads raw depth (no heights)."""
 
 from __future__ import annotations
 
-from topseg.core.context_prior import apply_prior
+import numpy as np
+
+from topseg.core.context_check import CellGrid
+from topseg.core.context_prior import apply_prior, prior_cells, prior_grid
 from topseg.core.stages.base import FORESTS_SHARE, Stage
 from topseg.core.stages.plan import FrameState
 
@@ -20,13 +23,13 @@ class ContextPriorStage(Stage):
     def run(self, frame: FrameState) -> None:
         """Score the frame's cells, reweight its posteriors (every one stored first)."""
         cells = changed = 0
-        if self.active(frame):
-            inp = frame.inp
-            proba = frame.fill(None)
-            cells, changed = apply_prior(
-                self.model.context_prior, proba, (inp.values > 0) & ~inp.floor,
-                frame.summary.amax, frame.heights(), frame.depth,
-                frame.plan.work_mount.intrinsics.fx, frame.summary,
+        found = frame_prior_cells(frame) if self.active(frame) else None
+        if found is not None:
+            grid, rows, cols, valid = found
+            cells = int(rows.size)
+            changed = apply_prior(
+                self.model.context_prior, grid, rows, cols, frame.fill(None), valid,
+                frame.summary,
             )  # fmt: skip
         frame.counts.update(prior_cells=cells, prior_changed_px=changed)
 
@@ -36,5 +39,20 @@ class ContextPriorStage(Stage):
             self.model.context_prior is not None
             and self.model.config.grid.context_prior == "on"
             and frame.plan.work_mount is not None
-            and frame.summary is not None
         )
+
+
+def frame_prior_cells(
+    frame: FrameState,
+) -> tuple[CellGrid, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The prior's cell grid of `frame` after its forest (every posterior stored, the
+    forest's argmax as its labels), with the (rows, cols) of the cells it scores and the
+    pixels above the floor gate (what the prior scores and what `topseg person-check` fits it
+    on); None without such a cell."""
+    valid = frame.inp.above_floor()
+    grid = prior_grid(frame.summary.amax, valid, frame.heights(), frame.depth,
+                      frame.fill(None), frame.plan.work_mount.intrinsics.fx)  # fmt: skip
+    if grid is None:
+        return None
+    rows, cols = prior_cells(grid)
+    return (grid, rows, cols, valid) if rows.size else None

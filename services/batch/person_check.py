@@ -10,8 +10,8 @@ boosting, one set of trees per group (weighted by the cells' pixels); the fourth
 many of its cells' pixels the prior puts in the right group, against the forest's argmax.
 `--prior off` fits none (the checks then judge the forest's own posteriors).
 
-Then the context check, on the labels the CRF makes of the posteriors the prior leaves. The model labels every frame (its forest and CRF, as the worker
-does); every cell holding body-part labels, and every cell it may restore
+Then the context check, on the labels the CRF makes of the posteriors the prior leaves. The
+model labels every frame (its forest and CRF, as the worker does); every cell holding body-part labels, and every cell it may restore
 (`context_check.restore_cells`), is described by the context check's features and marked a
 person's when most of the pixels the check would change (its body-part pixels; a restore
 cell's robot, object and furniture pixels) are a person in the truth. Three frames in four fit
@@ -44,14 +44,7 @@ import numpy as np
 from topseg.core import labels as L
 from topseg.core.bundled_model import MODEL_HELP, bundled_model_path
 from topseg.core.context_check import IS_RESTORABLE, ContextCheck, cell_features
-from topseg.core.context_prior import (
-    ALPHA,
-    GROUPS,
-    ContextPrior,
-    group_truth,
-    prior_cells,
-    prior_grid,
-)
+from topseg.core.context_prior import ALPHA, GROUPS, ContextPrior, group_truth
 from topseg.core.errors import TopsegError
 from topseg.core.forest.model_file import caller_header, load_model, save_model
 from topseg.core.formats.dataset import open_dataset
@@ -59,6 +52,7 @@ from topseg.core.person_check import IS_PART, PersonCheck, TreeEnsemble
 from topseg.core.scoring import dataset_frames
 from topseg.core.segmenter import Segmenter
 from topseg.core.stages.context_check import frame_cells
+from topseg.core.stages.context_prior import frame_prior_cells
 from topseg.core.stages.person_check import frame_blobs
 from topseg.core.stages.plan import FrameState
 from topseg.services.cli.options import (
@@ -196,14 +190,11 @@ def gather_prior_cells(segmenter: Segmenter, frames, seed: int = 0) -> dict[str,
     for i, (depth, truth, mount) in enumerate(frames):
         frame = FrameState(segmenter.plan(depth, None, f"frame {i}", mount), depth)
         segmenter.run(frame, upto="forest")
-        inp, step = frame.inp, frame.plan.downsample
-        valid = (inp.values > 0) & ~inp.floor
-        forest = frame.summary.amax
-        grid = prior_grid(forest, valid, frame.heights(), frame.depth, frame.fill(None),
-                          frame.plan.work_mount.intrinsics.fx)  # fmt: skip
-        if grid is None:
+        found = frame_prior_cells(frame)
+        if found is None:
             continue
-        rows, cols = prior_cells(grid)
+        grid, rows, cols, valid = found
+        step, forest = frame.plan.downsample, frame.summary.amax
         rng = np.random.default_rng([seed, i])
         pick = np.sort(rng.choice(rows.size, min(PRIOR_CELLS_PER_FRAME, rows.size), replace=False))
         rows, cols = rows[pick], cols[pick]
