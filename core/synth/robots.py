@@ -1,8 +1,8 @@
 """Robot arms from URDF: a catalogue of industrial and collaborative arms, posable, as geometry
 the ray caster renders (labelled robot), and how a scene places one (`PlacedRobot`).
 
-A `RobotModel` is one URDF, parsed and posed by yourdfpy (forward kinematics, mimic joints
-included): each link's collision geometry where it has one, else its visual geometry. URDF
+A `RobotModel` is one URDF, parsed by yourdfpy and posed by `kinematics` (one walk down its
+tree, mimic joints included): each link's collision geometry where it has one, else its visual geometry. URDF
 boxes, cylinders and spheres become `render.Primitives`; meshes are read by trimesh at the
 URDF's scale and become `render.Triangles`. A link's meshes are kept at most
 `MAX_LINK_FACES` triangles: a denser link is reduced by trimesh's quadric decimation
@@ -65,6 +65,7 @@ from topseg.core.synth.geometry import (
     quat_to_matrix,
     yaw_quat,
 )
+from topseg.core.synth.kinematics import Kinematics
 from topseg.core.synth.random_arms import TOOL_LINK, random_arm_urdf
 from topseg.core.synth.render import Primitives, Triangles
 
@@ -206,7 +207,7 @@ def _resolve_mesh(filename: str, urdf_dir: Path) -> Path | None:
 
 
 def _load_urdf(source, label: str):
-    """yourdfpy's URDF (no meshes; its scene graph gives the links' poses). The XML must be
+    """yourdfpy's URDF (no meshes; `kinematics` poses it). The XML must be
     well formed: yourdfpy would recover what it can from a broken file."""
     yourdfpy = import_train_module("yourdfpy")
     etree = import_train_module("lxml.etree")
@@ -374,10 +375,9 @@ class RobotModel:
         self.name = name
         self._urdf = urdf
         self._scale = float(scale)
-        self._lock = threading.Lock()  # posing sets the shared URDF's configuration
-        # the last posing asked for (its configuration and frames) and its poses: a frame's
-        # capsules, silhouette and hull ask for the same joints in turn
-        self._last_poses: tuple[bytes, tuple[str, ...], np.ndarray] | None = None
+        # the last configuration posed and every link's pose there: a frame's capsules,
+        # silhouette and hull ask for the same joints in turn
+        self._last_poses: tuple[bytes, np.ndarray] | None = None
         label = name
         floating = [j.name for j in urdf.robot.joints if j.type in ("floating", "planar")]
         if floating:
@@ -394,6 +394,8 @@ class RobotModel:
         self.tool_link = tool or _find_tool(urdf)
         if self.tool_link not in urdf.link_map:
             raise TopsegError(f"robot {label}: no link {self.tool_link!r} for the tool")
+        self._kinematics = Kinematics.of(urdf)
+        self._link_index = {link: i for i, link in enumerate(self._kinematics.links)}
         self.reach_m = self._scale * self._chain_length()
         self._links, self._tri_blocks, self._tris, prims = self._collect(urdf_dir, label)
         self._prim_link, self._prim_kind, self._prim_size, self._prim_pose = prims
@@ -468,16 +470,14 @@ class RobotModel:
         """(k, 4, 4) base-frame poses of `frames` at `joints` (read-only; the last one asked
         for is kept, so asking again for the same joints costs nothing)."""
         q = self._configuration(joints)
-        key, frames = q.tobytes(), tuple(frames)
-        with self._lock:
-            last = self._last_poses
-            if last is not None and last[0] == key and last[1] == frames:
-                return last[2]
-            self._urdf.update_cfg(q)
-            poses = np.array([self._urdf.get_transform(f) for f in frames]).reshape(-1, 4, 4)
-            poses.setflags(write=False)
-            self._last_poses = (key, frames, poses)
-            return poses
+        key = q.tobytes()
+        last = self._last_poses  # one read: another thread may replace it meanwhile
+        if last is None or last[0] != key:
+            last = (key, self._kinematics.poses(q))
+            self._last_poses = last
+        poses = last[1][[self._link_index[f] for f in frames]]
+        poses.setflags(write=False)
+        return poses
 
     def _to_world(self, base_pos, base_quat) -> tuple[np.ndarray, np.ndarray]:
         """(R, p): world = p + R @ (scale * base-frame point)."""
