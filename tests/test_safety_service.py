@@ -14,7 +14,9 @@ from topseg.core import labels
 from topseg.core.formats import joint_states, safety_wire, wire
 from topseg.core.formats.rmw_zenoh import topic_key
 from topseg.core.safety.cell import load_cell
+from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
+from topseg.services.live.safety import SafetyService
 from topseg.services.runtime.zenoh_session import open_session
 
 CELL_TOML = """
@@ -237,3 +239,35 @@ def test_joint_states_from_ros2_give_the_robot_its_own_pixels(run, tmp_path):
     finally:
         peer.close()
     assert svc.stop() == 0
+
+
+def test_a_frame_is_not_decided_again_when_the_next_one_is_due_first(tmp_path):
+    """In process: a frame decided with carried labels is decided again when its own labels
+    come, unless the camera's next frame is due before that decision would be done."""
+    path = tmp_path / "cell.toml"
+    path.write_text('cell = "again"\n[[camera]]\nname = "cam0"\n')
+    cell = load_cell(path)
+    published = []
+    service = SafetyService(cell, CellMonitor(cell, None), published.append, 0)
+    depth_key, labels_key = wire.depth_key("again", "cam0"), wire.labels_key("again", "cam0")
+    step_ns = 33_000_000
+
+    def frame(seq, stamp_ns, received_ns):
+        """Depth, decided on with the labels before it carried; then its own labels: whether
+        they were decided on."""
+        depth, lab = render(cell.cameras[0], people=[person(0.3, 0.2)], seq=seq,
+                            stamp_ns=stamp_ns)  # fmt: skip
+        service.handle(depth_key, wire.encode_depth(depth), received_ns)
+        assert service.decide() == (seq > 1)  # the first has no labels to carry
+        service.handle(labels_key, wire.encode_labels(lab), received_ns)
+        return service.decide()
+
+    now = time.time_ns()
+    assert frame(1, now - 3 * step_ns, now - 3 * step_ns)
+    # came 40 ms ago, frames 33 ms apart: the next is due, its own labels are not decided on
+    assert not frame(2, now - 2 * step_ns, now - 40_000_000)
+    assert service.counts["not_again"] == 1 and service.counts["carried"] == 1
+    assert not service.decide()  # nor later
+    # a second between frames: the next is far off, the frame is decided on again
+    assert frame(3, now + 10**9, time.time_ns())
+    assert service.counts["not_again"] == 1 and service.counts["frames"] == 4

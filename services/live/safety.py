@@ -15,7 +15,9 @@ Every depth frame is decided on as it arrives (`core/safety/monitor.py`) and pub
 the robot posed by a fresh joint state (or in a cell without a robot), the newest labels the
 worker sent are carried onto it (`core/safety/carry.py`: what appeared since they were made
 is a person of unknown part), so the decision waits for no worker; when a frame's own labels
-come while it is still the newest, it is decided on again with them. Without a fresh joint
+come while it is still the newest, it is decided on again with them, unless the camera's next
+frame is due before that decision would be done (that frame is decided on with these labels
+carried onto it; deciding twice only delays it). Without a fresh joint
 state each labelled frame is decided on as its labels come. Between frames the last decision
 is published again, re-decided with the reaction time measured then (depth stamp to now). No
 labels from a camera within `deadline_ms` (100 ms), a blinded camera, one that moved, or a
@@ -67,6 +69,8 @@ MAX_TOKEN_CHANGES = 1024
 #: regions stalls them (reaction p50 / p99 over two runs each on the cell recording: 47 / 87
 #: and 37 / 79 ms with one thread, 51 / 88 and 59 / 101 ms with two).
 THREADS = 1
+#: Weight of the newest decision's duration in the running estimate of how long one takes.
+DECISION_TIME_WEIGHT = 0.1
 #: ROS 2 joint states: the type on the wire.
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
@@ -117,10 +121,15 @@ class SafetyService:
         self.labelled: dict[str, Labelled] = {}
         self.newest_depth: dict[str, tuple[wire.DepthFrame, int]] = {}
         self.decided: dict[str, tuple[int, int, bool]] = {}
+        # per camera: the stamp step between its last two depth frames (ns); and how long one
+        # frame's decision takes (ns, a running mean): together, whether its next frame is due
+        # before a second decision on the newest one would be done
+        self.frame_step_ns: dict[str, int] = {}
+        self.decision_ns = 0.0
         self.seq = 0
         self.last_publish = 0.0
-        self.counts = {"decisions": 0, "frames": 0, "carried": 0, "skipped": 0, "rejected": 0,
-                       "unpaired": 0}  # fmt: skip
+        self.counts = {"decisions": 0, "frames": 0, "carried": 0, "not_again": 0, "skipped": 0,
+                       "rejected": 0, "unpaired": 0}  # fmt: skip
         self.max_batch = PENDING_DEPTH * len(cell.cameras) * 4
         self.last_state = ""
         self._warned: dict[str, float] = {}
@@ -163,6 +172,9 @@ class SafetyService:
                 pending[frame.seq] = frame
                 while len(pending) > PENDING_DEPTH:
                     pending.popitem(last=False)
+                before = self.newest_depth.get(camera)
+                if before is not None and frame.stamp_ns > before[0].stamp_ns:
+                    self.frame_step_ns[camera] = frame.stamp_ns - before[0].stamp_ns
                 self.newest_depth[camera] = (frame, received_ns)
             elif what == "labels":
                 self._labels(camera, wire.decode_labels(data), received_ns)
@@ -189,8 +201,13 @@ class SafetyService:
             frame_id = (depth.seq, depth.stamp_ns)
             last = self.decided.get(camera)
             own = (pair.depth.seq, pair.depth.stamp_ns) == frame_id
+            started = time.perf_counter_ns()
             if own:
                 if last == (*frame_id, True):
+                    continue
+                if last == (*frame_id, False) and self.next_frame_due(camera, received_ns):
+                    self.counts["not_again"] += 1
+                    self.decided[camera] = (*frame_id, True)
                     continue
                 self.monitor.frame(camera, depth, pair.labels, pair.received_ns)
             elif (
@@ -205,10 +222,20 @@ class SafetyService:
                 self.counts["carried"] += 1
             else:
                 continue
+            took = time.perf_counter_ns() - started
+            self.decision_ns += DECISION_TIME_WEIGHT * (took - self.decision_ns)
             self.decided[camera] = (*frame_id, own)
             self.counts["frames"] += 1
             judged = True
         return judged
+
+    def next_frame_due(self, camera: str, received_ns: int) -> bool:
+        """Whether `camera`'s next depth frame (its newest came at `received_ns`) is due
+        before a decision started now would be done: one stamp step after the newest came."""
+        step = self.frame_step_ns.get(camera)
+        if step is None:
+            return False
+        return time.time_ns() + self.decision_ns >= received_ns + step
 
     def newest(self, first: tuple, inbox: Inbox) -> list[tuple]:
         """`first` and what else waits in `inbox` now, in order, with only the newest labels of
@@ -310,7 +337,8 @@ class SafetyService:
         c = self.counts
         return (
             f"cell {self.cell.cell}: {self.last_state or 'starting'}, {c['frames']} frames "
-            f"({c['carried']} before their labels), {c['decisions']} decisions, "
+            f"({c['carried']} before their labels, {c['not_again']} not again with them: the "
+            f"next was due), {c['decisions']} decisions, "
             f"{c['skipped']} skipped (behind), {c['rejected']} rejected, {c['unpaired']} unpaired, "
             f"{self.monitor.counts['joint_states']} joint states"
         )
