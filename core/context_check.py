@@ -66,7 +66,7 @@ CHANNEL_TABLE[L.BACKGROUND, K.BACKGROUND_COLUMN] = 1.0
 #: class -> the five posterior columns: the label columns but background
 POSTERIOR_TABLE = CHANNEL_TABLE[: L.NUM_CLASSES, : K.POSTERIOR_COLUMNS].copy()
 #: the channels `restore_cells` reads: robot to furniture labels, the person posterior
-_ROBOT_COLUMN, _FURNITURE_COLUMN, _PERSON_POSTERIOR = 2, 4, K.HEIGHT + 1
+_ROBOT_COLUMN, _FURNITURE_COLUMN = 2, 4
 _CHANNEL_NAMES = (
     "person", "head", "robot", "object", "furniture", "background", "height",
     "p_person", "p_head", "p_robot", "p_object", "p_furniture",
@@ -145,7 +145,7 @@ def restore_cells(grid: CellGrid) -> tuple[np.ndarray, np.ndarray]:
     robot, object or furniture label, and a mean person posterior of RESTORE_FLOOR or more."""
     chan = grid.channels
     restorable = chan[..., _ROBOT_COLUMN : _FURNITURE_COLUMN + 1].sum(axis=2) > 0
-    person = chan[..., _PERSON_POSTERIOR] >= RESTORE_FLOOR
+    person = chan[..., K.PERSON_POSTERIOR] >= RESTORE_FLOOR
     return np.nonzero((grid.parts == 0) & restorable & person)
 
 

@@ -24,6 +24,8 @@ LABEL_COLUMNS = 6
 HEIGHT = LABEL_COLUMNS
 POSTERIOR_COLUMNS = 5
 CHANNELS = LABEL_COLUMNS + 1 + POSTERIOR_COLUMNS
+#: the channel of the mean person posterior (the posterior table's first column)
+PERSON_POSTERIOR = HEIGHT + 1
 #: the label column a pixel without depth or under the floor gate counts in
 BACKGROUND_COLUMN = 5
 

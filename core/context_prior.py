@@ -21,18 +21,18 @@ Everything here is pure: numpy and the kernels of `context_prior_kernels`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from topseg.core import labels as L
 from topseg.core.context_check import FEATURES, CellGrid, cell_features, cell_grid
-from topseg.core.context_check_kernels import HEIGHT
+from topseg.core.context_check_kernels import HEIGHT, PERSON_POSTERIOR
 from topseg.core.context_prior_kernels import fold_prior
 from topseg.core.crf.argmax import Summary
 from topseg.core.errors import TopsegError
-from topseg.core.person_check import TreeEnsemble
+from topseg.core.person_check import GroupedTrees, TreeEnsemble
 
 #: what a cell may be, in the order of the prior's trees
 GROUPS: tuple[str, ...] = ("person", "robot", "object", "furniture", "background")
@@ -48,6 +48,10 @@ PRIOR_CELL_PX = 8
 #: cell's mean group masses become them), chosen on validation cells (docs/results.md,
 #: "Choices measured")
 ALPHA = 0.5
+#: the prior scores only cells near some person mass of the forest's (`prior_cells`): half
+#: of the cells above the floor, and the same figures on validation cells as scoring them
+#: all (docs/results.md, "Choices measured")
+PERSON_MASS_GATE = 0.05
 #: keeps a group the forest gives no mass from dividing by zero, and a group the prior gives
 #: none from being ruled out
 EPS = 0.02
@@ -67,10 +71,20 @@ def prior_grid(
     return cell_grid(labels, valid, heights_mm, depth_mm, proba, fx, PRIOR_CELL_PX)
 
 
-def prior_cells(grid: CellGrid) -> tuple[np.ndarray, np.ndarray]:
+def prior_cells(grid: CellGrid, near_people: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(rows, cols) of the cells holding a pixel above the floor gate (a mean height above
-    0): the ones the prior scores."""
-    return np.nonzero(grid.channels[..., HEIGHT] > 0)
+    0); `near_people`, only those where the forest gives a person some mass, a mean person
+    posterior of PERSON_MASS_GATE or more in the cell or one of its eight neighbours (the
+    ones the prior scores; it is fitted on them all)."""
+    above = grid.channels[..., HEIGHT] > 0
+    if not near_people:
+        return np.nonzero(above)
+    person = np.pad(grid.channels[..., PERSON_POSTERIOR], 1)
+    hc, wc = grid.parts.shape
+    around = np.max(
+        [person[i : i + hc, j : j + wc] for i in range(3) for j in range(3)], axis=0
+    )  # fmt: skip
+    return np.nonzero(above & (around >= PERSON_MASS_GATE))
 
 
 def group_truth(truth: np.ndarray, valid: np.ndarray, grid: CellGrid) -> np.ndarray:
@@ -97,6 +111,8 @@ class ContextPrior:
     trees: tuple[TreeEnsemble, ...]
     alpha: float
     validation: dict
+    #: the trees stacked for scoring in one pass
+    grouped: GroupedTrees = field(init=False, repr=False, compare=False)
 
     #: the model header's key
     HEADER_KEY = "context_prior"
@@ -106,10 +122,11 @@ class ContextPrior:
             raise TopsegError(f"the context prior needs {len(GROUPS)} tree ensembles")
         if not 0.0 <= self.alpha <= 4.0:
             raise TopsegError(f"the context prior's alpha must be in [0, 4], got {self.alpha}")
+        object.__setattr__(self, "grouped", GroupedTrees.of(self.trees))
 
     def probabilities(self, features: np.ndarray) -> np.ndarray:
         """(n, G) float32 group probabilities of the (n, F) cell feature rows."""
-        scores = np.stack([trees.score(features) for trees in self.trees], axis=1)
+        scores = self.grouped.scores(features)
         odds = np.exp(scores - scores.max(axis=1, keepdims=True, initial=-np.inf))
         return (odds / odds.sum(axis=1, keepdims=True)).astype(np.float32)
 

@@ -247,6 +247,22 @@ def complete_trees(feature, threshold, left, right, value, roots):
     return c_feature, c_threshold, c_value
 
 
+def deepened(complete: tuple, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Complete trees (`complete_trees`) laid out `depth` deep, at least their own: the new
+    levels are padding (feature 0, threshold 0) and each leaf's value goes to the leaves
+    below its place, so every row reaches the same value."""
+    feature, threshold, value = complete
+    own = int(np.log2(value.shape[1]))
+    if depth <= own:
+        return feature, threshold, value
+    pad = 2**depth - 1 - feature.shape[1]
+    return (
+        np.pad(feature, ((0, 0), (0, pad))),
+        np.pad(threshold, ((0, 0), (0, pad))),
+        np.repeat(value, 2 ** (depth - own), axis=1),
+    )
+
+
 @dataclass(frozen=True)
 class TreeEnsemble:
     """Boosted regression trees in flat arrays: score = offset + rate * sum of each tree's
@@ -276,7 +292,8 @@ class TreeEnsemble:
     def score(self, x: np.ndarray) -> np.ndarray:
         """(n,) scores of the (n, F) feature rows `x`."""
         x = np.ascontiguousarray(np.asarray(x, np.float32), np.float64)
-        return self.offset + self.rate * K.complete_tree_sums(x, *self.complete)
+        one = np.zeros(len(self.roots), np.int64)
+        return self.offset + self.rate * K.grouped_tree_sums(x, *self.complete, one, 1)[:, 0]
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON lists and numbers (what a model header holds)."""
@@ -331,6 +348,42 @@ class TreeEnsemble:
         ):
             raise TopsegError("the person check's trees read a feature or a node out of bounds")
         return cls(feature, threshold, left, right, value, roots, offset, rate, depth)
+
+
+@dataclass(frozen=True)
+class GroupedTrees:
+    """Several `TreeEnsemble`s scored in one pass (`person_check_kernels.grouped_tree_sums`):
+    their trees stacked, each laid out as deep as the deepest."""
+
+    feature: np.ndarray
+    threshold: np.ndarray
+    value: np.ndarray
+    group: np.ndarray  # the ensemble of each tree
+    offsets: np.ndarray
+    rates: np.ndarray
+
+    @classmethod
+    def of(cls, ensembles: tuple[TreeEnsemble, ...]) -> GroupedTrees:
+        """The ensembles' trees, stacked in order."""
+        depth = max(int(np.log2(e.complete[2].shape[1])) for e in ensembles)
+        laid = [deepened(e.complete, depth) for e in ensembles]
+        return cls(
+            np.concatenate([f for f, _, _ in laid]),
+            np.concatenate([t for _, t, _ in laid]),
+            np.concatenate([v for _, _, v in laid]),
+            np.concatenate([np.full(len(f), i, np.int64) for i, (f, _, _) in enumerate(laid)]),
+            np.array([e.offset for e in ensembles]),
+            np.array([e.rate for e in ensembles]),
+        )
+
+    def scores(self, x: np.ndarray) -> np.ndarray:
+        """(n, ensembles) each ensemble's scores of the (n, F) feature rows `x`, equal to
+        its own `TreeEnsemble.score`."""
+        x = np.ascontiguousarray(np.asarray(x, np.float32), np.float64)
+        sums = K.grouped_tree_sums(
+            x, self.feature, self.threshold, self.value, self.group, len(self.offsets)
+        )
+        return self.offsets + self.rates * sums
 
 
 @dataclass(frozen=True)
@@ -435,11 +488,13 @@ __all__ = [
     "MAX_TREE_DEPTH",
     "REPLACEMENT",
     "Blobs",
+    "GroupedTrees",
     "PersonCheck",
     "TreeEnsemble",
     "blob_features",
     "check_entry",
     "complete_trees",
+    "deepened",
     "finite_threshold",
     "relabel_blobs",
     "warm_up_check",

@@ -30,7 +30,7 @@ bit (as stumpy keeps its naive versions in one test module).
   resolution by depth (`resolution.upsample_labels`).
 - `cell_channels_reference`, `cell_features_reference`: the context check's cells and their
   ring features (`context_check_kernels`), block by block and box by box.
-- `tree_ensemble_reference`: the checks' boosted trees (`complete_tree_sums`), walked by
+- `tree_ensemble_reference`: the checks' and the prior's boosted trees (`grouped_tree_sums`), walked by
   their links one row at a time.
 - `smooth_depth_reference`: the edge-preserving smoothing of noisy depth
   (`denoise.smooth_depth`).

@@ -29,6 +29,31 @@ def random_fold_case(seed, shape=(37, 50), cell=4, classes=L.NUM_CLASSES):
     return proba, valid, groups, has_prior
 
 
+def test_the_prior_scores_cells_above_the_floor_near_some_person_mass():
+    rng = np.random.default_rng(3)
+    labels = np.full((40, 48), L.BACKGROUND, np.uint8)
+    proba = np.zeros((40, 48, L.NUM_CLASSES), np.float32)
+    proba[..., L.OBJECT] = 1.0
+    proba[8:16, 16:24, L.OBJECT] = 1.0 - P.PERSON_MASS_GATE
+    proba[8:16, 16:24, L.HEAD] = P.PERSON_MASS_GATE  # the cell at (1, 2)
+    heights = rng.uniform(300.0, 900.0, labels.shape).astype(np.float32)
+    valid = np.ones(labels.shape, bool)
+    valid[:, 40:] = False  # the last column of cells stands on the floor
+    depth = np.full(labels.shape, 3000.0, np.float32)
+    grid = C.cell_grid(labels, valid, heights, depth, proba, C.REFERENCE_FOCAL_PX, 8)
+    rows, cols = P.prior_cells(grid)
+    assert sorted(zip(rows.tolist(), cols.tolist(), strict=True)) == [
+        (r, c) for r in range(3) for c in range(1, 4)
+    ]
+    proba[8:16, 16:24, L.HEAD] = 0.9 * P.PERSON_MASS_GATE  # below the gate: nothing
+    grid = C.cell_grid(labels, valid, heights, depth, proba, C.REFERENCE_FOCAL_PX, 8)
+    assert P.prior_cells(grid)[0].size == 0
+    assert P.prior_cells(grid, near_people=False)[0].size == 5 * 5  # what it is fitted on
+    proba[..., L.HEAD] = 0.5  # a person everywhere: every cell above the floor
+    grid = C.cell_grid(labels, valid, heights, depth, proba, C.REFERENCE_FOCAL_PX, 8)
+    assert P.prior_cells(grid)[0].size == 5 * 5
+
+
 @pytest.mark.parametrize("seed", range(5))
 @pytest.mark.parametrize(("cell", "alpha"), [(1, 1.0), (4, 0.5), (5, 2.0), (4, 0.0)])
 def test_fold_prior_matches_the_block_reference(seed, cell, alpha):

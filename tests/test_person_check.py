@@ -19,6 +19,7 @@ from topseg.core.person_check import (
     RING_PX,
     TALL_MM,
     TOP_MM,
+    GroupedTrees,
     PersonCheck,
     TreeEnsemble,
     blob_features,
@@ -198,6 +199,23 @@ def test_scores_equal_a_walk_of_the_linked_trees(seed):
     expected = 0.25 + 0.5 * tree_ensemble_reference(x, *arrays)
     np.testing.assert_array_equal(trees.score(x), expected)
     np.testing.assert_array_equal(trees.score(x[:0]), np.zeros(0))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_grouped_scores_equal_each_ensembles_walk_of_its_linked_trees(seed):
+    rng = np.random.default_rng(seed + 200)
+    arrays = [random_trees(seed * 10 + k, n_trees=int(rng.integers(1, 9)),
+                           max_depth=int(rng.integers(1, 6))) for k in range(3)]  # fmt: skip
+    ensembles = [TreeEnsemble(*a, float(rng.normal()), float(rng.random()), 5) for a in arrays]
+    n = int(rng.integers(1, 40))  # blocks of rows and a ragged last one
+    x = rng.choice([-1.0, 0.0, 1.0], size=(n, 5)) * rng.random((n, 5))
+    x[rng.random(x.shape) < 0.1] = np.nan
+    x[rng.random(x.shape) < 0.1] = 0.0
+    expected = np.stack([e.offset + e.rate * tree_ensemble_reference(x, *a)
+                         for e, a in zip(ensembles, arrays, strict=True)], axis=1)  # fmt: skip
+    got = GroupedTrees.of(tuple(ensembles)).scores(x)
+    np.testing.assert_array_equal(got, expected)
+    assert GroupedTrees.of(tuple(ensembles)).scores(x[:0]).shape == (0, 3)
 
 
 def test_trees_sharing_nodes_or_too_deep_are_refused():

@@ -43,16 +43,17 @@ class ContextPriorStage(Stage):
 
 
 def frame_prior_cells(
-    frame: FrameState,
+    frame: FrameState, near_people: bool = True
 ) -> tuple[CellGrid, np.ndarray, np.ndarray, np.ndarray] | None:
     """The prior's cell grid of `frame` after its forest (every posterior stored, the
-    forest's argmax as its labels), with the (rows, cols) of the cells it scores and the
-    pixels above the floor gate (what the prior scores and what `topseg person-check` fits it
-    on); None without such a cell."""
+    forest's argmax as its labels), with the (rows, cols) of its cells (`prior_cells`: the
+    ones it scores, or with `near_people` False every one above the floor, what `topseg
+    person-check` fits it on) and the pixels above the floor gate; None without such a
+    cell."""
     valid = frame.inp.above_floor()
     grid = prior_grid(frame.summary.amax, valid, frame.heights(), frame.depth,
                       frame.fill(None), frame.plan.work_mount.intrinsics.fx)  # fmt: skip
     if grid is None:
         return None
-    rows, cols = prior_cells(grid)
+    rows, cols = prior_cells(grid, near_people)
     return (grid, rows, cols, valid) if rows.size else None

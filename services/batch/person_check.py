@@ -183,14 +183,15 @@ def run(args: argparse.Namespace) -> int:
 
 def gather_prior_cells(segmenter: Segmenter, frames, seed: int = 0) -> dict[str, np.ndarray]:
     """The context prior's cells of every (depth, truth, mount) frame after the model's
-    forest, at most PRIOR_CELLS_PER_FRAME of each drawn at random: their features, the truth
+    forest (every one above the floor, not only those it scores near people), at most
+    PRIOR_CELLS_PER_FRAME of each drawn at random: their features, the truth
     group most of their valid pixels are of (`group`), those pixels' count (`weight`), the
     forest argmax's group of the most of them (`forest`) and the frame number."""
     columns: dict[str, list] = {k: [] for k in ("features", "group", "weight", "forest", "frame")}
     for i, (depth, truth, mount) in enumerate(frames):
         frame = FrameState(segmenter.plan(depth, None, f"frame {i}", mount), depth)
         segmenter.run(frame, upto="forest")
-        found = frame_prior_cells(frame)
+        found = frame_prior_cells(frame, near_people=False)
         if found is None:
             continue
         grid, rows, cols, valid = found
