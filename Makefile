@@ -13,13 +13,13 @@ $(STAMP): pyproject.toml scripts/install.sh
 	bash scripts/install.sh
 	touch $(STAMP)
 
-## the whole test suite but the slow soaks, two processes (~16 min of pytest on 2 cores)
+## every test not marked slow, two processes (~8 min of pytest on 2 cores)
 test: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(PYTEST) -m "not slow" -q -n 2
 
-## everything, slow suites included
+## everything: the tests marked slow too (the longest service and command runs, the soaks)
 test-all: install
 	$(PYTEST) -q
 

@@ -350,6 +350,7 @@ def test_frames_of_another_camera_are_refused_naming_the_file(segmenters, backgr
         with_bg.label(np.full((60, 80), 3000, np.uint16), mount=other)
 
 
+@pytest.mark.slow
 def test_without_a_background_labels_are_those_of_the_stages_before_it():
     """No background: the stage changes nothing; labels are bit-identical to the Segmenter's
     path without the stage, on rendered frames with the bundled model."""

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from topseg.core.formats import wire
 from topseg.core.formats.recording import RecordingWriter, read_messages
 from topseg.core.segmenter import Segmenter
@@ -46,6 +48,7 @@ def test_every_stage_of_the_cell_recording_is_timed():
     assert bench("--frames", "1", "--warmup", "0", "--no-background").returncode == 0
 
 
+@pytest.mark.slow
 def test_a_short_recording_loops_and_damaged_frames_are_skipped(tmp_path):
     short = tmp_path / "short.mcap"
     messages = first_depth(2)
@@ -58,6 +61,7 @@ def test_a_short_recording_loops_and_damaged_frames_are_skipped(tmp_path):
     assert json.loads(done.stdout)["frames"] == 5
 
 
+@pytest.mark.slow
 def test_a_recording_without_depth_or_none_at_all_is_refused(tmp_path):
     stats_only = tmp_path / "stats.mcap"
     with RecordingWriter(stats_only) as w:

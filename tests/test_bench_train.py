@@ -4,9 +4,12 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from topseg.core import forest
 
 
+@pytest.mark.slow
 def test_bench_train_json_figures_are_real(data, tmp_path):
     model = tmp_path / "kept.npz"
     done = subprocess.run(

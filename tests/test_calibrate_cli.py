@@ -45,6 +45,7 @@ def png_folder(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 def test_calibrate_a_replayed_camera(png_folder, tmp_path):
     out = tmp_path / "etc" / "topseg" / "cell1.json"  # folders made as needed
     r = calibrate("--source", f"replay:{png_folder}", "--frames", 5, "--out", out)
@@ -68,6 +69,7 @@ def test_calibrate_a_replayed_camera(png_folder, tmp_path):
         assert img.width > img.height > 200  # three panels side by side
 
 
+@pytest.mark.slow
 def test_calibrate_a_recording_of_another_sensor(tmp_path):
     oak = get_sensor("oak_d")
     truth = TopViewMount(oak.intrinsics, 2700.0, -3.0, 8.0, "oak_d")
@@ -90,6 +92,7 @@ def test_calibrate_a_recording_of_another_sensor(tmp_path):
     assert pic.read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.slow
 def test_png_frames_take_the_named_sensors_optics(tmp_path):
     """A PNG says no optics: `--sensor` of the frames' size gives them, so a D435's frames
     are not back-projected with a Kinect v1's focal length (the tilt would come out wrong)."""
@@ -138,6 +141,7 @@ def error_line(r) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_refusals_are_one_line(png_folder, tmp_path):
     empty = tmp_path / "dark"
     empty.mkdir()

@@ -114,6 +114,7 @@ def printed_pose(stdout: str) -> BasePose:
     return BasePose(tuple(float(v) for v in xyz[1].split(",")), float(yaw[1]))
 
 
+@pytest.mark.slow
 def test_a_recording_gives_the_base_and_write_keeps_the_comments(tmp_path):
     cell_path = cell_file(tmp_path)
     rec = write_recording(tmp_path / "rec.mcap", cell_path, 3)
@@ -135,6 +136,7 @@ def test_a_recording_gives_the_base_and_write_keeps_the_comments(tmp_path):
     assert "0.46," not in text
 
 
+@pytest.mark.slow
 def test_stale_or_missing_joint_states_are_refused_in_one_line(tmp_path):
     cell_path = cell_file(tmp_path)
     stale = write_recording(tmp_path / "stale.mcap", cell_path, 2, joint_offset_ns=40 * MS)
@@ -147,6 +149,7 @@ def test_stale_or_missing_joint_states_are_refused_in_one_line(tmp_path):
     assert cell_path.read_text() == CELL_TOML.format(cell="robotcal")
 
 
+@pytest.mark.slow
 def test_flags_of_the_other_mode_are_refused(tmp_path):
     cell_path = cell_file(tmp_path)
     r = calibrate("robot", "--cell", cell_path, "--source", "zenoh", "--out", tmp_path / "m.json")

@@ -156,6 +156,7 @@ def test_no_depth_is_refused():
         estimate_mount([], K)
 
 
+@pytest.mark.slow
 def test_no_plane_covering_enough_of_the_view_is_refused():
     rng = np.random.default_rng(0)
     clutter = [rng.integers(1500, 4000, K.shape).astype(np.uint16) for _ in range(3)]

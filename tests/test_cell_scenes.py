@@ -81,6 +81,7 @@ def test_paper_scene_records_have_no_cell_keys():
     assert "robots" not in d and "extra_humans" not in d
 
 
+@pytest.mark.slow
 def test_cells_render_robots_and_objects_with_their_labels():
     cfg = SynthesisConfig(mode="cell", noise="none", seed=5, density=CELLS_ONLY)
     seen = set()

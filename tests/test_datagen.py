@@ -38,6 +38,7 @@ def writer_for(path, name, frames, seed=5, mode="modeled", noise="gaussian:15"):
     return D.DatasetWriter.open(path, attrs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", GENERATOR_NAMES)
 def test_same_seed_same_frames_whatever_the_workers(tmp_path, one_worker, two_workers, name):
     frames, seed = 9, 5
@@ -98,6 +99,7 @@ def test_a_bad_frame_from_a_worker_stops_the_run_and_keeps_what_was_done(tmp_pat
         np.testing.assert_array_equal(ds.labels[k], toy_frame(5, int(i), "none")[1])
 
 
+@pytest.mark.slow
 def test_the_cli_runs_on_an_existing_scheduler(tmp_path, two_workers):
     import os
     import subprocess
@@ -126,6 +128,7 @@ def test_the_cli_runs_on_an_existing_scheduler(tmp_path, two_workers):
     assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in bad.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not HAVE_SYNTHESIS, reason="topseg.core.synth.synthesis not in the tree yet")
 def test_the_default_generator_records_its_full_config(tmp_path, two_workers):
     from topseg import __version__
@@ -150,6 +153,7 @@ def test_the_default_generator_records_its_full_config(tmp_path, two_workers):
         assert (ds.labels[k] != 0).any()  # something of the scene is in view
 
 
+@pytest.mark.slow
 def test_a_crashing_worker_is_a_clear_error_and_keeps_what_was_done(tmp_path):
     import dask
 

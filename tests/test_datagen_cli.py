@@ -90,6 +90,7 @@ def one_error_line(result: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_out_in_a_missing_folder_creates_it(tmp_path):
     out = tmp_path / "no" / "such" / "ds.zarr"
     done = subprocess.run(datagen_args(out, 4), env=env(), capture_output=True, text=True)
@@ -97,6 +98,7 @@ def test_out_in_a_missing_folder_creates_it(tmp_path):
     assert_frames_whole(out, expect_all=4)
 
 
+@pytest.mark.slow
 def test_a_bad_path_is_one_clear_line(tmp_path):
     (tmp_path / "f").write_text("x")
     line = one_error_line(
@@ -147,6 +149,7 @@ def test_a_read_only_place_is_one_clear_line(tmp_path):
     assert "read-only file system" in line and str(mnt) in line
 
 
+@pytest.mark.slow
 def test_a_full_disk_stops_cleanly_and_keeps_complete_frames(tmp_path):
     mnt = tmp_path / "small"
     mnt.mkdir()
@@ -230,6 +233,7 @@ ARM_URDF = """<?xml version="1.0"?>
 """
 
 
+@pytest.mark.slow
 def test_cells_with_a_users_own_robot_render_it_as_robot(tmp_path):
     urdf = tmp_path / "arm.urdf"
     urdf.write_text(ARM_URDF)

@@ -3,7 +3,10 @@
 import subprocess
 import sys
 
+import pytest
 
+
+@pytest.mark.slow
 def test_live_demo_labels_the_bundled_recording(tmp_path):
     rrd = tmp_path / "demo.rrd"
     r = subprocess.run(

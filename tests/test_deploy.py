@@ -391,6 +391,7 @@ def test_install_twice_then_uninstall(tmp_path, checkout, wheel):
     assert not (root / "etc/topseg").exists()
 
 
+@pytest.mark.slow
 def test_install_keeps_edited_configs(tmp_path, checkout, wheel):
     root = tmp_path / "root"
     install(checkout, root, wheel)
@@ -488,6 +489,7 @@ def can_unshare() -> bool:
     not sys.platform.startswith("linux") or not can_unshare(),
     reason="needs root and mount namespaces (unshare -m) to build the units' sandbox",
 )
+@pytest.mark.slow
 @pytest.mark.parametrize("shm", ["host", "private"])
 def test_sandboxed_worker_gets_frames_by_shared_memory(shm, tmp_path):
     """Under the units' mount layout a subscriber still shares memory with the driver.
@@ -542,6 +544,7 @@ echo "== after"; getent passwd topseg || echo "no user topseg"
     not sys.platform.startswith("linux") or not can_unshare(),
     reason="needs root and mount namespaces (unshare -m) to install for / in isolation",
 )
+@pytest.mark.slow
 def test_install_for_root_creates_the_user(tmp_path, checkout, wheel):
     """The parts only a real install runs: the user in plugdev and video, /etc/topseg
     readable by its group, and uninstall --purge removing the user again."""

@@ -155,6 +155,7 @@ def test_finite_replay_as_fast_as_possible_delivers_everything_and_exits(listen,
     assert [wire.decode_depth(b).seq for b in listener.depth] == list(range(N))
 
 
+@pytest.mark.slow
 def test_driver_reconnects_a_stalled_kinect_and_stops_mid_wait(listen, tmp_path):
     rng = np.random.default_rng(1)
     originals = [(3500 + rng.normal(0, 20, (480, 640))).astype(np.uint16) for _ in range(3)]

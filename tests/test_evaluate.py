@@ -148,6 +148,7 @@ def test_a_height_model_is_scored_through_each_frames_mount(data, tmp_path):
     np.testing.assert_array_equal(np.array(doc["confusion"]), cm)
 
 
+@pytest.mark.slow
 def test_smoothness_is_the_crfs_potts_weight(data, tmp_path):
     from topseg.core.crf import CRFConfig
     from topseg.core.scoring import dataset_frames, score

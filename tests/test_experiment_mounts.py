@@ -15,6 +15,7 @@ from topseg.services.cli import main
 BUNDLED = Path(__file__).resolve().parents[1] / "models" / "default.npz"
 
 
+@pytest.mark.slow
 def test_every_cell_is_scored_for_both_models_and_the_report_is_written(tmp_path):
     out = tmp_path / "out"
     args = ["experiment", "mounts", "--out", str(out), "--test-frames", "1"]

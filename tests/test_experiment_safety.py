@@ -4,6 +4,7 @@ decisions scored against the truth."""
 import json
 
 import numpy as np
+import pytest
 
 from topseg.core import labels
 from topseg.core.synth.static_cell import sequence_background
@@ -48,6 +49,7 @@ def test_a_sequences_static_background_is_its_table_without_people_or_robot():
         assert gated[people].mean() < 0.05
 
 
+@pytest.mark.slow
 def test_the_experiment_says_when_a_background_gated(tmp_path):
     out = tmp_path / "safety"
     args = ["-q", "experiment", "safety", "--sequences", "1", "--sequence-seconds", "1",
@@ -59,6 +61,7 @@ def test_the_experiment_says_when_a_background_gated(tmp_path):
     assert "static background gating" in (out / "safety.md").read_text()
 
 
+@pytest.mark.slow
 def test_with_labels_a_frame_late_each_frame_is_decided_with_the_earlier_labels(tmp_path):
     out = tmp_path / "safety"
     args = ["-q", "experiment", "safety", "--sequences", "1", "--sequence-seconds", "1",

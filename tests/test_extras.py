@@ -171,6 +171,7 @@ def test_devices_names_the_oak_extra(cell_env):
     assert "oak: depthai is not installed (pip install 'topseg[oak]')" in notes
 
 
+@pytest.mark.slow
 def test_calibrate_without_matplotlib_writes_the_mount_but_no_picture(cell_env, tmp_path):
     demo = f"replay:{REPO / 'recordings' / 'demo.mcap'}"
     out = tmp_path / "mount.json"
@@ -283,6 +284,7 @@ def cell_provides() -> set[str]:
     return with_requirements(core | extra("cell"))
 
 
+@pytest.mark.slow
 def test_the_walker_finds_imports():
     found = reached(include_functions=True)
     assert "topseg.services.live.viewer" in found["rerun"]
@@ -290,6 +292,7 @@ def test_the_walker_finds_imports():
     assert "topseg.core.formats.wire" in reached(include_functions=False)["msgpack"]
 
 
+@pytest.mark.slow
 def test_every_package_a_live_module_imports_comes_with_the_cell_extra():
     provides = cell_provides()
     missing = {

@@ -82,6 +82,7 @@ def test_a_small_run_writes_its_report(tmp_path, monkeypatch):
     assert get_sensor("kinect_v1").name in text
 
 
+@pytest.mark.slow
 def test_every_sensor_and_mount_sees_its_own_cells():
     """600 frames are 600 scenes: no two (sensor, mount) pairs draw the same cells."""
     seeds = {ow.cells_seed(s, m) for s in range(4) for m in range(len(ow.MOUNTS))}
@@ -92,6 +93,7 @@ def test_every_sensor_and_mount_sees_its_own_cells():
     assert first != second
 
 
+@pytest.mark.slow
 def test_generated_cells_hold_only_random_arms_and_mesh_objects(tmp_path, monkeypatch):
     """`--cells generated`: robots and objects drawn from generators, not the catalogues."""
     mount = cell_mount("kinect_v1", 3.0, 0.0)

@@ -354,6 +354,7 @@ def test_a_model_whose_check_reads_other_features_is_refused(bundled):
         with_check(bundled, 0.0, features=["something", "else"])
 
 
+@pytest.mark.slow
 def test_person_check_command_writes_a_check_the_segmenter_uses(tmp_path):
     """datagen -> person-check -> a model file whose check the Segmenter loads and runs."""
     import subprocess

@@ -72,6 +72,7 @@ def test_replay_lossless_labels_every_frame_and_scores_them_like_the_segmenter(
     assert "F1" in summary(figures)
 
 
+@pytest.mark.slow
 def test_live_synthetic_source_runs_for_the_duration(model_path, tmp_path):
     figures = run_pipeline("synthetic:seed=4", model_path, 2.0, 15.0, None, None, False)
     assert figures["exit_codes"] == {"worker": 0, "driver": 0}
@@ -84,6 +85,7 @@ def test_missing_model_is_a_clear_error(tmp_path):
         run_pipeline("synthetic", tmp_path / "none.npz", 1.0, None, NO_CRF, None, False)
 
 
+@pytest.mark.slow
 def test_bench_pipeline_prints_the_figures_as_json(model_path):
     cmd = [sys.executable, "-m", "topseg.services.cli", "bench", "pipeline", "--json"]
     cmd += ["--duration", "1.5", "--fps", "15", "--model", str(model_path)]

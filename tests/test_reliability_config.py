@@ -142,6 +142,7 @@ def test_a_bad_toml_config_is_one_line(tmp_path, command, toml, says):
     assert_one_line(rc, err, command, says)
 
 
+@pytest.mark.slow
 def test_a_zenoh_endpoint_in_use_is_one_error_line_after_the_model_loaded(tmp_path):
     """A runtime failure (the config's listen port is taken): the worker logged its model,
     then says in one line why it cannot join Zenoh; the driver says the same."""

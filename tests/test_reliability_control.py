@@ -60,6 +60,7 @@ def one_error_line(service) -> str:
     return errors[0]
 
 
+@pytest.mark.slow
 def test_a_second_driver_for_a_served_camera_is_refused_and_a_restart_after_kill_9_is_not(
     run, recording
 ):
@@ -201,6 +202,7 @@ class Impostor:
         self.session.close()
 
 
+@pytest.mark.slow
 def test_depth_from_two_drivers_on_one_key_is_not_mixed_and_status_shows_both(run, recording):
     """Two drivers that started at once (neither saw the other) interleave on one key: the
     worker follows one, drops and counts the other's frames; status names both, exit 1."""
@@ -230,6 +232,7 @@ def test_depth_from_two_drivers_on_one_key_is_not_mixed_and_status_shows_both(ru
     assert wk.stop() == 0 and drv.stop() == 0, wk.err + drv.err
 
 
+@pytest.mark.slow
 def test_a_second_worker_for_a_camera_is_refused_and_a_wildcard_worker_leaves_it(run, recording):
     port, cell = free_port(), "dup3"
     w1 = worker(run, port, f"{cell}/cam0")
@@ -250,6 +253,7 @@ def test_a_second_worker_for_a_camera_is_refused_and_a_wildcard_worker_leaves_it
     assert w1.stop() == 0 and w3.stop() == 0 and drv.stop() == 0, w1.err + w3.err
 
 
+@pytest.mark.slow
 def test_two_wildcard_workers_end_with_one_labelling_the_camera(run, recording):
     """Two workers that serve every camera meet one: one of them leaves it to the other
     (whichever saw the other's token first, else the larger instance id), and the labels go
@@ -278,6 +282,7 @@ def test_two_wildcard_workers_end_with_one_labelling_the_camera(run, recording):
     assert w1.stop() == 0 and w2.stop() == 0 and drv.stop() == 0, w1.err + w2.err
 
 
+@pytest.mark.slow
 def test_a_waiting_wildcard_worker_shows_in_status_and_serves_a_renamed_camera(run, recording):
     port, cell = free_port(), "ren"
     wk = worker(run, port)
@@ -297,6 +302,7 @@ def test_a_waiting_wildcard_worker_shows_in_status_and_serves_a_renamed_camera(r
     assert wk.stop() == 0 and d2.stop() == 0, wk.err + d2.err
 
 
+@pytest.mark.slow
 def test_a_foreign_program_on_the_rendezvous_port_is_warned_about(run, recording):
     """Another program holds the port: the driver cannot meet anyone there and says so."""
     port = free_port()
@@ -310,6 +316,7 @@ def test_a_foreign_program_on_the_rendezvous_port_is_warned_about(run, recording
         assert drv.stop() == 0, drv.err
 
 
+@pytest.mark.slow
 def test_status_ends_within_its_timeout_when_the_rendezvous_holder_is_frozen(run, recording):
     """A frozen port holder must not make status wait for Zenoh's 10 s handshake and then
     report no services while the driver publishes: one line and exit 2 once its time is up."""
@@ -331,6 +338,7 @@ def test_status_ends_within_its_timeout_when_the_rendezvous_holder_is_frozen(run
     assert drv.stop() == 0 and router.stop() == 0, drv.err + router.err
 
 
+@pytest.mark.slow
 def test_the_worker_that_keeps_a_camera_warns_only_about_a_worker_that_stays(run, recording):
     """Of two workers serving every camera that both took one, the one that kept it warned
     `ANOTHER WORKER labels ... too` after the other had stepped back. A stand-in second
@@ -359,6 +367,7 @@ def test_the_worker_that_keeps_a_camera_warns_only_about_a_worker_that_stays(run
     assert wk.stop() == 0, wk.err
 
 
+@pytest.mark.slow
 def test_a_clean_driver_stop_raises_no_alarm_about_the_rendezvous_port(run, recording):
     """A worker that met the driver holding the rendezvous port does not warn, once the
     driver stops on SIGTERM, that the port "is held by something that does not answer as

@@ -269,6 +269,7 @@ def replay_seqs(path: Path) -> list[int]:
         return [f.depth.seq for f in src.frames()]
 
 
+@pytest.mark.slow
 def test_damaged_recordings_are_read_up_to_the_damage_or_refused_in_one_line(
     small_model, rec, tmp_path
 ):

@@ -39,6 +39,7 @@ def driver(run, port, cell, source, *extra):
     return run("driver", "--cell", cell, "--source", source, "--zenoh-port", port, *extra)
 
 
+@pytest.mark.slow
 def test_worker_killed_mid_stream_labels_again_within_2s_and_the_driver_never_notices(
     run, recording
 ):
@@ -83,6 +84,7 @@ def _delays(err: str) -> list[float]:
     return [float(x) for x in re.findall(r"trying again in ([0-9.]+) s", err)]
 
 
+@pytest.mark.slow
 def test_sensor_faults_back_off_and_a_restarted_driver_is_served_again(run, recording):
     port, cell = free_port(), "rel2"
     tap = run.tap(port, cell)  # holds the port; the worker and each driver come and go
@@ -188,6 +190,7 @@ def check_slow_worker(fig: dict) -> None:
     assert tail - head < 30, f"worker RSS grows: {head:.0f} -> {tail:.0f} MB"
 
 
+@pytest.mark.slow
 def test_a_worker_slower_than_the_sensor_stays_on_the_newest_frame(run):
     check_slow_worker(watch_slow_worker(run, 15.0, 0.5, "rel3"))
 
@@ -204,6 +207,7 @@ def test_soak_slow_worker_ten_minutes(run):
     check_slow_worker(fig)
 
 
+@pytest.mark.slow
 def test_sigterm_during_backoff_stops_the_driver_at_once(run, recording):
     port, cell = free_port(), "rel5"
     drv = driver(run, port, cell, f"faulty:fail_opens=100@replay:{recording}")

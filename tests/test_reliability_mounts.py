@@ -154,6 +154,7 @@ def test_check_floor_on_the_demo_frames():
     assert check_floor(nothing, right).agrees is None  # no reading: no verdict
 
 
+@pytest.mark.slow
 def test_segment_refuses_a_mount_file_at_the_wrong_height_for_the_demo_recording(tmp_path):
     mount = write_mount(tmp_path / "low.json", replace(demo_frames(1)[0].mount, height_mm=2500.0))
     out = tmp_path / "out"
@@ -168,6 +169,7 @@ def test_segment_refuses_a_mount_file_at_the_wrong_height_for_the_demo_recording
     assert not list(out.glob("*.png"))  # nothing labelled through a floor that is not there
 
 
+@pytest.mark.slow
 def test_segment_refuses_a_recordings_own_wrong_mount_unless_told_to_estimate(tmp_path):
     frames = demo_frames(2)
     rec = tmp_path / "wrong.mcap"
@@ -206,6 +208,7 @@ def test_65535_reads_as_no_depth_not_as_floor():
     assert without_no_reading(frame.depth) is frame.depth  # nothing to change: no copy
 
 
+@pytest.mark.slow
 def test_worker_refuses_a_wire_mount_that_disagrees_estimates_and_reads_65535_as_no_depth():
     """A real worker fed the demo's frames carrying a mount 1 m too low (a driver started
     with a wrong mount file): it says so, estimates the mount from the frames and labels
@@ -273,6 +276,7 @@ def small_recording(tmp_path_factory):
     return path, mount
 
 
+@pytest.mark.slow
 def test_the_driver_refuses_a_mount_that_does_not_fit_before_it_joins_zenoh(
     small_recording, tmp_path
 ):
@@ -330,6 +334,7 @@ def test_segment_refuses_a_mount_file_with_focal_length_1(tmp_path, small_record
 # -------------------------------------------------------------- recording keys: one bad channel
 
 
+@pytest.mark.slow
 def test_one_bad_channel_is_skipped_with_a_line_and_the_others_are_labelled(tmp_path):
     mount = TopViewMount(SMALL, 3120.0, 2.0, -1.0)
     rng = np.random.default_rng(4)
@@ -392,6 +397,7 @@ def png_folder(folder: Path, frames) -> Path:
 @pytest.mark.parametrize(
     ("rows", "cols", "share"), [((0, 240), (0, 290), 91), ((3, 237), (8, 312), 93)]
 )
+@pytest.mark.slow
 def test_calibrate_over_a_table_covering_most_of_the_view_says_so(tmp_path, rows, cols, share):
     folder = png_folder(tmp_path / "cam", table_frames(rows, cols))
     r = topseg(

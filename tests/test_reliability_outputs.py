@@ -66,6 +66,7 @@ def one_error_line(stderr: str, command: str) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_every_camera_of_a_recording_is_segmented_under_its_own_names(model, tmp_path):  # noqa: F811
     path, trained = model
     depth = frames(6)

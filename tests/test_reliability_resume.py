@@ -71,6 +71,7 @@ def assert_same_forest(path: Path, whole) -> None:
         np.testing.assert_array_equal(arr, whole.arrays()[name], err_msg=name)
 
 
+@pytest.mark.slow
 def test_training_interrupted_by_ctrl_c_resumes_to_the_same_model(data, tmp_path, whole_model):
     out = tmp_path / "m.npz"
     parts = tmp_path / "m.npz.parts"
@@ -114,6 +115,7 @@ def _kill_after_first_tree(cmd, parts: Path) -> list[str]:
         pytest.param(("--workers", "1"), marks=pytest.mark.slow, id="dask"),
     ],
 )
+@pytest.mark.slow
 def test_training_killed_with_9_resumes_to_the_same_model(where, data, tmp_path, whole_model):
     out = tmp_path / "m.npz"
     cmd = ("train", "--data", data, "--out", out, *where, *TRAIN)
@@ -125,6 +127,7 @@ def test_training_killed_with_9_resumes_to_the_same_model(where, data, tmp_path,
     assert not (tmp_path / "m.npz.parts").exists()
 
 
+@pytest.mark.slow
 def test_datagen_interrupted_by_ctrl_c_resumes_to_the_same_dataset(tmp_path):
     """The frames are compared with the toy generator's own, which an uninterrupted run
     writes whatever its workers (tests/test_datagen.py)."""

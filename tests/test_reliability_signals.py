@@ -7,6 +7,7 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
 from netutil import Services, free_port, wait_for
 from test_reliability_resume import group_reaped, start
 
@@ -17,6 +18,7 @@ MODEL = ROOT / "models" / "default.npz"
 DEMO = ROOT / "recordings" / "demo.mcap"
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_segment_says_what_was_written_and_exits_130(tmp_path):
     """Not numba's `SystemError` (a KeyboardInterrupt raised inside compiled code) and
     exit 1: the frame at hand is finished and the run stops there."""

@@ -84,6 +84,7 @@ def test_the_base_is_recovered_from_8_cm_and_5_degrees_off(urdf):
     assert "change" in fit.summary() and "within 2 cm" in fit.summary()
 
 
+@pytest.mark.slow
 def test_a_person_in_front_of_the_arm_and_sensor_noise_do_not_drag_it():
     robot = start_robot("panda")
     someone = person(0.9, 0.1, hand_at=(0.6, 0.15, 1.0))  # an arm reaching over the robot

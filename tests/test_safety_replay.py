@@ -6,6 +6,7 @@ import threading
 from pathlib import Path
 
 import msgpack
+import pytest
 import zenoh
 from netutil import free_port
 
@@ -17,6 +18,7 @@ FIELDS = {"v", "seq", "stamp_ns", "state", "speed_scale", "min_distance_m", "par
           "reaction_ms", "reasons"}  # fmt: skip
 
 
+@pytest.mark.slow
 def test_the_cell_recording_through_the_services(tmp_path):
     port = free_port()
     config = zenoh.Config()

@@ -134,6 +134,7 @@ def test_client_without_a_certificate_cannot_connect(secure):
     assert_gets_nothing(secure, outsider, "cam-nocert")
 
 
+@pytest.mark.slow
 def test_client_with_a_certificate_from_another_ca_cannot_connect(secure):
     other = {
         "root_ca_certificate": str(secure.certs / "ca.pem"),  # it trusts the real router

@@ -146,6 +146,7 @@ def test_segment_refuses_a_bad_grid(tmp_path, option, value):
     assert r.returncode == 2 and option in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path):
     path, trained, features = height_model
     frames = floor_scene(np.random.default_rng(5), MOUNT, 3)
@@ -169,6 +170,7 @@ def test_height_model_estimates_the_mount_of_a_png_folder(height_model, tmp_path
     assert (got == expected).mean() > 0.995
 
 
+@pytest.mark.slow
 def test_a_folder_of_range_images_is_found_out_and_labelled_as_depth(height_model, tmp_path):
     """PNGs from a radial-distance camera (range along each ray): the estimate says so and
     the labels are those of the depth frames they stand for."""
@@ -194,6 +196,7 @@ def test_a_folder_of_range_images_is_found_out_and_labelled_as_depth(height_mode
         assert (got == want).mean() > 0.995  # depth back from whole-mm range: +-1 mm
 
 
+@pytest.mark.slow
 def test_sensor_names_the_optics_of_pngs(height_model, tmp_path):
     """PNGs say no optics: 640x480 is read as a Kinect v1's unless `--sensor` names another
     camera of that size; one of another size is refused in one line."""
@@ -221,6 +224,7 @@ def test_sensor_names_the_optics_of_pngs(height_model, tmp_path):
     assert "640x480 frames that say no intrinsics, but the oak_d's are 640x400" in r.stderr
 
 
+@pytest.mark.slow
 def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_model, tmp_path):
     from topseg.core.calibration import estimate_mount
     from topseg.core.formats.mount_file import write_mount_file
@@ -259,6 +263,7 @@ def test_height_model_with_a_mount_file_and_a_recording_that_carries_one(height_
     np.testing.assert_array_equal(got, expected)
 
 
+@pytest.mark.slow
 def test_height_model_skips_an_input_without_a_floor(height_model, tmp_path):
     path = height_model[0]
     rng = np.random.default_rng(7)
@@ -269,6 +274,7 @@ def test_height_model_skips_an_input_without_a_floor(height_model, tmp_path):
     assert len([ln for ln in r.stderr.splitlines() if "skipped" in ln]) == 1
 
 
+@pytest.mark.slow
 def test_small_head_and_furniture_blobs_are_relabelled_and_counted(tmp_path):
     """The bundled model on the demo's frames as PNGs (mount estimated): the labels are those
     with every blob kept, then the small head and furniture ones and the satellite heads

@@ -449,6 +449,7 @@ print([k.py_func.__name__ for k, b in zip(kernels, before) if set(k.signatures) 
     assert out.stdout.strip().splitlines()[-1] == "[]"
 
 
+@pytest.mark.slow
 def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf():
     """`min_head_cm2`, `min_furniture_cm2`, `min_plant_cm2`: the CRF's labels, then head,
     furniture and plant blobs under them relabelled with the frame's own focal lengths; 0
@@ -497,6 +498,7 @@ def test_small_head_and_furniture_blobs_take_their_borders_label_after_the_crf()
     assert relabelled[L.HEAD] > 0 and relabelled[list(FURNITURE_COUNTED)].sum() > 0
 
 
+@pytest.mark.slow
 def test_a_fine_camera_is_labelled_at_half_resolution_and_brought_back_by_depth(legacy):
     """By default a Kinect v1 3.5 m up (6 mm of floor a pixel) is labelled at half
     resolution: the labels are those of the decimated frame seen through the decimated
@@ -546,6 +548,7 @@ def test_the_downsample_is_a_config_field_checked_up_front():
         seg.label(np.zeros((480, 640), np.float32), name="f9")
 
 
+@pytest.mark.slow
 def test_a_noisy_camera_gets_the_heavier_crf_weight(bundled, legacy):
     """Frames the Segmenter smooths (a D435 at 4.5 m: 85 mm of noise at the floor) are
     smoothed by the CRF with `noisy_smoothness`; a Kinect v1 at 3.5 m keeps `smoothness`,

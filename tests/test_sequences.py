@@ -99,6 +99,7 @@ def test_the_robot_loops_its_task_within_its_limits_and_speed(sequence):
     assert 3 <= len(task.waypoints) <= 5
 
 
+@pytest.mark.slow
 def test_people_walk_in_come_close_and_leave(sequence):
     times = np.arange(0, 20, 0.25)
     closest, farthest = np.inf, 0.0

@@ -22,6 +22,7 @@ def topseg_status(port, *args, timeout=3.0):
     return done.returncode, done.stdout
 
 
+@pytest.mark.slow
 def test_status_shows_driver_and_worker_alive_then_the_killed_worker_down(run):
     port, cell = free_port(), "st1"
     worker = run("worker", "--model", MODEL, "--cameras", f"{cell}/cam0", "--zenoh-port", port)
@@ -162,6 +163,7 @@ time.sleep(120)
 """
 
 
+@pytest.mark.slow
 def test_status_returns_within_its_timeout_and_lists_300_tokens():
     """More than 256 tokens fill a liveliness get's default reply channel inside the get call
     (answered from the session's own table), where a blocking channel would hang status for

@@ -117,6 +117,7 @@ def test_the_setting_is_validated():
         PostConfig(surface_vote="maybe")
 
 
+@pytest.mark.slow
 def test_the_stage_votes_after_the_person_check_on_a_rendered_cell_and_off_turns_it_off():
     """The bundled model on a clean rendered robot cell, at the frame's resolution and
     without island rules: the labels with the vote are the labels without it, voted."""

@@ -27,6 +27,7 @@ def test_bad_config_value_is_a_source_error():
         open_source("synthetic:room=nowhere", SourceOptions())
 
 
+@pytest.mark.slow
 def test_frames_match_the_synthesizer_and_carry_truth():
     with open_source("synthetic:seed=5", SourceOptions(realtime=False)) as src:
         got = []
@@ -46,6 +47,7 @@ def test_frames_match_the_synthesizer_and_carry_truth():
     assert not np.array_equal(got[0].depth.depth, got[1].depth.depth)
 
 
+@pytest.mark.slow
 def test_a_random_mount_stream_carries_its_mount_on_every_frame():
     from topseg.core.camera import PAPER_MOUNT
 

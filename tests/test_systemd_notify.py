@@ -180,6 +180,7 @@ def test_abstract_socket_and_heartbeat_status():
         listener.close()
 
 
+@pytest.mark.slow
 def test_driver_sends_ready_status_and_repeated_watchdog_pings(notify_socket):
     port = free_port()
     proc = service(notify_socket, "driver", "--source", "synthetic", "--cell", "sd1",

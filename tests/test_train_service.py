@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from topseg.core import forest
 from topseg.core.forest.features import FeatureConfig
@@ -101,6 +102,7 @@ def test_dask_training_equals_serial_and_in_process(data, tmp_path):
     assert tf["sensors"] and tf["resolutions"]
 
 
+@pytest.mark.slow
 def test_resume_keeps_finished_trees_and_discards_damaged_ones(data, tmp_path):
     out = tmp_path / "m.npz"
     topseg("train", "--data", str(data), "--out", str(out), "--serial", *SMALL)

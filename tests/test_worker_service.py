@@ -116,6 +116,7 @@ def stop(proc, timeout=15):
     return proc.returncode, err
 
 
+@pytest.mark.slow
 def test_lossless_worker_labels_every_frame_like_predict_and_crf(peers, model_path):
     port, cell = free_port(), "wk1"
     peer = peers(port, cell)
@@ -209,6 +210,7 @@ def garbage(rng):
     yield msgpack.packb({**good, "data": "text"})
 
 
+@pytest.mark.slow
 def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
     port, cell = free_port(), "wk2"
     peer = peers(port, cell)
@@ -259,6 +261,7 @@ def test_worker_survives_malformed_messages_and_counts_them(peers, model_path):
     assert "rejected" in err
 
 
+@pytest.mark.slow
 def test_ring_worker_serves_cameras_it_discovers_and_stops_on_sigterm(peers, model_path):
     port, cell = free_port(), "wk3"
     peer = peers(port, cell)
@@ -349,6 +352,7 @@ def cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+@pytest.mark.slow
 def test_lossless_burst_is_labelled_whole_idle_costs_nothing_and_sigterm_is_prompt(
     peers, model_path
 ):
@@ -420,6 +424,7 @@ def one_mount_model(model_path, tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_worker_estimates_a_mount_reports_a_bumped_camera_and_warns_once(peers, one_mount_model):
     port, cell = free_port(), "wk6"
     peer = peers(port, cell)
@@ -459,6 +464,7 @@ def test_worker_estimates_a_mount_reports_a_bumped_camera_and_warns_once(peers, 
     assert "this camera is 3.00 m up" in err
 
 
+@pytest.mark.slow
 def test_worker_labels_with_the_frames_mount_and_reports_when_it_changes(peers, model_path):
     port, cell = free_port(), "wk7"
     peer = peers(port, cell)
@@ -492,6 +498,7 @@ def test_worker_labels_with_the_frames_mount_and_reports_when_it_changes(peers, 
     assert "estimated mount" not in err
 
 
+@pytest.mark.slow
 def test_a_flood_of_camera_names_is_bounded_counted_and_released_when_idle(model_path):
     """120 bogus names on the wildcard: at most --max-cameras served, the rest counted and
     warned about once, the served ones released after --forget-after, a new name served."""
@@ -544,6 +551,7 @@ def test_a_flood_of_camera_names_is_bounded_counted_and_released_when_idle(model
 # A driver that closes its Zenoh session with its last frames still queued can lose them under
 # load (docs/reliability.md, 12e): a block-mode driver waits for its last frame's labels
 # (services/live/driver_drain.py), and this test passed 3 of 3 runs beside two CPU hogs.
+@pytest.mark.slow
 def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_every_frame(
     tmp_path, model_path
 ):
@@ -608,6 +616,7 @@ def test_lossless_worker_paused_2s_under_a_driver_rejects_nothing_and_labels_eve
 # ------------------------------------------------------------------ odd keys, seqs and stamps
 
 
+@pytest.mark.slow
 def test_depth_on_the_reserved_any_key_is_dropped_and_counted_never_fatal(run, peers, model_path):
     """`_any/_any` names the token of a worker serving every camera, not a camera: one
     message there (a byte, or a well-formed frame) must not stop such a worker: each is
@@ -647,6 +656,7 @@ def test_depth_on_the_reserved_any_key_is_dropped_and_counted_never_fatal(run, p
     assert [k for k in from_any if not k.endswith("/depth")] == []
 
 
+@pytest.mark.slow
 def test_a_wild_seq_or_stamp_is_counted_as_such_and_spoils_no_statistic(peers, model_path):
     """One frame with seq 2**62 must not make `dropped` read ~2**62 for the worker's life,
     nor a stamp a day ahead read as latency 0 (clock skew hidden), nor one of 1 ns as
