@@ -207,7 +207,6 @@ def test_soak_slow_worker_ten_minutes(run):
     check_slow_worker(fig)
 
 
-@pytest.mark.slow
 def test_sigterm_during_backoff_stops_the_driver_at_once(run, recording):
     port, cell = free_port(), "rel5"
     drv = driver(run, port, cell, f"faulty:fail_opens=100@replay:{recording}")

@@ -115,7 +115,6 @@ def _kill_after_first_tree(cmd, parts: Path) -> list[str]:
         pytest.param(("--workers", "1"), marks=pytest.mark.slow, id="dask"),
     ],
 )
-@pytest.mark.slow
 def test_training_killed_with_9_resumes_to_the_same_model(where, data, tmp_path, whole_model):
     out = tmp_path / "m.npz"
     cmd = ("train", "--data", data, "--out", out, *where, *TRAIN)
