@@ -32,6 +32,7 @@ def first_depth(count):
     raise AssertionError("the cell recording has too few depth frames")
 
 
+@pytest.mark.slow
 def test_every_stage_of_the_cell_recording_is_timed():
     done = bench("--frames", "3", "--warmup", "1")
     assert done.returncode == 0, done.stderr

@@ -32,6 +32,7 @@ def results(tmp_path_factory):
     return out, cache
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PAPER_EXPERIMENTS)
 def test_experiment_writes_table_json_and_plot(results, name):
     out, _ = results
@@ -49,6 +50,7 @@ def test_experiment_writes_table_json_and_plot(results, name):
         assert "| avg |" in md and "0.840" in md  # the paper's modeled average beside ours
 
 
+@pytest.mark.slow
 def test_datasets_are_shared_between_experiments(results):
     _, cache = results
     names = sorted(p.name.split("-seed")[0] for p in cache.glob("*.zarr"))
@@ -63,6 +65,7 @@ def test_datasets_are_shared_between_experiments(results):
     ]
 
 
+@pytest.mark.slow
 def test_rerun_skips_finished_points_and_redoes_a_missing_one(results, capsys):
     out, cache = results
     points = sorted((out / "points" / "table").glob("*.json"))
@@ -83,6 +86,7 @@ def test_rerun_skips_finished_points_and_redoes_a_missing_one(results, capsys):
     assert points[1].exists()
 
 
+@pytest.mark.slow
 def test_report_only_runs_no_point(results, tmp_path, capsys):
     out, cache = results
     (out / "noise.md").unlink()

@@ -38,14 +38,20 @@ def test_triangle_kernel_matches_the_numpy_reference(seed):
     tris[2, 2] = 2 * tris[2, 1] - tris[2, 0]  # and three corners on one line
     points = np.concatenate([rng.uniform(-1.5, 1.5, (300, 3)), tris.mean(axis=1)])
     ref = triangle_distances_reference(points, tris)
+    got = np.empty_like(ref)
+    closest = np.empty((*ref.shape, 3))
     q = np.empty(3)
     for i, p in enumerate(points):
         for t, tri in enumerate(tris):
-            d = triangle_closest(p[0], p[1], p[2], tri, q)
-            assert d == pytest.approx(ref[i, t], abs=1e-9)
-            assert np.linalg.norm(p - q) == pytest.approx(d, abs=1e-12)
-            # the closest point is on the triangle: its own distance to it is 0
-            assert triangle_distances_reference(q[None], tri[None])[0, 0] < 1e-9
+            got[i, t] = triangle_closest(p[0], p[1], p[2], tri, q)
+            closest[i, t] = q
+    np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(
+        np.linalg.norm(points[:, None] - closest, axis=-1), got, rtol=1e-6, atol=1e-12
+    )
+    # the closest point is on the triangle: its own distance to it is 0
+    for t, tri in enumerate(tris):
+        assert triangle_distances_reference(closest[:, t], tri[None]).max() < 1e-9
 
 
 @pytest.mark.parametrize("kind", [BOX, CYLINDER, SPHERE, CAPSULE])
