@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from topseg.core import labels as L
-from topseg.core.context_check import FEATURES, CellGrid, cell_features, cell_grid
+from topseg.core.context_check import FEATURES, CellGrid, cell_features
 from topseg.core.context_check_kernels import HEIGHT, PERSON_POSTERIOR
 from topseg.core.context_prior_kernels import fold_prior
 from topseg.core.crf.argmax import Summary
@@ -55,20 +55,6 @@ PERSON_MASS_GATE = 0.05
 #: keeps a group the forest gives no mass from dividing by zero, and a group the prior gives
 #: none from being ruled out
 EPS = 0.02
-
-
-def prior_grid(
-    labels: np.ndarray,
-    valid: np.ndarray,
-    heights_mm: np.ndarray,
-    depth_mm: np.ndarray,
-    proba: np.ndarray,
-    fx: float,
-) -> CellGrid | None:
-    """The prior's cells of a working frame (as `context_check.cell_grid`, with the forest's
-    argmax as its labels and cells `PRIOR_CELL_PX` square); None without a valid pixel in a
-    whole cell."""
-    return cell_grid(labels, valid, heights_mm, depth_mm, proba, fx, PRIOR_CELL_PX)
 
 
 def prior_cells(grid: CellGrid, near_people: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -182,7 +168,7 @@ def apply_prior(
     valid: np.ndarray,
     summary: Summary,
 ) -> int:
-    """Score the prior's cells (rows, cols) of `grid` (`prior_grid`, `prior_cells`) and fold
+    """Score the prior's cells (rows, cols) of `grid` (`stages.context_prior.frame_prior_cells`) and fold
     their group probabilities into the posteriors `proba` of the `valid` pixels and into
     their `summary`, in place: how many pixels' argmax changed."""
     groups = np.zeros((*grid.parts.shape, len(GROUPS)), np.float32)

@@ -98,6 +98,13 @@ class PreConfig:
         _check_areas(self)
 
 
+def _check_switches(config: Any, *names: str) -> None:
+    """Each named field of `config` is `on` or `off`; TopsegError otherwise."""
+    for name in names:
+        if getattr(config, name) not in ("on", "off"):
+            raise TopsegError(f"{name} must be on or off, got {getattr(config, name)!r}")
+
+
 @dataclass(frozen=True)
 class GridConfig:
     """The resolution a frame is labelled at and where the forest walks.
@@ -179,8 +186,7 @@ class GridConfig:
             raise TopsegError(f"adaptive must be >= 0 levels, got {self.adaptive}")
         if self.early_exit is not None and not 0.0 < self.early_exit <= 1.0:
             raise TopsegError(f"early_exit must be in (0, 1] (or None), got {self.early_exit}")
-        if self.context_prior not in ("on", "off"):
-            raise TopsegError(f"context_prior must be on or off, got {self.context_prior!r}")
+        _check_switches(self, "context_prior")
 
 
 @dataclass(frozen=True)
@@ -261,9 +267,7 @@ class PostConfig:
 
     def __post_init__(self) -> None:
         _check_areas(self)
-        for name in ("person_check", "surface_vote"):
-            if getattr(self, name) not in ("on", "off"):
-                raise TopsegError(f"{name} must be on or off, got {getattr(self, name)!r}")
+        _check_switches(self, "person_check", "surface_vote")
 
     @property
     def any(self) -> bool:

@@ -14,7 +14,7 @@ from topseg.core.context_check import (
     restore_cells,
     restored_pixels,
 )
-from topseg.core.context_prior import apply_prior, prior_cells, prior_grid
+from topseg.core.context_prior import PRIOR_CELL_PX, apply_prior, prior_cells
 from topseg.core.crf.argmax import Summary, argmax_confidence
 from topseg.core.islands import (
     EDGE_HEAD_SHARE,
@@ -48,8 +48,8 @@ def prior_as_the_segmenter(proba, depth, inp, mount, prior):
         return 0
     valid = inp.above_floor()
     summary = Summary(*argmax_confidence(proba, depth > 0))
-    grid = prior_grid(summary.amax, valid, mount.height_map_mm(depth), depth, proba,
-                      mount.intrinsics.fx)  # fmt: skip
+    grid = cell_grid(summary.amax, valid, mount.height_map_mm(depth), depth, proba,
+                     mount.intrinsics.fx, PRIOR_CELL_PX)  # fmt: skip
     rows, cols = prior_cells(grid) if grid is not None else ((), ())
     if len(rows) == 0:
         return 0

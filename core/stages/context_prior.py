@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from topseg.core.context_check import CellGrid
-from topseg.core.context_prior import apply_prior, prior_cells, prior_grid
+from topseg.core.context_check import CellGrid, cell_grid
+from topseg.core.context_prior import PRIOR_CELL_PX, apply_prior, prior_cells
 from topseg.core.stages.base import FORESTS_SHARE, Stage
 from topseg.core.stages.plan import FrameState
 
@@ -51,8 +51,10 @@ def frame_prior_cells(
     person-check` fits it on) and the pixels above the floor gate; None without such a
     cell."""
     valid = frame.inp.above_floor()
-    grid = prior_grid(frame.summary.amax, valid, frame.heights(), frame.depth,
-                      frame.fill(None), frame.plan.work_mount.intrinsics.fx)  # fmt: skip
+    grid = cell_grid(
+        frame.summary.amax, valid, frame.heights(), frame.depth, frame.fill(None),
+        frame.plan.work_mount.intrinsics.fx, PRIOR_CELL_PX,
+    )  # fmt: skip
     if grid is None:
         return None
     rows, cols = prior_cells(grid, near_people)

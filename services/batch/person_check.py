@@ -218,7 +218,7 @@ def fit_prior(rows: dict[str, np.ndarray], seed: int = 0) -> ContextPrior:
     from sklearn.ensemble import HistGradientBoostingClassifier
 
     x, group, weight = rows["features"], rows["group"], rows["weight"]
-    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
+    held = held_frames(rows)
     missing = sorted(set(range(len(GROUPS))) - set(np.unique(group[~held]).tolist()))
     if missing:
         names = ", ".join(GROUPS[g] for g in missing)
@@ -393,12 +393,17 @@ def fit_check(rows: dict[str, np.ndarray], keep: float, seed: int = 0) -> Person
     return PersonCheck(trees, threshold, validation)
 
 
+def held_frames(rows: dict[str, np.ndarray]) -> np.ndarray:
+    """Which rows lie in the held-out frames: every HOLD_OUT-th, by their `frame`."""
+    return rows["frame"] % HOLD_OUT == HOLD_OUT - 1
+
+
 def held_out(rows: dict[str, np.ndarray], kinds: str) -> tuple[np.ndarray, np.ndarray]:
     """(person, held): which rows are a person's (`PERSON_SHARE` of their pixels or more in
     the truth) and which lie in the held-out frames (every HOLD_OUT-th); TopsegError when
     the fitting frames lack either kind (`kinds` names both in the message)."""
     person = rows["share"] >= PERSON_SHARE
-    held = rows["frame"] % HOLD_OUT == HOLD_OUT - 1
+    held = held_frames(rows)
     if person[~held].all() or not person[~held].any():
         raise TopsegError(f"the fitting frames need {kinds}")
     return person, held
@@ -553,6 +558,7 @@ __all__ = [
     "gather_blobs",
     "gather_cells",
     "gather_prior_cells",
+    "held_frames",
     "held_out",
     "labelled",
     "threshold_kept",

@@ -140,10 +140,10 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
     `core.safety.PRECISION_STAGES`); write OUT/safety.md and .json; the figures."""
     out.mkdir(parents=True, exist_ok=True)
     precision = precision or PRECISION_STAGES
-    config = SegmenterConfig()
-    config = replace(config, grid=replace(config.grid, context_prior=precision),
-                     post=replace(config.post, person_check=precision))  # fmt: skip
-    segmenter = Segmenter.from_file(model, config)
+    labelling = SegmenterConfig()
+    labelling = replace(labelling, grid=replace(labelling.grid, context_prior=precision),
+                        post=replace(labelling.post, person_check=precision))  # fmt: skip
+    segmenter = Segmenter.from_file(model, labelling)
     rows, everything = [], []
     for i in range(sequences):
         config = sequence_config(i, duration_s, fps)
