@@ -54,6 +54,16 @@ def test_the_error_is_split_by_whether_the_nearest_point_is_seen():
     assert figures["distance_error_p95_hidden_m"] == pytest.approx(0.30)
 
 
+def test_the_error_has_its_two_sides_apart():
+    def c(measured, truth):
+        return Compared("stop", "stop", measured, truth, "hand", "hand", 1, None, True)
+
+    figures = score([c(0.50, 0.40), c(0.30, 0.50), c(0.45, 0.45), c(None, 0.2)])
+    assert figures["distance_farther_p99_m"] == pytest.approx(0.10)
+    assert figures["distance_nearer_p99_m"] == pytest.approx(0.20)
+    assert score([c(0.4, 0.4)])["distance_nearer_p99_m"] == 0.0
+
+
 def test_truth_nearest_carries_the_persons_point():
     persons = [
         {"distance_m": 0.8, "part": "head", "link": "a", "point_m": [0, 0, 1.7]},

@@ -15,7 +15,9 @@ said `stop` (must be never), the separation error (|measured - true| where both 
 and a robot) p50/p95, and its p95 apart over the frames whose true nearest point the camera
 sees and those where it does not (out of the image, under the robot or another body part, or
 on the person's own side, which a camera above sees past: no perception measures those
-exactly), the share of frames with one person in
+exactly), the error's two sides apart at p99 (measured farther than the truth: the side
+that could let the robot run on; nearer: the cautious side), the share of frames with one
+person in
 view where the nearest part is the truth's, and the reaction time p50/p99.
 """
 
@@ -124,7 +126,8 @@ def score(compared: list[Compared]) -> dict:
     equal = sum(c.state == c.truth_state for c in compared)
     unsafe = sum(c.state == "clear" and c.truth_state == "stop" for c in compared)
     both = [c for c in compared if c.distance_m is not None and c.truth_distance_m is not None]
-    errors = [abs(c.distance_m - c.truth_distance_m) for c in both]
+    signed = [c.distance_m - c.truth_distance_m for c in both]
+    errors = [abs(e) for e in signed]
     seen = [abs(c.distance_m - c.truth_distance_m) for c in both if c.truth_point_seen]
     hidden = [abs(c.distance_m - c.truth_distance_m) for c in both if c.truth_point_seen is False]
     single = [c for c in compared if c.persons_in_view == 1 and c.part and c.truth_part]
@@ -142,6 +145,8 @@ def score(compared: list[Compared]) -> dict:
         "distance_frames": len(errors),
         "distance_error_p50_m": percentile(errors, 50) if errors else None,
         "distance_error_p95_m": percentile(errors, 95) if errors else None,
+        "distance_farther_p99_m": percentile([max(e, 0.0) for e in signed], 99) if both else None,
+        "distance_nearer_p99_m": percentile([max(-e, 0.0) for e in signed], 99) if both else None,
         "distance_frames_seen": len(seen),
         "distance_error_p95_seen_m": percentile(seen, 95) if seen else None,
         "distance_frames_hidden": len(hidden),

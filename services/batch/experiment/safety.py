@@ -207,5 +207,17 @@ def markdown(result: dict) -> str:
         )
         + "\n\n"
         + "\n".join(lines)
-        + "\n"
+        + "\n\n"
+        + _sides(result["overall"])
+    )
+
+
+def _sides(overall: dict) -> str:
+    """The line under the table: the separation error's two sides at p99."""
+    if overall.get("distance_farther_p99_m") is None:
+        return ""
+    return (
+        "Separation error p99 on each side, all frames: measured farther than the truth "
+        f"{_f(overall['distance_farther_p99_m'], 100, ' cm')}, nearer "
+        f"{_f(overall['distance_nearer_p99_m'], 100, ' cm')}.\n"
     )
