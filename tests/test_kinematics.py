@@ -57,4 +57,4 @@ def test_prismatic_and_mimic_joints_follow_the_urdf():
     # the slide moves b 2 * 0.25 = 0.5 m along its (unnormalised) axis, z of its origin's
     # frame (pitched 0.7 rad), from 0.4 m up a's z
     expected = [0.5 * np.sin(0.7), 0.0, 0.4 + 0.5 * np.cos(0.7), 1.0]
-    np.testing.assert_allclose(np.linalg.inv(poses["a"]) @ poses["b"][:, 3], expected)
+    np.testing.assert_allclose(np.linalg.inv(poses["a"]) @ poses["b"][:, 3], expected, atol=1e-12)
