@@ -30,6 +30,18 @@ def test_safety_experiment_scores_a_sequence(tmp_path):
     assert doc["precision_stages"] == "off"
 
 
+def test_the_table_says_which_way_the_states_went_wrong():
+    overall = {"frames": 10, "states_truth_to_service": {
+        "clear->clear": 4, "warning->clear": 2, "stop->warning": 1, "clear->stop": 1,
+        "stop->stop": 2, "warning->stop": 0,
+    }, "distance_farther_p99_m": 0.2, "distance_nearer_p99_m": 0.05}  # fmt: skip
+    md = safety.markdown({"model": "m", "overall": overall, "sequences": []})
+    assert "clear -> stop 1, stop -> warning 1, warning -> clear 2; 3 of 4 less strict" in md
+    assert "farther than the truth 20.0 cm, nearer 5.0 cm" in md
+    none_wrong = {"frames": 1, "states_truth_to_service": {"stop->stop": 1}}
+    assert "unlike" not in safety.markdown({"model": "m", "overall": none_wrong, "sequences": []})
+
+
 def test_a_sequences_static_background_is_its_table_without_people_or_robot():
     """What `--background` gates with: the table's pixels match it, the robot's and the
     people's do not (they stand in front of it)."""

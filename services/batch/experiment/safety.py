@@ -209,6 +209,7 @@ def markdown(result: dict) -> str:
         + "\n".join(lines)
         + "\n\n"
         + _sides(result["overall"])
+        + _misses(result["overall"])
     )
 
 
@@ -220,4 +221,21 @@ def _sides(overall: dict) -> str:
         "Separation error p99 on each side, all frames: measured farther than the truth "
         f"{_f(overall['distance_farther_p99_m'], 100, ' cm')}, nearer "
         f"{_f(overall['distance_nearer_p99_m'], 100, ' cm')}.\n"
+    )
+
+
+def _misses(overall: dict) -> str:
+    """The line under the table: the frames whose state is not the truth's, by truth ->
+    service, and how many of them are less strict than the truth (the side that matters)."""
+    pairs = overall.get("states_truth_to_service") or {}
+    wrong = {k: n for k, n in pairs.items() if n and k.split("->")[0] != k.split("->")[1]}
+    if not wrong:
+        return ""
+    order = ("clear", "warning", "stop")
+    lenient = sum(n for k, n in wrong.items()
+                  if order.index(k.split("->")[1]) < order.index(k.split("->")[0]))  # fmt: skip
+    listed = ", ".join(f"{k.replace('->', ' -> ')} {n}" for k, n in sorted(wrong.items()))
+    return (
+        f"States unlike the truth's (truth -> service): {listed}; {lenient} of "
+        f"{sum(wrong.values())} less strict than the truth.\n"
     )
