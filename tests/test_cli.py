@@ -1,13 +1,15 @@
 """The `topseg` command: every subcommand (and bench) has working --help; errors are one line."""
 
+import atexit
 import os
 import subprocess
 import sys
 
 import pytest
 
+from topseg.services import cli as cli_module
 from topseg.services.batch.bench import BENCHES
-from topseg.services.cli import COMMANDS, main
+from topseg.services.cli import COMMANDS, LIVE_SERVICES, console, main
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
@@ -60,3 +62,29 @@ def test_openmp_threads_sleep_between_kernels_unless_the_environment_says(given,
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
     )
     assert out.stdout.strip().splitlines()[-1] == expected, out.stderr
+
+
+@pytest.mark.parametrize(
+    "command, ends_at_once", [("viewer", True), ("safety", True), ("datagen", False)]
+)
+def test_a_live_service_ends_its_process_at_once_after_its_exit_handlers(
+    monkeypatch, command, ends_at_once
+):
+    """A live service's process ends by os._exit once its exit handlers ran (no teardown to
+    stop Rust threads in); any other command exits as usual."""
+    ran, ended = [], []
+    monkeypatch.setattr(sys, "argv", ["topseg", "-q", command, "--anything"])
+    monkeypatch.setattr(cli_module, "main", lambda argv: 3 if argv[1] == command else 99)
+    monkeypatch.setattr(cli_module.os, "_exit", ended.append)
+    atexit.register(ran.append, "handler")
+    try:
+        if ends_at_once:
+            console()
+            assert ended == [3] and ran == ["handler"]
+        else:
+            with pytest.raises(SystemExit) as exit_:
+                console()
+            assert exit_.value.code == 3 and ended == [] and ran == []
+    finally:
+        atexit.unregister(ran.append)
+    assert LIVE_SERVICES <= set(COMMANDS)

@@ -7,6 +7,7 @@ heavy imports inside `run` so that `topseg --help` stays fast.
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
 import logging
 import os
@@ -81,6 +82,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
 }
 
+
+#: The commands that run as live services over Zenoh: once one has stopped cleanly, its
+#: process ends without the interpreter's teardown (`console`).
+LIVE_SERVICES = frozenset({"driver", "record", "worker", "viewer", "router", "bridge", "safety"})
 
 #: subcommand -> the page its `--help` sends a user to for the details ("Details: ...")
 DETAILS: dict[str, str] = {
@@ -207,3 +212,19 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         systemd_notify.failed(f"topseg {args.command}: crashed: {type(exc).__name__}: {exc}")
         raise
+
+
+def console() -> None:
+    """The `topseg` executable: `main`, and then a live service's process ends at once, its
+    exit handlers run and its output flushed. The interpreter's teardown would stop the
+    threads that Zenoh's, Foxglove's and Rerun's Rust runtimes still run, and a thread stopped
+    inside Rust aborts the process ("FATAL: exception not rethrown", SIGABRT) after the
+    service had stopped cleanly: a crash in systemd's log for a clean stop."""
+    argv = sys.argv[1:]
+    code = main(argv)
+    if next((a for a in argv if a in COMMANDS), None) not in LIVE_SERVICES:
+        sys.exit(code)
+    atexit._run_exitfuncs()  # what a normal exit runs first: logging's flush, Rerun's
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -1,7 +1,5 @@
 """`python -m topseg.services.cli`: the `topseg` command."""
 
-import sys
+from topseg.services.cli import console
 
-from topseg.services.cli import main
-
-sys.exit(main())
+console()
