@@ -17,8 +17,7 @@ sees and those where it does not (out of the image, under the robot or another b
 on the person's own side, which a camera above sees past: no perception measures those
 exactly), the error's two sides apart at p99 (measured farther than the truth: the side
 that could let the robot run on; nearer: the cautious side), the share of frames with one
-person in
-view where the nearest part is the truth's, and the reaction time p50/p99.
+person in view where the nearest part is the truth's, and the reaction time p50/p99.
 """
 
 from __future__ import annotations
@@ -128,8 +127,8 @@ def score(compared: list[Compared]) -> dict:
     both = [c for c in compared if c.distance_m is not None and c.truth_distance_m is not None]
     signed = [c.distance_m - c.truth_distance_m for c in both]
     errors = [abs(e) for e in signed]
-    seen = [abs(c.distance_m - c.truth_distance_m) for c in both if c.truth_point_seen]
-    hidden = [abs(c.distance_m - c.truth_distance_m) for c in both if c.truth_point_seen is False]
+    seen = [e for c, e in zip(both, errors, strict=True) if c.truth_point_seen]
+    hidden = [e for c, e in zip(both, errors, strict=True) if c.truth_point_seen is False]
     single = [c for c in compared if c.persons_in_view == 1 and c.part and c.truth_part]
     reactions = [c.reaction_ms for c in compared if c.reaction_ms is not None]
     confusion = {

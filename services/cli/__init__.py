@@ -137,13 +137,18 @@ def setup_logging(verbose: int = 0) -> None:
     logging.getLogger("topseg").setLevel(level)
 
 
+def named_command(argv: list[str]) -> str | None:
+    """The first word of `argv` that is a subcommand, or None."""
+    return next((a for a in argv if a in COMMANDS), None)
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser; only the module of the command named in `argv` is imported.
 
     So `topseg --help` stays instant and one command's import error never breaks another.
     """
     argv = sys.argv[1:] if argv is None else argv
-    chosen = next((a for a in argv if a in COMMANDS), None)
+    chosen = named_command(argv)
     parser = argparse.ArgumentParser(
         prog="topseg",
         description="Real-time segmentation of top-view depth frames (see docs/index.md).",
@@ -192,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser(argv).parse_args(argv)
     except TopsegError as exc:  # a bad --config file
-        fail(next((a for a in argv or sys.argv[1:] if a in COMMANDS), None), exc)
+        fail(named_command(argv or sys.argv[1:]), exc)
         return 2
     setup_logging(0 if args.quiet else args.verbose)
     try:
@@ -222,7 +227,7 @@ def console() -> None:
     service had stopped cleanly: a crash in systemd's log for a clean stop."""
     argv = sys.argv[1:]
     code = main(argv)
-    if next((a for a in argv if a in COMMANDS), None) not in LIVE_SERVICES:
+    if named_command(argv) not in LIVE_SERVICES:
         sys.exit(code)
     atexit._run_exitfuncs()  # what a normal exit runs first: logging's flush, Rerun's
     sys.stdout.flush()

@@ -35,7 +35,7 @@ from topseg.core.safety.agreement import (
     truth_point_seen,
 )
 from topseg.core.safety.cell import cell_from_dict
-from topseg.core.safety.decision import decide
+from topseg.core.safety.decision import STATES, decide
 from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
 from topseg.core.segmenter import Segmenter, SegmenterConfig
@@ -228,13 +228,13 @@ def _misses(overall: dict) -> str:
     """The line under the table: the frames whose state is not the truth's, by truth ->
     service, and how many of them are less strict than the truth (the side that matters)."""
     pairs = overall.get("states_truth_to_service") or {}
-    wrong = {k: n for k, n in pairs.items() if n and k.split("->")[0] != k.split("->")[1]}
+    wrong = {tuple(k.split("->")): n for k, n in sorted(pairs.items()) if n}
+    wrong = {(truth, said): n for (truth, said), n in wrong.items() if truth != said}
     if not wrong:
         return ""
-    order = ("clear", "warning", "stop")
-    lenient = sum(n for k, n in wrong.items()
-                  if order.index(k.split("->")[1]) < order.index(k.split("->")[0]))  # fmt: skip
-    listed = ", ".join(f"{k.replace('->', ' -> ')} {n}" for k, n in sorted(wrong.items()))
+    lenient = sum(n for (truth, said), n in wrong.items()
+                  if STATES.index(said) < STATES.index(truth))  # fmt: skip
+    listed = ", ".join(f"{truth} -> {said} {n}" for (truth, said), n in wrong.items())
     return (
         f"States unlike the truth's (truth -> service): {listed}; {lenient} of "
         f"{sum(wrong.values())} less strict than the truth.\n"
