@@ -370,3 +370,80 @@ def test_a_sliver_of_a_person_at_the_image_edge_is_a_person_but_a_speck_inside_i
         mon.frame("cam0", frame, LabelFrame(sliver, seq, T0, "cam0"), T0)
         at_edge = mon.views["cam0"].nearest is not None
         assert at_edge == (seq == 1)
+
+
+def _two_camera_cell(zones=()):
+    cameras = [{"name": "cam0"}, {"name": "cam1", "x_m": 0.8}]
+    return cell_from_dict(dict(CELL, camera=cameras, zone=list(zones)), "test cell", Path("."))
+
+
+def test_what_another_camera_sees_otherwise_is_checked_point_by_point(robot, joints):
+    """`seen_otherwise` against a camera that sees a person, the floor and a box."""
+    from tests.safety_scenes import _prims
+    from topseg.core.safety.monitor import seen_otherwise, sight
+    from topseg.core.synth.geometry import BOX
+
+    two = _two_camera_cell()
+    other = two.cameras[1]
+    box = _prims([BOX], [(0.2, 0.2, 0.4)], [(0.8, 0.9, 0.4)], [labels.STORAGE])
+    depth, lab = render(other, None, None, [person(0.8, -0.6), box], name="cam1")
+    seen = sight(depth.depth, lab.labels, MOUNT, other)
+    points = np.array([
+        [0.8, -0.6, 1.5],  # on the person's body: a person there
+        [0.2, 0.0, 1.0],  # in the air over the open floor: it sees past it
+        [0.8, 0.9, 0.8],  # on the box's top: a surface that is no person
+        [0.8, 0.9, 0.3],  # inside the box, under its top: hidden from it
+        [9.0, 9.0, 1.0],  # outside its image
+    ])  # fmt: skip
+    assert seen_otherwise(points, seen).tolist() == [False, True, True, False, False]
+
+
+def test_a_second_camera_drops_a_phantom_the_first_read_on_open_floor(robot, joints, monkeypatch):
+    """Camera 0's labels put legs on open floor beside the robot; camera 1 sees floor there:
+    the nearest pair is the real person's and the zone around the robot is not held. One
+    camera alone keeps the phantom, and so does the monitor with the check off."""
+    from topseg.core.safety import monitor as monitor_module
+
+    guard = {"name": "guard", "kind": "protective",
+             "polygon_m": [[0.3, -0.7], [0.7, -0.7], [0.7, 0.7], [0.3, 0.7]]}  # fmt: skip
+    two = _two_camera_cell([guard])
+    people = [person(-0.9, 0.0)]
+    frames = {c.name: render(c, robot, joints, people, stamp_ns=T0, name=c.name)
+              for c in two.cameras}  # fmt: skip
+    depth0, lab0 = frames["cam0"]
+    phantom = lab0.labels.copy()
+    k = MOUNT.intrinsics
+    # 16 cm of floor 0.35-0.5 m beside the robot's base
+    rows, cols = int(k.cy) + 30, int(k.cx) + int(0.5 * k.fx / 3.0)
+    patch = (slice(rows, rows + 14), slice(cols - 7, cols + 7))
+    phantom[patch] = labels.LEGS
+    assert (lab0.labels[patch] == labels.BACKGROUND).all()
+    frames["cam0"] = (depth0, LabelFrame(phantom, 0, T0, "cam0"))
+
+    def seen_by(cameras):
+        mon = monitor_with_joints(two, robot, joints)
+        for name in cameras:
+            mon.frame(name, *frames[name], T0)
+        return mon.gathered(T0)
+
+    real = seen_by(["cam1"])
+    assert real.nearest is not None and real.nearest.distance_m > 1.0
+    assert real.occupied == []
+    alone = seen_by(["cam0"])  # the phantom, read alone
+    assert alone.nearest.distance_m < 0.6 and alone.occupied == ["guard"]
+    both = seen_by(["cam0", "cam1"])
+    assert both.nearest.distance_m == pytest.approx(real.nearest.distance_m, abs=0.03)
+    assert both.occupied == []
+    monkeypatch.setattr(monitor_module, "CROSS_CHECK", False)
+    unchecked = seen_by(["cam0", "cam1"])
+    assert unchecked.nearest.distance_m < 0.6 and unchecked.occupied == ["guard"]
+
+
+def test_a_person_both_cameras_see_keeps_their_nearest_point(robot, joints):
+    two = _two_camera_cell()
+    people = [person(0.0, -0.5, hand_at=(0.3, -0.25, 1.0))]
+    mon = monitor_with_joints(two, robot, joints)
+    for c in two.cameras:
+        mon.frame(c.name, *render(c, robot, joints, people, stamp_ns=T0, name=c.name), T0)
+    alone = min(v.nearest.distance_m for v in mon.views.values())
+    assert mon.decision(T0).nearest.distance_m == pytest.approx(alone, abs=0.01)

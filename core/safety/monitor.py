@@ -20,7 +20,9 @@ labels carried onto it (`carry.carry_labels`: what appeared since is a person of
    protective zone the camera does not see.
 
 `CellMonitor.decision(now)` combines every camera's newest frame (the nearest person over all,
-zones occupied by any, a protective zone unseen only when no camera sees it) and decides with
+zones occupied by any, a protective zone unseen only when no camera sees it; a person's point
+that another camera sees past, or sees as a surface that is no person or robot, counts for
+neither: `seen_otherwise`) and decides with
 the reaction time measured now: depth stamp of the oldest frame in use to this moment. A
 camera whose labels in use arrived longer ago than the cell's deadline, or that sent none yet,
 is a fault: `stop`; so is a camera whose driver or worker went away (its liveliness token was
@@ -50,6 +52,7 @@ from topseg.core.safety.separation import (
     HumanPoints,
     Nearest,
     blob_areas_m2,
+    camera_pixels,
     cell_points,
     human_points,
     label4,
@@ -104,6 +107,13 @@ MAX_REACH_PX = 60
 #: Without a joint state the robot's pixels stand for it, thinned to one point per cell of
 #: this side (m).
 ROBOT_POINT_GRID_M = 0.03
+#: With several cameras, a person's point one camera measured is dropped from the
+#: separation and the zones when another camera sees that place and no person there
+#: (`seen_otherwise`):
+#: it sees past the point by more than this (m), or a surface within it that is not labelled
+#: a person or the robot, anywhere in the 3x3 pixels around where the point falls.
+CROSS_CHECK_M = 0.1
+CROSS_CHECK = True
 
 
 @dataclass
@@ -119,6 +129,38 @@ class CameraView:
     unseen: dict[str, float] = field(default_factory=dict)
     robot_source: str = "none"  # "joints" | "labels" | "none"
     labels: np.ndarray | None = None  # the labels after the robot's own pixels
+    #: what another camera's points are checked against (`seen_otherwise`), and what this
+    #: camera's nearest pair is measured from
+    sight: Sight | None = None
+    people: HumanPoints | None = None
+    robot_shapes: tuple[Capsules, RobotSurface | None] | None = None
+    zone_masks: ZoneMasks | None = None
+
+
+@dataclass(frozen=True)
+class Sight:
+    """What a camera saw, as another camera's points are checked against it: its working
+    mount and placement, the nearest depth (m) within 3x3 pixels of each pixel (inf where
+    none has depth) and whether a person or the robot is labelled within them."""
+
+    mount: TopViewMount
+    placement: CameraPlacement
+    nearest_m: np.ndarray
+    person_or_robot: np.ndarray
+
+
+@dataclass(frozen=True)
+class Gathered:
+    """Every camera's newest view at one moment, together: the nearest pair over them, the
+    zones any of them sees a person in, each protective zone's least unseen share, the
+    faults, the oldest view's depth stamp and the frame the nearest pair (or that) is from."""
+
+    nearest: Nearest | None
+    occupied: list[str]
+    unseen: dict[str, float]
+    faults: tuple[str, ...]
+    oldest_stamp_ns: int | None
+    frame: tuple[str, int] | None
 
 
 @dataclass(frozen=True)
@@ -278,7 +320,12 @@ class CellMonitor:
             shadow = lab == label_table.ROBOT
             view.robot_source = "labels" if capsules is not None else "none"
         view.labels = lab
+        if len(self.cell.cameras) > 1:  # only another camera reads it
+            view.sight = sight(depth_mm, lab, mount, placement)
         people = people_points(depth_mm, lab, mount, placement)
+        view.people = people
+        if capsules is not None:
+            view.robot_shapes = (capsules, surface)
         if capsules is not None and people is not None:
             view.nearest = nearest(people, capsules, surface)
         elif self.robot is not None and people is not None:
@@ -287,6 +334,7 @@ class CellMonitor:
                 "(no fresh joint state, no pixel labelled robot)",
             )
         masks = self._masks(camera, mount, placement)
+        view.zone_masks = masks
         if people is not None:
             pixels = np.stack([people.rows, people.cols], axis=1)
             view.occupied = frozenset(occupied_zones(masks, people.points_m, pixels))
@@ -324,8 +372,9 @@ class CellMonitor:
 
     # ------------------------------------------------------------------ the decision
 
-    def decision(self, now_ns: int) -> CellDecision:
-        """The cell's decision now, over every camera's newest view."""
+    def gathered(self, now_ns: int) -> Gathered:
+        """What every camera's newest view says now, together: a camera without a view
+        younger than the deadline, or whose driver or worker went away, is a fault."""
         faults: list[str] = []
         deadline_ms = self.cell.deadline_ms
         nearest_all: Nearest | None = None
@@ -333,6 +382,8 @@ class CellMonitor:
         unseen: dict[str, float] = {}
         oldest_stamp: int | None = None
         frame = None
+        fresh = [v for c in self.cell.cameras if (v := self.views.get(c.name)) is not None
+                 and (now_ns - v.received_ns) / 1e6 <= deadline_ms]  # fmt: skip
         for placement in self.cell.cameras:
             view = self.views.get(placement.name)
             for role in self.gone(placement.name):
@@ -348,26 +399,94 @@ class CellMonitor:
                 )
                 continue
             faults.extend(view.faults)
-            occupied |= view.occupied
+            near, held = cross_checked(view, [v for v in fresh if v is not view])
+            occupied |= held
             for zone, share in view.unseen.items():
                 unseen[zone] = min(share, unseen.get(zone, math.inf))
-            if view.nearest is not None and (
-                nearest_all is None or view.nearest.distance_m < nearest_all.distance_m
+            if near is not None and (
+                nearest_all is None or near.distance_m < nearest_all.distance_m
             ):
-                nearest_all, frame = view.nearest, (placement.name, view.seq)
+                nearest_all, frame = near, (placement.name, view.seq)
             if oldest_stamp is None or view.stamp_ns < oldest_stamp:
                 oldest_stamp = view.stamp_ns
                 frame = frame or (placement.name, view.seq)
-        reaction_ms = None if oldest_stamp is None else max(0.0, (now_ns - oldest_stamp) / 1e6)
+        return Gathered(nearest_all, sorted(occupied), unseen, tuple(faults), oldest_stamp, frame)
+
+    def decision(self, now_ns: int) -> CellDecision:
+        """The cell's decision now, over every camera's newest view."""
+        seen = self.gathered(now_ns)
+        oldest = seen.oldest_stamp_ns
+        reaction_ms = None if oldest is None else max(0.0, (now_ns - oldest) / 1e6)
         reaction_s = math.inf if reaction_ms is None else reaction_ms / 1000.0
         decision = decide(
-            self.cell, nearest_all, sorted(occupied), unseen, reaction_s, tuple(faults)
+            self.cell, seen.nearest, seen.occupied, seen.unseen, reaction_s, seen.faults
         )
-        zones = zone_states(self.cell, occupied, unseen, decision)
-        return CellDecision(decision, reaction_ms, zones, nearest_all, frame)
+        zones = zone_states(self.cell, set(seen.occupied), seen.unseen, decision)
+        return CellDecision(decision, reaction_ms, zones, seen.nearest, seen.frame)
 
 
 # ---------------------------------------------------------------------------- pure steps
+
+
+def sight(
+    depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount, placement: CameraPlacement
+) -> Sight:
+    """A camera's frame as `seen_otherwise` reads it (see `Sight`)."""
+    metres = np.where(depth_mm > 0, depth_mm / 1000.0, np.inf)
+    near = ndimage.minimum_filter(metres, size=3, mode="nearest")
+    marked = IS_HUMAN[lab] | (lab == label_table.ROBOT)
+    return Sight(mount, placement, near, ndimage.maximum_filter(marked, size=3, mode="nearest"))
+
+
+def seen_otherwise(
+    points_m: np.ndarray, other: Sight, margin_m: float = CROSS_CHECK_M
+) -> np.ndarray:
+    """(n,) whether camera `other` sees each cell-frame point's place without a person
+    there: the point falls inside its image, and within the 3x3 pixels around it its
+    nearest depth lies beyond the point by more than `margin_m` (it sees past it), or within
+    `margin_m` of it with no pixel labelled a person or the robot (a surface that is not
+    one). Nothing nearer than the point by more than `margin_m` (the point hidden from it)
+    or outside its image says nothing."""
+    uv, z_m, inside = camera_pixels(points_m, other.mount, other.placement)
+    out = np.zeros(len(points_m), bool)
+    if not inside.any():
+        return out
+    cols = np.floor(uv[inside, 0]).astype(np.int64)
+    rows = np.floor(uv[inside, 1]).astype(np.int64)
+    seen_m = other.nearest_m[rows, cols]
+    z = z_m[inside]
+    past = seen_m > z + margin_m
+    other_surface = (np.abs(seen_m - z) <= margin_m) & ~other.person_or_robot[rows, cols]
+    out[inside] = past | other_surface
+    return out
+
+
+def cross_checked(
+    view: CameraView, others: list[CameraView]
+) -> tuple[Nearest | None, frozenset[str]]:
+    """`view`'s nearest pair and occupied zones, taken again without the person points a
+    camera of `others` sees otherwise (`seen_otherwise`); its own when there is nothing to
+    check against (CROSS_CHECK off, no other camera or no person)."""
+    people = view.people
+    checks = [v.sight for v in others if v.sight is not None]
+    if not CROSS_CHECK or people is None or not checks:
+        return view.nearest, view.occupied
+    drop = np.zeros(len(people), bool)
+    for other in checks:
+        drop |= seen_otherwise(people.points_m, other)
+    if not drop.any():
+        return view.nearest, view.occupied
+    if drop.all():
+        return None, frozenset()
+    keep = ~drop
+    kept = replace(people, points_m=people.points_m[keep], part=people.part[keep],
+                   rows=people.rows[keep], cols=people.cols[keep], blob=people.blob[keep])  # fmt: skip
+    near = None if view.robot_shapes is None else nearest(kept, *view.robot_shapes)
+    held = frozenset()
+    if view.zone_masks is not None:
+        pixels = np.stack([kept.rows, kept.cols], axis=1)
+        held = frozenset(occupied_zones(view.zone_masks, kept.points_m, pixels))
+    return near, held
 
 
 def working_factor(mount: TopViewMount) -> int:
