@@ -30,6 +30,21 @@ def test_safety_experiment_scores_a_sequence(tmp_path):
     assert doc["precision_stages"] == "off"
 
 
+def test_two_cameras_decide_together_and_see_more_of_the_floor(tmp_path):
+    """`--cameras 2`: both cameras' labels feed one monitor; the floor within reach + S_p
+    seen (the table's column) is larger than one camera's."""
+    runs = {}
+    for cameras in (1, 2):
+        out = tmp_path / f"safety{cameras}"
+        args = ["-q", "experiment", "safety", "--sequences", "1", "--sequence-seconds", "1",
+                "--validation", "--cameras", str(cameras), "--out", str(out)]  # fmt: skip
+        assert main(args) == 0
+        runs[cameras] = json.loads((out / "safety.json").read_text())
+    assert runs[2]["cameras"] == 2 and runs[2]["overall"]["frames"] == 15
+    assert runs[2]["sequences"][0]["coverage"] > runs[1]["sequences"][0]["coverage"]
+    assert "2 cameras" in (tmp_path / "safety2" / "safety.md").read_text()
+
+
 def test_the_table_says_which_way_the_states_went_wrong():
     overall = {"frames": 10, "states_truth_to_service": {
         "clear->clear": 4, "warning->clear": 2, "stop->warning": 1, "clear->stop": 1,

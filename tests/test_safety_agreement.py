@@ -72,3 +72,17 @@ def test_truth_nearest_carries_the_persons_point():
     ]
     nearest, in_view = truth_nearest(persons)
     assert in_view == 2 and nearest.link == "b" and nearest.point_m == (1.0, 2.0, 1.0)
+
+
+def test_a_point_one_camera_cannot_see_is_seen_when_another_does():
+    """`truth_point_seen` over a cell's cameras: the point inside the box is hidden from the
+    camera over it and seen by one beside it whose floor it lies on."""
+    from topseg.core.safety.agreement import TruthNearest, truth_point_seen
+
+    hidden = TruthNearest(0.5, 0, "link1", (1.0, -0.5, 0.3))
+    beside = CameraPlacement(name="cam1", x_m=2.0, y_m=-0.5, yaw_deg=0.0)
+    floor = DepthFrame(np.full(MOUNT.intrinsics.shape, 3000, np.uint16), MOUNT.intrinsics,
+                       0, 1, "cam1", MOUNT)  # fmt: skip
+    assert truth_point_seen(hidden, [(frame_with_a_box(), PLACEMENT)]) is False
+    assert truth_point_seen(hidden, [(frame_with_a_box(), PLACEMENT), (floor, beside)]) is True
+    assert truth_point_seen(None, [(floor, beside)]) is None

@@ -175,3 +175,44 @@ def test_the_recording_holds_depth_truth_joints_and_separations_and_its_cell_fil
     assert r["urdf"] == "panda" and r["joints_source"] == "zenoh"
     assert r["base_xyz_m"] == pytest.approx([seq.robot.x, seq.robot.y, 0.8], abs=1e-6)
     assert [z["kind"] for z in cell["zone"]] == ["protective", "warning"]
+
+
+def test_two_cameras_see_the_same_cell_from_where_the_cell_file_hangs_them(tmp_path):
+    """Each camera renders the cell moved by minus its position: the table's middle lies where
+    each camera's placement projects it, the robot is in both, and the recording carries both
+    cameras' depth and truth with a background each."""
+    import tomllib
+
+    from topseg.core.formats.recording import read_messages
+    from topseg.core.safety.cell import cell_from_dict
+    from topseg.core.safety.separation import camera_pixels
+    from topseg.services.batch.datagen.cell_sequence import cell_toml, write_recording
+
+    config = CellSequenceConfig(duration_s=1.0, fps=4, size=(160, 120), cameras=2)
+    seq = CellSequence(config, seed=3)
+    (x0, y0), (x1, y1) = seq.positions
+    assert x0 == x1 == 0.0 and y0 == -y1 < 0
+    # the views abut at head height: each camera's view there is as deep as they are apart
+    k = config.mount().intrinsics
+    assert y1 - y0 == pytest.approx((config.height_m - 1.8) * k.height / k.fy)
+    cell = cell_from_dict(tomllib.loads(cell_toml(seq)), "sequence")
+    assert [(c.name, c.x_m, c.y_m) for c in cell.cameras] == [
+        ("cam0", 0.0, pytest.approx(y0)), ("cam0-2", 0.0, pytest.approx(y1))
+    ]  # fmt: skip
+    frame = next(seq.frames(0, 1))
+    assert len(frame.views()) == 2
+    top = np.array([[seq.table.x, seq.table.y, seq.table.height]])
+    for (depth, lab), placement in zip(frame.views(), cell.cameras, strict=True):
+        uv, _, inside = camera_pixels(top, seq.mount, placement)
+        assert inside[0]
+        assert lab[int(uv[0, 1]), int(uv[0, 0])] == labels.TABLE
+        assert (lab == labels.ROBOT).any() and depth.shape == (120, 160)
+    one = CellSequence(CellSequenceConfig(duration_s=1.0, fps=4, size=(160, 120)), seed=3)
+    assert one.stage()[1][1] < seq.stage()[1][1]  # the two see more floor
+    out = tmp_path / "cell.mcap"
+    write_recording(seq, out)
+    keys = {m.key for m in read_messages(out)}
+    assert {"topseg/default/cam0/depth", "topseg/default/cam0-2/depth",
+            "topseg/default/cam0-2/truth"} <= keys  # fmt: skip
+    assert (tmp_path / "cell.background.npz").is_file()
+    assert (tmp_path / "cell.cam0-2.background.npz").is_file()

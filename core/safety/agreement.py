@@ -13,7 +13,7 @@ separation, not timing.
 gives: the share whose state equals the truth's, how often it said `clear` when the truth
 said `stop` (must be never), the separation error (|measured - true| where both saw a person
 and a robot) p50/p95, and its p95 apart over the frames whose true nearest point the camera
-sees and those where it does not (out of the image, under the robot or another body part, or
+sees (any of its cameras) and those where none does (out of the image, under the robot or another body part, or
 on the person's own side, which a camera above sees past: no perception measures those
 exactly), the error's two sides apart at p99 (measured farther than the truth: the side
 that could let the robot run on; nearer: the cautious side), the share of frames with one
@@ -30,6 +30,7 @@ from topseg.core import labels as label_table
 from topseg.core.camera import axis_depth
 from topseg.core.formats.wire import DepthFrame, LabelFrame
 from topseg.core.metrics import percentile
+from topseg.core.safety.cell import CameraPlacement
 from topseg.core.safety.decision import Decision, decide
 from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.separation import camera_pixels
@@ -59,18 +60,19 @@ def truth_nearest(persons: list[dict]) -> tuple[TruthNearest | None, int]:
 
 def truth_decision(
     monitor: CellMonitor,
-    camera: str,
-    depth: DepthFrame,
-    truth: LabelFrame,
+    views: list[tuple[str, DepthFrame, LabelFrame]],
     persons: list[dict],
     reaction_s: float,
 ) -> Decision:
-    """The truth's decision for one frame (see the module doc): `monitor` is a monitor of the
-    cell that holds the frame's exact joint state."""
-    view = monitor.frame(camera, depth, truth, depth.stamp_ns)
+    """The truth's decision for one moment (see the module doc) from every camera's
+    (name, depth, exact labels) of it: `monitor` is a monitor of the cell that holds the
+    moment's exact joint state."""
+    for camera, depth, truth in views:
+        monitor.frame(camera, depth, truth, depth.stamp_ns)
+    seen = monitor.gathered(max(depth.stamp_ns for _, depth, _ in views))
     nearest, _ = truth_nearest(persons)
-    faults = tuple(f for f in view.faults if "nowhere known" not in f)
-    return decide(monitor.cell, nearest, sorted(view.occupied), view.unseen, reaction_s, faults)
+    faults = tuple(f for f in seen.faults if "nowhere known" not in f)
+    return decide(monitor.cell, nearest, seen.occupied, seen.unseen, reaction_s, faults)
 
 
 #: The truth's nearest point is seen when the camera's depth at its pixel is no nearer than
@@ -94,11 +96,14 @@ def nearest_point_seen(point_cell, depth: DepthFrame, placement) -> bool:
     return bool(z_mm > 0 and z_mm / 1000.0 >= z_m[0] - SEEN_TOLERANCE_M)
 
 
-def truth_point_seen(nearest: TruthNearest | None, depth: DepthFrame, placement) -> bool | None:
-    """`nearest_point_seen` of the truth's nearest point; None without one."""
+def truth_point_seen(
+    nearest: TruthNearest | None, seen_by: list[tuple[DepthFrame, CameraPlacement]]
+) -> bool | None:
+    """Whether some camera sees the truth's nearest point (`nearest_point_seen` over the
+    (depth, placement) of each camera); None without one."""
     if nearest is None or nearest.point_m is None:
         return None
-    return nearest_point_seen(nearest.point_m, depth, placement)
+    return any(nearest_point_seen(nearest.point_m, d, placement) for d, placement in seen_by)
 
 
 @dataclass

@@ -5,8 +5,11 @@ walking up to it, reaching in and leaving, seen by a ceiling depth camera.
     for frame in seq.frames():   # depth (noisy mm), labels (exact), joints, separation truth
         ...
 
-The cell frame is the render's world frame (`camera.TopViewMount`: x, y on the floor, z up,
-origin on the floor under the camera), i.e. the camera sits at placement (0, 0, yaw 0).
+The cell frame is the render's world frame (`camera.TopViewMount`: x, y on the floor, z up).
+One camera hangs over its origin (placement (0, 0, yaw 0)); two hang side by side, the same
+camera twice, `camera_positions` apart along y so that their views abut at head height
+(`HEAD_HEIGHT_M`) and overlap below it: what one sees of a person at its image's edge the
+other sees whole, and what the robot's arm hides from one the other sees from aside.
 
 The robot (a catalogue name of `robots`, default the Panda) stands on a pedestal near the
 middle of the view beside a worktable with parts on it. Its task is a loop of joint waypoints
@@ -15,7 +18,7 @@ the table (clear of the table's top and the parts on it), then home again; betwe
 the joints follow a minimum-jerk profile timed so that no joint turns faster than
 MAX_JOINT_SPEED, with a short dwell at each.
 
-Each person (1 or 2) walks in from beyond the image's edge to a spot beside the table, facing
+Each person (1 or 2) walks in from beyond the cameras' view to a spot beside the table, facing
 it, at 1.0-1.6 m/s (the walk clip's phase advancing with the distance walked, feet on the
 floor), stands, reaches one hand over the table towards the robot's working area (the arm
 passes overhead at times), holds, lowers the hand and walks out beyond the opposite edge.
@@ -33,7 +36,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -67,6 +70,8 @@ WALK_SPEED = (1.0, 1.6)
 #: what one cycle of the walk clip covers (m) per metre of the walker's height
 WALK_CYCLE_PER_HEIGHT = 1.23859 / 1.598961
 PEDESTAL_HALF_M = 0.15
+#: two cameras' views abut at this height (m): a standing person's head
+HEAD_HEIGHT_M = 1.8
 
 
 @dataclass
@@ -85,12 +90,15 @@ class CellSequenceConfig:
     noise: str = "sensor"
     cell: str = "default"
     camera: str = "cam0"
+    cameras: int = 1
 
     def __post_init__(self) -> None:
         if not 0 < self.duration_s <= 3600:
             raise TopsegError(f"duration must be in (0, 3600] s, got {self.duration_s}")
         if not 0 < self.fps <= 120:
             raise TopsegError(f"fps must be in (0, 120], got {self.fps}")
+        if self.cameras not in (1, 2):
+            raise TopsegError(f"a cell sequence has 1 or 2 cameras, got {self.cameras}")
         if self.people not in (1, 2):
             raise TopsegError(f"a cell sequence has 1 or 2 people, got {self.people}")
         if not 2.0 <= self.height_m <= 6.0:
@@ -105,6 +113,19 @@ class CellSequenceConfig:
         if self.size is not None:
             k = k.scaled_to(*self.size)
         return TopViewMount(k, round(1000.0 * self.height_m, 1), 0.0, 0.0, self.sensor)
+
+    def camera_names(self) -> tuple[str, ...]:
+        """The cameras' names on the wire: `camera`, then `camera`-2."""
+        return (self.camera, *(f"{self.camera}-{k + 1}" for k in range(1, self.cameras)))
+
+    def camera_positions(self) -> tuple[tuple[float, float], ...]:
+        """Each camera's (x, y) in the cell frame (m): the origin for one; for two, either
+        side of it along y, as far apart as one camera's view is deep at HEAD_HEIGHT_M."""
+        if self.cameras == 1:
+            return ((0.0, 0.0),)
+        k = self.mount().intrinsics
+        apart = (self.height_m - HEAD_HEIGHT_M) * k.height / k.fy
+        return ((0.0, -apart / 2), (0.0, apart / 2))
 
     @property
     def frame_count(self) -> int:
@@ -284,8 +305,9 @@ class PersonTruth:
 
 @dataclass
 class CellFrame:
-    """One frame: index, time (s from the start), depth (uint16 mm), labels (uint8), the
-    robot's joint names and positions, and the truth per person on stage."""
+    """One frame: index, time (s from the start), the first camera's depth (uint16 mm) and
+    labels (uint8), the robot's joint names and positions, the truth per person on stage, and
+    the other cameras' (depth, labels)."""
 
     index: int
     time_s: float
@@ -294,6 +316,11 @@ class CellFrame:
     joint_names: tuple[str, ...]
     joint_positions: np.ndarray
     persons: list[PersonTruth]
+    others: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+
+    def views(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """Every camera's (depth, labels), in the order of `camera_names`."""
+        return ((self.depth, self.labels), *self.others)
 
 
 class CellSequence:
@@ -303,6 +330,7 @@ class CellSequence:
         self.config = config or CellSequenceConfig()
         self.seed = int(seed)
         self.mount = self.config.mount()
+        self.positions = self.config.camera_positions()
         self.model = robots.robot_model(self.config.robot)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0]))
         self.robot, self.table, self.parts, self.task = _draw_cell(rng, self.config, self.model)
@@ -311,9 +339,17 @@ class CellSequence:
         paths = np.random.default_rng(np.random.SeedSequence([self.seed, 2]))
         for visit in self.visits:
             _draw_path(
-                paths, visit, self.table, self.mount, self.nearest_time(visit.target),
+                paths, visit, self.table, self.stage(), self.nearest_time(visit.target),
                 self.task.period,
             )  # fmt: skip
+
+    def stage(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(lo, hi) cell-frame corners (m) of the floor some camera shows (`view_rect`'s,
+        over every camera)."""
+        lo, hi = view_rect(self.mount)
+        xs = [x for x, _ in self.positions]
+        ys = [y for _, y in self.positions]
+        return (lo[0] + min(xs), lo[1] + min(ys)), (hi[0] + max(xs), hi[1] + max(ys))
 
     def nearest_time(self, point: np.ndarray, samples: int = 48) -> float:
         """When (s, within the first task loop) the robot's links come nearest `point`."""
@@ -364,7 +400,7 @@ class CellSequence:
 
     def scene_at(self, t: float) -> Scene:
         """The scene description of time `t`."""
-        lo, hi = view_rect(self.mount)
+        lo, hi = self.stage()
         people = [h for _, h in self.people_at(t)]
         return Scene(
             "cell", ROOM, lo, hi, 0.0, 0.0, [self.table, *self.parts],
@@ -379,7 +415,10 @@ class CellSequence:
         for i, human in self.people_at(t):
             prims = human.primitives()
             sep = body_distance.body_separation(surface, prims)
-            in_view = _in_view(self.mount, prims.center)
+            in_view = any(
+                _in_view(self.mount, prims.center - np.array([x, y, 0.0]))
+                for x, y in self.positions
+            )
             out.append(PersonTruth(i, sep.distance_m, sep.part, sep.link, sep.point_m,
                                    sep.link_point_m, in_view))  # fmt: skip
         return out
@@ -394,11 +433,25 @@ class CellSequence:
                 robot = self.robot_at(t)
                 scene = self.scene_at(t)
                 noise_rng = np.random.default_rng(np.random.SeedSequence([self.seed, 1, index]))
-                frame = synth.render_scene(scene, noise_rng)
+                frame = synth.render_scene(self.seen_from(scene, 0), noise_rng)
+                others = []
+                for k in range(1, len(self.positions)):
+                    rng_k = np.random.default_rng(np.random.SeedSequence([self.seed, 1, index, k]))
+                    other = synth.render_scene(self.seen_from(scene, k), rng_k)
+                    others.append((other.depth, other.labels))
                 yield CellFrame(
                     index, t, frame.depth, frame.labels, self.task.names,
-                    self.task.at(t), self.truth_at(t, robot),
+                    self.task.at(t), self.truth_at(t, robot), tuple(others),
                 )  # fmt: skip
+
+    def seen_from(self, scene: Scene, camera: int) -> Scene:
+        """`scene` in camera `camera`'s world frame (origin on the floor under it): every
+        item moved by minus the camera's position; the scene itself for a camera at the
+        origin."""
+        x, y = self.positions[camera]
+        if x == 0.0 and y == 0.0:
+            return scene
+        return shifted_scene(scene, -x, -y)
 
     def max_link_speed(self, samples: int = 400) -> float:
         """The fastest any point of the robot's links moves over one task loop (m/s), from
@@ -424,6 +477,28 @@ class CellSequence:
             )
             far = max(far, float(np.linalg.norm(pts[:, :2] - base, axis=1).max()))
         return far
+
+
+def shifted_scene(scene: Scene, dx: float, dy: float) -> Scene:
+    """A copy of `scene` with its floor, bounds, items, robots and people moved by (dx, dy)
+    (m) on the floor."""
+
+    def moved(item):
+        return replace(item, x=item.x + dx, y=item.y + dy)
+
+    def corner(c):
+        return None if c is None else (c[0] + dx, c[1] + dy)
+
+    return replace(
+        scene,
+        floor_lo=corner(scene.floor_lo), floor_hi=corner(scene.floor_hi),
+        bounds_lo=corner(scene.bounds_lo), bounds_hi=corner(scene.bounds_hi),
+        objects=[moved(o) for o in scene.objects],
+        human=None if scene.human is None else moved(scene.human),
+        robots=[moved(r) for r in scene.robots],
+        extra_humans=[moved(h) for h in scene.extra_humans],
+        mesh_objects=[moved(m) for m in scene.mesh_objects],
+    )  # fmt: skip
 
 
 def _in_view(mount: TopViewMount, points: np.ndarray) -> bool:
@@ -604,11 +679,12 @@ def _reachable_target(table, side, along, edge, spot, facing, standing, height, 
     return humanoid.wrist_position(standing, scale, base, q, hand)
 
 
-def _draw_path(rng, visit: Visit, table, mount: TopViewMount, nearest: float, period: float):
-    """The visit's way in from beyond the image's edge and out again (roughly away from the
-    table, so the path does not cross it) and its phase times: the hand is held out while
-    the robot passes nearest its target (at `nearest` s into each task loop of `period` s)."""
-    lo, hi = view_rect(mount)
+def _draw_path(rng, visit: Visit, table, stage, nearest: float, period: float):
+    """The visit's way in from beyond the floor the cameras show (`stage`: its (lo, hi)
+    corners) and out again (roughly away from the table, so the path does not cross it) and
+    its phase times: the hand is held out while the robot passes nearest its target (at
+    `nearest` s into each task loop of `period` s)."""
+    lo, hi = stage
     away = visit.spot - np.array([table.x, table.y])
     visit.start = _offstage(rng, visit.spot, away, lo, hi)
     visit.end = _offstage(rng, visit.spot, away, lo, hi)

@@ -27,12 +27,14 @@ def static_background(synth: Synthesizer, scene: dict, mount, seed: int = 0) -> 
     return fit_background(frames, mount.intrinsics, sensor=mount.sensor, mount=mount)
 
 
-def sequence_background(seq: CellSequence) -> BackgroundModel:
-    """The static cell of a rendered cell sequence as its camera records it: the scene at
-    its start (the table and the parts on it) without people or the robot."""
+def sequence_background(seq: CellSequence, camera: int = 0) -> BackgroundModel:
+    """The static cell of a rendered cell sequence as its camera `camera` (an index into its
+    cameras) records it: the scene at its start (the table and the parts on it) without
+    people or the robot."""
     config = SynthesisConfig(noise=seq.config.noise, camera=seq.mount, seed=seq.seed)
+    scene = seq.seen_from(seq.scene_at(0.0), camera)
     with Synthesizer(config, warm=False) as synth:
-        return static_background(synth, seq.scene_at(0.0).to_dict(), seq.mount, seed=seq.seed)
+        return static_background(synth, scene.to_dict(), seq.mount, seed=seq.seed)
 
 
 __all__ = ["BACKGROUND_FRAMES", "sequence_background", "static_background"]

@@ -133,7 +133,7 @@ def compare(
             i = min(range(len(stamps)), key=lambda k: abs(stamps[k] - frame.stamp_ns))
             monitor.set_joints(joints[i], frame.stamp_ns)
         reaction_s = (state.reaction_ms or 0.0) / 1000.0
-        expected = truth_decision(monitor, camera, frame, wire.decode_labels(truth[seq]),
+        expected = truth_decision(monitor, [(camera, frame, wire.decode_labels(truth[seq]))],
                                   seps[seq], reaction_s)  # fmt: skip
         nearest, in_view = truth_nearest(seps[seq])
         out.append(
@@ -146,7 +146,7 @@ def compare(
                 truth_part=expected.part,
                 persons_in_view=in_view,
                 reaction_ms=state.reaction_ms,
-                truth_point_seen=truth_point_seen(nearest, frame, cell.camera(camera)),
+                truth_point_seen=truth_point_seen(nearest, [(frame, cell.camera(camera))]),
             )
         )
     return out

@@ -2,14 +2,17 @@
 truth, as a msgpack recording the safety service can be replayed against
 (`topseg driver --source replay:FILE.mcap`), the cell file `FILE.toml` beside it, and the
 static cell's background `FILE.background.npz` (the table and its parts without people or the
-robot, as `topseg calibrate --background` records it) for the camera's worker.
+robot, as `topseg calibrate --background` records it) for the camera's worker; with
+`--cameras 2`, the second camera's is `FILE.<camera>.background.npz`.
 
 The recording holds, per frame at the sequence's rate: depth (with the camera's mount) on
 `topseg/<cell>/<camera>/depth`, exact labels on `.../truth`, the robot's joint state on
 `topseg/<cell>/robot/<name>/joints` and the truth separation of each person on stage on
-`topseg/<cell>/safety/separation` (`core/formats/cell_truth.py`). The cell file places the
-camera at (0, 0, yaw 0) and the robot where it was rendered, with a protective zone around
-what the robot's links sweep and a warning zone a metre beyond.
+`topseg/<cell>/safety/separation` (`core/formats/cell_truth.py`); with two cameras, each
+camera's depth and labels on its own keys. The cell file places the camera at (0, 0, yaw 0)
+(two cameras where `CellSequenceConfig.camera_positions` hangs them) and the robot where it
+was rendered, with a protective zone around what the robot's links sweep and a warning zone
+a metre beyond.
 """
 
 from __future__ import annotations
@@ -64,6 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", default="sensor", help="sensor (its own noise) | none | ...")
     parser.add_argument("--cell", default=wire.DEFAULT_CELL, help="cell name (default)")
     parser.add_argument("--camera", default=wire.DEFAULT_CAMERA, help="camera name (cam0)")
+    parser.add_argument(
+        "--cameras", type=int_range(1, 2), default=1,
+        help="1, or 2 cameras side by side whose views abut at head height (1); the second "
+        "is named CAMERA-2",
+    )  # fmt: skip
 
 
 def parse_size(text: str) -> tuple[int, int] | None:
@@ -82,18 +90,16 @@ def parse_size(text: str) -> tuple[int, int] | None:
 
 
 def cell_toml(seq: CellSequence) -> str:
-    """The cell file of a sequence: its camera at (0, 0, yaw 0), its robot as rendered, and
-    zones around the robot (the safety service's `core/safety/cell.py` format)."""
+    """The cell file of a sequence: its cameras where they were rendered (yaw 0), its robot
+    as rendered, and zones around the robot (the safety service's `core/safety/cell.py`
+    format)."""
     c, r = seq.config, seq.robot
     reach = seq.reach_radius()
-    lines = [
-        f'cell = "{c.cell}"',
-        "",
-        "[[camera]]",
-        f'name = "{c.camera}"',
-        "x_m = 0.0",
-        "y_m = 0.0",
-        "yaw_deg = 0.0",
+    lines = [f'cell = "{c.cell}"']
+    for name, (x, y) in zip(c.camera_names(), seq.positions, strict=True):
+        lines += ["", "[[camera]]", f'name = "{name}"', f"x_m = {x:.6f}", f"y_m = {y:.6f}",
+                  "yaw_deg = 0.0"]  # fmt: skip
+    lines += [
         "",
         "[robot]",
         f'name = "{r.name}"',
@@ -130,9 +136,8 @@ def write_recording(seq: CellSequence, out: Path) -> dict:
     """Render `seq` into the msgpack recording `out` (and its cell file beside it); what was
     written: frames, seconds, the closest and farthest truth separations."""
     c = seq.config
+    names = c.camera_names()
     keys = {
-        "depth": wire.depth_key(c.cell, c.camera),
-        "truth": wire.truth_key(c.cell, c.camera),
         "joints": cell_truth.joints_key(c.cell, seq.robot.name),
         "safety": cell_truth.safety_truth_key(c.cell),
     }
@@ -142,13 +147,14 @@ def write_recording(seq: CellSequence, out: Path) -> dict:
     with RecordingWriter(out, metadata=metadata) as writer:
         for f in seq.frames():
             stamp = START_NS + round(f.time_s * 1e9)
-            depth = wire.DepthFrame(
-                f.depth, seq.mount.intrinsics, f.index, stamp, c.camera, seq.mount
-            )
-            # depth first: a replay publishes what follows a depth frame with it
-            writer.write(keys["depth"], wire.encode_depth(depth), stamp)
-            truth = wire.LabelFrame(f.labels, f.index, stamp, c.camera)
-            writer.write(keys["truth"], wire.encode_labels(truth), stamp)
+            for name, (depth_mm, labels) in zip(names, f.views(), strict=True):
+                depth = wire.DepthFrame(
+                    depth_mm, seq.mount.intrinsics, f.index, stamp, name, seq.mount
+                )
+                # depth first: a replay publishes what follows a depth frame with it
+                writer.write(wire.depth_key(c.cell, name), wire.encode_depth(depth), stamp)
+                truth = wire.LabelFrame(labels, f.index, stamp, name)
+                writer.write(wire.truth_key(c.cell, name), wire.encode_labels(truth), stamp)
             writer.write(
                 keys["joints"],
                 cell_truth.encode_joint_state(stamp, f.joint_names, f.joint_positions),
@@ -162,7 +168,9 @@ def write_recording(seq: CellSequence, out: Path) -> dict:
                 closest, farthest = min(closest, p.distance_m), max(farthest, p.distance_m)
     with atomic_write(out.with_suffix(".toml")) as f:
         f.write(cell_toml(seq).encode())
-    save_background(out.with_suffix(BACKGROUND_SUFFIX), sequence_background(seq))
+    for k, name in enumerate(names):
+        path = out.with_suffix(BACKGROUND_SUFFIX if k == 0 else f".{name}{BACKGROUND_SUFFIX}")
+        save_background(path, sequence_background(seq, k))
     return {
         "frames": c.frame_count,
         "seconds": time.perf_counter() - t0,
@@ -179,9 +187,10 @@ def run(args: argparse.Namespace) -> int:
     config = CellSequenceConfig(
         duration_s=args.duration, fps=args.fps, sensor=args.sensor, height_m=args.height,
         size=parse_size(args.size), robot=args.robot, people=args.people, noise=args.noise,
-        cell=args.cell, camera=args.camera,
+        cell=args.cell, camera=args.camera, cameras=args.cameras,
     )  # fmt: skip
-    wire.depth_key(config.cell, config.camera)  # names a key can hold, or one line
+    for name in config.camera_names():
+        wire.depth_key(config.cell, name)  # names a key can hold, or one line
     seq = CellSequence(config, args.seed)
     done = write_recording(seq, out)
     print(

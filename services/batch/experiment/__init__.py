@@ -134,6 +134,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default %(default)s: its own)",
     )  # fmt: skip
     parser.add_argument(
+        "--cameras", type=int, choices=(1, 2), default=1,
+        help="safety: cameras over each sequence's cell: 1, or 2 side by side whose views abut "
+        "at head height (default %(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
         "--validation", action="store_true",
         help="safety: the validation sequences (other seeds), for choosing thresholds",
     )  # fmt: skip
@@ -259,7 +264,7 @@ def _run_safety(args, out: Path) -> int:
     seed = safety.VALIDATION_SEED if args.validation else safety.TEST_SEED
     result = safety.run(out, args.model, args.sequences, args.sequence_seconds, 15.0, seed,
                         background=args.background, lag=args.labels_lag,
-                        precision=args.precision_stages)  # fmt: skip
+                        precision=args.precision_stages, cameras=args.cameras)  # fmt: skip
     print(safety.markdown(result))
     return 0
 

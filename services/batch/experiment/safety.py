@@ -2,7 +2,8 @@
 known, frame by frame, without the services (their timing is `topseg bench safety`'s).
 
 Each sequence (`core/synth/sequences.py`) is a robot working through a task with people
-walking up to it, reaching over its table and leaving, seen by one ceiling camera. Sequences
+walking up to it, reaching over its table and leaving, seen by one ceiling camera (or two
+side by side, `cameras`: the monitor decides on both views together). Sequences
 cycle through robots, sensors and camera heights, and are drawn from seeds the cell
 recording (`recordings/cell.mcap`, seed 3) and the validation seeds do not use. Per frame
 the model labels the depth, the cell monitor decides with the robot's exact joint state, and
@@ -35,7 +36,8 @@ from topseg.core.safety.agreement import (
     truth_point_seen,
 )
 from topseg.core.safety.cell import cell_from_dict
-from topseg.core.safety.decision import STATES, decide
+from topseg.core.safety.coverage import coverage
+from topseg.core.safety.decision import STATES
 from topseg.core.safety.monitor import CellMonitor
 from topseg.core.safety.robot import CellRobot
 from topseg.core.segmenter import Segmenter, SegmenterConfig
@@ -58,8 +60,8 @@ SEED_STEP = 100_000
 REACTION_S = 0.06
 
 
-def sequence_config(i: int, duration_s: float, fps: float) -> CellSequenceConfig:
-    """The i-th sequence's robot, sensor, height and people."""
+def sequence_config(i: int, duration_s: float, fps: float, cameras: int = 1) -> CellSequenceConfig:
+    """The i-th sequence's robot, sensor, height and people, seen by `cameras` cameras."""
     return CellSequenceConfig(
         duration_s=duration_s,
         fps=fps,
@@ -67,57 +69,81 @@ def sequence_config(i: int, duration_s: float, fps: float) -> CellSequenceConfig
         sensor=SENSORS[i % len(SENSORS)],
         height_m=HEIGHTS_M[(i // 2) % len(HEIGHTS_M)],
         people=1 + i % 2,
+        cameras=cameras,
     )
 
 
 def run_sequence(
-    seq: CellSequence, segmenter: Segmenter, reaction_s: float = REACTION_S, lag: int = 0
+    seq: CellSequence,
+    labellers: Segmenter | list[Segmenter],
+    reaction_s: float = REACTION_S,
+    lag: int = 0,
 ) -> list[Compared]:
-    """Every frame of `seq`: the model's labels decided on beside the truth's decision. With
-    `lag`, each frame is decided on with the labels of the frame `lag` frames before it
-    carried onto it, as the live service does before a frame's own labels come (the first
-    `lag` frames with their own)."""
+    """Every frame of `seq`: the model's labels of every camera (camera k labelled by
+    `labellers[k]`, or all by one segmenter) decided on together beside the truth's
+    decision. With `lag`, each frame is decided on with the labels of the frame `lag` frames
+    before it carried onto it, as the live service does before a frame's own labels come
+    (the first `lag` frames with their own)."""
     import tomllib
 
     cell = cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
     robot = CellRobot(cell.robot, Path("."))
     mount = seq.config.mount()
     live, exact = CellMonitor(cell, robot), CellMonitor(cell, robot)
-    camera = cell.cameras[0].name
+    names = [c.name for c in cell.cameras]
+    if not isinstance(labellers, list):
+        labellers = [labellers] * len(names)
     out = []
-    earlier: deque[tuple[wire.DepthFrame, wire.LabelFrame]] = deque(maxlen=lag + 1)
+    earlier = {name: deque(maxlen=lag + 1) for name in names}
+    reaction_ns = round(reaction_s * 1e9)
     for f in seq.frames():
         stamp = 1 + int(f.time_s * 1e9)
         state = JointState(stamp, tuple(f.joint_names), tuple(float(v) for v in f.joint_positions))
         for monitor in (live, exact):
             monitor.set_joints(state, stamp)
-        depth = wire.DepthFrame(f.depth, mount.intrinsics, f.index, stamp, camera, mount)
-        labels = segmenter.label(f.depth, mount.intrinsics, mount=mount).labels.copy()
-        earlier.append((depth, wire.LabelFrame(labels, f.index, stamp, camera)))
-        then, then_labels = earlier[0]
-        carried = then if then is not depth else None
-        view = live.frame(camera, depth, then_labels, stamp, labels_depth=carried)
-        said = decide(
-            cell, view.nearest, sorted(view.occupied), view.unseen, reaction_s, view.faults
-        )
+        depths, truths = [], []
+        for name, labeller, (depth_mm, truth_labels) in zip(
+            names, labellers, f.views(), strict=True
+        ):
+            depth = wire.DepthFrame(depth_mm, mount.intrinsics, f.index, stamp, name, mount)
+            labels = labeller.label(depth_mm, mount.intrinsics, mount=mount).labels.copy()
+            earlier[name].append((depth, wire.LabelFrame(labels, f.index, stamp, name)))
+            then, then_labels = earlier[name][0]
+            carried = then if then is not depth else None
+            live.frame(name, depth, then_labels, stamp, labels_depth=carried)
+            depths.append(depth)
+            truths.append((name, depth, wire.LabelFrame(truth_labels, f.index, stamp, name)))
+        # every view is `reaction_s` old when decided on: the decision's reaction time
+        said = live.decision(stamp + reaction_ns)
         persons = [p.to_dict() for p in f.persons]
-        truth = truth_decision(exact, camera, depth,
-                               wire.LabelFrame(f.labels, f.index, stamp, camera), persons, reaction_s)  # fmt: skip
+        truth = truth_decision(exact, truths, persons, reaction_s)
         nearest, in_view = truth_nearest(persons)
         out.append(
             Compared(
-                state=said.state,
+                state=said.decision.state,
                 truth_state=truth.state,
-                distance_m=None if view.nearest is None else view.nearest.distance_m,
+                distance_m=None if said.nearest is None else said.nearest.distance_m,
                 truth_distance_m=None if nearest is None else nearest.distance_m,
-                part=said.part,
+                part=said.decision.part,
                 truth_part=truth.part,
                 persons_in_view=in_view,
                 reaction_ms=None,
-                truth_point_seen=truth_point_seen(nearest, depth, cell.cameras[0]),
+                truth_point_seen=truth_point_seen(
+                    nearest, list(zip(depths, cell.cameras, strict=True))
+                ),
             )
         )
     return out
+
+
+def sequence_coverage(seq: CellSequence) -> float:
+    """The least share (over the heights `coverage` looks at) of the floor within the robot's
+    reach plus S_p that the sequence's cameras see."""
+    import tomllib
+
+    cell = cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
+    mounts = {c.name: seq.mount for c in cell.cameras}
+    return coverage(cell, seq.reach_radius(), mounts).worst()
 
 
 def draw_sequence(config: CellSequenceConfig, seed: int, tries: int = 5) -> CellSequence:
@@ -133,11 +159,12 @@ def draw_sequence(config: CellSequenceConfig, seed: int, tries: int = 5) -> Cell
 
 def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: float,
         first_seed: int = TEST_SEED, report=print, background: bool = False,
-        lag: int = 0, precision: str | None = None) -> dict:  # fmt: skip
-    """Score `sequences` sequences (their labels gated by each one's static background with
-    `background`, carried `lag` frames on: `run_sequence`; the model's context prior and
-    checks `precision`, on or off, None: as the safety service's worker,
-    `core.safety.PRECISION_STAGES`); write OUT/safety.md and .json; the figures."""
+        lag: int = 0, precision: str | None = None, cameras: int = 1) -> dict:  # fmt: skip
+    """Score `sequences` sequences seen by `cameras` cameras (their labels gated by each
+    camera's static background with `background`, carried `lag` frames on: `run_sequence`;
+    the model's context prior and checks `precision`, on or off, None: as the safety
+    service's worker, `core.safety.PRECISION_STAGES`); write OUT/safety.md and .json; the
+    figures."""
     out.mkdir(parents=True, exist_ok=True)
     precision = precision or PRECISION_STAGES
     labelling = SegmenterConfig()
@@ -146,24 +173,26 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
     segmenter = Segmenter.from_file(model, labelling)
     rows, everything = [], []
     for i in range(sequences):
-        config = sequence_config(i, duration_s, fps)
+        config = sequence_config(i, duration_s, fps, cameras)
         t0 = time.perf_counter()
         seq = draw_sequence(config, first_seed + i)
-        labeller = segmenter
+        labellers = [segmenter] * cameras
         if background:
-            labeller = segmenter.with_background(sequence_background(seq))
-        compared = run_sequence(seq, labeller, lag=lag)
+            labellers = [segmenter.with_background(sequence_background(seq, k))
+                         for k in range(cameras)]  # fmt: skip
+        compared = run_sequence(seq, labellers, lag=lag)
         everything += compared
         figures = score(compared)
         rows.append({"seed": seq.seed, "robot": config.robot, "sensor": config.sensor,
-                     "height_m": config.height_m, "people": config.people, **figures})  # fmt: skip
+                     "height_m": config.height_m, "people": config.people,
+                     "coverage": sequence_coverage(seq), **figures})  # fmt: skip
         report(
             f"sequence {i + 1}/{sequences} ({config.robot}, {config.sensor}, {config.height_m} m):"
             f" states {100 * figures['state_agreement']:.1f} % equal, "
             f"{figures['clear_when_truth_stop']} clear-when-stop, {time.perf_counter() - t0:.0f} s"
         )
     result = {"model": segmenter.model_id, "background": background, "labels_lag": lag,
-              "precision_stages": precision, "overall": score(everything),
+              "precision_stages": precision, "cameras": cameras, "overall": score(everything),
               "sequences": rows}  # fmt: skip
     with atomic_write(out / "safety.json") as f:
         f.write(json.dumps(result, indent=2).encode())
@@ -178,15 +207,17 @@ def _f(x, scale=1.0, unit="", digits=1) -> str:
 
 def markdown(result: dict) -> str:
     """The table of OUT/safety.md: one row per sequence and the overall figures."""
-    head = ("| seed | robot | sensor | height | people | frames | state equal | clear when stop "
-            "| separation error p50 / p95 | p95 where the nearest point is seen / hidden "
-            "| nearest part |\n|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+    head = ("| seed | robot | sensor | height | people | floor seen | frames | state equal "
+            "| clear when stop | separation error p50 / p95 "
+            "| p95 where the nearest point is seen / hidden | nearest part "
+            "|\n|---|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
     lines = [head]
     for r in [*result["sequences"], {"seed": "all", "robot": "", "sensor": "", "height_m": None,
                                      "people": "", **result["overall"]}]:  # fmt: skip
         lines.append(
             f"| {r['seed']} | {r['robot']} | {r['sensor']} | {_f(r['height_m'], unit=' m')} "
-            f"| {r['people']} | {r['frames']} | {_f(r.get('state_agreement'), 100, ' %')} "
+            f"| {r['people']} | {_f(r.get('coverage'), 100, ' %', 0)} | {r['frames']} "
+            f"| {_f(r.get('state_agreement'), 100, ' %')} "
             f"| {r.get('clear_when_truth_stop', '-')} "
             f"| {_f(r.get('distance_error_p50_m'), 100, ' cm')} / "
             f"{_f(r.get('distance_error_p95_m'), 100, ' cm')} "
@@ -198,6 +229,7 @@ def markdown(result: dict) -> str:
         )
     return (
         f"# Safety decisions on rendered cell sequences\n\nmodel: {result['model']}"
+        + f", {result.get('cameras', 1)} camera{'s' if result.get('cameras', 1) > 1 else ''}"
         + f", context prior and checks {result.get('precision_stages', 'on')}"
         + (", each sequence's static background gating" if result.get("background") else "")
         + (
