@@ -2,14 +2,14 @@
 truth, as a msgpack recording the safety service can be replayed against
 (`topseg driver --source replay:FILE.mcap`), the cell file `FILE.toml` beside it, and the
 static cell's background `FILE.background.npz` (the table and its parts without people or the
-robot, as `topseg calibrate --background` records it) for the camera's worker; with
-`--cameras 2`, the second camera's is `FILE.<camera>.background.npz`.
+robot, as `topseg calibrate --background` records it) for the camera's worker.
 
 The recording holds, per frame at the sequence's rate: depth (with the camera's mount) on
 `topseg/<cell>/<camera>/depth`, exact labels on `.../truth`, the robot's joint state on
 `topseg/<cell>/robot/<name>/joints` and the truth separation of each person on stage on
 `topseg/<cell>/safety/separation` (`core/formats/cell_truth.py`); with two cameras, each
-camera's depth and labels on its own keys. The cell file places the camera at (0, 0, yaw 0)
+camera's depth and labels on its own keys, and the second camera's background in
+`FILE.<camera>.background.npz`. The cell file places the camera at (0, 0, yaw 0)
 (two cameras where `CellSequenceConfig.camera_positions` hangs them) and the robot where it
 was rendered, with a protective zone around what the robot's links sweep and a warning zone
 a metre beyond.
