@@ -8,8 +8,8 @@ walking up to it, reaching in and leaving, seen by a ceiling depth camera.
 The cell frame is the render's world frame (`camera.TopViewMount`: x, y on the floor, z up).
 One camera hangs over its origin (placement (0, 0, yaw 0)); two hang side by side, the same
 camera twice, `camera_positions` apart along y so that their views abut at head height
-(`HEAD_HEIGHT_M`) and overlap below it: what one sees of a person at its image's edge the
-other sees whole, and what the robot's arm hides from one the other sees from aside.
+(`HEAD_HEIGHT_M`) and overlap below it: the floor and the cell at the robot are seen from two
+sides, and together they see more of the floor at head height.
 
 The robot (a catalogue name of `robots`, default the Panda) stands on a pedestal near the
 middle of the view beside a worktable with parts on it. Its task is a loop of joint waypoints
