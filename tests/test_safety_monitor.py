@@ -447,3 +447,41 @@ def test_a_person_both_cameras_see_keeps_their_nearest_point(robot, joints):
         mon.frame(c.name, *render(c, robot, joints, people, stamp_ns=T0, name=c.name), T0)
     alone = min(v.nearest.distance_m for v in mon.views.values())
     assert mon.decision(T0).nearest.distance_m == pytest.approx(alone, abs=0.01)
+
+
+def test_one_of_two_cameras_going_quiet_stops_the_cell(robot, joints):
+    """The other camera's fresh view cannot stand in for a camera whose labels stopped, nor
+    check another's points with a stale one."""
+    two = _two_camera_cell()
+    mon = monitor_with_joints(two, robot, joints)
+    for c in two.cameras:
+        mon.frame(c.name, *render(c, robot, joints, [], stamp_ns=T0, name=c.name), T0)
+    assert mon.decision(T0 + 50 * MS).decision.state == "clear"
+    later = T0 + 120 * MS
+    c1 = two.cameras[1]
+    mon.frame(c1.name, *render(c1, robot, joints, [], stamp_ns=later, name=c1.name), later)
+    d = mon.decision(later + 10 * MS)
+    assert d.decision.state == "stop"
+    assert any(r.startswith("cam0: no labelled frame for") for r in d.decision.reasons)
+    assert not any(r.startswith("cam1") for r in d.decision.reasons)
+
+
+def test_a_decision_taken_again_between_frames_checks_nothing_again(robot, joints, monkeypatch):
+    from topseg.core.safety import monitor as monitor_module
+
+    calls = []
+    real = monitor_module.cross_checked
+    monkeypatch.setattr(monitor_module, "cross_checked", lambda *a: calls.append(1) or real(*a))
+    two = _two_camera_cell()
+    mon = monitor_with_joints(two, robot, joints)
+    people = [person(0.0, -0.5)]
+    for c in two.cameras:
+        mon.frame(c.name, *render(c, robot, joints, people, stamp_ns=T0, name=c.name), T0)
+    first = mon.decision(T0 + 10 * MS)
+    assert len(calls) == 2  # each camera's view against the other's
+    again = mon.decision(T0 + 40 * MS)
+    assert len(calls) == 2 and again.nearest is first.nearest
+    c0 = two.cameras[0]
+    mon.frame(c0.name, *render(c0, robot, joints, people, stamp_ns=T0, name=c0.name), T0)
+    mon.decision(T0 + 50 * MS)
+    assert len(calls) == 4  # a new view: both checked again

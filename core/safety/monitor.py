@@ -189,6 +189,9 @@ class CellMonitor:
         # instance went away is a fault until one is back (one never seen is none)
         self.alive: dict[str, dict[str, set[str]]] = {c.name: {} for c in cell.cameras}
         self.counts = {"frames": 0, "joint_states": 0, "joint_states_refused": 0}
+        # camera -> (its view and the views it was checked against, what the check gave): a
+        # decision taken again between frames checks nothing again
+        self._checked: dict[str, tuple] = {}
 
     # ------------------------------------------------------------------ inputs
 
@@ -399,7 +402,7 @@ class CellMonitor:
                 )
                 continue
             faults.extend(view.faults)
-            near, held = cross_checked(view, [v for v in fresh if v is not view])
+            near, held = self._cross_checked(placement.name, view, fresh)
             occupied |= held
             for zone, share in view.unseen.items():
                 unseen[zone] = min(share, unseen.get(zone, math.inf))
@@ -411,6 +414,22 @@ class CellMonitor:
                 oldest_stamp = view.stamp_ns
                 frame = frame or (placement.name, view.seq)
         return Gathered(nearest_all, sorted(occupied), unseen, tuple(faults), oldest_stamp, frame)
+
+    def _cross_checked(
+        self, camera: str, view: CameraView, fresh: list[CameraView]
+    ) -> tuple[Nearest | None, frozenset[str]]:
+        """`cross_checked` of `camera`'s view against the other fresh views, once for each
+        set of views (the views themselves, not copies, are what is compared)."""
+        views = (view, *(v for v in fresh if v is not view))
+        cached = self._checked.get(camera)
+        if (
+            cached is None
+            or len(cached[0]) != len(views)
+            or any(a is not b for a, b in zip(cached[0], views, strict=True))
+        ):
+            cached = (views, cross_checked(view, list(views[1:])))
+            self._checked[camera] = cached
+        return cached[1]
 
     def decision(self, now_ns: int) -> CellDecision:
         """The cell's decision now, over every camera's newest view."""
