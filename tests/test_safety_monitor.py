@@ -485,3 +485,33 @@ def test_a_decision_taken_again_between_frames_checks_nothing_again(robot, joint
     mon.frame(c0.name, *render(c0, robot, joints, people, stamp_ns=T0, name=c0.name), T0)
     mon.decision(T0 + 50 * MS)
     assert len(calls) == 4  # a new view: both checked again
+
+
+def test_a_zone_part_only_the_second_camera_sees_going_dark_stops_the_cell(robot, joints):
+    """Camera 0 sees its part of the zone clearly; the part only camera 1 looks at has no
+    depth there: unknown space, so the cell stops, though camera 0 alone has nothing
+    unseen."""
+    guard = {"name": "far", "kind": "protective",
+             "polygon_m": [[1.0, -0.3], [2.5, -0.3], [2.5, 0.3], [1.0, 0.3]]}  # fmt: skip
+    two = _two_camera_cell([guard])
+    k = MOUNT.intrinsics
+    c0, c1 = two.cameras
+    frames = {c.name: render(c, robot, joints, [], stamp_ns=T0, name=c.name) for c in two.cameras}
+
+    def decided(dark: bool):
+        mon = monitor_with_joints(two, robot, joints)
+        for c in two.cameras:
+            depth, lab = frames[c.name]
+            if dark and c is c1:  # nothing beyond 1.9 m in the cell frame (1.1 m from it)
+                d = depth.depth.copy()
+                d[:, int(k.cx + 1.1 * k.fx / 3.0) :] = 0
+                depth = DepthFrame(d, depth.intrinsics, 0, T0, c.name, depth.mount)
+            view = mon.frame(c.name, depth, lab, T0)
+            if c is c0:
+                assert view.unseen["far"] == 0.0  # camera 0 sees all of the zone it looks at
+        return mon.decision(T0 + 10 * MS).decision
+
+    assert decided(False).state == "clear"
+    dark = decided(True)
+    assert dark.state == "stop"
+    assert any(r.startswith("protective zone far") and "unseen" in r for r in dark.reasons)

@@ -9,7 +9,6 @@ import pytest
 from topseg.core.camera import NO_READING_MM, Intrinsics, TopViewMount
 from topseg.core.safety.cell import CameraPlacement, Zone
 from topseg.core.safety.zones import (
-    combine_unseen,
     occupied_zones,
     pixel_rays_cell,
     points_in_polygon,
@@ -134,6 +133,32 @@ def test_unseen_fraction_refuses_frames_of_another_size():
         unseen_fraction(masks, np.zeros(K.shape, np.uint16), np.zeros((2, 2), bool))
 
 
-def test_combine_unseen_takes_the_best_view_and_keeps_nan():
-    combined = combine_unseen([{"a": 0.5, "b": 1.0}, {"a": 0.1, "b": float("nan")}])
-    assert combined["a"] == 0.1 and np.isnan(combined["b"])
+def test_zone_samples_fill_the_prism_up_to_head_height():
+    from topseg.core.safety.zones import MAX_SAMPLE_HEIGHT_M, zone_samples
+
+    zone = Zone("z", "protective", ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)), 0.0, 3.0)
+    pts = zone_samples(zone)
+    assert set(np.round(pts[:, 2], 6)) == {0.0, MAX_SAMPLE_HEIGHT_M / 2, MAX_SAMPLE_HEIGHT_M}
+    assert points_in_polygon(pts[:, :2], np.array(zone.polygon_m)).all()
+    assert len(pts) == 3 * len(pts[pts[:, 2] == 0.0]) > 3 * 150  # a 5 cm grid over 0.5 m2
+
+
+def test_a_zone_is_unseen_where_no_camera_looking_at_it_has_depth():
+    """Two cameras, a zone running from one's view into the other's: the other going blind
+    leaves the part only it looks at unseen, whatever the first sees of its own part."""
+    from topseg.core.safety.separation import camera_pixels
+    from topseg.core.safety.zones import unseen_by_all, zone_samples
+
+    zone = Zone("long", "protective", ((1.5, -0.2), (3.5, -0.2), (3.5, 0.2), (1.5, 0.2)), 0, 2)
+    a, b = ORIGIN, CameraPlacement(name="b", x_m=3.0)
+    pts = zone_samples(zone)
+    clear, blind = np.zeros(K.shape, bool), np.ones(K.shape, bool)
+    in_a = camera_pixels(pts, DOWN, a)[2]
+    in_b = camera_pixels(pts, DOWN, b)[2]
+    assert in_a.any() and in_b.any() and (in_b & ~in_a).any()
+    assert unseen_by_all(pts, [(DOWN, a, clear), (DOWN, b, clear)]) == 0.0
+    only_b = (in_b & ~in_a).sum() / (in_a | in_b).sum()
+    assert unseen_by_all(pts, [(DOWN, a, clear), (DOWN, b, blind)]) == pytest.approx(only_b)
+    assert unseen_by_all(pts, [(DOWN, a, blind), (DOWN, b, blind)]) == 1.0
+    far = CameraPlacement(name="far", x_m=40.0)
+    assert unseen_by_all(pts, [(DOWN, far, clear)]) == 1.0  # nobody looks at it

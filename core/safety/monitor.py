@@ -20,7 +20,7 @@ labels carried onto it (`carry.carry_labels`: what appeared since is a person of
    protective zone the camera does not see.
 
 `CellMonitor.decision(now)` combines every camera's newest frame (the nearest person over all,
-zones occupied by any, a protective zone unseen only when no camera sees it; a person's point
+zones occupied by any, a protective zone's part unseen only when no camera sees it; a person's point
 that another camera sees past, or sees as a surface that is no person or robot, counts for
 neither: `seen_otherwise`) and decides with
 the reaction time measured now: depth stamp of the oldest frame in use to this moment. A
@@ -59,7 +59,15 @@ from topseg.core.safety.separation import (
     nearest,
 )
 from topseg.core.safety.surface import RobotSurface
-from topseg.core.safety.zones import ZoneMasks, occupied_zones, unseen_fraction, zone_masks
+from topseg.core.safety.zones import (
+    ZoneMasks,
+    missing_depth,
+    occupied_zones,
+    unseen_by_all,
+    unseen_fraction,
+    zone_masks,
+    zone_samples,
+)
 from topseg.core.sensors import depth_sigma_mm
 
 #: The services whose liveliness tokens the monitor follows per camera: one that goes away (a
@@ -139,21 +147,24 @@ class CameraView:
 
 @dataclass(frozen=True)
 class Sight:
-    """What a camera saw, as another camera's points are checked against it: its working
-    mount and placement, the nearest depth (m) within 3x3 pixels of each pixel (inf where
-    none has depth) and whether a person or the robot is labelled within them."""
+    """What a camera saw, as another camera's points are checked against it and the zones
+    are looked up in it: its working mount and placement, the nearest depth (m) within 3x3
+    pixels of each pixel (inf where none has depth), whether a person or the robot is
+    labelled within them, and the pixels without depth the robot's shadow does not explain."""
 
     mount: TopViewMount
     placement: CameraPlacement
     nearest_m: np.ndarray
     person_or_robot: np.ndarray
+    missing: np.ndarray
 
 
 @dataclass(frozen=True)
 class Gathered:
     """Every camera's newest view at one moment, together: the nearest pair over them, the
-    zones any of them sees a person in, each protective zone's least unseen share, the
-    faults, the oldest view's depth stamp and the frame the nearest pair (or that) is from."""
+    zones any of them sees a person in, each protective zone's unseen share (with several
+    cameras `unseen_by_all`'s), the faults, the oldest view's depth stamp and the frame the
+    nearest pair (or that) is from."""
 
     nearest: Nearest | None
     occupied: list[str]
@@ -192,6 +203,7 @@ class CellMonitor:
         # camera -> (its view and the views it was checked against, what the check gave): a
         # decision taken again between frames checks nothing again
         self._checked: dict[str, tuple] = {}
+        self._zone_samples: dict[str, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ inputs
 
@@ -323,8 +335,8 @@ class CellMonitor:
             shadow = lab == label_table.ROBOT
             view.robot_source = "labels" if capsules is not None else "none"
         view.labels = lab
-        if len(self.cell.cameras) > 1:  # only another camera reads it
-            view.sight = sight(depth_mm, lab, mount, placement)
+        if len(self.cell.cameras) > 1:  # only the cameras together read it
+            view.sight = sight(depth_mm, lab, mount, placement, shadow)
         people = people_points(depth_mm, lab, mount, placement)
         view.people = people
         if capsules is not None:
@@ -413,7 +425,19 @@ class CellMonitor:
             if oldest_stamp is None or view.stamp_ns < oldest_stamp:
                 oldest_stamp = view.stamp_ns
                 frame = frame or (placement.name, view.seq)
+        sights = [v.sight for v in fresh if v.sight is not None]
+        if len(sights) > 1:
+            unseen = self._unseen_by_all(sights)
         return Gathered(nearest_all, sorted(occupied), unseen, tuple(faults), oldest_stamp, frame)
+
+    def _unseen_by_all(self, sights: list[Sight]) -> dict[str, float]:
+        """Per protective zone, the share of it no camera with a fresh view sees
+        (`zones.unseen_by_all`; the zones' samples are drawn once)."""
+        if self._zone_samples is None:
+            self._zone_samples = {z.name: zone_samples(z) for z in self.cell.zones
+                                  if z.kind == "protective"}  # fmt: skip
+        cameras = [(s.mount, s.placement, s.missing) for s in sights]
+        return {name: unseen_by_all(points, cameras) for name, points in self._zone_samples.items()}
 
     def _cross_checked(
         self, camera: str, view: CameraView, fresh: list[CameraView]
@@ -448,13 +472,18 @@ class CellMonitor:
 
 
 def sight(
-    depth_mm: np.ndarray, lab: np.ndarray, mount: TopViewMount, placement: CameraPlacement
+    depth_mm: np.ndarray,
+    lab: np.ndarray,
+    mount: TopViewMount,
+    placement: CameraPlacement,
+    robot_shadow: np.ndarray | None = None,
 ) -> Sight:
-    """A camera's frame as `seen_otherwise` reads it (see `Sight`)."""
+    """A camera's frame as the other cameras read it (see `Sight`)."""
     metres = np.where(depth_mm > 0, depth_mm / 1000.0, np.inf)
     near = ndimage.minimum_filter(metres, size=3, mode="nearest")
-    marked = IS_HUMAN[lab] | (lab == label_table.ROBOT)
-    return Sight(mount, placement, near, ndimage.maximum_filter(marked, size=3, mode="nearest"))
+    marked = ndimage.maximum_filter(IS_HUMAN[lab] | (lab == label_table.ROBOT), size=3,
+                                    mode="nearest")  # fmt: skip
+    return Sight(mount, placement, near, marked, missing_depth(depth_mm, robot_shadow))
 
 
 def seen_otherwise(

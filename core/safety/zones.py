@@ -10,8 +10,11 @@ Unseen rule: a protective zone's unseen fraction is the share of its pixels that
 depth (0, or the 65535 some cameras send) and are not inside the robot's shadow mask (its
 silhouette grown by its margin and the sensor's shadow band, which the robot itself
 explains). Above the cell's `max_unseen_fraction` the zone counts as occupied; a zone a
-camera does not see at all is wholly unseen by it (1.0), and over several cameras a zone
-takes the least unseen fraction of them (`combine_unseen`).
+camera does not see at all is wholly unseen by it (1.0). Over several cameras a place in the
+zone is unseen when no camera that looks at it has depth there (`unseen_by_all`: the zone
+sampled on a grid at its bottom, middle and top, each point looked up in every camera's
+image): one camera's clear view of one part of a zone says nothing of another part only a
+second camera looks at.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 
 from topseg.core.camera import NO_READING_MM, TopViewMount, check_depth
 from topseg.core.safety.cell import CameraPlacement, Zone
+from topseg.core.safety.separation import camera_pixels
 
 #: how far along a pixel's ray (m) a zone can be seen: rays that never reach the floor (a
 #: strongly tilted wide-angle camera's top rows) are followed this far
@@ -201,14 +205,12 @@ def unseen_fraction(
     depth = check_depth(depth_mm, "unseen_fraction")
     if depth.shape != masks.shape:
         raise ValueError(f"depth is {depth.shape} but the zone masks are {masks.shape}")
-    missing = (depth == 0) | (depth == NO_READING_MM)
-    if robot_shadow_mask is not None:
-        shadow = np.asarray(robot_shadow_mask, bool)
-        if shadow.shape != masks.shape:
-            raise ValueError(
-                f"robot_shadow_mask is {shadow.shape} but the zone masks are {masks.shape}"
-            )
-        missing &= ~shadow
+    if robot_shadow_mask is not None and np.shape(robot_shadow_mask) != masks.shape:
+        raise ValueError(
+            f"robot_shadow_mask is {np.shape(robot_shadow_mask)} but the zone masks are "
+            f"{masks.shape}"
+        )
+    missing = missing_depth(depth, robot_shadow_mask)
     out = {}
     for zone, mask in zip(masks.zones, masks.masks, strict=True):
         if zone.kind != "protective":
@@ -218,17 +220,54 @@ def unseen_fraction(
     return out
 
 
-def combine_unseen(per_camera: list[dict[str, float]]) -> dict[str, float]:
-    """Per zone, the least unseen fraction over the cameras (a zone one camera sees is
-    seen); a NaN stays NaN (the decision fails towards stop on it)."""
-    out: dict[str, float] = {}
-    for fractions in per_camera:
-        for name, value in fractions.items():
-            prev = out.get(name)
-            if prev is None:
-                out[name] = float(value)
-            elif np.isnan(prev) or np.isnan(value):
-                out[name] = float("nan")
-            else:
-                out[name] = min(prev, float(value))
-    return out
+#: the grid (m) a protective zone is sampled on for `unseen_by_all`, at least; a zone wider
+#: than MAX_SAMPLE_STEPS spacings is sampled at MAX_SAMPLE_STEPS points across
+SAMPLE_SPACING_M = 0.05
+MAX_SAMPLE_STEPS = 120
+#: the highest a zone is sampled (m): above a person's head nothing is asked of it
+MAX_SAMPLE_HEIGHT_M = 2.0
+
+
+def zone_samples(zone: Zone) -> np.ndarray:
+    """(n, 3) cell-frame points of `zone`'s prism: a square grid over its polygon at its
+    bottom, its middle and its top (no higher than MAX_SAMPLE_HEIGHT_M)."""
+    polygon = np.asarray(zone.polygon_m, np.float64)
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    step = max(SAMPLE_SPACING_M, float((hi - lo).max()) / MAX_SAMPLE_STEPS)
+    xs = np.arange(lo[0] + step / 2, hi[0], step)
+    ys = np.arange(lo[1] + step / 2, hi[1], step)
+    xx, yy = np.meshgrid(xs, ys)
+    xy = np.stack([xx.ravel(), yy.ravel()], axis=1)
+    xy = xy[points_in_polygon(xy, polygon)]
+    top = min(zone.z_max_m, MAX_SAMPLE_HEIGHT_M)
+    heights = sorted({zone.z_min_m, (zone.z_min_m + top) / 2, top})
+    return np.concatenate([np.column_stack([xy, np.full(len(xy), h)]) for h in heights])
+
+
+def unseen_by_all(samples: np.ndarray, cameras: list[tuple]) -> float:
+    """The share of a zone's `samples` (`zone_samples`) that some camera looks at and none
+    has depth at: `cameras` holds each camera's (mount, placement, missing), `missing` its
+    (H, W) bool pixels with no depth that the robot's shadow does not explain. 1.0 when no
+    camera looks at any of them."""
+    looked = np.zeros(len(samples), bool)
+    known = np.zeros(len(samples), bool)
+    for mount, placement, missing in cameras:
+        uv, _, inside = camera_pixels(samples, mount, placement)
+        if not inside.any():
+            continue
+        cols = np.floor(uv[inside, 0]).astype(np.int64)
+        rows = np.floor(uv[inside, 1]).astype(np.int64)
+        looked |= inside
+        known[inside] |= ~missing[rows, cols]
+    if not looked.any():
+        return 1.0
+    return float((looked & ~known).sum() / looked.sum())
+
+
+def missing_depth(depth_mm: np.ndarray, robot_shadow_mask: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool: the pixels with no depth (0, or NO_READING_MM) that `robot_shadow_mask`
+    (None: no robot) does not explain."""
+    missing = (depth_mm == 0) | (depth_mm == NO_READING_MM)
+    if robot_shadow_mask is not None:
+        missing &= ~np.asarray(robot_shadow_mask, bool)
+    return missing
