@@ -204,6 +204,7 @@ class CellMonitor:
         # decision taken again between frames checks nothing again
         self._checked: dict[str, tuple] = {}
         self._zone_samples: dict[str, np.ndarray] | None = None
+        self._unseen: tuple[tuple[Sight, ...], dict[str, float]] | None = None  # for these views
 
     # ------------------------------------------------------------------ inputs
 
@@ -436,8 +437,19 @@ class CellMonitor:
         if self._zone_samples is None:
             self._zone_samples = {z.name: zone_samples(z) for z in self.cell.zones
                                   if z.kind == "protective"}  # fmt: skip
+        cached = self._unseen
+        if (
+            cached is not None
+            and len(cached[0]) == len(sights)
+            and all(a is b for a, b in zip(cached[0], sights, strict=True))
+        ):
+            return dict(cached[1])
         cameras = [(s.mount, s.placement, s.missing) for s in sights]
-        return {name: unseen_by_all(points, cameras) for name, points in self._zone_samples.items()}
+        unseen = {
+            name: unseen_by_all(points, cameras) for name, points in self._zone_samples.items()
+        }
+        self._unseen = (tuple(sights), unseen)
+        return unseen
 
     def _cross_checked(
         self, camera: str, view: CameraView, fresh: list[CameraView]
