@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import time
+import tomllib
 from collections import deque
 from dataclasses import replace
 from pathlib import Path
@@ -35,7 +36,7 @@ from topseg.core.safety.agreement import (
     truth_nearest,
     truth_point_seen,
 )
-from topseg.core.safety.cell import cell_from_dict
+from topseg.core.safety.cell import CellConfig, cell_from_dict
 from topseg.core.safety.coverage import coverage
 from topseg.core.safety.decision import STATES
 from topseg.core.safety.monitor import CellMonitor
@@ -84,9 +85,7 @@ def run_sequence(
     decision. With `lag`, each frame is decided on with the labels of the frame `lag` frames
     before it carried onto it, as the live service does before a frame's own labels come
     (the first `lag` frames with their own)."""
-    import tomllib
-
-    cell = cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
+    cell = sequence_cell(seq)
     robot = CellRobot(cell.robot, Path("."))
     mount = seq.config.mount()
     live, exact = CellMonitor(cell, robot), CellMonitor(cell, robot)
@@ -136,12 +135,16 @@ def run_sequence(
     return out
 
 
+def sequence_cell(seq: CellSequence) -> CellConfig:
+    """The cell file of `seq` (`datagen cell-sequence`'s), read as the safety service reads
+    one."""
+    return cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
+
+
 def sequence_coverage(seq: CellSequence) -> float:
     """The least share (over the heights `coverage` looks at) of the floor within the robot's
     reach plus S_p that the sequence's cameras see."""
-    import tomllib
-
-    cell = cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
+    cell = sequence_cell(seq)
     mounts = {c.name: seq.mount for c in cell.cameras}
     return coverage(cell, seq.reach_radius(), mounts).worst()
 
