@@ -24,8 +24,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from topseg.core import labels as label_table
 from topseg.core.camera import axis_depth
 from topseg.core.formats.wire import DepthFrame, LabelFrame
@@ -33,7 +31,7 @@ from topseg.core.metrics import percentile
 from topseg.core.safety.cell import CameraPlacement
 from topseg.core.safety.decision import Decision, decide
 from topseg.core.safety.monitor import CellMonitor
-from topseg.core.safety.separation import camera_pixels
+from topseg.core.safety.separation import image_pixels
 
 
 @dataclass(frozen=True)
@@ -88,11 +86,10 @@ def nearest_point_seen(point_cell, depth: DepthFrame, placement) -> bool:
     mount = depth.mount or placement.mount
     if mount is None:
         return False
-    uv, z_m, inside = camera_pixels(point_cell, mount, placement)
+    inside, rows, cols, z_m = image_pixels(point_cell, mount, placement)
     if not inside[0]:
         return False
-    col, row = int(np.floor(uv[0, 0])), int(np.floor(uv[0, 1]))
-    z_mm = float(axis_depth(depth.depth, mount)[row, col])
+    z_mm = float(axis_depth(depth.depth, mount)[rows[0], cols[0]])
     return bool(z_mm > 0 and z_mm / 1000.0 >= z_m[0] - SEEN_TOLERANCE_M)
 
 

@@ -52,9 +52,9 @@ from topseg.core.safety.separation import (
     HumanPoints,
     Nearest,
     blob_areas_m2,
-    camera_pixels,
     cell_points,
     human_points,
+    image_pixels,
     label4,
     nearest,
 )
@@ -398,8 +398,11 @@ class CellMonitor:
         unseen: dict[str, float] = {}
         oldest_stamp: int | None = None
         frame = None
-        fresh = [v for c in self.cell.cameras if (v := self.views.get(c.name)) is not None
-                 and (now_ns - v.received_ns) / 1e6 <= deadline_ms]  # fmt: skip
+        ages_ms = {name: (now_ns - v.received_ns) / 1e6 for name, v in self.views.items()}
+        fresh = [self.views[c.name] for c in self.cell.cameras
+                 if ages_ms.get(c.name, math.inf) <= deadline_ms]  # fmt: skip
+        sights = [v.sight for v in fresh if v.sight is not None]
+        by_all = len(sights) > 1  # the zones looked up in every camera, not camera by camera
         for placement in self.cell.cameras:
             view = self.views.get(placement.name)
             for role in self.gone(placement.name):
@@ -407,7 +410,7 @@ class CellMonitor:
             if view is None:
                 faults.append(f"{placement.name}: no labelled frame yet")
                 continue
-            age_ms = (now_ns - view.received_ns) / 1e6
+            age_ms = ages_ms[placement.name]
             if age_ms > deadline_ms:
                 faults.append(
                     f"{placement.name}: no labelled frame for {age_ms:.0f} ms "
@@ -417,8 +420,9 @@ class CellMonitor:
             faults.extend(view.faults)
             near, held = self._cross_checked(placement.name, view, fresh)
             occupied |= held
-            for zone, share in view.unseen.items():
-                unseen[zone] = min(share, unseen.get(zone, math.inf))
+            if not by_all:
+                for zone, share in view.unseen.items():
+                    unseen[zone] = min(share, unseen.get(zone, math.inf))
             if near is not None and (
                 nearest_all is None or near.distance_m < nearest_all.distance_m
             ):
@@ -426,8 +430,7 @@ class CellMonitor:
             if oldest_stamp is None or view.stamp_ns < oldest_stamp:
                 oldest_stamp = view.stamp_ns
                 frame = frame or (placement.name, view.seq)
-        sights = [v.sight for v in fresh if v.sight is not None]
-        if len(sights) > 1:
+        if by_all:
             unseen = self._unseen_by_all(sights)
         return Gathered(nearest_all, sorted(occupied), unseen, tuple(faults), oldest_stamp, frame)
 
@@ -438,11 +441,7 @@ class CellMonitor:
             self._zone_samples = {z.name: zone_samples(z) for z in self.cell.zones
                                   if z.kind == "protective"}  # fmt: skip
         cached = self._unseen
-        if (
-            cached is not None
-            and len(cached[0]) == len(sights)
-            and all(a is b for a, b in zip(cached[0], sights, strict=True))
-        ):
+        if cached is not None and same_objects(cached[0], sights):
             return dict(cached[1])
         cameras = [(s.mount, s.placement, s.missing) for s in sights]
         unseen = {
@@ -458,11 +457,7 @@ class CellMonitor:
         set of views (the views themselves, not copies, are what is compared)."""
         views = (view, *(v for v in fresh if v is not view))
         cached = self._checked.get(camera)
-        if (
-            cached is None
-            or len(cached[0]) != len(views)
-            or any(a is not b for a, b in zip(cached[0], views, strict=True))
-        ):
+        if cached is None or not same_objects(cached[0], views):
             cached = (views, cross_checked(view, list(views[1:])))
             self._checked[camera] = cached
         return cached[1]
@@ -481,6 +476,12 @@ class CellMonitor:
 
 
 # ---------------------------------------------------------------------------- pure steps
+
+
+def same_objects(held, now) -> bool:
+    """Whether two sequences hold the very same objects, in order (what the monitor's
+    caches are keyed by: a camera's newest view is a new object with each frame)."""
+    return len(held) == len(now) and all(a is b for a, b in zip(held, now, strict=True))
 
 
 def sight(
@@ -507,14 +508,9 @@ def seen_otherwise(
     `margin_m` of it with no pixel labelled a person or the robot (a surface that is not
     one). Nothing nearer than the point by more than `margin_m` (the point hidden from it)
     or outside its image says nothing."""
-    uv, z_m, inside = camera_pixels(points_m, other.mount, other.placement)
+    inside, rows, cols, z = image_pixels(points_m, other.mount, other.placement)
     out = np.zeros(len(points_m), bool)
-    if not inside.any():
-        return out
-    cols = np.floor(uv[inside, 0]).astype(np.int64)
-    rows = np.floor(uv[inside, 1]).astype(np.int64)
     seen_m = other.nearest_m[rows, cols]
-    z = z_m[inside]
     past = seen_m > z + margin_m
     other_surface = (np.abs(seen_m - z) <= margin_m) & ~other.person_or_robot[rows, cols]
     out[inside] = past | other_surface

@@ -158,6 +158,18 @@ def camera_pixels(
     return uv, cam[:, 2], inside
 
 
+def image_pixels(
+    points_cell: np.ndarray, mount, placement
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where (n, 3) cell-frame points fall in the image (`camera_pixels`): (n,) whether each
+    lies inside it, and for those that do their pixel's row and column and their depth
+    along the optical axis (m)."""
+    uv, z_m, inside = camera_pixels(points_cell, mount, placement)
+    cols = np.floor(uv[inside, 0]).astype(np.int64)
+    rows = np.floor(uv[inside, 1]).astype(np.int64)
+    return inside, rows, cols, z_m[inside]
+
+
 def blob_areas_m2(blob: np.ndarray, depth_mm: np.ndarray, intrinsics, count: int) -> np.ndarray:
     """(count,) how much of a floor-parallel plane at their depth each blob's pixels cover (m²):
     `blob` the blob id of each pixel, `depth_mm` its axis depth."""

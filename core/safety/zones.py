@@ -25,7 +25,7 @@ import numpy as np
 
 from topseg.core.camera import NO_READING_MM, TopViewMount, check_depth
 from topseg.core.safety.cell import CameraPlacement, Zone
-from topseg.core.safety.separation import camera_pixels
+from topseg.core.safety.separation import image_pixels
 
 #: how far along a pixel's ray (m) a zone can be seen: rays that never reach the floor (a
 #: strongly tilted wide-angle camera's top rows) are followed this far
@@ -252,11 +252,7 @@ def unseen_by_all(samples: np.ndarray, cameras: list[tuple]) -> float:
     looked = np.zeros(len(samples), bool)
     known = np.zeros(len(samples), bool)
     for mount, placement, missing in cameras:
-        uv, _, inside = camera_pixels(samples, mount, placement)
-        if not inside.any():
-            continue
-        cols = np.floor(uv[inside, 0]).astype(np.int64)
-        rows = np.floor(uv[inside, 1]).astype(np.int64)
+        inside, rows, cols, _ = image_pixels(samples, mount, placement)
         looked |= inside
         known[inside] |= ~missing[rows, cols]
     if not looked.any():

@@ -79,13 +79,15 @@ def run_sequence(
     labellers: Segmenter | list[Segmenter],
     reaction_s: float = REACTION_S,
     lag: int = 0,
+    cell: CellConfig | None = None,
 ) -> list[Compared]:
     """Every frame of `seq`: the model's labels of every camera (camera k labelled by
     `labellers[k]`, or all by one segmenter) decided on together beside the truth's
     decision. With `lag`, each frame is decided on with the labels of the frame `lag` frames
     before it carried onto it, as the live service does before a frame's own labels come
-    (the first `lag` frames with their own)."""
-    cell = sequence_cell(seq)
+    (the first `lag` frames with their own). `cell`: the sequence's cell file as read
+    (default: `sequence_cell`'s)."""
+    cell = cell or sequence_cell(seq)
     robot = CellRobot(cell.robot, Path("."))
     mount = seq.config.mount()
     live, exact = CellMonitor(cell, robot), CellMonitor(cell, robot)
@@ -141,10 +143,9 @@ def sequence_cell(seq: CellSequence) -> CellConfig:
     return cell_from_dict(tomllib.loads(cell_toml(seq)), f"sequence {seq.seed}")
 
 
-def sequence_coverage(seq: CellSequence) -> float:
+def sequence_coverage(seq: CellSequence, cell: CellConfig) -> float:
     """The least share (over the heights `coverage` looks at) of the floor within the robot's
-    reach plus S_p that the sequence's cameras see."""
-    cell = sequence_cell(seq)
+    reach plus S_p that the sequence's cameras (its `cell`, `sequence_cell`) see."""
     mounts = {c.name: seq.mount for c in cell.cameras}
     return coverage(cell, seq.reach_radius(), mounts).worst()
 
@@ -183,12 +184,13 @@ def run(out: Path, model: Path | None, sequences: int, duration_s: float, fps: f
         if background:
             labellers = [segmenter.with_background(sequence_background(seq, k))
                          for k in range(cameras)]  # fmt: skip
-        compared = run_sequence(seq, labellers, lag=lag)
+        cell = sequence_cell(seq)
+        compared = run_sequence(seq, labellers, lag=lag, cell=cell)
         everything += compared
         figures = score(compared)
         rows.append({"seed": seq.seed, "robot": config.robot, "sensor": config.sensor,
                      "height_m": config.height_m, "people": config.people,
-                     "coverage": sequence_coverage(seq), **figures})  # fmt: skip
+                     "coverage": sequence_coverage(seq, cell), **figures})  # fmt: skip
         report(
             f"sequence {i + 1}/{sequences} ({config.robot}, {config.sensor}, {config.height_m} m):"
             f" states {100 * figures['state_agreement']:.1f} % equal, "
